@@ -1,0 +1,271 @@
+//! File helpers shared across sartor: atomic writes and checked safetensors access.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use sha2::{Digest, Sha256};
+
+use crate::{Error, Result};
+
+/// Write `bytes` to `path` atomically: a temporary file in the same folder, flushed, then renamed.
+/// Readers never see a partial file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let parent = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| Error::format(path, "not a file path"))?;
+    let tmp = parent.join(format!(
+        ".{}.{}.tmp",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    Ok(())
+}
+
+/// Read a whole file, naming it in the error.
+pub fn read_file(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
+/// Lower-case hex SHA-256 of `bytes`.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let digest = Sha256::digest(bytes);
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A tensor to be written: name, dtype, shape and little-endian bytes.
+#[derive(Clone, Debug)]
+pub struct OwnedTensor {
+    dtype: Dtype,
+    shape: Vec<usize>,
+    bytes: Vec<u8>,
+}
+
+impl OwnedTensor {
+    /// An f32 tensor.
+    pub fn f32(shape: &[usize], values: impl IntoIterator<Item = f32>) -> Self {
+        let bytes: Vec<u8> = values.into_iter().flat_map(f32::to_le_bytes).collect();
+        Self {
+            dtype: Dtype::F32,
+            shape: shape.to_vec(),
+            bytes,
+        }
+    }
+
+    /// An f16 tensor from raw IEEE half bits.
+    pub fn f16_bits(shape: &[usize], values: impl IntoIterator<Item = u16>) -> Self {
+        let bytes: Vec<u8> = values.into_iter().flat_map(u16::to_le_bytes).collect();
+        Self {
+            dtype: Dtype::F16,
+            shape: shape.to_vec(),
+            bytes,
+        }
+    }
+
+    /// An i8 tensor.
+    pub fn i8(shape: &[usize], values: impl IntoIterator<Item = i8>) -> Self {
+        let bytes: Vec<u8> = values.into_iter().map(|v| v as u8).collect();
+        Self {
+            dtype: Dtype::I8,
+            shape: shape.to_vec(),
+            bytes,
+        }
+    }
+
+    /// An i32 tensor.
+    pub fn i32(shape: &[usize], values: impl IntoIterator<Item = i32>) -> Self {
+        let bytes: Vec<u8> = values.into_iter().flat_map(i32::to_le_bytes).collect();
+        Self {
+            dtype: Dtype::I32,
+            shape: shape.to_vec(),
+            bytes,
+        }
+    }
+}
+
+/// Serialise named tensors to safetensors bytes (deterministic: names sorted, no metadata map
+/// unless given, and the given map is sorted).
+pub fn serialize_tensors(
+    tensors: &BTreeMap<String, OwnedTensor>,
+    metadata: Option<&BTreeMap<String, String>>,
+) -> Result<Vec<u8>> {
+    let mut views = Vec::with_capacity(tensors.len());
+    for (name, t) in tensors {
+        let view = TensorView::new(t.dtype, t.shape.clone(), &t.bytes)
+            .map_err(|e| Error::invalid("tensor", format!("{name}: {e}")))?;
+        views.push((name.clone(), view));
+    }
+    let info = metadata.map(|m| m.iter().map(|(k, v)| (k.clone(), v.clone())).collect());
+    safetensors::serialize(views, info).map_err(|e| Error::invalid("tensor file", e.to_string()))
+}
+
+/// A safetensors file held in memory, with accessors that check dtype and shape and name the file
+/// and tensor in every error.
+pub struct TensorFile {
+    path: PathBuf,
+    bytes: Vec<u8>,
+}
+
+impl TensorFile {
+    /// Read and parse the header of `path`.
+    pub fn open(path: &Path) -> Result<Self> {
+        let bytes = read_file(path)?;
+        Self::from_bytes(path, bytes)
+    }
+
+    /// Parse bytes already read from `path`.
+    pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self> {
+        SafeTensors::deserialize(&bytes)
+            .map_err(|e| Error::format(path, format!("not a safetensors file: {e}")))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            bytes,
+        })
+    }
+
+    /// The file's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn tensors(&self) -> SafeTensors<'_> {
+        SafeTensors::deserialize(&self.bytes)
+            .expect("header was validated in TensorFile::from_bytes")
+    }
+
+    /// Names of all tensors, sorted.
+    pub fn names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self
+            .tensors()
+            .names()
+            .into_iter()
+            .map(|s| s.to_string())
+            .collect();
+        names.sort();
+        names
+    }
+
+    /// The `__metadata__` map of the header, if any.
+    pub fn metadata(&self) -> Result<BTreeMap<String, String>> {
+        let (_, meta) = SafeTensors::read_metadata(&self.bytes)
+            .map_err(|e| Error::format(&self.path, format!("bad header: {e}")))?;
+        Ok(meta
+            .metadata()
+            .clone()
+            .map(|m| m.into_iter().collect())
+            .unwrap_or_default())
+    }
+
+    /// Shape of a tensor.
+    pub fn shape(&self, name: &str) -> Result<Vec<usize>> {
+        let t = self.tensors();
+        let view = t
+            .tensor(name)
+            .map_err(|_| Error::format(&self.path, format!("missing tensor {name:?}")))?;
+        Ok(view.shape().to_vec())
+    }
+
+    fn raw(
+        &self,
+        name: &str,
+        dtype: Dtype,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<usize>, Vec<u8>)> {
+        let t = self.tensors();
+        let view = t
+            .tensor(name)
+            .map_err(|_| Error::format(&self.path, format!("missing tensor {name:?}")))?;
+        if view.dtype() != dtype {
+            return Err(Error::format(
+                &self.path,
+                format!(
+                    "tensor {name:?} has dtype {:?}, expected {dtype:?}",
+                    view.dtype()
+                ),
+            ));
+        }
+        let got = view.shape();
+        let matches = got.len() == shape.len()
+            && got
+                .iter()
+                .zip(shape)
+                .all(|(g, s)| s.is_none_or(|s| s == *g));
+        if !matches {
+            let want: Vec<String> = shape
+                .iter()
+                .map(|s| s.map_or("*".into(), |s| s.to_string()))
+                .collect();
+            return Err(Error::format(
+                &self.path,
+                format!(
+                    "tensor {name:?} has shape {got:?}, expected [{}]",
+                    want.join(", ")
+                ),
+            ));
+        }
+        Ok((got.to_vec(), view.data().to_vec()))
+    }
+
+    /// An f32 tensor with the expected shape (`None` = any size on that axis). Rejects
+    /// non-finite values.
+    pub fn f32(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<f32>)> {
+        let (s, bytes) = self.raw(name, Dtype::F32, shape)?;
+        let v: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(Error::format(
+                &self.path,
+                format!("tensor {name:?} has a non-finite value at {i}"),
+            ));
+        }
+        Ok((s, v))
+    }
+
+    /// An f16 tensor as raw IEEE half bits.
+    pub fn f16_bits(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<u16>)> {
+        let (s, bytes) = self.raw(name, Dtype::F16, shape)?;
+        Ok((
+            s,
+            bytes
+                .chunks_exact(2)
+                .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                .collect(),
+        ))
+    }
+
+    /// An i8 tensor.
+    pub fn i8(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<i8>)> {
+        let (s, bytes) = self.raw(name, Dtype::I8, shape)?;
+        Ok((s, bytes.into_iter().map(|b| b as i8).collect()))
+    }
+
+    /// An i32 tensor.
+    pub fn i32(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<i32>)> {
+        let (s, bytes) = self.raw(name, Dtype::I32, shape)?;
+        Ok((
+            s,
+            bytes
+                .chunks_exact(4)
+                .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+        ))
+    }
+}

@@ -1,0 +1,447 @@
+//! The parametric body model `M_b(β, θ) = W(T_b(β, θ), β, θ, W_b)`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::io::{OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic};
+use crate::skeleton::{Pose, Skeleton};
+use crate::skinning::{BoneTransform, Par, SkinWeights, skin_points};
+use crate::{Error, Result, TriMesh};
+
+/// File name of the tensors of a saved model inside its folder.
+pub const MODEL_TENSORS: &str = "model.safetensors";
+/// File name of the JSON header of a saved model inside its folder.
+pub const MODEL_HEADER: &str = "model.json";
+
+/// Where a model comes from and under which licence.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Provenance {
+    /// What the model was built from.
+    pub source: String,
+    /// Licence of the data.
+    pub licence: String,
+    /// How it was converted.
+    pub notes: String,
+}
+
+/// An SMPL-like body model: template mesh, linear shape basis, joint shape basis (the joint
+/// regressor applied to the template and to the shape basis), skeleton and sparse skin weights.
+/// Units: metres. Axes: +Y up, +Z forward, +X the body's left.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BodyModel {
+    name: String,
+    template: TriMesh,
+    n_betas: usize,
+    /// `(V·3) × n_betas`, row-major: entry `((v·3 + c)·n_betas + b)`.
+    shape_basis: Vec<f64>,
+    joint_template: Vec<Vector3<f64>>,
+    /// `(J·3) × n_betas`, row-major.
+    joint_shape_basis: Vec<f64>,
+    skeleton: Skeleton,
+    skin_weights: SkinWeights,
+    provenance: Provenance,
+}
+
+/// The JSON header saved next to the tensors.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Header {
+    format: String,
+    version: u32,
+    name: String,
+    units: String,
+    axes: String,
+    n_vertices: usize,
+    n_faces: usize,
+    n_betas: usize,
+    joint_names: Vec<String>,
+    parents: Vec<Option<usize>>,
+    provenance: Provenance,
+    tensors_sha256: String,
+}
+
+const FORMAT: &str = "sartor-body";
+const AXES: &str = "+Y up, +Z forward, +X body's left";
+
+impl BodyModel {
+    /// Build a model, checking that all sizes agree and all values are finite.
+    pub fn new(
+        name: String,
+        template: TriMesh,
+        n_betas: usize,
+        shape_basis: Vec<f64>,
+        joint_template: Vec<Vector3<f64>>,
+        joint_shape_basis: Vec<f64>,
+        skeleton: Skeleton,
+        skin_weights: SkinWeights,
+        provenance: Provenance,
+    ) -> Result<Self> {
+        let bad = |m: String| Error::invalid("body model", m);
+        let (v, j) = (template.n_vertices(), skeleton.n_joints());
+        if shape_basis.len() != v * 3 * n_betas {
+            return Err(bad(format!(
+                "shape basis has {} values, expected {v}×3×{n_betas}",
+                shape_basis.len()
+            )));
+        }
+        if joint_template.len() != j {
+            return Err(bad(format!(
+                "{} joint positions for {j} joints",
+                joint_template.len()
+            )));
+        }
+        if joint_shape_basis.len() != j * 3 * n_betas {
+            return Err(bad(format!(
+                "joint shape basis has {} values, expected {j}×3×{n_betas}",
+                joint_shape_basis.len()
+            )));
+        }
+        if skin_weights.n_points() != v || skin_weights.n_joints() != j {
+            return Err(bad(format!(
+                "skin weights cover {} points and {} joints, model has {v} vertices and {j} joints",
+                skin_weights.n_points(),
+                skin_weights.n_joints()
+            )));
+        }
+        let finite = |xs: &[f64]| xs.iter().all(|x| x.is_finite());
+        if !finite(&shape_basis)
+            || !finite(&joint_shape_basis)
+            || !joint_template.iter().all(|p| finite(p.as_slice()))
+        {
+            return Err(bad("non-finite value in the shape or joint basis".into()));
+        }
+        Ok(Self {
+            name,
+            template,
+            n_betas,
+            shape_basis,
+            joint_template,
+            joint_shape_basis,
+            skeleton,
+            skin_weights,
+            provenance,
+        })
+    }
+
+    /// The model's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Template mesh `T̄_b` (β = 0, rest pose).
+    pub fn template(&self) -> &TriMesh {
+        &self.template
+    }
+
+    /// Triangles of the body mesh.
+    pub fn faces(&self) -> &[[u32; 3]] {
+        self.template.faces()
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.template.n_vertices()
+    }
+
+    /// Number of shape components.
+    pub fn n_betas(&self) -> usize {
+        self.n_betas
+    }
+
+    /// Joint names and parents.
+    pub fn skeleton(&self) -> &Skeleton {
+        &self.skeleton
+    }
+
+    /// Skin weights of the body vertices.
+    pub fn skin_weights(&self) -> &SkinWeights {
+        &self.skin_weights
+    }
+
+    /// Provenance and licence.
+    pub fn provenance(&self) -> &Provenance {
+        &self.provenance
+    }
+
+    /// Shape basis `(V·3) × n_betas`, row-major.
+    pub fn shape_basis(&self) -> &[f64] {
+        &self.shape_basis
+    }
+
+    /// Joint positions at β = 0.
+    pub fn joint_template(&self) -> &[Vector3<f64>] {
+        &self.joint_template
+    }
+
+    /// Joint shape basis `(J·3) × n_betas`, row-major.
+    pub fn joint_shape_basis(&self) -> &[f64] {
+        &self.joint_shape_basis
+    }
+
+    /// Check a shape vector: at most `n_betas` entries (missing ones are zero), all finite.
+    pub fn check_betas(&self, betas: &[f64]) -> Result<()> {
+        if betas.len() > self.n_betas {
+            return Err(Error::invalid(
+                "shape",
+                format!("{} betas for a model with {}", betas.len(), self.n_betas),
+            ));
+        }
+        if let Some(i) = betas.iter().position(|b| !b.is_finite()) {
+            return Err(Error::invalid("shape", format!("beta {i} is {}", betas[i])));
+        }
+        Ok(())
+    }
+
+    fn apply_basis(
+        base: &[Vector3<f64>],
+        basis: &[f64],
+        n_betas: usize,
+        betas: &[f64],
+        out: &mut [Vector3<f64>],
+    ) {
+        for (i, (o, b)) in out.iter_mut().zip(base).enumerate() {
+            let mut p = *b;
+            for c in 0..3 {
+                let row = &basis[(i * 3 + c) * n_betas..(i * 3 + c) * n_betas + betas.len()];
+                p[c] += row.iter().zip(betas).map(|(d, b)| d * b).sum::<f64>();
+            }
+            *o = p;
+        }
+    }
+
+    /// `T_b(β)` into `out` (one entry per vertex).
+    pub fn shaped_vertices_into(&self, betas: &[f64], out: &mut [Vector3<f64>]) -> Result<()> {
+        self.check_betas(betas)?;
+        if out.len() != self.n_vertices() {
+            return Err(Error::invalid(
+                "shape",
+                format!(
+                    "output has {} entries, model {}",
+                    out.len(),
+                    self.n_vertices()
+                ),
+            ));
+        }
+        Self::apply_basis(
+            self.template.positions(),
+            &self.shape_basis,
+            self.n_betas,
+            betas,
+            out,
+        );
+        Ok(())
+    }
+
+    /// `T_b(β)`.
+    pub fn shaped_vertices(&self, betas: &[f64]) -> Result<Vec<Vector3<f64>>> {
+        let mut out = vec![Vector3::zeros(); self.n_vertices()];
+        self.shaped_vertices_into(betas, &mut out)?;
+        Ok(out)
+    }
+
+    /// Rest joint positions `J(β)`.
+    pub fn shaped_joints(&self, betas: &[f64]) -> Result<Vec<Vector3<f64>>> {
+        self.check_betas(betas)?;
+        let mut out = vec![Vector3::zeros(); self.joint_template.len()];
+        Self::apply_basis(
+            &self.joint_template,
+            &self.joint_shape_basis,
+            self.n_betas,
+            betas,
+            &mut out,
+        );
+        Ok(out)
+    }
+
+    /// Skinning transforms of every joint for shape β and a pose.
+    pub fn skinning_transforms(
+        &self,
+        betas: &[f64],
+        pose: &Pose,
+    ) -> Result<Vec<BoneTransform<f64>>> {
+        let joints = self.shaped_joints(betas)?;
+        Ok(self.skeleton.forward_kinematics(&joints, pose)?.1)
+    }
+
+    /// The posed body `M_b(β, θ)` (no pose-dependent correctives).
+    pub fn posed_vertices(&self, betas: &[f64], pose: &Pose) -> Result<Vec<Vector3<f64>>> {
+        let rest = self.shaped_vertices(betas)?;
+        let transforms = self.skinning_transforms(betas, pose)?;
+        let mut out = vec![Vector3::zeros(); rest.len()];
+        skin_points(&rest, &self.skin_weights, &transforms, &mut out, Par::Seq)?;
+        Ok(out)
+    }
+
+    /// Standing height of `T_b(β)` in metres (vertical extent of the rest mesh).
+    pub fn height_m(&self, betas: &[f64]) -> Result<f64> {
+        let v = self.shaped_vertices(betas)?;
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.y), hi.max(p.y))
+            });
+        Ok(hi - lo)
+    }
+
+    /// Save into `dir` as `model.safetensors` + `model.json`, atomically and deterministically
+    /// (values stored as f32; the same model gives the same bytes).
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        let (v, j, nb) = (self.n_vertices(), self.skeleton.n_joints(), self.n_betas);
+        let f32s = |xs: &[f64]| xs.iter().map(|&x| x as f32).collect::<Vec<_>>();
+        let flat = |ps: &[Vector3<f64>]| {
+            ps.iter()
+                .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                .collect::<Vec<_>>()
+        };
+        let (offsets, joints, weights) = self.skin_weights.csr();
+        let mut tensors = BTreeMap::new();
+        tensors.insert(
+            "v_template".to_string(),
+            OwnedTensor::f32(&[v, 3], flat(self.template.positions())),
+        );
+        tensors.insert(
+            "faces".to_string(),
+            OwnedTensor::i32(
+                &[self.template.n_faces(), 3],
+                self.faces().iter().flatten().map(|&i| i as i32),
+            ),
+        );
+        tensors.insert(
+            "shapedirs".to_string(),
+            OwnedTensor::f32(&[v, 3, nb], f32s(&self.shape_basis)),
+        );
+        tensors.insert(
+            "j_template".to_string(),
+            OwnedTensor::f32(&[j, 3], flat(&self.joint_template)),
+        );
+        tensors.insert(
+            "j_shapedirs".to_string(),
+            OwnedTensor::f32(&[j, 3, nb], f32s(&self.joint_shape_basis)),
+        );
+        tensors.insert(
+            "skin_offsets".to_string(),
+            OwnedTensor::i32(&[v + 1], offsets.iter().map(|&o| o as i32)),
+        );
+        tensors.insert(
+            "skin_joints".to_string(),
+            OwnedTensor::i32(&[joints.len()], joints.iter().map(|&o| o as i32)),
+        );
+        tensors.insert(
+            "skin_weights".to_string(),
+            OwnedTensor::f32(&[weights.len()], weights.iter().copied()),
+        );
+        let bytes = serialize_tensors(&tensors, None)?;
+        let header = Header {
+            format: FORMAT.into(),
+            version: 1,
+            name: self.name.clone(),
+            units: "m".into(),
+            axes: AXES.into(),
+            n_vertices: v,
+            n_faces: self.template.n_faces(),
+            n_betas: nb,
+            joint_names: self.skeleton.names().to_vec(),
+            parents: self.skeleton.parents().to_vec(),
+            provenance: self.provenance.clone(),
+            tensors_sha256: sha256_hex(&bytes),
+        };
+        let mut json = serde_json::to_string_pretty(&header)
+            .map_err(|e| Error::invalid("body model", format!("header: {e}")))?;
+        json.push('\n');
+        write_atomic(&dir.join(MODEL_TENSORS), &bytes)?;
+        write_atomic(&dir.join(MODEL_HEADER), json.as_bytes())
+    }
+
+    /// Load a model saved by [`Self::save`] from `dir`, checking the header, the tensors' hash,
+    /// every shape and every invariant.
+    pub fn load(dir: &Path) -> Result<Self> {
+        let header_path = dir.join(MODEL_HEADER);
+        let header_bytes = read_file(&header_path)?;
+        let header: Header = serde_json::from_slice(&header_bytes)
+            .map_err(|e| Error::parse(&header_path, e.line(), e.to_string()))?;
+        if header.format != FORMAT || header.version != 1 {
+            return Err(Error::format(
+                &header_path,
+                format!(
+                    "format {:?} version {} is not {FORMAT} version 1",
+                    header.format, header.version
+                ),
+            ));
+        }
+        if header.units != "m" {
+            return Err(Error::format(
+                &header_path,
+                format!("units {:?}, expected \"m\"", header.units),
+            ));
+        }
+        let tensor_path = dir.join(MODEL_TENSORS);
+        let bytes = read_file(&tensor_path)?;
+        if sha256_hex(&bytes) != header.tensors_sha256 {
+            return Err(Error::format(
+                &tensor_path,
+                format!("content hash does not match {}", header_path.display()),
+            ));
+        }
+        let file = TensorFile::from_bytes(&tensor_path, bytes)?;
+        let in_file = |e: Error| e.in_file(&tensor_path);
+        let (v, f, nb) = (header.n_vertices, header.n_faces, header.n_betas);
+        let j = header.joint_names.len();
+        let skeleton = Skeleton::new(header.joint_names, header.parents)
+            .map_err(|e| e.in_file(&header_path))?;
+        let points = |xs: Vec<f32>| {
+            xs.chunks_exact(3)
+                .map(|c| Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64))
+                .collect::<Vec<_>>()
+        };
+        let (_, vt) = file.f32("v_template", &[Some(v), Some(3)])?;
+        let (_, faces) = file.i32("faces", &[Some(f), Some(3)])?;
+        let faces = faces
+            .chunks_exact(3)
+            .map(|c| {
+                let idx = |i: i32| {
+                    u32::try_from(i).map_err(|_| {
+                        Error::format(&tensor_path, format!("negative face index {i}"))
+                    })
+                };
+                Ok([idx(c[0])?, idx(c[1])?, idx(c[2])?])
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let template = TriMesh::new(points(vt), faces).map_err(in_file)?;
+        let (_, shapedirs) = file.f32("shapedirs", &[Some(v), Some(3), Some(nb)])?;
+        let (_, jt) = file.f32("j_template", &[Some(j), Some(3)])?;
+        let (_, jdirs) = file.f32("j_shapedirs", &[Some(j), Some(3), Some(nb)])?;
+        let (_, offsets) = file.i32("skin_offsets", &[Some(v + 1)])?;
+        let (_, sj) = file.i32("skin_joints", &[None])?;
+        let (_, sw) = file.f32("skin_weights", &[Some(sj.len())])?;
+        let to_u32 = |xs: Vec<i32>, what: &str| {
+            xs.into_iter()
+                .map(|x| {
+                    u32::try_from(x)
+                        .map_err(|_| Error::format(&tensor_path, format!("negative {what} {x}")))
+                })
+                .collect::<Result<Vec<_>>>()
+        };
+        let weights = SkinWeights::new(
+            to_u32(offsets, "offset")?,
+            to_u32(sj, "joint index")?,
+            sw,
+            j,
+        )
+        .map_err(in_file)?;
+        Self::new(
+            header.name,
+            template,
+            nb,
+            shapedirs.into_iter().map(f64::from).collect(),
+            points(jt),
+            jdirs.into_iter().map(f64::from).collect(),
+            skeleton,
+            weights,
+            header.provenance,
+        )
+        .map_err(in_file)
+    }
+}
