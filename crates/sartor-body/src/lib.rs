@@ -32,6 +32,7 @@ pub mod io;
 mod mesh;
 mod model;
 mod motion;
+mod rig;
 mod skeleton;
 mod skinning;
 
@@ -39,5 +40,6 @@ pub use error::{Error, Result};
 pub use mesh::{MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};
 pub use motion::{FPS, Motion, interpolate_pose};
+pub use rig::{CMU_MB_JOINTS, cmu_mb_skeleton};
 pub use skeleton::{Pose, Skeleton};
 pub use skinning::{BoneTransform, Par, SkinWeights, skin_points, unskin_points};
