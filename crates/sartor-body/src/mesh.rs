@@ -389,11 +389,11 @@ impl MeshTopology {
                         continue;
                     }
                     for &g in &self.edge_faces[e as usize] {
-                        if let Some(j) = fs.iter().position(|&h| h == g) {
-                            if !reached[j] {
-                                reached[j] = true;
-                                stack.push(j);
-                            }
+                        if let Some(j) = fs.iter().position(|&h| h == g)
+                            && !reached[j]
+                        {
+                            reached[j] = true;
+                            stack.push(j);
                         }
                     }
                 }

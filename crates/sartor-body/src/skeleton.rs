@@ -136,7 +136,7 @@ impl Skeleton {
         &self,
         rest_joints_m: &[Vector3<f64>],
         pose: &Pose,
-    ) -> Result<(Vec<Vector3<f64>>, Vec<BoneTransform<f64>>)> {
+    ) -> Result<PosedSkeleton> {
         let n = self.n_joints();
         let mut joints = vec![Vector3::zeros(); n];
         let mut transforms = vec![BoneTransform::identity(); n];
@@ -144,6 +144,9 @@ impl Skeleton {
         Ok((joints, transforms))
     }
 }
+
+/// Posed joint positions and the skinning transform of every joint.
+pub type PosedSkeleton = (Vec<Vector3<f64>>, Vec<BoneTransform<f64>>);
 
 /// One body pose: root motion plus a local rotation per joint.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -122,7 +122,7 @@ impl SkinWeights {
     /// Keep the `k` largest weights of each dense row (`n_points × n_joints`, row-major), drop
     /// zeros, and renormalise. Rows must have a positive sum.
     pub fn from_dense_top_k(dense: &[f32], n_joints: usize, k: usize) -> Result<Self> {
-        if n_joints == 0 || dense.len() % n_joints != 0 {
+        if n_joints == 0 || !dense.len().is_multiple_of(n_joints) {
             return Err(Error::invalid(
                 "skin weights",
                 format!(

@@ -1,0 +1,5 @@
+//! sartor-body's integration tests (one binary, one module per area).
+
+mod common;
+mod model;
+mod smpl;
