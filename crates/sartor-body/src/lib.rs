@@ -47,4 +47,4 @@ pub use obj::{ObjData, obj_text, read_obj, write_obj};
 pub use rig::{CMU_MB_JOINTS, cmu_mb_skeleton};
 pub use skeleton::{Pose, PosedSkeleton, Skeleton};
 pub use skinning::{BoneTransform, Par, SkinWeights, skin_points, unskin_points};
-pub use smpl::{SMPL_JOINTS, load_smpl_npz};
+pub use smpl::{SMPL_JOINTS, load_smpl_npz, smpl_from_npz};

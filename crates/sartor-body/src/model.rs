@@ -358,9 +358,16 @@ impl BodyModel {
     /// Load a model saved by [`Self::save`] from `dir`, checking the header, the tensors' hash,
     /// every shape and every invariant.
     pub fn load(dir: &Path) -> Result<Self> {
+        let header_bytes = read_file(&dir.join(MODEL_HEADER))?;
+        let tensor_bytes = read_file(&dir.join(MODEL_TENSORS))?;
+        Self::from_bytes(dir, &header_bytes, tensor_bytes)
+    }
+
+    /// Parse a model from the bytes of its two files, read from folder `dir` (used in error
+    /// messages only).
+    pub fn from_bytes(dir: &Path, header_bytes: &[u8], bytes: Vec<u8>) -> Result<Self> {
         let header_path = dir.join(MODEL_HEADER);
-        let header_bytes = read_file(&header_path)?;
-        let header: Header = serde_json::from_slice(&header_bytes)
+        let header: Header = serde_json::from_slice(header_bytes)
             .map_err(|e| Error::parse(&header_path, e.line(), e.to_string()))?;
         if header.format != FORMAT || header.version != 1 {
             return Err(Error::format(
@@ -378,7 +385,6 @@ impl BodyModel {
             ));
         }
         let tensor_path = dir.join(MODEL_TENSORS);
-        let bytes = read_file(&tensor_path)?;
         if sha256_hex(&bytes) != header.tensors_sha256 {
             return Err(Error::format(
                 &tensor_path,

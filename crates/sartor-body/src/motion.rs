@@ -155,8 +155,12 @@ impl Motion {
 
     /// Load from JSON, validating every pose.
     pub fn load_json(path: &Path) -> Result<Self> {
-        let bytes = read_file(path)?;
-        let raw: Motion = serde_json::from_slice(&bytes)
+        Self::from_json_bytes(path, &read_file(path)?)
+    }
+
+    /// Parse JSON bytes read from `path` (used in error messages only), validating every pose.
+    pub fn from_json_bytes(path: &Path, bytes: &[u8]) -> Result<Self> {
+        let raw: Motion = serde_json::from_slice(bytes)
             .map_err(|e| Error::parse(path, e.line(), e.to_string()))?;
         Self::new(raw.name, raw.fps, raw.joint_names, raw.frames).map_err(|e| e.in_file(path))
     }

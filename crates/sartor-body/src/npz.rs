@@ -10,13 +10,18 @@ use crate::{Error, Result};
 /// An open `.npz` archive.
 pub struct NpzFile {
     path: PathBuf,
-    archive: npyz::npz::NpzArchive<std::io::BufReader<std::fs::File>>,
+    archive: npyz::npz::NpzArchive<std::io::Cursor<Vec<u8>>>,
 }
 
 impl NpzFile {
     /// Open an archive.
     pub fn open(path: &Path) -> Result<Self> {
-        let archive = npyz::npz::NpzArchive::open(path)
+        Self::from_bytes(path, crate::io::read_file(path)?)
+    }
+
+    /// Parse an archive already read from `path` (used in error messages only).
+    pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self> {
+        let archive = npyz::npz::NpzArchive::new(std::io::Cursor::new(bytes))
             .map_err(|e| Error::format(path, format!("not a readable .npz archive: {e}")))?;
         Ok(Self {
             path: path.to_path_buf(),

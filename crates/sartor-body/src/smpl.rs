@@ -53,7 +53,12 @@ pub const SMPL_JOINTS: [&str; 24] = [
 
 /// Load an SMPL-layout `.npz` model, keeping `n_betas` shape components (all when `None`).
 pub fn load_smpl_npz(path: &Path, n_betas: Option<usize>) -> Result<BodyModel> {
-    let mut npz = NpzFile::open(path)?;
+    smpl_from_npz(NpzFile::open(path)?, n_betas)
+}
+
+/// Like [`load_smpl_npz`], from an archive already opened (e.g. from bytes).
+pub fn smpl_from_npz(mut npz: NpzFile, n_betas: Option<usize>) -> Result<BodyModel> {
+    let path = &npz.path().to_path_buf();
     let fault = |m: String| Error::format(path, m);
     let (vs, v_template) = npz.array_f64_shaped("v_template", &[None, Some(3)])?;
     let n_v = vs[0];
