@@ -1,0 +1,128 @@
+//! One wrinkle frame at the paper's size: a GRU with 1,500 hidden units (input 160: 10 betas +
+//! 25 joints in 6D) and a 1,500 → 13,272 dense output (the 4,424-vertex T-shirt), per weight
+//! precision, on one thread and on rayon's pool; batch 1 and batch 8 (8 avatars sharing one
+//! pass over the weights — divide by 8 for the time per avatar).
+//!
+//! `cargo bench -p sartor-runtime --bench kernels -- --warm-up-time 1 --measurement-time 3`
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use sartor_runtime::{
+    GruCell, Linear, Matrix, OutputLayer, Parallelism, Precision, instruction_set,
+};
+
+const INPUT: usize = 160;
+const HIDDEN: usize = 1500;
+const OUTPUTS: usize = 3 * 4424;
+
+struct Weights {
+    w_ih: Vec<f32>,
+    w_hh: Vec<f32>,
+    b_ih: Vec<f32>,
+    b_hh: Vec<f32>,
+    w_out: Vec<f32>,
+    b_out: Vec<f32>,
+}
+
+fn random(rng: &mut ChaCha8Rng, n: usize, amp: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.random_range(-amp..amp)).collect()
+}
+
+fn weights() -> Weights {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let a = 1.0 / (HIDDEN as f32).sqrt();
+    Weights {
+        w_ih: random(&mut rng, 3 * HIDDEN * INPUT, a),
+        w_hh: random(&mut rng, 3 * HIDDEN * HIDDEN, a),
+        b_ih: random(&mut rng, 3 * HIDDEN, a),
+        b_hh: random(&mut rng, 3 * HIDDEN, a),
+        w_out: random(&mut rng, OUTPUTS * HIDDEN, a),
+        b_out: random(&mut rng, OUTPUTS, a),
+    }
+}
+
+fn build(w: &Weights, p: Precision) -> (GruCell, OutputLayer) {
+    let gru = GruCell::new(
+        Matrix::from_f32(3 * HIDDEN, INPUT, w.w_ih.clone(), p).expect("finite"),
+        Matrix::from_f32(3 * HIDDEN, HIDDEN, w.w_hh.clone(), p).expect("finite"),
+        w.b_ih.clone(),
+        w.b_hh.clone(),
+    )
+    .expect("shapes");
+    let out = OutputLayer::Dense(
+        Linear::new(
+            Matrix::from_f32(OUTPUTS, HIDDEN, w.w_out.clone(), p).expect("finite"),
+            w.b_out.clone(),
+        )
+        .expect("shapes"),
+    );
+    (gru, out)
+}
+
+fn bench(c: &mut Criterion) {
+    let w = weights();
+    eprintln!(
+        "kernels: {} , rayon threads: {}",
+        instruction_set(),
+        rayon::current_num_threads()
+    );
+    let mut group = c.benchmark_group(format!("matvec{OUTPUTS}x{HIDDEN}"));
+    for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+        let m = Matrix::from_f32(OUTPUTS, HIDDEN, w.w_out.clone(), precision).expect("finite");
+        for batch in [1usize, 8] {
+            let x = vec![0.5f32; batch * HIDDEN];
+            let mut y = vec![0.0f32; batch * OUTPUTS];
+            let name = format!("{}/batch{batch}/1thread", precision.name());
+            group.bench_function(name, |b| {
+                b.iter(|| {
+                    m.matmul_t(
+                        black_box(&x),
+                        batch,
+                        Some(&w.b_out),
+                        &mut y,
+                        Parallelism::Sequential,
+                    )
+                    .expect("sizes")
+                })
+            });
+        }
+    }
+    group.finish();
+    let mut group = c.benchmark_group(format!("gru{HIDDEN}_out{OUTPUTS}"));
+    for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+        let (gru, out) = build(&w, precision);
+        for batch in [1usize, 8] {
+            let mut rng = ChaCha8Rng::seed_from_u64(8);
+            let xs = random(&mut rng, batch * INPUT, 1.0);
+            let mut hs = random(&mut rng, batch * HIDDEN, 0.5);
+            let mut gs = gru.scratch(batch);
+            let mut os = out.scratch(batch);
+            let mut ys = vec![0.0f32; batch * OUTPUTS];
+            for (par, par_name) in [
+                (Parallelism::Sequential, "1thread"),
+                (Parallelism::Rayon, "rayon"),
+            ] {
+                if batch > 1 && par == Parallelism::Sequential && precision != Precision::F32 {
+                    continue;
+                }
+                let name = format!("{}/batch{batch}/{par_name}", precision.name());
+                group.bench_function(name, |b| {
+                    b.iter(|| {
+                        gru.step_batch(black_box(&xs), batch, &mut hs, &mut gs, par)
+                            .expect("sizes");
+                        out.forward_batch_t(&hs, batch, &mut ys, &mut os, par)
+                            .expect("sizes");
+                        black_box(&ys);
+                    })
+                });
+            }
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

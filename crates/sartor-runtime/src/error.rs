@@ -1,0 +1,107 @@
+//! The crate's one error type.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in `sartor-runtime`. File faults name the file; call faults name
+/// the argument.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading a file or a tensor failed (I/O, not a safetensors file, missing tensor, wrong
+    /// dtype or shape, non-finite value); the message names the file.
+    #[error(transparent)]
+    Body(#[from] sartor_body::Error),
+    /// A model file is malformed (bad JSON, unknown field, size mismatch, hash mismatch, ...).
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file at fault.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A slice passed to a kernel has the wrong length.
+    #[error("{what}: expected length {expected}, got {got}")]
+    Size {
+        /// The argument.
+        what: &'static str,
+        /// The length the kernel needs.
+        expected: usize,
+        /// The length it was given.
+        got: usize,
+    },
+    /// An input (or a result) holds a NaN or an infinity.
+    #[error("{what}: non-finite value at index {index}")]
+    NonFinite {
+        /// The argument or result.
+        what: &'static str,
+        /// Index of the first non-finite value.
+        index: usize,
+    },
+    /// An in-memory value breaks an invariant.
+    #[error("invalid {what}: {message}")]
+    Invalid {
+        /// What kind of value.
+        what: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// `Result` with [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub(crate) fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Self::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+
+    pub(crate) fn invalid(what: &'static str, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            what,
+            message: message.into(),
+        }
+    }
+
+    /// Attach a file to an in-memory validation error (a model that failed validation after
+    /// being read from that file).
+    pub fn in_file(self, path: impl Into<PathBuf>) -> Self {
+        match self {
+            Self::Invalid { what, message } => Self::Format {
+                path: path.into(),
+                message: format!("invalid {what}: {message}"),
+            },
+            Self::Size {
+                what,
+                expected,
+                got,
+            } => Self::Format {
+                path: path.into(),
+                message: format!("{what}: expected size {expected}, got {got}"),
+            },
+            other => other,
+        }
+    }
+}
+
+/// Check a slice length.
+pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::Size {
+            what,
+            expected,
+            got,
+        })
+    }
+}
+
+/// Check that every value is finite.
+pub(crate) fn check_finite(what: &'static str, values: &[f32]) -> Result<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(index) => Err(Error::NonFinite { what, index }),
+    }
+}

@@ -1,0 +1,433 @@
+//! Run-time instruction-set dispatch for the row kernels — the crate's only `unsafe` code.
+//!
+//! [`super::rows::rows`] is generic over an engine. This module instantiates it with the
+//! portable engines and, on x86-64, a second time inside `#[target_feature(enable =
+//! "avx2,fma,f16c")]` functions with engines written with AVX2 and F16C intrinsics (LLVM's
+//! auto-vectoriser proved unreliable for the 32-lane accumulators: inside the crate it chose
+//! 2-wide vectors and ran 5–10× slower). One is picked at run time with `is_x86_feature_detected!`.
+//!
+//! Unsafe operations, each with its `SAFETY` comment: the unaligned loads and stores of the
+//! intrinsics (from references of exactly the size they touch), and calls of
+//! `#[target_feature]` functions, which are sound exactly when the CPU has those features. An
+//! [`Isa`] other than the portable one can only be made after detection succeeded, and the
+//! AVX2 engines are private to this module and only instantiated inside the AVX2 wrappers.
+//! The intrinsic engines follow the lane rule of `rows.rs` (4 registers × 8 lanes, separate
+//! multiply and add, the same padded tail and reduction tree), so every [`Isa`] gives bitwise
+//! the same results; the tests below check that against the portable engines.
+#![allow(unsafe_code)]
+
+use std::sync::OnceLock;
+
+use super::rows::{F16Bits, F16Codec, F32Codec, I8Codec, Portable, rows};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Level {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+/// An instruction set the kernels may use; only constructible after run-time detection.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Isa(Level);
+
+#[cfg(target_arch = "x86_64")]
+fn has_avx2() -> bool {
+    is_x86_feature_detected!("avx2")
+        && is_x86_feature_detected!("fma")
+        && is_x86_feature_detected!("f16c")
+}
+
+impl Isa {
+    /// Plain Rust for the compilation target (SSE2 on x86-64).
+    pub(crate) fn portable() -> Self {
+        Self(Level::Portable)
+    }
+
+    /// Every instruction set this CPU supports, portable first.
+    pub(crate) fn available() -> Vec<Self> {
+        #[allow(unused_mut)]
+        let mut all = vec![Self::portable()];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if has_avx2() {
+                all.push(Self(Level::Avx2));
+            }
+        }
+        all
+    }
+
+    /// The instruction set the kernels use, detected once: the widest available. The
+    /// environment variable `SARTOR_RUNTIME_ISA` (`portable`, `avx2`) picks another one for
+    /// benchmarking; a choice this CPU does not support, or an unknown name, is ignored.
+    pub(crate) fn best() -> Self {
+        static BEST: OnceLock<Isa> = OnceLock::new();
+        *BEST.get_or_init(|| {
+            let available = Self::available();
+            if let Ok(choice) = std::env::var("SARTOR_RUNTIME_ISA")
+                && let Some(&isa) = available.iter().find(|i| i.name() == choice)
+            {
+                return isa;
+            }
+            available.last().copied().unwrap_or_else(Self::portable)
+        })
+    }
+
+    /// A short name for reports.
+    pub(crate) fn name(self) -> &'static str {
+        match self.0 {
+            Level::Portable => "portable",
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx2 => "avx2",
+        }
+    }
+}
+
+/// AVX2 + F16C kernels with explicit intrinsics. Every function has
+/// `#[target_feature(enable = "avx2,fma,f16c")]`; they are only reached through the engines
+/// below, inside the `avx2` wrappers of `dispatched_rows!`.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::{
+        __m128i, __m256, _mm_loadl_epi64, _mm_loadu_si128, _mm256_add_ps, _mm256_cvtepi8_epi32,
+        _mm256_cvtepi32_ps, _mm256_cvtph_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_setzero_ps,
+        _mm256_storeu_ps,
+    };
+
+    use super::super::rows::{F16Bits, LANES, padded, reduce};
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn load_f32(a: &[f32; 8]) -> __m256 {
+        // SAFETY: `a` is 8 f32 = 32 readable bytes; `_mm256_loadu_ps` needs no alignment.
+        unsafe { _mm256_loadu_ps(a.as_ptr()) }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn load_i8(a: &[i8; 8]) -> __m256 {
+        // SAFETY: `a` is 8 readable bytes; `_mm_loadl_epi64` reads exactly 8 bytes, unaligned.
+        let q = unsafe { _mm_loadl_epi64(a.as_ptr().cast::<__m128i>()) };
+        _mm256_cvtepi32_ps(_mm256_cvtepi8_epi32(q))
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn load_f16(a: &[F16Bits; 8]) -> __m256 {
+        // SAFETY: `a` is 8 `F16Bits` = 16 readable bytes (`repr(transparent)` over u16);
+        // `_mm_loadu_si128` needs no alignment.
+        let h = unsafe { _mm_loadu_si128(a.as_ptr().cast::<__m128i>()) };
+        _mm256_cvtph_ps(h)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn store(v: __m256, out: &mut [f32; 8]) {
+        // SAFETY: `out` is 8 f32 = 32 writable bytes; `_mm256_storeu_ps` needs no alignment.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn load_acc(s: &[f32; LANES]) -> [__m256; 4] {
+        let (s8, _) = s.as_chunks::<8>();
+        [
+            load_f32(&s8[0]),
+            load_f32(&s8[1]),
+            load_f32(&s8[2]),
+            load_f32(&s8[3]),
+        ]
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn store_acc(acc: [__m256; 4], s: &mut [f32; LANES]) {
+        let (s8, _) = s.as_chunks_mut::<8>();
+        for r in 0..4 {
+            store(acc[r], &mut s8[r]);
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn finish(acc: [__m256; 4]) -> f32 {
+        let mut s = [0.0f32; LANES];
+        store_acc(acc, &mut s);
+        reduce(s)
+    }
+
+    macro_rules! kernels {
+        ($t:ty, $load:ident, $dot:ident, $madd1:ident, $madd2:ident) => {
+            #[inline]
+            #[target_feature(enable = "avx2,fma,f16c")]
+            pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
+                let mut acc = [_mm256_setzero_ps(); 4];
+                let (wc, wt) = w.as_chunks::<LANES>();
+                let (xc, xt) = x.as_chunks::<LANES>();
+                for (a, b) in wc.iter().zip(xc) {
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x8, _) = b.as_chunks::<8>();
+                    for r in 0..4 {
+                        acc[r] =
+                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
+                    }
+                }
+                if !wt.is_empty() {
+                    let (a, b) = (padded(wt), padded(xt));
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x8, _) = b.as_chunks::<8>();
+                    for r in 0..4 {
+                        acc[r] =
+                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
+                    }
+                }
+                finish(acc)
+            }
+
+            #[inline]
+            #[target_feature(enable = "avx2,fma,f16c")]
+            pub(super) fn $madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
+                let mut acc = load_acc(s);
+                let (wc, wt) = w.as_chunks::<LANES>();
+                let (xc, xt) = x.as_chunks::<LANES>();
+                for (a, b) in wc.iter().zip(xc) {
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x8, _) = b.as_chunks::<8>();
+                    for r in 0..4 {
+                        acc[r] =
+                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
+                    }
+                }
+                if !wt.is_empty() {
+                    let (a, b) = (padded(wt), padded(xt));
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x8, _) = b.as_chunks::<8>();
+                    for r in 0..4 {
+                        acc[r] =
+                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
+                    }
+                }
+                store_acc(acc, s);
+            }
+
+            #[inline]
+            #[target_feature(enable = "avx2,fma,f16c")]
+            pub(super) fn $madd2(
+                w: &[$t],
+                x0: &[f32],
+                x1: &[f32],
+                s0: &mut [f32; LANES],
+                s1: &mut [f32; LANES],
+            ) {
+                let mut acc0 = load_acc(s0);
+                let mut acc1 = load_acc(s1);
+                let (wc, wt) = w.as_chunks::<LANES>();
+                let (x0c, x0t) = x0.as_chunks::<LANES>();
+                let (x1c, x1t) = x1.as_chunks::<LANES>();
+                for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x08, _) = b0.as_chunks::<8>();
+                    let (x18, _) = b1.as_chunks::<8>();
+                    for r in 0..4 {
+                        let wv = $load(&w8[r]);
+                        acc0[r] = _mm256_add_ps(acc0[r], _mm256_mul_ps(wv, load_f32(&x08[r])));
+                        acc1[r] = _mm256_add_ps(acc1[r], _mm256_mul_ps(wv, load_f32(&x18[r])));
+                    }
+                }
+                if !wt.is_empty() {
+                    let (a, b0, b1) = (padded(wt), padded(x0t), padded(x1t));
+                    let (w8, _) = a.as_chunks::<8>();
+                    let (x08, _) = b0.as_chunks::<8>();
+                    let (x18, _) = b1.as_chunks::<8>();
+                    for r in 0..4 {
+                        let wv = $load(&w8[r]);
+                        acc0[r] = _mm256_add_ps(acc0[r], _mm256_mul_ps(wv, load_f32(&x08[r])));
+                        acc1[r] = _mm256_add_ps(acc1[r], _mm256_mul_ps(wv, load_f32(&x18[r])));
+                    }
+                }
+                store_acc(acc0, s0);
+                store_acc(acc1, s1);
+            }
+        };
+    }
+
+    kernels!(f32, load_f32, dot_f32, madd1_f32, madd2_f32);
+    kernels!(i8, load_i8, dot_i8, madd1_i8, madd2_i8);
+    kernels!(F16Bits, load_f16, dot_f16, madd1_f16, madd2_f16);
+}
+
+/// The AVX2 engines: private, and only instantiated inside the `avx2` wrappers below.
+#[cfg(target_arch = "x86_64")]
+mod engines {
+    use super::super::rows::{Engine, F16Bits, LANES};
+    use super::avx2;
+
+    macro_rules! engine {
+        ($name:ident, $t:ty, $dot:ident, $madd1:ident, $madd2:ident) => {
+            pub(super) struct $name;
+
+            impl Engine for $name {
+                type Stored = $t;
+
+                #[inline(always)]
+                fn dot(w: &[$t], x: &[f32]) -> f32 {
+                    // SAFETY: this engine is only used inside `#[target_feature(enable =
+                    // "avx2,fma,f16c")]` wrappers, which are only called for an `Isa` made
+                    // after `has_avx2()` found those features.
+                    unsafe { avx2::$dot(w, x) }
+                }
+
+                #[inline(always)]
+                fn madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
+                    // SAFETY: as for `dot`.
+                    unsafe { avx2::$madd1(w, x, s) }
+                }
+
+                #[inline(always)]
+                fn madd2(
+                    w: &[$t],
+                    x0: &[f32],
+                    x1: &[f32],
+                    s0: &mut [f32; LANES],
+                    s1: &mut [f32; LANES],
+                ) {
+                    // SAFETY: as for `dot`.
+                    unsafe { avx2::$madd2(w, x0, x1, s0, s1) }
+                }
+            }
+        };
+    }
+
+    engine!(Avx2F32, f32, dot_f32, madd1_f32, madd2_f32);
+    engine!(Avx2I8, i8, dot_i8, madd1_i8, madd2_i8);
+    engine!(Avx2F16, F16Bits, dot_f16, madd1_f16, madd2_f16);
+}
+
+macro_rules! dispatched_rows {
+    ($(#[$doc:meta])* $name:ident, $t:ty, $portable:ty, $simd:ident) => {
+        $(#[$doc])*
+        pub(crate) fn $name(
+            isa: Isa,
+            w: &[$t],
+            cols: usize,
+            xs: &[f32],
+            batch: usize,
+            scales: Option<&[f32]>,
+            bias: Option<&[f32]>,
+            ys_t: &mut [f32],
+        ) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx2,fma,f16c")]
+                fn avx2(
+                    w: &[$t],
+                    cols: usize,
+                    xs: &[f32],
+                    batch: usize,
+                    scales: Option<&[f32]>,
+                    bias: Option<&[f32]>,
+                    ys_t: &mut [f32],
+                ) {
+                    rows::<engines::$simd>(w, cols, xs, batch, scales, bias, ys_t)
+                }
+                if isa.0 == Level::Avx2 {
+                    // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
+                    // fma and f16c on this CPU.
+                    return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) };
+                }
+            }
+            let _ = isa;
+            rows::<$portable>(w, cols, xs, batch, scales, bias, ys_t)
+        }
+    };
+}
+
+dispatched_rows!(
+    /// f32 rows.
+    rows_f32,
+    f32,
+    Portable<F32Codec>,
+    Avx2F32
+);
+dispatched_rows!(
+    /// f16 rows (bits), converted exactly to f32 on the fly (F16C on x86-64 when present).
+    rows_f16,
+    F16Bits,
+    Portable<F16Codec>,
+    Avx2F16
+);
+dispatched_rows!(
+    /// int8 rows with a per-row scale.
+    rows_i8,
+    i8,
+    Portable<I8Codec>,
+    Avx2I8
+);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn every_isa_matches_the_portable_kernels_bitwise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let isas = Isa::available();
+        eprintln!(
+            "instruction sets: {:?} (best: {})",
+            isas.iter().map(|i| i.name()).collect::<Vec<_>>(),
+            Isa::best().name()
+        );
+        for &(n_rows, cols, batch) in &[
+            (5, 1, 1),
+            (9, 31, 1),
+            (17, 100, 3),
+            (33, 1037, 9),
+            (6, 600, 2),
+        ] {
+            let w: Vec<f32> = (0..n_rows * cols)
+                .map(|_| rng.random_range(-1.0..1.0))
+                .collect();
+            let wh: Vec<F16Bits> = w
+                .iter()
+                .map(|&v| F16Bits(half::f16::from_f32(v).to_bits()))
+                .collect();
+            let wq: Vec<i8> = (0..n_rows * cols)
+                .map(|_| rng.random_range(-127..=127))
+                .collect();
+            let scales: Vec<f32> = (0..n_rows).map(|_| rng.random_range(0.001..0.1)).collect();
+            let bias: Vec<f32> = (0..n_rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let xs: Vec<f32> = (0..batch * cols)
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let run = |isa: Isa| {
+                let mut a = vec![0.0; n_rows * batch];
+                let mut b = vec![0.0; n_rows * batch];
+                let mut c = vec![0.0; n_rows * batch];
+                rows_f32(isa, &w, cols, &xs, batch, None, Some(&bias), &mut a);
+                rows_f16(isa, &wh, cols, &xs, batch, None, None, &mut b);
+                rows_i8(
+                    isa,
+                    &wq,
+                    cols,
+                    &xs,
+                    batch,
+                    Some(&scales),
+                    Some(&bias),
+                    &mut c,
+                );
+                [a, b, c]
+            };
+            let reference = run(Isa::portable());
+            for &isa in &isas {
+                let got = run(isa);
+                for (r, g) in reference.iter().zip(&got) {
+                    let r: Vec<u32> = r.iter().map(|v| v.to_bits()).collect();
+                    let g: Vec<u32> = g.iter().map(|v| v.to_bits()).collect();
+                    assert_eq!(r, g, "{} differs from portable", isa.name());
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,24 @@
+//! Inference kernels: weight storage in three precisions, matrix–vector products for one or a
+//! few inputs, the fused GRU step, the MLP and the output layer.
+//!
+//! Everything is allocation-free once the `*Scratch` buffers exist, and deterministic: results
+//! do not depend on [`Parallelism`], on the batch size, or on the instruction set the CPU
+//! offers (see `rows.rs` for the arithmetic contract and `dispatch.rs` for the only unsafe
+//! code).
+
+mod dispatch;
+mod gru;
+mod matrix;
+mod mlp;
+mod rows;
+
+pub use gru::{GruCell, GruScratch};
+pub use matrix::{INT8_ZERO_ROW, Linear, Matrix, Parallelism, Precision};
+pub use mlp::{Mlp, MlpScratch, OutputLayer, OutputScratch};
+
+/// The instruction set the kernels dispatch to on this CPU (`avx2` or `portable`), for reports.
+/// Detected once; the environment variable `SARTOR_RUNTIME_ISA` (`portable` or `avx2`) picks a
+/// supported one instead.
+pub fn instruction_set() -> &'static str {
+    dispatch::Isa::best().name()
+}

@@ -1,0 +1,369 @@
+//! Row kernels: `y[i·B + b] = scale_i · (w_i · x_b) + bias_i` for a block of rows.
+//!
+//! [`rows`] is written once, generic over an [`Engine`] that supplies the fused convert + dot
+//! product of one stored row with one input, and the accumulation of a column span of one row
+//! into the lane sums of one or two inputs (the weights are loaded and converted once for
+//! both). [`Portable`] is the safe-Rust engine (auto-vectorised where LLVM manages);
+//! `dispatch` adds AVX2 + F16C engines with explicit intrinsics. Every engine follows the same
+//! arithmetic contract, so all of them — and the batched and single paths — give bitwise the
+//! same numbers:
+//!
+//! - **Lane rule.** A dot product over `n` columns keeps [`LANES`] independent f32 sums; column
+//!   `j` is added to sum `j mod LANES`, in increasing `j`; a partial last chunk is zero-padded
+//!   (the padding adds `0·0`). The sums are then reduced by a fixed halving tree
+//!   (`s[l] += s[l + 16]`, then `+ 8`, `+ 4`, `+ 2`, `+ 1`). Products are rounded before they
+//!   are added (no FMA: Rust never contracts `a * b + c`, and the intrinsics use separate
+//!   multiply and add).
+//! - **Exact conversion.** f16 and int8 weights convert exactly to f32 before the multiply.
+//! - **Epilogue.** `d = tree(...)`; int8 rows: `d = scale · d`; then `d + bias` when a bias is
+//!   given.
+//!
+//! The single-vector path streams each weight row once with the conversion fused into the dot
+//! product. The batched path tiles the work so that everything but the weights stays in L1:
+//! blocks of [`ROW_BLOCK`] rows × [`COL_BLOCK`] columns × up to [`GROUP`] inputs, inputs taken
+//! two at a time (one weight load feeds two products), lane sums carried across column
+//! blocks. `B` avatars thus share one pass over the weights in memory.
+
+use std::marker::PhantomData;
+
+/// Independent accumulators per dot product (4 × 256-bit registers on AVX2).
+pub(crate) const LANES: usize = 32;
+/// Rows per tile of the batched path.
+const ROW_BLOCK: usize = 4;
+/// Columns per tile of the batched path (a multiple of [`LANES`]).
+const COL_BLOCK: usize = 512;
+/// Inputs per tile of the batched path.
+const GROUP: usize = 8;
+
+/// How stored weights become f32, [`LANES`] at a time. Every codec converts exactly, so all
+/// codecs of one storage type give the same numbers.
+pub(crate) trait Codec {
+    /// The stored element; its `Default` is zero.
+    type Stored: Copy + Default + Send + Sync + 'static;
+    /// The exact f32 values of one chunk.
+    fn chunk(src: &[Self::Stored; LANES]) -> [f32; LANES];
+}
+
+/// f32 weights.
+pub(crate) struct F32Codec;
+
+impl Codec for F32Codec {
+    type Stored = f32;
+
+    #[inline(always)]
+    fn chunk(src: &[f32; LANES]) -> [f32; LANES] {
+        *src
+    }
+}
+
+/// int8 weights (the per-row scale is applied once per dot product).
+pub(crate) struct I8Codec;
+
+impl Codec for I8Codec {
+    type Stored = i8;
+
+    #[inline(always)]
+    fn chunk(src: &[i8; LANES]) -> [f32; LANES] {
+        let mut out = [0.0f32; LANES];
+        for (o, &q) in out.iter_mut().zip(src) {
+            *o = f32::from(q);
+        }
+        out
+    }
+}
+
+/// IEEE binary16 stored as its bits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(transparent)]
+pub(crate) struct F16Bits(pub(crate) u16);
+
+/// f16 weights, converted in portable code (see [`f16_bits_to_f32`]); `dispatch` has an F16C
+/// codec for the same storage.
+pub(crate) struct F16Codec;
+
+impl Codec for F16Codec {
+    type Stored = F16Bits;
+
+    #[inline(always)]
+    fn chunk(src: &[F16Bits; LANES]) -> [f32; LANES] {
+        let mut out = [0.0f32; LANES];
+        for (o, &h) in out.iter_mut().zip(src) {
+            *o = f16_bits_to_f32(h.0);
+        }
+        out
+    }
+}
+
+/// Exact binary16 → binary32 conversion for **finite** halves (the loader rejects infinities
+/// and NaNs), branch-free so that it vectorises: normal numbers re-bias the exponent by
+/// 127 − 15 = 112; subnormals `m·2⁻²⁴` are formed as `(2⁻¹⁴ + m·2⁻²⁴) − 2⁻¹⁴`, which is exact
+/// (Sterbenz) and touches no subnormal f32.
+#[inline(always)]
+pub(crate) fn f16_bits_to_f32(h: u16) -> f32 {
+    let h = u32::from(h);
+    let sign = (h & 0x8000) << 16;
+    let em = (h & 0x7fff) << 13;
+    let normal = f32::from_bits(em + (112 << 23));
+    let subnormal = f32::from_bits(em + (113 << 23)) - f32::from_bits(113 << 23);
+    let magnitude = if h & 0x7c00 == 0 { subnormal } else { normal };
+    f32::from_bits(magnitude.to_bits() | sign)
+}
+
+#[inline(always)]
+pub(crate) fn reduce(mut s: [f32; LANES]) -> f32 {
+    let mut width = LANES / 2;
+    while width > 0 {
+        for l in 0..width {
+            s[l] += s[l + width];
+        }
+        width /= 2;
+    }
+    s[0]
+}
+
+#[inline(always)]
+fn epilogue(d: f32, scale: Option<f32>, bias: Option<f32>) -> f32 {
+    let d = match scale {
+        Some(s) => s * d,
+        None => d,
+    };
+    match bias {
+        Some(b) => d + b,
+        None => d,
+    }
+}
+
+/// `s[l] += w[l]·x[l]` for every lane.
+#[inline(always)]
+fn madd(s: &mut [f32; LANES], w: &[f32; LANES], x: &[f32; LANES]) {
+    for l in 0..LANES {
+        s[l] += w[l] * x[l];
+    }
+}
+
+/// A partial chunk, zero-padded to [`LANES`] (padding lanes then add `0·0`).
+#[inline(always)]
+pub(crate) fn padded<T: Copy + Default>(tail: &[T]) -> [T; LANES] {
+    let mut a = [T::default(); LANES];
+    a[..tail.len()].copy_from_slice(tail);
+    a
+}
+
+/// Fused convert + dot product of one stored row with one f32 vector (lane rule).
+#[inline(always)]
+fn dot<C: Codec>(w: &[C::Stored], x: &[f32]) -> f32 {
+    let mut s = [0.0f32; LANES];
+    let (wc, wt) = w.as_chunks::<LANES>();
+    let (xc, xt) = x.as_chunks::<LANES>();
+    for (a, b) in wc.iter().zip(xc) {
+        madd(&mut s, &C::chunk(a), b);
+    }
+    if !wt.is_empty() {
+        madd(&mut s, &C::chunk(&padded(wt)), &padded(xt));
+    }
+    reduce(s)
+}
+
+/// `s[j mod LANES] += w[j]·x[j]` over a span starting at a multiple of [`LANES`]; a partial
+/// last chunk is zero-padded.
+#[inline(always)]
+fn madd1<C: Codec>(w: &[C::Stored], x: &[f32], s: &mut [f32; LANES]) {
+    let (wc, wt) = w.as_chunks::<LANES>();
+    let (xc, xt) = x.as_chunks::<LANES>();
+    for (a, b) in wc.iter().zip(xc) {
+        madd(s, &C::chunk(a), b);
+    }
+    if !wt.is_empty() {
+        madd(s, &C::chunk(&padded(wt)), &padded(xt));
+    }
+}
+
+/// [`madd1`] for two inputs sharing each converted weight chunk.
+#[inline(always)]
+fn madd2<C: Codec>(
+    w: &[C::Stored],
+    x0: &[f32],
+    x1: &[f32],
+    s0: &mut [f32; LANES],
+    s1: &mut [f32; LANES],
+) {
+    let (wc, wt) = w.as_chunks::<LANES>();
+    let (x0c, x0t) = x0.as_chunks::<LANES>();
+    let (x1c, x1t) = x1.as_chunks::<LANES>();
+    for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
+        let a = C::chunk(a);
+        madd(s0, &a, b0);
+        madd(s1, &a, b1);
+    }
+    if !wt.is_empty() {
+        let a = C::chunk(&padded(wt));
+        madd(s0, &a, &padded(x0t));
+        madd(s1, &a, &padded(x1t));
+    }
+}
+
+/// The primitives [`rows`] is built from; see the module docs for the arithmetic every
+/// implementation must follow.
+pub(crate) trait Engine {
+    /// The stored weight element.
+    type Stored: Copy + Default + Send + Sync + 'static;
+    /// `w · x` under the lane rule (all slices the same length).
+    fn dot(w: &[Self::Stored], x: &[f32]) -> f32;
+    /// `s[j mod LANES] += w[j]·x[j]` over a span that starts at a multiple of [`LANES`]
+    /// (a partial last chunk zero-padded).
+    fn madd1(w: &[Self::Stored], x: &[f32], s: &mut [f32; LANES]);
+    /// [`Engine::madd1`] for two inputs.
+    fn madd2(
+        w: &[Self::Stored],
+        x0: &[f32],
+        x1: &[f32],
+        s0: &mut [f32; LANES],
+        s1: &mut [f32; LANES],
+    );
+}
+
+/// The safe-Rust engine for codec `C`.
+pub(crate) struct Portable<C>(PhantomData<C>);
+
+impl<C: Codec> Engine for Portable<C> {
+    type Stored = C::Stored;
+
+    #[inline(always)]
+    fn dot(w: &[C::Stored], x: &[f32]) -> f32 {
+        dot::<C>(w, x)
+    }
+
+    #[inline(always)]
+    fn madd1(w: &[C::Stored], x: &[f32], s: &mut [f32; LANES]) {
+        madd1::<C>(w, x, s)
+    }
+
+    #[inline(always)]
+    fn madd2(
+        w: &[C::Stored],
+        x0: &[f32],
+        x1: &[f32],
+        s0: &mut [f32; LANES],
+        s1: &mut [f32; LANES],
+    ) {
+        madd2::<C>(w, x0, x1, s0, s1)
+    }
+}
+
+/// One block of rows: `w` is `rows × cols` row-major, `xs` is `batch × cols`, `ys_t` is
+/// `rows × batch` (row-major by output row), `scales` and `bias` have one value per row.
+/// Lengths are checked by the caller.
+#[inline(always)]
+pub(crate) fn rows<E: Engine>(
+    w: &[E::Stored],
+    cols: usize,
+    xs: &[f32],
+    batch: usize,
+    scales: Option<&[f32]>,
+    bias: Option<&[f32]>,
+    ys_t: &mut [f32],
+) {
+    if cols == 0 {
+        for (i, y) in ys_t.chunks_exact_mut(batch).enumerate() {
+            let d = epilogue(0.0, scales.map(|s| s[i]), bias.map(|b| b[i]));
+            y.fill(d);
+        }
+        return;
+    }
+    if batch == 1 {
+        for (i, (row, y)) in w.chunks_exact(cols).zip(ys_t.iter_mut()).enumerate() {
+            *y = epilogue(E::dot(row, xs), scales.map(|s| s[i]), bias.map(|b| b[i]));
+        }
+        return;
+    }
+    let n_rows = ys_t.len() / batch;
+    for r0 in (0..n_rows).step_by(ROW_BLOCK) {
+        let nr = ROW_BLOCK.min(n_rows - r0);
+        for g0 in (0..batch).step_by(GROUP) {
+            let ng = GROUP.min(batch - g0);
+            let mut sums = [[[0.0f32; LANES]; GROUP]; ROW_BLOCK];
+            for c0 in (0..cols).step_by(COL_BLOCK) {
+                let c1 = (c0 + COL_BLOCK).min(cols);
+                let x = |k: usize| &xs[(g0 + k) * cols + c0..(g0 + k) * cols + c1];
+                for (r, s) in sums[..nr].iter_mut().enumerate() {
+                    let row = &w[(r0 + r) * cols + c0..(r0 + r) * cols + c1];
+                    let (pairs, odd) = s[..ng].as_chunks_mut::<2>();
+                    for (p, [s0, s1]) in pairs.iter_mut().enumerate() {
+                        E::madd2(row, x(2 * p), x(2 * p + 1), s0, s1);
+                    }
+                    if let [s0] = odd {
+                        E::madd1(row, x(ng - 1), s0);
+                    }
+                }
+            }
+            for (r, s) in sums[..nr].iter().enumerate() {
+                let i = r0 + r;
+                let (scale, b) = (scales.map(|s| s[i]), bias.map(|b| b[i]));
+                for (k, s) in s[..ng].iter().enumerate() {
+                    ys_t[i * batch + g0 + k] = epilogue(reduce(*s), scale, b);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f16_conversion_is_exact_for_every_finite_half() {
+        for bits in 0..=u16::MAX {
+            let h = half::f16::from_bits(bits);
+            if !h.is_finite() {
+                continue;
+            }
+            let ours = f16_bits_to_f32(bits);
+            assert_eq!(ours.to_bits(), h.to_f32().to_bits(), "bits {bits:#06x}");
+        }
+    }
+
+    #[test]
+    fn reduce_follows_the_halving_tree() {
+        let s: [f32; LANES] = std::array::from_fn(|l| (l + 1) as f32);
+        assert_eq!(reduce(s), (LANES * (LANES + 1) / 2) as f32);
+        // A case where the order matters: 1e8 + 1 - 1e8 in different lanes.
+        let mut s = [0.0f32; LANES];
+        s[0] = 1.0e8;
+        s[16] = -1.0e8;
+        s[1] = 1.0;
+        // Tree: s[0] += s[16] first (exactly 0), then s[0] += s[8], ..., s[0] += s[1] = 1.
+        assert_eq!(reduce(s), 1.0);
+    }
+
+    #[test]
+    fn batched_rows_equal_single_rows_bitwise() {
+        let cols = 2 * COL_BLOCK + 7 * LANES + 5;
+        let n_rows = ROW_BLOCK + 3;
+        let batch = GROUP + 3;
+        let w: Vec<f32> = (0..n_rows * cols)
+            .map(|i| ((i * 7919 % 1013) as f32 / 1013.0 - 0.5) * 1.7)
+            .collect();
+        let xs: Vec<f32> = (0..batch * cols)
+            .map(|i| ((i * 104_729 % 997) as f32 / 997.0 - 0.5) * 3.1)
+            .collect();
+        let bias: Vec<f32> = (0..n_rows).map(|i| i as f32 * 0.75 - 1.0).collect();
+        let mut batched = vec![0.0; n_rows * batch];
+        rows::<Portable<F32Codec>>(&w, cols, &xs, batch, None, Some(&bias), &mut batched);
+        for b in 0..batch {
+            let mut single = vec![0.0; n_rows];
+            rows::<Portable<F32Codec>>(
+                &w,
+                cols,
+                &xs[b * cols..(b + 1) * cols],
+                1,
+                None,
+                Some(&bias),
+                &mut single,
+            );
+            for i in 0..n_rows {
+                assert_eq!(single[i].to_bits(), batched[i * batch + b].to_bits());
+            }
+        }
+    }
+}

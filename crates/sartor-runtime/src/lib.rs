@@ -1,0 +1,54 @@
+//! # sartor-runtime
+//!
+//! Runs an exported sartor garment model without any learning framework: the garment fit MLP
+//! `R_G(β)` and the wrinkle GRU `R_L(β, θ)` of Santesteban et al. 2019, on lean CPU kernels.
+//! It never depends on burn, so it can ship in a game engine, a server or WebAssembly.
+//!
+//! - **Format** ([`GarmentModel`], [`ModelHeader`]): `model.safetensors` + `model.json`, read
+//!   and validated (shapes, finiteness, content hash), and written for tests and exporters.
+//!   The module docs of `format.rs` list every tensor and JSON field.
+//! - **Kernels** ([`Matrix`], [`Linear`], [`GruCell`], [`Mlp`], [`OutputLayer`]): weights in
+//!   f32, f16 or int8 ([`Precision`]), matrix–vector products that stream each row once with
+//!   32 independent accumulators, a batched variant in which several avatars share one pass
+//!   over the weights, the fused GRU step (three gates per matrix pass), optional rayon over
+//!   row blocks ([`Parallelism`]). Deterministic: results are bitwise independent of threads,
+//!   batch size and instruction set. On x86-64 the kernels use AVX2 + F16C intrinsics when the
+//!   CPU has them ([`instruction_set`] says which; `SARTOR_RUNTIME_ISA=portable` forces the
+//!   portable code, for comparisons); the only `unsafe` code of the crate is that dispatch
+//!   module. Error bounds of f16 and int8 storage are documented in `kernels/matrix.rs`.
+//! - **Network** ([`GarmentNetwork`], [`Workspace`]): normalisation, fit, one wrinkle frame,
+//!   batches; a frame allocates nothing.
+//!
+//! ```
+//! use sartor_runtime::{GruCell, Matrix, Parallelism, Precision};
+//!
+//! // A GRU with 2 inputs and 1 hidden unit: rows (r, z, n).
+//! let w_ih = Matrix::from_f32(3, 2, vec![0.5, -0.5, 0.1, 0.2, 1.0, 1.0], Precision::F32)?;
+//! let w_hh = Matrix::from_f32(3, 1, vec![0.3, -0.3, 0.7], Precision::F32)?;
+//! let cell = GruCell::new(w_ih, w_hh, vec![0.0; 3], vec![0.0; 3])?;
+//! let mut scratch = cell.scratch(1);
+//! let mut h = [0.0f32];
+//! for t in 0..100 {
+//!     let x = [(t as f32 * 0.1).sin(), 1.0];
+//!     cell.step(&x, &mut h, &mut scratch, Parallelism::Sequential)?;
+//!     assert!(h[0].abs() <= 1.0);
+//! }
+//! # Ok::<(), sartor_runtime::Error>(())
+//! ```
+
+mod error;
+mod format;
+mod kernels;
+mod network;
+
+pub use error::{Error, Result};
+pub use format::{
+    AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,
+    MODEL_JSON, MODEL_TENSORS, MODEL_VERSION, MeanStd, ModelHeader, ModelSizes, ModelWeights,
+    NormStats, OutputKind, PcaWeights, RotationEncoding,
+};
+pub use kernels::{
+    GruCell, GruScratch, INT8_ZERO_ROW, Linear, Matrix, Mlp, MlpScratch, OutputLayer,
+    OutputScratch, Parallelism, Precision, instruction_set,
+};
+pub use network::{GarmentNetwork, Workspace};

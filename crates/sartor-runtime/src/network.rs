@@ -1,0 +1,365 @@
+//! [`GarmentNetwork`]: a loaded model in the chosen precision, with allocation-free single and
+//! batched evaluation of the fit MLP, the wrinkle GRU and the linear baseline.
+
+use std::path::Path;
+
+use crate::error::{Error, Result, check_finite, check_len};
+use crate::format::{GarmentModel, MeanStd, ModelHeader, OutputKind};
+use crate::kernels::{
+    GruCell, GruScratch, Linear, Matrix, Mlp, MlpScratch, OutputLayer, OutputScratch, Parallelism,
+    Precision,
+};
+
+/// `x ↦ (x − mean) / std` into `out`.
+fn normalise(x: &[f32], stats: &MeanStd, out: &mut [f32]) {
+    let n = stats.mean.len();
+    for (o, xs) in out.chunks_exact_mut(n).zip(x.chunks_exact(n)) {
+        for ((o, &v), (m, s)) in o.iter_mut().zip(xs).zip(stats.mean.iter().zip(&stats.std)) {
+            *o = (v - m) / s;
+        }
+    }
+}
+
+/// `out[b·n + i] = y_t[i·B + b] · std_i + mean_i` (for `B = 1`, `y_t` may be `out` itself:
+/// see [`denormalise_in_place`]).
+fn denormalise_t(y_t: &[f32], batch: usize, stats: &MeanStd, out: &mut [f32]) {
+    let n = stats.mean.len();
+    for (b, o) in out.chunks_exact_mut(n).enumerate() {
+        for (i, (o, (m, s))) in o
+            .iter_mut()
+            .zip(stats.mean.iter().zip(&stats.std))
+            .enumerate()
+        {
+            *o = y_t[i * batch + b] * s + m;
+        }
+    }
+}
+
+fn denormalise_in_place(y: &mut [f32], stats: &MeanStd) {
+    for (o, (m, s)) in y.iter_mut().zip(stats.mean.iter().zip(&stats.std)) {
+        *o = *o * s + m;
+    }
+}
+
+/// Work buffers for one [`GarmentNetwork`], sized for batches of up to `capacity` avatars.
+/// Make one per thread that evaluates the network; after that, no call allocates.
+#[derive(Clone, Debug)]
+pub struct Workspace {
+    capacity: usize,
+    /// `(n_betas, I, H, 3V, H_f)` of the network it was made for.
+    sizes: [usize; 5],
+    fit_x: Vec<f32>,
+    wrinkle_x: Vec<f32>,
+    mlp: MlpScratch,
+    gru: GruScratch,
+    output: OutputScratch,
+    /// `[3V, B]` outputs before transposition (empty when `capacity == 1`).
+    out_t: Vec<f32>,
+}
+
+impl Workspace {
+    /// The largest batch it holds.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+}
+
+/// A garment model ready to run: `R_G(β)` (fit MLP) and `R_L(β, θ)` (wrinkle GRU + output
+/// layer), optionally the linear baseline, with every weight matrix stored in one
+/// [`Precision`].
+///
+/// Inputs are raw (un-normalised) features laid out as the model's header says; outputs are
+/// garment displacements in metres, `3V` values ordered `(v·3 + c)`. The caller carries the
+/// GRU state between frames (zeros at the start of a sequence, see
+/// [`GarmentNetwork::initial_state`]). Results are bitwise independent of [`Parallelism`] and
+/// of batching.
+#[derive(Clone, Debug)]
+pub struct GarmentNetwork {
+    header: ModelHeader,
+    precision: Precision,
+    fit: Mlp,
+    gru: GruCell,
+    output: OutputLayer,
+    lr: Option<Linear>,
+    fit_in: MeanStd,
+    fit_out: MeanStd,
+    wrinkle_in: MeanStd,
+    wrinkle_out: MeanStd,
+}
+
+impl GarmentNetwork {
+    /// Store the model's weight matrices in `precision` (biases and statistics stay f32).
+    pub fn new(model: GarmentModel, precision: Precision) -> Result<Self> {
+        let (header, w) = model.into_parts();
+        let s = header.sizes;
+        let (b, i, hf, h, o3) = (
+            s.n_betas,
+            s.wrinkle_inputs(),
+            s.fit_hidden,
+            s.gru_hidden,
+            s.n_outputs(),
+        );
+        let linear = |rows, cols, weight, bias| -> Result<Linear> {
+            Linear::new(Matrix::from_f32(rows, cols, weight, precision)?, bias)
+        };
+        let fit = Mlp::new(
+            linear(hf, b, w.fit_hidden.weight, w.fit_hidden.bias)?,
+            linear(o3, hf, w.fit_out.weight, w.fit_out.bias)?,
+        )?;
+        let gru = GruCell::new(
+            Matrix::from_f32(3 * h, i, w.gru.weight_ih, precision)?,
+            Matrix::from_f32(3 * h, h, w.gru.weight_hh, precision)?,
+            w.gru.bias_ih,
+            w.gru.bias_hh,
+        )?;
+        let out_rows = s.wrinkle_out_rows();
+        let coefficients = linear(out_rows, h, w.wrinkle_out.weight, w.wrinkle_out.bias)?;
+        let output = match (s.output, w.pca) {
+            (OutputKind::Pca(k), Some(pca)) => OutputLayer::pca(
+                coefficients,
+                Matrix::from_f32(o3, k, pca.basis, precision)?,
+                pca.mean,
+            )?,
+            (OutputKind::Dense, None) => OutputLayer::Dense(coefficients),
+            _ => {
+                return Err(Error::invalid(
+                    "model",
+                    "PCA tensors present iff sizes.output is pca",
+                ));
+            }
+        };
+        let lr = match w.lr {
+            Some(l) => Some(linear(o3, i, l.weight, l.bias)?),
+            None => None,
+        };
+        Ok(Self {
+            header,
+            precision,
+            fit,
+            gru,
+            output,
+            lr,
+            fit_in: w.norm.fit_in,
+            fit_out: w.norm.fit_out,
+            wrinkle_in: w.norm.wrinkle_in,
+            wrinkle_out: w.norm.wrinkle_out,
+        })
+    }
+
+    /// [`GarmentModel::load`] then [`GarmentNetwork::new`]; errors name the file.
+    pub fn load(dir: &Path, precision: Precision) -> Result<Self> {
+        let model = GarmentModel::load(dir)?;
+        Self::new(model, precision).map_err(|e| e.in_file(dir.join(crate::MODEL_TENSORS)))
+    }
+
+    /// The model's header (sizes, input layout, garment and body ids).
+    pub fn header(&self) -> &ModelHeader {
+        &self.header
+    }
+
+    /// Weight storage precision.
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// Number of shape coefficients (fit input size).
+    pub fn n_betas(&self) -> usize {
+        self.header.sizes.n_betas
+    }
+
+    /// Wrinkle input size `I`.
+    pub fn input_size(&self) -> usize {
+        self.gru.input_size()
+    }
+
+    /// GRU state size `H`.
+    pub fn state_size(&self) -> usize {
+        self.gru.hidden_size()
+    }
+
+    /// Output size `3V`.
+    pub fn output_size(&self) -> usize {
+        self.header.sizes.n_outputs()
+    }
+
+    /// Bytes held by all weight matrices (and int8 scales).
+    pub fn weight_bytes(&self) -> usize {
+        self.fit.weight_bytes()
+            + self.gru.weight_bytes()
+            + self.output.weight_bytes()
+            + self.lr.as_ref().map_or(0, |l| l.weight().weight_bytes())
+    }
+
+    /// The GRU state at the start of a sequence: zeros.
+    pub fn initial_state(&self) -> Vec<f32> {
+        vec![0.0; self.state_size()]
+    }
+
+    /// Buffers for batches of up to `capacity` avatars (at least 1).
+    pub fn workspace(&self, capacity: usize) -> Workspace {
+        let capacity = capacity.max(1);
+        let n_in = self.n_betas().max(self.input_size());
+        Workspace {
+            capacity,
+            sizes: self.workspace_sizes(),
+            fit_x: vec![0.0; self.n_betas() * capacity],
+            wrinkle_x: vec![0.0; n_in * capacity],
+            mlp: self.fit.scratch(capacity),
+            gru: self.gru.scratch(capacity),
+            output: self.output.scratch(capacity),
+            out_t: if capacity > 1 {
+                vec![0.0; self.output_size() * capacity]
+            } else {
+                Vec::new()
+            },
+        }
+    }
+
+    fn workspace_sizes(&self) -> [usize; 5] {
+        [
+            self.n_betas(),
+            self.input_size(),
+            self.state_size(),
+            self.output_size(),
+            self.fit.n_hidden(),
+        ]
+    }
+
+    fn check_batch(&self, batch: usize, ws: &Workspace) -> Result<()> {
+        if ws.sizes != self.workspace_sizes() {
+            return Err(Error::invalid(
+                "workspace",
+                "it was made for a network of other sizes",
+            ));
+        }
+        if batch == 0 || batch > ws.capacity {
+            return Err(Error::invalid(
+                "batch",
+                format!("{batch} avatars, workspace holds 1 to {}", ws.capacity),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The fit displacement `R_G(β)` (`out`: `3V`, metres). Errors on non-finite β.
+    pub fn fit(
+        &self,
+        betas: &[f32],
+        out: &mut [f32],
+        ws: &mut Workspace,
+        par: Parallelism,
+    ) -> Result<()> {
+        self.fit_batch(betas, 1, out, ws, par)
+    }
+
+    /// [`GarmentNetwork::fit`] for `batch` shapes sharing one pass over the weights.
+    ///
+    /// # Shapes
+    /// - `betas`: `[batch, n_betas]`, `out`: `[batch, 3V]`.
+    pub fn fit_batch(
+        &self,
+        betas: &[f32],
+        batch: usize,
+        out: &mut [f32],
+        ws: &mut Workspace,
+        par: Parallelism,
+    ) -> Result<()> {
+        self.check_batch(batch, ws)?;
+        check_len("betas", betas.len(), batch * self.n_betas())?;
+        check_len("fit output", out.len(), batch * self.output_size())?;
+        check_finite("betas", betas)?;
+        let x = &mut ws.fit_x[..batch * self.n_betas()];
+        normalise(betas, &self.fit_in, x);
+        if batch == 1 {
+            self.fit.forward(x, out, &mut ws.mlp, par)?;
+            denormalise_in_place(out, &self.fit_out);
+        } else {
+            let y_t = &mut ws.out_t[..batch * self.output_size()];
+            self.fit.forward_batch_t(x, batch, y_t, &mut ws.mlp, par)?;
+            denormalise_t(y_t, batch, &self.fit_out, out);
+        }
+        check_finite("fit output", out)
+    }
+
+    /// One frame of the wrinkle regressor `R_L`: advances `state` (`H`) with the wrinkle input
+    /// `x_t` (`I`, raw features in the header's layout) and writes the wrinkle displacement
+    /// (`3V`, metres) to `out`. Errors (before touching `state`) on non-finite `x_t` or
+    /// `state`. Allocates nothing.
+    pub fn wrinkle_step(
+        &self,
+        x_t: &[f32],
+        state: &mut [f32],
+        out: &mut [f32],
+        ws: &mut Workspace,
+        par: Parallelism,
+    ) -> Result<()> {
+        self.wrinkle_step_batch(x_t, 1, state, out, ws, par)
+    }
+
+    /// [`GarmentNetwork::wrinkle_step`] for `batch` avatars sharing one pass over the weights;
+    /// each avatar's state and output are bitwise equal to stepping it alone.
+    ///
+    /// # Shapes
+    /// - `xs`: `[batch, I]`, `states`: `[batch, H]`, `out`: `[batch, 3V]`.
+    pub fn wrinkle_step_batch(
+        &self,
+        xs: &[f32],
+        batch: usize,
+        states: &mut [f32],
+        out: &mut [f32],
+        ws: &mut Workspace,
+        par: Parallelism,
+    ) -> Result<()> {
+        self.check_batch(batch, ws)?;
+        let n_in = self.input_size();
+        check_len("wrinkle input", xs.len(), batch * n_in)?;
+        check_len("wrinkle state", states.len(), batch * self.state_size())?;
+        check_len("wrinkle output", out.len(), batch * self.output_size())?;
+        check_finite("wrinkle input", xs)?;
+        check_finite("wrinkle state", states)?;
+        let x = &mut ws.wrinkle_x[..batch * n_in];
+        normalise(xs, &self.wrinkle_in, x);
+        self.gru.step_batch(x, batch, states, &mut ws.gru, par)?;
+        if batch == 1 {
+            self.output
+                .forward_batch_t(states, 1, out, &mut ws.output, par)?;
+            denormalise_in_place(out, &self.wrinkle_out);
+        } else {
+            let y_t = &mut ws.out_t[..batch * self.output_size()];
+            self.output
+                .forward_batch_t(states, batch, y_t, &mut ws.output, par)?;
+            denormalise_t(y_t, batch, &self.wrinkle_out, out);
+        }
+        check_finite("wrinkle output", out)
+    }
+
+    /// Whether the model carries the linear baseline.
+    pub fn has_linear_baseline(&self) -> bool {
+        self.lr.is_some()
+    }
+
+    /// The linear baseline in place of `R_L`: `out = (W x̂ + b) · std + mean` with `x̂` the
+    /// normalised wrinkle input and the wrinkle output statistics. Errors when the model has
+    /// no baseline or `x_t` is not finite.
+    pub fn linear_baseline(
+        &self,
+        x_t: &[f32],
+        out: &mut [f32],
+        ws: &mut Workspace,
+        par: Parallelism,
+    ) -> Result<()> {
+        let lr = self
+            .lr
+            .as_ref()
+            .ok_or_else(|| Error::invalid("model", "it has no linear baseline"))?;
+        let n_in = self.input_size();
+        check_len("wrinkle input", x_t.len(), n_in)?;
+        check_len("baseline output", out.len(), self.output_size())?;
+        check_finite("wrinkle input", x_t)?;
+        let x = &mut ws.wrinkle_x[..n_in];
+        normalise(x_t, &self.wrinkle_in, x);
+        lr.forward(x, out, par)?;
+        denormalise_in_place(out, &self.wrinkle_out);
+        check_finite("baseline output", out)
+    }
+}
