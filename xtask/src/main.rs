@@ -3,6 +3,10 @@
 
 use clap::{Parser, Subcommand};
 
+mod body;
+mod import_body;
+mod motions;
+
 #[derive(Parser)]
 #[command(name = "xtask", about = "sartor: learning-based garment animation")]
 struct Cli {
@@ -11,9 +15,20 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Convert the raw MakeHuman assets into datasets/body/makehuman (the built-in body).
+    ImportBody(import_body::ImportBodyArgs),
+    /// Write the posed body as one OBJ per frame (shape by β or phenotype, any motion).
+    Body(body::BodyArgs),
+    /// Import MakeHuman's walk cycle into datasets/motions/walk.json.
+    ImportMotion(motions::ImportMotionArgs),
+}
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    match cli.command {}
+    match cli.command {
+        Command::ImportBody(args) => import_body::import_body(&args),
+        Command::Body(args) => body::body(&args),
+        Command::ImportMotion(args) => motions::import_motion(&args),
+    }
 }

@@ -5,8 +5,15 @@
 //! - [`TriMesh`]: validated triangle meshes, OBJ I/O, normals, topology.
 //! - [`BodyModel`]: template, shape basis, joint shape basis, [`Skeleton`], [`SkinWeights`];
 //!   saved as safetensors + JSON; SMPL `.npz` files load into the same type.
+//! - [`load_builtin`]: the built-in CC0 MakeHuman body (`datasets/body/makehuman`, made by
+//!   [`import_makehuman`]); [`PhenotypeSpace`] maps MakeHuman's sliders or a text request
+//!   such as `"female, 1.70 m, heavy"` to its shape vector β.
 //! - [`skin_points`] / [`unskin_points`]: linear blend skinning and its inverse, the one
 //!   implementation every sartor crate uses.
+//! - [`Motion`]s on the built-in skeleton: the [`procedural`] clip library, the imported
+//!   MakeHuman walk ([`import_walk_cycle`]), CMU-style BVH ([`Bvh`], [`retarget_bvh`]) and
+//!   AMASS-style `.npz` ([`load_amass`]), retargeted by world orientation onto a
+//!   [`RetargetBody`]; [`load_motion`] picks one from a command-line spec.
 //!
 //! ```
 //! use sartor_body::{Pose, Skeleton, SkinWeights, BoneTransform, Par, skin_points, unskin_points};
@@ -27,24 +34,59 @@
 //! # Ok::<(), sartor_body::Error>(())
 //! ```
 
+mod amass;
+mod bvh;
 mod error;
 pub mod io;
+mod makehuman;
 mod mesh;
 mod model;
 mod motion;
+mod motion_sources;
 pub mod npz;
 mod obj;
+mod phenotype;
+pub mod procedural;
+mod proximity;
 mod rig;
 mod skeleton;
 mod skinning;
 mod smpl;
+mod walkcycle;
 
+pub use amass::{
+    AmassData, AmassOptions, SMPL_BODY_PARENTS, SMPL_TO_RIG, load_amass, retarget_amass,
+    retarget_amass_native_rate,
+};
+pub use bvh::{
+    Bvh, BvhChannel, BvhJoint, BvhRetargetOptions, BvhRetargetReport, cmu_to_rig_name,
+    load_bvh_motion, retarget_bvh, retarget_bvh_native_rate,
+};
 pub use error::{Error, Result};
+pub use makehuman::{
+    BONE_FRAMES_FILE, BoneFrames, HeldOutReport, IMPORT_REPORT_FILE, ImportOptions, ImportReport,
+    JointReport, MeshReport, PcaReport, SAMPLE_RANGES, ShapeSpaceReport, SkinWeightReport,
+    TPOSE_FILE, TPoseReport, TopKReport, blender_euler_xyz, builtin_model_dir, import_makehuman,
+    load_builtin, load_tpose,
+};
 pub use mesh::{MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};
 pub use motion::{FPS, Motion, interpolate_pose};
+pub use motion_sources::{
+    MotionSourceOptions, RetargetBody, UpAxis, WALK_NAME, load_motion, pose_from_world,
+    split_heading, world_rotations,
+};
 pub use obj::{ObjData, obj_text, read_obj, write_obj};
+pub use phenotype::{
+    PHENOTYPE_HEADER, PHENOTYPE_TENSORS, PartialPhenotype, Phenotype, PhenotypeRequest,
+    PhenotypeSampling, PhenotypeSpace, SLIDERS,
+};
+pub use proximity::{ClosestPoint, MeshProximity};
 pub use rig::{CMU_MB_JOINTS, cmu_mb_skeleton};
 pub use skeleton::{Pose, PosedSkeleton, Skeleton};
 pub use skinning::{BoneTransform, Par, SkinWeights, skin_points, unskin_points};
 pub use smpl::{SMPL_JOINTS, load_smpl_npz, smpl_from_npz};
+pub use walkcycle::{
+    BLENDER_FPS, CMU_MB_RIG_FILE, DEFAULT_RIG_FILE, WALK_CYCLE_FILE, WALK_CYCLES,
+    cmu_mb_rest_joints, import_walk_cycle,
+};

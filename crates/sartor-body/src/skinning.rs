@@ -88,7 +88,13 @@ impl SkinWeights {
         for p in 0..offsets.len() - 1 {
             let (a, b) = (offsets[p] as usize, offsets[p + 1] as usize);
             if b <= a {
-                return Err(bad(format!("point {p} has no weights")));
+                return Err(bad(format!("point {p} has no weights (offsets {a}..{b})")));
+            }
+            if b > joints.len() {
+                return Err(bad(format!(
+                    "point {p}: offset {b} is past the {} weights",
+                    joints.len()
+                )));
             }
             let mut sum = 0.0f64;
             for k in a..b {
@@ -315,6 +321,9 @@ mod tests {
         assert!(SkinWeights::new(vec![0, 1], vec![0], vec![0.5], 1).is_err());
         assert!(SkinWeights::new(vec![0, 1], vec![0], vec![f32::NAN], 1).is_err());
         assert!(SkinWeights::new(vec![0, 0], vec![], vec![], 1).is_err());
+        // Non-monotone offsets that end at the right length (found by fuzzing).
+        let e = SkinWeights::new(vec![0, 9, 2, 3], vec![0; 3], vec![1.0; 3], 1).unwrap_err();
+        assert!(e.to_string().contains("past"), "{e}");
         let w = SkinWeights::from_dense_top_k(&[0.1, 0.6, 0.3, 0.0], 4, 2).expect("valid");
         let pairs: Vec<_> = w.point(0).collect();
         assert_eq!(pairs.len(), 2);

@@ -185,3 +185,35 @@ fn corrupt_model_files_are_errors_naming_the_file() {
     let e = BodyModel::load(dir.path()).unwrap_err().to_string();
     assert!(e.contains("model.json"), "{e}");
 }
+
+/// Replays inputs the fuzzer found, the way `fuzz/fuzz_targets/model_safetensors.rs` feeds them:
+/// each must give an error, not a panic.
+#[test]
+fn fuzz_regressions_are_errors() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&dir).expect("fuzz regression folder") {
+        let path = entry.expect("entry").path();
+        let data = std::fs::read(&path).expect("read");
+        let names: Vec<String> = sartor_body::CMU_MB_JOINTS
+            .iter()
+            .take(3)
+            .map(|(n, _)| format!("{n:?}"))
+            .collect();
+        let header = format!(
+            r#"{{"format":"sartor-body","version":1,"name":"f","units":"m","axes":"","n_vertices":4,"n_faces":4,
+               "n_betas":2,"joint_names":[{}],"parents":[null,0,1],
+               "provenance":{{"source":"","licence":"","notes":""}},"tensors_sha256":"{}"}}"#,
+            names.join(","),
+            sartor_body::io::sha256_hex(&data)
+        );
+        let result = BodyModel::from_bytes(std::path::Path::new("fuzz"), header.as_bytes(), data);
+        assert!(
+            result.is_err(),
+            "{} loaded as a valid model",
+            path.display()
+        );
+        n += 1;
+    }
+    assert!(n > 0, "no fuzz regressions found in {}", dir.display());
+}

@@ -1,0 +1,482 @@
+//! Closest points on a triangle mesh, with signed distance: the one closest-point query of
+//! sartor, used for cloth binding, body contact, the runtime's collision post-process and garment
+//! checks.
+//!
+//! A bounding-volume hierarchy over the triangles (f64) answers "closest point to p", with the
+//! triangle, barycentric coordinates and a signed distance whose sign comes from angle-weighted
+//! pseudo-normals (Bærentzen & Aanæs 2005): negative inside a closed, outward-oriented surface.
+//! The tree can be refitted to moved vertices without rebuilding (for an animated body).
+
+use nalgebra::Vector3;
+
+use crate::{Error, Result};
+
+const LEAF_SIZE: usize = 4;
+
+/// The answer to a closest-point query.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClosestPoint {
+    /// Index of the closest triangle (into the faces given at construction).
+    pub face: u32,
+    /// The closest point on the surface.
+    pub point: Vector3<f64>,
+    /// Barycentric coordinates of `point` in `face`.
+    pub barycentric: [f64; 3],
+    /// Distance to the surface, negative when `p` is inside (behind the pseudo-normal).
+    pub signed_distance_m: f64,
+    /// Unit pseudo-normal of the closest feature (face, edge or vertex).
+    pub normal: Vector3<f64>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Aabb {
+    min: Vector3<f64>,
+    max: Vector3<f64>,
+}
+
+impl Aabb {
+    fn empty() -> Self {
+        Self {
+            min: Vector3::repeat(f64::INFINITY),
+            max: Vector3::repeat(f64::NEG_INFINITY),
+        }
+    }
+    fn grow(&mut self, p: &Vector3<f64>) {
+        self.min = self.min.inf(p);
+        self.max = self.max.sup(p);
+    }
+    fn merge(&self, o: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.inf(&o.min),
+            max: self.max.sup(&o.max),
+        }
+    }
+    fn distance_sq(&self, p: &Vector3<f64>) -> f64 {
+        let d = (self.min - p).sup(&(p - self.max)).sup(&Vector3::zeros());
+        d.norm_squared()
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    bounds: Aabb,
+    /// Leaf: `start..start + count` in `order`; inner: children `left` and `left + 1`... stored
+    /// explicitly for clarity.
+    start: u32,
+    count: u32,
+    left: u32,
+    right: u32,
+}
+
+/// A closest-point structure over a triangle mesh (or any subset of its faces).
+#[derive(Clone, Debug)]
+pub struct MeshProximity {
+    faces: Vec<[u32; 3]>,
+    positions: Vec<Vector3<f64>>,
+    nodes: Vec<Node>,
+    /// Triangle indices in leaf order.
+    order: Vec<u32>,
+    face_normals: Vec<Vector3<f64>>,
+    /// Per face, pseudo-normal of edges (v0 v1), (v1 v2), (v2 v0).
+    edge_normals: Vec<[Vector3<f64>; 3]>,
+    vertex_normals: Vec<Vector3<f64>>,
+    /// Per face and corner edge k: the neighbour face across it (or u32::MAX).
+    neighbours: Vec<[u32; 3]>,
+}
+
+impl MeshProximity {
+    /// Build over `faces` (indices into `positions`, which may hold unused vertices — e.g. a body
+    /// region given as a subset of the body's faces).
+    pub fn new(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Result<Self> {
+        if faces.is_empty() {
+            return Err(Error::invalid("proximity mesh", "no triangles"));
+        }
+        if let Some(f) = faces
+            .iter()
+            .position(|t| t.iter().any(|&i| i as usize >= positions.len()))
+        {
+            return Err(Error::invalid(
+                "proximity mesh",
+                format!("triangle {f} indexes past {} vertices", positions.len()),
+            ));
+        }
+        if !positions.iter().all(|p| p.iter().all(|c| c.is_finite())) {
+            return Err(Error::invalid("proximity mesh", "non-finite vertex"));
+        }
+        let topo = crate::MeshTopology::new(positions.len(), faces);
+        let mut neighbours = vec![[u32::MAX; 3]; faces.len()];
+        for (f, edges) in topo.face_edges.iter().enumerate() {
+            for k in 0..3 {
+                let around = &topo.edge_faces[edges[k] as usize];
+                if around.len() == 2 {
+                    neighbours[f][k] = if around[0] as usize == f {
+                        around[1]
+                    } else {
+                        around[0]
+                    };
+                }
+            }
+        }
+        let mut s = Self {
+            faces: faces.to_vec(),
+            positions: positions.to_vec(),
+            nodes: Vec::new(),
+            order: (0..faces.len() as u32).collect(),
+            face_normals: Vec::new(),
+            edge_normals: Vec::new(),
+            vertex_normals: Vec::new(),
+            neighbours,
+        };
+        let centroids: Vec<Vector3<f64>> = faces
+            .iter()
+            .map(|t| s.tri(t).iter().sum::<Vector3<f64>>() / 3.0)
+            .collect();
+        s.nodes.reserve(2 * faces.len() / LEAF_SIZE + 1);
+        s.build(0, faces.len(), &centroids);
+        s.update_normals();
+        Ok(s)
+    }
+
+    fn tri(&self, t: &[u32; 3]) -> [Vector3<f64>; 3] {
+        t.map(|i| self.positions[i as usize])
+    }
+
+    fn build(&mut self, start: usize, end: usize, centroids: &[Vector3<f64>]) -> u32 {
+        let mut bounds = Aabb::empty();
+        let mut cbounds = Aabb::empty();
+        for &f in &self.order[start..end] {
+            for p in self.tri(&self.faces[f as usize]) {
+                bounds.grow(&p);
+            }
+            cbounds.grow(&centroids[f as usize]);
+        }
+        let id = self.nodes.len() as u32;
+        self.nodes.push(Node {
+            bounds,
+            start: start as u32,
+            count: (end - start) as u32,
+            left: 0,
+            right: 0,
+        });
+        if end - start <= LEAF_SIZE {
+            return id;
+        }
+        let extent = cbounds.max - cbounds.min;
+        let axis = extent.imax();
+        let mid = (start + end) / 2;
+        // Median split by centroid along the longest axis; ties broken by index (deterministic).
+        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
+            centroids[a as usize][axis]
+                .total_cmp(&centroids[b as usize][axis])
+                .then(a.cmp(&b))
+        });
+        let left = self.build(start, mid, centroids);
+        let right = self.build(mid, end, centroids);
+        let node = &mut self.nodes[id as usize];
+        node.count = 0;
+        node.left = left;
+        node.right = right;
+        id
+    }
+
+    fn update_normals(&mut self) {
+        let n_f = self.faces.len();
+        self.face_normals.clear();
+        for t in &self.faces {
+            let [a, b, c] = t.map(|i| self.positions[i as usize]);
+            self.face_normals.push(
+                (b - a)
+                    .cross(&(c - a))
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::zeros),
+            );
+        }
+        self.vertex_normals.clear();
+        self.vertex_normals
+            .resize(self.positions.len(), Vector3::zeros());
+        for (t, n) in self.faces.iter().zip(&self.face_normals) {
+            let p = self.tri(t);
+            for k in 0..3 {
+                let e1 = (p[(k + 1) % 3] - p[k])
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::zeros);
+                let e2 = (p[(k + 2) % 3] - p[k])
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::zeros);
+                let angle = e1.dot(&e2).clamp(-1.0, 1.0).acos();
+                self.vertex_normals[t[k] as usize] += angle * n;
+            }
+        }
+        for n in &mut self.vertex_normals {
+            *n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
+        }
+        self.edge_normals.clear();
+        self.edge_normals.resize(n_f, [Vector3::zeros(); 3]);
+        for f in 0..n_f {
+            for k in 0..3 {
+                let g = self.neighbours[f][k];
+                let sum = if g == u32::MAX {
+                    self.face_normals[f]
+                } else {
+                    self.face_normals[f] + self.face_normals[g as usize]
+                };
+                self.edge_normals[f][k] = sum.try_normalize(0.0).unwrap_or(self.face_normals[f]);
+            }
+        }
+    }
+
+    /// Move the vertices (same count as at construction) and refit the tree and the normals.
+    /// No allocation.
+    pub fn update_positions(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        if positions.len() != self.positions.len() {
+            return Err(Error::invalid(
+                "proximity mesh",
+                format!(
+                    "{} positions for {} vertices",
+                    positions.len(),
+                    self.positions.len()
+                ),
+            ));
+        }
+        if !positions.iter().all(|p| p.iter().all(|c| c.is_finite())) {
+            return Err(Error::invalid("proximity mesh", "non-finite vertex"));
+        }
+        self.positions.copy_from_slice(positions);
+        // Children have larger indices than parents: refit in reverse.
+        for id in (0..self.nodes.len()).rev() {
+            let node = self.nodes[id];
+            let bounds = if node.count > 0 {
+                let mut b = Aabb::empty();
+                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                    for p in self.tri(&self.faces[f as usize]) {
+                        b.grow(&p);
+                    }
+                }
+                b
+            } else {
+                self.nodes[node.left as usize]
+                    .bounds
+                    .merge(&self.nodes[node.right as usize].bounds)
+            };
+            self.nodes[id].bounds = bounds;
+        }
+        self.update_normals();
+        Ok(())
+    }
+
+    /// The vertex positions currently used.
+    pub fn positions(&self) -> &[Vector3<f64>] {
+        &self.positions
+    }
+
+    /// The triangles.
+    pub fn faces(&self) -> &[[u32; 3]] {
+        &self.faces
+    }
+
+    /// Closest point on the surface to `p`.
+    pub fn closest(&self, p: &Vector3<f64>) -> ClosestPoint {
+        self.closest_within(p, f64::INFINITY)
+            .expect("an unbounded search always finds a triangle")
+    }
+
+    /// Closest point on the surface to `p` if it is within `max_distance_m`.
+    pub fn closest_within(&self, p: &Vector3<f64>, max_distance_m: f64) -> Option<ClosestPoint> {
+        let mut best_d2 = max_distance_m * max_distance_m;
+        let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if node.bounds.distance_sq(p) > best_d2 {
+                continue;
+            }
+            if node.count > 0 {
+                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                    let tri = self.tri(&self.faces[f as usize]);
+                    let (q, bary, feature) = closest_on_triangle(p, &tri);
+                    let d2 = (q - p).norm_squared();
+                    let better = d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0));
+                    if better || (best.is_none() && d2 <= best_d2) {
+                        best_d2 = d2;
+                        best = Some((f, q, bary, feature));
+                    }
+                }
+            } else {
+                // Visit the nearer child first (pushed last).
+                let (l, r) = (node.left, node.right);
+                let (dl, dr) = (
+                    self.nodes[l as usize].bounds.distance_sq(p),
+                    self.nodes[r as usize].bounds.distance_sq(p),
+                );
+                let (near, far) = if dl <= dr { (l, r) } else { (r, l) };
+                stack[top] = far;
+                stack[top + 1] = near;
+                top += 2;
+            }
+        }
+        let (face, point, barycentric, feature) = best?;
+        let t = self.faces[face as usize];
+        let normal = match feature {
+            Feature::Face => self.face_normals[face as usize],
+            Feature::Edge(k) => self.edge_normals[face as usize][k],
+            Feature::Vertex(k) => self.vertex_normals[t[k] as usize],
+        };
+        let d = (p - point).norm();
+        let sign = if (p - point).dot(&normal) < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        Some(ClosestPoint {
+            face,
+            point,
+            barycentric,
+            signed_distance_m: sign * d,
+            normal,
+        })
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Feature {
+    Face,
+    /// Edge k = (v_k, v_{k+1}).
+    Edge(usize),
+    Vertex(usize),
+}
+
+/// Closest point on triangle `[a, b, c]` to `p` (Ericson, Real-Time Collision Detection §5.1.5),
+/// with barycentrics and the feature it lies on.
+fn closest_on_triangle(
+    p: &Vector3<f64>,
+    [a, b, c]: &[Vector3<f64>; 3],
+) -> (Vector3<f64>, [f64; 3], Feature) {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return (*a, [1.0, 0.0, 0.0], Feature::Vertex(0));
+    }
+    let bp = p - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return (*b, [0.0, 1.0, 0.0], Feature::Vertex(1));
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (a + ab * v, [1.0 - v, v, 0.0], Feature::Edge(0));
+    }
+    let cp = p - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return (*c, [0.0, 0.0, 1.0], Feature::Vertex(2));
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (a + ac * w, [1.0 - w, 0.0, w], Feature::Edge(2));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (b + (c - b) * w, [0.0, 1.0 - w, w], Feature::Edge(1));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    (a + ab * v + ac * w, [1.0 - v - w, v, w], Feature::Face)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An axis-aligned unit cube centred at the origin, outward-oriented.
+    fn cube() -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+        let p: Vec<Vector3<f64>> = (0..8)
+            .map(|i| {
+                Vector3::new(
+                    (i & 1) as f64 - 0.5,
+                    ((i >> 1) & 1) as f64 - 0.5,
+                    ((i >> 2) & 1) as f64 - 0.5,
+                )
+            })
+            .collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let f = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        (p, f)
+    }
+
+    #[test]
+    fn signed_distance_to_a_cube() {
+        let (p, f) = cube();
+        let m = MeshProximity::new(&p, &f).expect("valid");
+        let cases = [
+            (Vector3::new(0.0, 0.0, 0.0), -0.5),
+            (Vector3::new(0.1, 0.2, 0.45), -0.05),
+            (Vector3::new(0.0, 0.0, 0.7), 0.2),
+            (Vector3::new(0.7, 0.7, 0.0), (0.08f64).sqrt()), // edge region
+            (Vector3::new(0.6, 0.6, 0.6), (0.03f64).sqrt()), // vertex region
+            (Vector3::new(0.49, 0.49, 0.0), -0.01),          // inside near an edge
+        ];
+        for (q, expected) in cases {
+            let c = m.closest(&q);
+            assert!(
+                (c.signed_distance_m - expected).abs() < 1e-12,
+                "{q}: {} vs {expected}",
+                c.signed_distance_m
+            );
+            let t = f[c.face as usize];
+            let recon: Vector3<f64> = (0..3).map(|k| p[t[k] as usize] * c.barycentric[k]).sum();
+            assert!((recon - c.point).norm() < 1e-12);
+        }
+        assert!(
+            m.closest_within(&Vector3::new(0.0, 0.0, 2.0), 1.0)
+                .is_none()
+        );
+    }
+
+    #[test]
+    fn matches_brute_force_and_refits() {
+        let (p, f) = cube();
+        let mut m = MeshProximity::new(&p, &f).expect("valid");
+        let moved: Vec<Vector3<f64>> = p
+            .iter()
+            .map(|v| v * 2.0 + Vector3::new(0.3, 0.0, 0.0))
+            .collect();
+        m.update_positions(&moved).expect("same size");
+        for i in 0..200 {
+            let x = i as f64 * 0.37;
+            let q = Vector3::new(x.sin() * 2.0, (1.3 * x).cos() * 2.0, (0.7 * x).sin() * 2.0);
+            let c = m.closest(&q);
+            let brute = f
+                .iter()
+                .map(|t| {
+                    let tri = t.map(|i| moved[i as usize]);
+                    (closest_on_triangle(&q, &tri).0 - q).norm()
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!((c.signed_distance_m.abs() - brute).abs() < 1e-12);
+            let inside = (q - Vector3::new(0.3, 0.0, 0.0)).abs().max() < 1.0;
+            assert_eq!(c.signed_distance_m < 0.0, inside, "{q}");
+        }
+        assert!(m.update_positions(&p[..4]).is_err());
+    }
+}
