@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 mod body;
+mod garment;
 mod import_body;
 mod motions;
 
@@ -22,6 +23,8 @@ enum Command {
     Body(body::BodyArgs),
     /// Import MakeHuman's walk cycle into datasets/motions/walk.json.
     ImportMotion(motions::ImportMotionArgs),
+    /// Build a garment template (procedural T-shirt or user OBJ) into datasets/garments/<name>.
+    Garment(garment::GarmentArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -30,5 +33,6 @@ fn main() -> anyhow::Result<()> {
         Command::ImportBody(args) => import_body::import_body(&args),
         Command::Body(args) => body::body(&args),
         Command::ImportMotion(args) => motions::import_motion(&args),
+        Command::Garment(args) => garment::garment(&args),
     }
 }

@@ -1,0 +1,260 @@
+//! A cloth: validated rest mesh, material, per-triangle material frames and the rest data of
+//! every element (membrane triangles, bending hinges, lumped masses).
+
+use nalgebra::Vector3;
+use sartor_body::{MeshTopology, TriMesh};
+
+use crate::energy::{BendingRest, MembraneRest, dihedral_angle};
+use crate::material::Material;
+use crate::{Error, Result};
+
+/// A cloth ready to simulate. Invariants (checked by [`Cloth::new`]): the rest mesh is a valid,
+/// oriented, connected 2-manifold (with boundary) in which every vertex belongs to a triangle,
+/// and every triangle has a non-degenerate material frame.
+#[derive(Clone, Debug)]
+pub struct Cloth {
+    rest: TriMesh,
+    topology: MeshTopology,
+    material: Material,
+    u_axes: Vec<Vector3<f64>>,
+    membranes: Vec<MembraneRest>,
+    hinges: Vec<BendingRest>,
+    mass_kg: Vec<f64>,
+    area_m2: Vec<f64>,
+}
+
+impl Cloth {
+    /// Build a cloth from positions and faces (validated as a [`TriMesh`] first, so NaNs,
+    /// bad indices and zero-area triangles are reported here too). See [`Cloth::new`].
+    pub fn from_parts(
+        positions: Vec<Vector3<f64>>,
+        faces: Vec<[u32; 3]>,
+        material: Material,
+        u_axes: Option<&[Vector3<f64>]>,
+    ) -> Result<Self> {
+        Self::new(TriMesh::new(positions, faces)?, material, u_axes)
+    }
+
+    /// Build a cloth from its rest mesh.
+    ///
+    /// `u_axes` gives, per triangle, the material's u direction ("around" the body; v is
+    /// "vertical", `v = n × u`); each is projected onto its triangle's plane. When `None`, a
+    /// triangle's u axis is its first edge `x1 − x0`.
+    pub fn new(rest: TriMesh, material: Material, u_axes: Option<&[Vector3<f64>]>) -> Result<Self> {
+        let topology = rest.topology();
+        topology.check_manifold()?;
+        let (_, n_components) = topology.face_components();
+        if n_components != 1 {
+            return Err(Error::invalid(
+                "cloth mesh",
+                format!(
+                    "the mesh has {n_components} disconnected parts; a cloth must be one piece"
+                ),
+            ));
+        }
+        let positions = rest.positions();
+        let faces = rest.faces();
+        let mut used = vec![false; rest.n_vertices()];
+        for t in faces {
+            for &v in t {
+                used[v as usize] = true;
+            }
+        }
+        if let Some(v) = used.iter().position(|u| !u) {
+            return Err(Error::invalid(
+                "cloth mesh",
+                format!("vertex {v} belongs to no triangle"),
+            ));
+        }
+        if let Some(axes) = u_axes
+            && axes.len() != faces.len()
+        {
+            return Err(Error::invalid(
+                "material frames",
+                format!("{} u axes for {} triangles", axes.len(), faces.len()),
+            ));
+        }
+
+        let mut frames = Vec::with_capacity(faces.len());
+        let mut membranes = Vec::with_capacity(faces.len());
+        for (f, t) in faces.iter().enumerate() {
+            let x = t.map(|i| positions[i as usize]);
+            let normal = (x[1] - x[0]).cross(&(x[2] - x[0])).normalize();
+            let wanted = u_axes.map_or(x[1] - x[0], |a| a[f]);
+            let in_plane = wanted - normal * normal.dot(&wanted);
+            let u = in_plane
+                .try_normalize(1e-9 * wanted.norm())
+                .filter(|u| u.iter().all(|c| c.is_finite()))
+                .ok_or_else(|| {
+                    Error::invalid(
+                        "material frames",
+                        format!("the u axis {wanted:?} of triangle {f} is zero or normal to it"),
+                    )
+                })?;
+            let v = normal.cross(&u);
+            let rest_data = MembraneRest::new(&x, &u, &v).ok_or_else(|| {
+                Error::invalid("cloth mesh", format!("triangle {f} is degenerate"))
+            })?;
+            frames.push((u, v));
+            membranes.push(rest_data);
+        }
+
+        let mut hinges = Vec::new();
+        for (edge, edge_faces) in topology.edges.iter().zip(&topology.edge_faces) {
+            let [fa, fb] = match edge_faces.as_slice() {
+                [fa, fb] => [*fa as usize, *fb as usize],
+                _ => continue,
+            };
+            // Orient so that face A contains the directed edge x0 → x1.
+            let directed = |f: usize, p: u32, q: u32| {
+                let t = faces[f];
+                (0..3).any(|k| t[k] == p && t[(k + 1) % 3] == q)
+            };
+            // On an oriented manifold, face `fa` contains the edge in one direction: call that
+            // direction x0 → x1.
+            let (x0, x1) = if directed(fa, edge[0], edge[1]) {
+                (edge[0], edge[1])
+            } else {
+                (edge[1], edge[0])
+            };
+            let opposite = |f: usize| faces[f].into_iter().find(|&v| v != x0 && v != x1);
+            let (Some(x2), Some(x3)) = (opposite(fa), opposite(fb)) else {
+                continue;
+            };
+            let vertices = [x0, x1, x2, x3];
+            let x = vertices.map(|i| positions[i as usize]);
+            let e = x[1] - x[0];
+            let angle_in = |f: usize| {
+                let (u, v) = frames[f];
+                v.dot(&e).atan2(u.dot(&e))
+            };
+            hinges.push(BendingRest {
+                vertices,
+                rest_angle_rad: dihedral_angle(&x),
+                area_sum_m2: membranes[fa].area_m2 + membranes[fb].area_m2,
+                edge_angle_rad: [angle_in(fa), angle_in(fb)],
+            });
+        }
+
+        let mut area_m2 = vec![0.0; rest.n_vertices()];
+        for (t, m) in faces.iter().zip(&membranes) {
+            for &v in t {
+                area_m2[v as usize] += m.area_m2 / 3.0;
+            }
+        }
+        let mass_kg = area_m2
+            .iter()
+            .map(|a| a * material.density_kg_per_m2())
+            .collect();
+        Ok(Self {
+            u_axes: frames.iter().map(|(u, _)| *u).collect(),
+            rest,
+            topology,
+            material,
+            membranes,
+            hinges,
+            mass_kg,
+            area_m2,
+        })
+    }
+
+    /// The rest mesh.
+    pub fn rest_mesh(&self) -> &TriMesh {
+        &self.rest
+    }
+
+    /// Triangles.
+    pub fn faces(&self) -> &[[u32; 3]] {
+        self.rest.faces()
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.rest.n_vertices()
+    }
+
+    /// Topology of the rest mesh.
+    pub fn topology(&self) -> &MeshTopology {
+        &self.topology
+    }
+
+    /// The material.
+    pub fn material(&self) -> &Material {
+        &self.material
+    }
+
+    /// Per-triangle material u axis (unit, in the rest triangle's plane).
+    pub fn u_axes(&self) -> &[Vector3<f64>] {
+        &self.u_axes
+    }
+
+    /// Per-triangle membrane rest data.
+    pub fn membranes(&self) -> &[MembraneRest] {
+        &self.membranes
+    }
+
+    /// Bending hinges (one per interior edge).
+    pub fn hinges(&self) -> &[BendingRest] {
+        &self.hinges
+    }
+
+    /// Lumped vertex masses (density × area / 3 from each triangle), kg.
+    pub fn masses_kg(&self) -> &[f64] {
+        &self.mass_kg
+    }
+
+    /// Lumped vertex rest areas, m².
+    pub fn vertex_areas_m2(&self) -> &[f64] {
+        &self.area_m2
+    }
+
+    /// Total mass, kg.
+    pub fn total_mass_kg(&self) -> f64 {
+        self.mass_kg.iter().sum()
+    }
+}
+
+/// A rectangular sheet of `nu × nv` quads split into triangles with alternating diagonals:
+/// vertices `corner + i/nu · u_edge + j/nv · v_edge`, index `j · (nu + 1) + i`. Triangles are
+/// counter-clockwise seen from `u_edge × v_edge`.
+pub fn rectangle_sheet(
+    corner: Vector3<f64>,
+    u_edge: Vector3<f64>,
+    v_edge: Vector3<f64>,
+    nu: usize,
+    nv: usize,
+) -> Result<TriMesh> {
+    if nu == 0 || nv == 0 {
+        return Err(Error::invalid(
+            "sheet",
+            format!("needs at least one quad per side, got {nu} × {nv}"),
+        ));
+    }
+    let mut positions = Vec::with_capacity((nu + 1) * (nv + 1));
+    for j in 0..=nv {
+        for i in 0..=nu {
+            positions
+                .push(corner + u_edge * (i as f64 / nu as f64) + v_edge * (j as f64 / nv as f64));
+        }
+    }
+    let index = |i: usize, j: usize| (j * (nu + 1) + i) as u32;
+    let mut faces = Vec::with_capacity(2 * nu * nv);
+    for j in 0..nv {
+        for i in 0..nu {
+            let (a, b, c, d) = (
+                index(i, j),
+                index(i + 1, j),
+                index(i + 1, j + 1),
+                index(i, j + 1),
+            );
+            if (i + j) % 2 == 0 {
+                faces.push([a, b, c]);
+                faces.push([a, c, d]);
+            } else {
+                faces.push([a, b, d]);
+                faces.push([b, c, d]);
+            }
+        }
+    }
+    Ok(TriMesh::new(positions, faces)?)
+}

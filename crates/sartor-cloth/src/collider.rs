@@ -1,0 +1,152 @@
+//! Obstacles the cloth collides with.
+//!
+//! A [`Collider`] answers one question: for a point, where is the closest point of the
+//! obstacle's surface, on which side is the point, and how fast does the surface move there.
+//! The simulator queries every cloth vertex against the obstacle's pose at the *end* of the
+//! substep (the caller moves the obstacle before calling `step`), so a moving obstacle pushes the
+//! cloth within the same substep; the surface velocity enters friction.
+
+use nalgebra::Vector3;
+
+/// The closest surface point of an obstacle to a query point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact {
+    /// Signed distance from the surface, m: positive outside, negative inside.
+    pub distance_m: f64,
+    /// Unit outward normal at the closest point (for a point outside, the direction from the
+    /// surface to the point; inside, the pseudo-normal of the closest feature).
+    pub normal: Vector3<f64>,
+    /// Velocity of the surface at the closest point, m/s.
+    pub velocity_m_per_s: Vector3<f64>,
+}
+
+/// An obstacle. Implementations must be usable from several threads (queries run in parallel).
+///
+/// [`crate::MeshCollider`] implements it for a deforming triangle mesh (a body) with sartor-body's
+/// BVH closest-point query, whose inside/outside sign comes from angle-weighted pseudo-normals,
+/// and the barycentric blend of the vertex velocities of the closest triangle.
+pub trait Collider: Sync {
+    /// The closest surface point to `p`, or `None` when the obstacle has nothing to say (e.g.
+    /// outside its domain).
+    fn closest(&self, p: Vector3<f64>) -> Option<Contact>;
+
+    /// Like [`Collider::closest`], but may return `None` for points farther than
+    /// `max_distance_m` outside the surface; implementations with an acceleration structure
+    /// should override it to prune their search.
+    fn closest_within(&self, p: Vector3<f64>, max_distance_m: f64) -> Option<Contact> {
+        self.closest(p).filter(|c| c.distance_m <= max_distance_m)
+    }
+}
+
+/// A plane (half-space below it is solid), optionally moving with a constant velocity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plane {
+    point: Vector3<f64>,
+    normal: Vector3<f64>,
+    /// Surface velocity, m/s.
+    pub velocity_m_per_s: Vector3<f64>,
+}
+
+impl Plane {
+    /// A plane through `point` with outward normal `normal` (normalised here). `None` for a
+    /// zero or non-finite normal.
+    pub fn new(point: Vector3<f64>, normal: Vector3<f64>) -> Option<Self> {
+        let normal = normal.try_normalize(1e-300)?;
+        (point.iter().all(|v| v.is_finite()) && normal.iter().all(|v| v.is_finite())).then_some(
+            Self {
+                point,
+                normal,
+                velocity_m_per_s: Vector3::zeros(),
+            },
+        )
+    }
+
+    /// The floor `y = height_m` (normal +Y).
+    pub fn horizontal(height_m: f64) -> Self {
+        Self {
+            point: Vector3::new(0.0, height_m, 0.0),
+            normal: Vector3::y(),
+            velocity_m_per_s: Vector3::zeros(),
+        }
+    }
+
+    /// A plane through `point` tilted by `tilt_rad` about the +Z axis: the normal is +Y rotated
+    /// towards −X, so the surface rises towards +X (`y = x · tan(tilt)`) and
+    /// [`Plane::downhill`] points towards −X.
+    pub fn tilted(point: Vector3<f64>, tilt_rad: f64) -> Self {
+        Self {
+            point,
+            normal: Vector3::new(-tilt_rad.sin(), tilt_rad.cos(), 0.0),
+            velocity_m_per_s: Vector3::zeros(),
+        }
+    }
+
+    /// Unit outward normal.
+    pub fn normal(&self) -> Vector3<f64> {
+        self.normal
+    }
+
+    /// A point on the plane.
+    pub fn point(&self) -> Vector3<f64> {
+        self.point
+    }
+
+    /// Move the plane to pass through `point`.
+    pub fn set_point(&mut self, point: Vector3<f64>) {
+        self.point = point;
+    }
+
+    /// The unit in-plane direction of steepest descent under gravity (−Y); zero for a
+    /// horizontal plane.
+    pub fn downhill(&self) -> Vector3<f64> {
+        let g = -Vector3::y();
+        let t = g - self.normal * g.dot(&self.normal);
+        t.try_normalize(1e-12).unwrap_or_else(Vector3::zeros)
+    }
+}
+
+impl Collider for Plane {
+    fn closest(&self, p: Vector3<f64>) -> Option<Contact> {
+        Some(Contact {
+            distance_m: (p - self.point).dot(&self.normal),
+            normal: self.normal,
+            velocity_m_per_s: self.velocity_m_per_s,
+        })
+    }
+}
+
+/// A solid sphere, optionally moving with a constant velocity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sphere {
+    /// Centre, m.
+    pub center: Vector3<f64>,
+    /// Radius, m.
+    pub radius_m: f64,
+    /// Velocity of the centre, m/s.
+    pub velocity_m_per_s: Vector3<f64>,
+}
+
+impl Sphere {
+    /// A resting sphere.
+    pub fn new(center: Vector3<f64>, radius_m: f64) -> Self {
+        Self {
+            center,
+            radius_m,
+            velocity_m_per_s: Vector3::zeros(),
+        }
+    }
+}
+
+impl Collider for Sphere {
+    fn closest(&self, p: Vector3<f64>) -> Option<Contact> {
+        let r = p - self.center;
+        let len = r.norm();
+        // At the centre any direction is closest: pick +Y.
+        let normal = if len > 0.0 { r / len } else { Vector3::y() };
+        Some(Contact {
+            distance_m: len - self.radius_m,
+            normal,
+            velocity_m_per_s: self.velocity_m_per_s,
+        })
+    }
+}

@@ -1,0 +1,28 @@
+//! Per-element energies with gradients and Hessians (3 × 3 blocks): membrane (triangle),
+//! bending (hinge), obstacle and self-contact penalties, and gravity.
+//!
+//! Every element energy is exact for its frozen per-step parameters (material stiffness,
+//! bending coefficient, contact normal and side); the finite-difference tests check gradients
+//! and Hessians against those energies. The Hessians the solver uses are PSD projections,
+//! documented per element.
+
+mod bending;
+mod contact;
+pub(crate) mod diff;
+mod membrane;
+mod psd;
+
+pub use bending::{BendingHessian, BendingRest, dihedral_angle};
+pub use contact::{
+    ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_velocity_change,
+};
+pub use membrane::{ElementDerivatives, MembraneRest, Projection};
+pub use psd::{project_psd, project_psd2};
+
+/// Gravitational acceleration, m/s², along −Y.
+pub const GRAVITY_M_PER_S2: f64 = 9.81;
+
+/// Gravitational potential energy `m g y` of one vertex, J (zero at `y = 0`).
+pub fn gravity_energy(mass_kg: f64, height_m: f64) -> f64 {
+    mass_kg * GRAVITY_M_PER_S2 * height_m
+}

@@ -1,0 +1,103 @@
+//! The crate's one error type.
+
+use std::path::PathBuf;
+
+/// Why a simulation step was rejected. The simulator's state is left exactly as it was before
+/// the step, so the caller can retry (typically with a smaller time step).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepFailure {
+    /// A position, velocity or solver value became NaN or infinite.
+    #[error("non-finite value in {what}")]
+    NonFinite {
+        /// Where it was found ("velocity update", "linear system", ...).
+        what: &'static str,
+    },
+    /// The kinetic energy after the step exceeds the configured bound (a blow-up).
+    #[error("kinetic energy {kinetic_energy_j:.3e} J exceeds the bound {bound_j:.3e} J")]
+    EnergyBlowUp {
+        /// Kinetic energy after the step, J.
+        kinetic_energy_j: f64,
+        /// The bound, J (`½ · total mass · max_speed²`).
+        bound_j: f64,
+    },
+    /// The conjugate-gradient solver reached its iteration cap.
+    #[error(
+        "conjugate gradient did not converge: {iterations} iterations, relative residual {relative_residual:.3e}"
+    )]
+    SolverNotConverged {
+        /// Iterations performed.
+        iterations: usize,
+        /// Final `|b − A x| / |b|`.
+        relative_residual: f64,
+    },
+    /// The sparse Cholesky factorisation failed (matrix not numerically positive definite).
+    #[error("sparse Cholesky factorisation failed: {message}")]
+    Factorization {
+        /// faer's message.
+        message: String,
+    },
+}
+
+/// Everything that can go wrong in `sartor-cloth`. Each variant names the file (when there is
+/// one) and the fault.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A mesh fault reported by `sartor-body` (non-finite vertex, zero-area triangle,
+    /// non-manifold edge or vertex, ...).
+    #[error(transparent)]
+    Mesh(#[from] sartor_body::Error),
+    /// Reading or writing a file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+    /// A file is malformed (bad JSON, wrong table size, non-finite value, ...).
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// An in-memory value breaks an invariant (a cloth mesh, a material, a config, ...).
+    #[error("invalid {what}: {message}")]
+    Invalid {
+        /// What kind of value.
+        what: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// A simulation step was rejected; the state is unchanged.
+    #[error("simulation step failed: {0}")]
+    Step(#[from] StepFailure),
+}
+
+/// `Result` with [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub(crate) fn invalid(what: &'static str, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            what,
+            message: message.into(),
+        }
+    }
+
+    pub(crate) fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Self::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+
+    /// The step failure, if this error is one (the caller may retry with a smaller step).
+    pub fn step_failure(&self) -> Option<&StepFailure> {
+        match self {
+            Self::Step(failure) => Some(failure),
+            _ => None,
+        }
+    }
+}

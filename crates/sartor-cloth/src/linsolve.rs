@@ -1,0 +1,472 @@
+//! The sparse symmetric block system of the implicit step and its two solvers: faer's sparse
+//! Cholesky (symbolic analysis once, numeric factorisation per step, no allocation after the
+//! first step) and block-Jacobi preconditioned conjugate gradients.
+
+use std::time::Instant;
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Side};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use sartor_body::Par;
+use serde::{Deserialize, Serialize};
+
+use crate::error::StepFailure;
+
+/// Which linear solver the implicit step uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub enum LinearSolver {
+    /// Sparse Cholesky (faer, AMD ordering computed once).
+    #[default]
+    Cholesky,
+    /// Block-Jacobi preconditioned conjugate gradients, warm-started from the current velocity.
+    ConjugateGradient {
+        /// Iteration cap; reaching it is a step failure.
+        max_iterations: usize,
+        /// Stop when `|b − A x| ≤ tol · |b|`.
+        relative_tolerance: f64,
+    },
+}
+
+/// What one linear solve did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LinearSolveStats {
+    /// CG iterations (0 for Cholesky).
+    pub iterations: usize,
+    /// Final relative residual `|b − A x| / |b|` (for Cholesky, computed after the solve).
+    pub relative_residual: f64,
+    /// Time spent in numeric factorisation (Cholesky) or 0, seconds.
+    pub factor_secs: f64,
+    /// Time spent solving (triangular solves or CG iterations), seconds.
+    pub solve_secs: f64,
+}
+
+/// Symmetric block-sparse pattern: per vertex row, the sorted columns (vertices) it couples to,
+/// the diagonal included. Both triangles are stored.
+#[derive(Clone, Debug)]
+pub(crate) struct BlockPattern {
+    row_offsets: Vec<usize>,
+    cols: Vec<u32>,
+    diag: Vec<u32>,
+}
+
+impl BlockPattern {
+    /// The pattern of `n` vertices coupled by the given pairs (either order; duplicates fine).
+    pub fn new(n: usize, pairs: &[[u32; 2]]) -> Self {
+        let mut rows: Vec<Vec<u32>> = (0..n as u32).map(|i| vec![i]).collect();
+        for &[a, b] in pairs {
+            rows[a as usize].push(b);
+            rows[b as usize].push(a);
+        }
+        let mut row_offsets = Vec::with_capacity(n + 1);
+        let mut cols = Vec::new();
+        let mut diag = Vec::with_capacity(n);
+        row_offsets.push(0);
+        for (i, mut r) in rows.into_iter().enumerate() {
+            r.sort_unstable();
+            r.dedup();
+            let start = cols.len();
+            let d = r.binary_search(&(i as u32)).unwrap_or(0);
+            diag.push((start + d) as u32);
+            cols.extend_from_slice(&r);
+            row_offsets.push(cols.len());
+        }
+        Self {
+            row_offsets,
+            cols,
+            diag,
+        }
+    }
+
+    pub fn n_rows(&self) -> usize {
+        self.diag.len()
+    }
+
+    pub fn n_blocks(&self) -> usize {
+        self.cols.len()
+    }
+
+    pub fn row(&self, i: usize) -> std::ops::Range<usize> {
+        self.row_offsets[i]..self.row_offsets[i + 1]
+    }
+
+    pub fn cols(&self) -> &[u32] {
+        &self.cols
+    }
+
+    pub fn diag_slot(&self, i: usize) -> usize {
+        self.diag[i] as usize
+    }
+
+    /// The slot of block `(i, j)`; `None` if not in the pattern.
+    pub fn slot(&self, i: usize, j: usize) -> Option<usize> {
+        let r = self.row(i);
+        self.cols[r.clone()]
+            .binary_search(&(j as u32))
+            .ok()
+            .map(|k| r.start + k)
+    }
+}
+
+/// Number of vertices per parallel chunk (deterministic: results never depend on the thread
+/// count, only on this constant).
+const CHUNK: usize = 512;
+
+/// `y = A x` for the block matrix with `values` over `pattern`.
+pub(crate) fn block_matvec(
+    pattern: &BlockPattern,
+    values: &[Matrix3<f64>],
+    x: &[Vector3<f64>],
+    y: &mut [Vector3<f64>],
+    par: Par,
+) {
+    let row = |i: usize| {
+        let mut acc = Vector3::zeros();
+        for s in pattern.row(i) {
+            acc += values[s] * x[pattern.cols[s] as usize];
+        }
+        acc
+    };
+    match par {
+        Par::Seq => y.iter_mut().enumerate().for_each(|(i, yi)| *yi = row(i)),
+        Par::Rayon => y.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+            for (k, yi) in chunk.iter_mut().enumerate() {
+                *yi = row(c * CHUNK + k);
+            }
+        }),
+    }
+}
+
+/// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic).
+fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Par) -> f64 {
+    let chunk_dot = |(ca, cb): (&[Vector3<f64>], &[Vector3<f64>])| -> f64 {
+        ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum()
+    };
+    match par {
+        Par::Seq => a.chunks(CHUNK).zip(b.chunks(CHUNK)).map(chunk_dot).sum(),
+        Par::Rayon => {
+            partial
+                .par_iter_mut()
+                .zip(a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)))
+                .for_each(|(p, pair)| *p = chunk_dot(pair));
+            partial.iter().sum()
+        }
+    }
+}
+
+/// Reusable state of the two solvers for one pattern.
+pub(crate) struct LinearWorkspace {
+    // Cholesky: lower-triangular scalar CSC and where each entry comes from.
+    csc_col_ptr: Vec<usize>,
+    csc_row_idx: Vec<usize>,
+    csc_source: Vec<(u32, u8, u8)>,
+    csc_values: Vec<f64>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    factor_values: Vec<f64>,
+    factor_stack: Option<MemBuffer>,
+    solve_stack: Option<MemBuffer>,
+    flat: Vec<f64>,
+    // CG.
+    residual: Vec<Vector3<f64>>,
+    preconditioned: Vec<Vector3<f64>>,
+    direction: Vec<Vector3<f64>>,
+    product: Vec<Vector3<f64>>,
+    inverse_diagonal: Vec<Matrix3<f64>>,
+    partial: Vec<f64>,
+}
+
+impl LinearWorkspace {
+    pub fn new(pattern: &BlockPattern) -> Self {
+        let n = pattern.n_rows();
+        let mut csc_col_ptr = Vec::with_capacity(3 * n + 1);
+        let mut csc_row_idx = Vec::new();
+        let mut csc_source = Vec::new();
+        csc_col_ptr.push(0);
+        for j in 0..n {
+            for c in 0..3 {
+                // Column 3j + c holds rows 3i + r ≥ 3j + c from blocks (i, j), i ≥ j; by symmetry
+                // row j's columns are column j's rows.
+                for s in pattern.row(j) {
+                    let i = pattern.cols[s] as usize;
+                    if i < j {
+                        continue;
+                    }
+                    let slot = pattern.slot(i, j).expect("the pattern is symmetric");
+                    for r in 0..3 {
+                        if 3 * i + r >= 3 * j + c {
+                            csc_row_idx.push(3 * i + r);
+                            csc_source.push((slot as u32, r as u8, c as u8));
+                        }
+                    }
+                }
+                csc_col_ptr.push(csc_row_idx.len());
+            }
+        }
+        Self {
+            csc_values: vec![0.0; csc_row_idx.len()],
+            csc_col_ptr,
+            csc_row_idx,
+            csc_source,
+            symbolic: None,
+            factor_values: Vec::new(),
+            factor_stack: None,
+            solve_stack: None,
+            flat: vec![0.0; 3 * n],
+            residual: vec![Vector3::zeros(); n],
+            preconditioned: vec![Vector3::zeros(); n],
+            direction: vec![Vector3::zeros(); n],
+            product: vec![Vector3::zeros(); n],
+            inverse_diagonal: vec![Matrix3::identity(); n],
+            partial: vec![0.0; n.div_ceil(CHUNK)],
+        }
+    }
+
+    fn faer_par(par: Par) -> faer::Par {
+        match par {
+            Par::Seq => faer::Par::Seq,
+            Par::Rayon => faer::Par::rayon(0),
+        }
+    }
+
+    /// Solve `A x = b` by sparse Cholesky; `x` is overwritten.
+    pub fn solve_cholesky(
+        &mut self,
+        pattern: &BlockPattern,
+        values: &[Matrix3<f64>],
+        b: &[Vector3<f64>],
+        x: &mut [Vector3<f64>],
+        par: Par,
+    ) -> Result<LinearSolveStats, StepFailure> {
+        let start = Instant::now();
+        let n3 = 3 * pattern.n_rows();
+        for (dst, &(slot, r, c)) in self.csc_values.iter_mut().zip(&self.csc_source) {
+            *dst = values[slot as usize][(r as usize, c as usize)];
+        }
+        if self.csc_values.iter().any(|v| !v.is_finite()) {
+            return Err(StepFailure::NonFinite {
+                what: "linear system",
+            });
+        }
+        let symbolic_ref = SymbolicSparseColMatRef::new_checked(
+            n3,
+            n3,
+            &self.csc_col_ptr,
+            None,
+            &self.csc_row_idx,
+        );
+        let fpar = Self::faer_par(par);
+        if self.symbolic.is_none() {
+            let symbolic = factorize_symbolic_cholesky(
+                symbolic_ref,
+                Side::Lower,
+                SymmetricOrdering::Amd,
+                CholeskySymbolicParams::default(),
+            )
+            .map_err(|e| StepFailure::Factorization {
+                message: format!("{e:?}"),
+            })?;
+            self.factor_values = vec![0.0; symbolic.len_val()];
+            self.factor_stack = Some(MemBuffer::new(
+                symbolic.factorize_numeric_llt_scratch::<f64>(fpar, Default::default()),
+            ));
+            self.solve_stack = Some(MemBuffer::new(
+                symbolic.solve_in_place_scratch::<f64>(1, fpar),
+            ));
+            self.symbolic = Some(symbolic);
+        }
+        let (Some(symbolic), Some(factor_stack), Some(solve_stack)) = (
+            self.symbolic.as_ref(),
+            self.factor_stack.as_mut(),
+            self.solve_stack.as_mut(),
+        ) else {
+            return Err(StepFailure::Factorization {
+                message: "no symbolic factorisation".into(),
+            });
+        };
+        let matrix = SparseColMatRef::new(symbolic_ref, &self.csc_values);
+        let llt = symbolic
+            .factorize_numeric_llt(
+                &mut self.factor_values,
+                matrix,
+                Side::Lower,
+                Default::default(),
+                fpar,
+                MemStack::new(factor_stack),
+                Default::default(),
+            )
+            .map_err(|e| StepFailure::Factorization {
+                message: format!("{e:?}"),
+            })?;
+        let factored = Instant::now();
+        for (i, v) in b.iter().enumerate() {
+            self.flat[3 * i..3 * i + 3].copy_from_slice(v.as_slice());
+        }
+        let llt: LltRef<'_, usize, f64> = llt;
+        llt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut self.flat, n3, 1),
+            fpar,
+            MemStack::new(solve_stack),
+        );
+        for (i, v) in x.iter_mut().enumerate() {
+            *v = Vector3::new(self.flat[3 * i], self.flat[3 * i + 1], self.flat[3 * i + 2]);
+        }
+        let solved = Instant::now();
+        // Residual check (one matvec): catches a silently bad factorisation.
+        block_matvec(pattern, values, x, &mut self.product, par);
+        let mut r2 = 0.0;
+        let mut b2 = 0.0;
+        for (ax, bi) in self.product.iter().zip(b) {
+            r2 += (bi - ax).norm_squared();
+            b2 += bi.norm_squared();
+        }
+        let relative_residual = if b2 > 0.0 {
+            (r2 / b2).sqrt()
+        } else {
+            r2.sqrt()
+        };
+        Ok(LinearSolveStats {
+            iterations: 0,
+            relative_residual,
+            factor_secs: (factored - start).as_secs_f64(),
+            solve_secs: (solved - factored).as_secs_f64(),
+        })
+    }
+
+    /// Solve `A x = b` by block-Jacobi preconditioned CG starting from the given `x`.
+    pub fn solve_cg(
+        &mut self,
+        pattern: &BlockPattern,
+        values: &[Matrix3<f64>],
+        b: &[Vector3<f64>],
+        x: &mut [Vector3<f64>],
+        max_iterations: usize,
+        relative_tolerance: f64,
+        par: Par,
+    ) -> Result<LinearSolveStats, StepFailure> {
+        let start = Instant::now();
+        let n = pattern.n_rows();
+        for i in 0..n {
+            let d = values[pattern.diag_slot(i)];
+            self.inverse_diagonal[i] = d.try_inverse().unwrap_or_else(|| {
+                Matrix3::from_diagonal(&d.diagonal().map(|v| if v != 0.0 { 1.0 / v } else { 1.0 }))
+            });
+        }
+        block_matvec(pattern, values, x, &mut self.product, par);
+        for i in 0..n {
+            self.residual[i] = b[i] - self.product[i];
+            self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
+            self.direction[i] = self.preconditioned[i];
+        }
+        let b_norm = dot(b, b, &mut self.partial, par).sqrt();
+        let stats = |iterations, relative_residual| LinearSolveStats {
+            iterations,
+            relative_residual,
+            factor_secs: 0.0,
+            solve_secs: start.elapsed().as_secs_f64(),
+        };
+        if b_norm == 0.0 {
+            x.iter_mut().for_each(|v| *v = Vector3::zeros());
+            return Ok(stats(0, 0.0));
+        }
+        let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
+        let mut relative =
+            dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() / b_norm;
+        let mut iterations = 0;
+        while relative > relative_tolerance {
+            if iterations == max_iterations || !relative.is_finite() {
+                return Err(StepFailure::SolverNotConverged {
+                    iterations,
+                    relative_residual: relative,
+                });
+            }
+            block_matvec(pattern, values, &self.direction, &mut self.product, par);
+            let p_ap = dot(&self.direction, &self.product, &mut self.partial, par);
+            if p_ap.is_nan() || p_ap <= 0.0 {
+                return Err(StepFailure::SolverNotConverged {
+                    iterations,
+                    relative_residual: relative,
+                });
+            }
+            let alpha = rz / p_ap;
+            for i in 0..n {
+                x[i] += self.direction[i] * alpha;
+                self.residual[i] -= self.product[i] * alpha;
+                self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
+            }
+            let rz_new = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for i in 0..n {
+                self.direction[i] = self.preconditioned[i] + self.direction[i] * beta;
+            }
+            relative = dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() / b_norm;
+            iterations += 1;
+        }
+        Ok(stats(iterations, relative))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1-D chain Laplacian plus mass as 3 × 3 blocks: SPD.
+    fn chain(n: usize) -> (BlockPattern, Vec<Matrix3<f64>>) {
+        let pairs: Vec<[u32; 2]> = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
+        let pattern = BlockPattern::new(n, &pairs);
+        let mut values = vec![Matrix3::zeros(); pattern.n_blocks()];
+        for i in 0..n {
+            for s in pattern.row(i) {
+                let j = pattern.cols()[s] as usize;
+                values[s] = if i == j {
+                    Matrix3::new(3.0, 0.1, 0.0, 0.1, 2.5, 0.2, 0.0, 0.2, 3.0)
+                } else {
+                    Matrix3::identity() * -1.0
+                };
+            }
+        }
+        (pattern, values)
+    }
+
+    #[test]
+    fn cholesky_and_cg_agree() {
+        let n = 700; // more than one parallel chunk
+        let (pattern, values) = chain(n);
+        let b: Vec<Vector3<f64>> = (0..n)
+            .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
+            .collect();
+        let mut ws = LinearWorkspace::new(&pattern);
+        for par in [Par::Seq, Par::Rayon] {
+            let mut x_chol = vec![Vector3::zeros(); n];
+            let stats = ws
+                .solve_cholesky(&pattern, &values, &b, &mut x_chol, par)
+                .expect("SPD");
+            assert!(stats.relative_residual < 1e-12, "{stats:?}");
+            let mut x_cg = vec![Vector3::zeros(); n];
+            let stats = ws
+                .solve_cg(&pattern, &values, &b, &mut x_cg, 500, 1e-12, par)
+                .expect("converges");
+            assert!(stats.iterations > 0);
+            let err: f64 = x_chol
+                .iter()
+                .zip(&x_cg)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            assert!(err < 1e-9, "max difference {err}");
+        }
+        let mut x = vec![Vector3::zeros(); n];
+        let err = ws
+            .solve_cg(&pattern, &values, &b, &mut x, 2, 1e-12, Par::Seq)
+            .expect_err("must fail");
+        assert!(matches!(
+            err,
+            StepFailure::SolverNotConverged { iterations: 2, .. }
+        ));
+    }
+}

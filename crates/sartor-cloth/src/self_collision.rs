@@ -1,0 +1,150 @@
+//! Self-collision candidates: vertex–triangle proximity by a uniform spatial hash.
+//!
+//! Triangles are binned by their bounding boxes inflated by the search radius; a vertex looks
+//! up its own cell. A pair counts when the vertex projects inside the triangle (barycentric
+//! weights ≥ −1e-6, as ARCSim's `add_proximity`) within the search radius of its plane, and
+//! the triangle does not touch the vertex or its one-ring (those are neighbours through the
+//! surface, not contacts). As in ARCSim, each vertex keeps the closest triangle on each side.
+//! Results are sorted by vertex and side, independent of the thread count.
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use sartor_body::{MeshTopology, Par};
+
+use crate::energy::SelfContact;
+
+/// Scratch buffers of the spatial hash, kept between steps.
+#[derive(Debug, Default)]
+pub(crate) struct SelfCollisionGrid {
+    entries: Vec<(u64, u32)>,
+    closest: Vec<[Option<(u32, f64)>; 2]>,
+}
+
+fn cell_key(c: [i64; 3]) -> u64 {
+    (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9)
+}
+
+fn cell_of(p: &Vector3<f64>, inv_cell: f64) -> [i64; 3] {
+    [
+        (p.x * inv_cell).floor() as i64,
+        (p.y * inv_cell).floor() as i64,
+        (p.z * inv_cell).floor() as i64,
+    ]
+}
+
+/// Signed distance of `p` to the plane of `t` and whether its projection is inside `t`.
+fn vertex_triangle(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> Option<f64> {
+    let (e1, e2) = (t[1] - t[0], t[2] - t[0]);
+    let n = e1.cross(&e2);
+    let n2 = n.norm_squared();
+    if n2 == 0.0 {
+        return None;
+    }
+    let r = p - t[0];
+    // Barycentric coordinates of the projection.
+    let w1 = r.cross(&e2).dot(&n) / n2;
+    let w2 = e1.cross(&r).dot(&n) / n2;
+    let w0 = 1.0 - w1 - w2;
+    (w0.min(w1).min(w2) >= -1e-6).then(|| r.dot(&n) / n2.sqrt())
+}
+
+impl SelfCollisionGrid {
+    /// Find vertex–triangle pairs closer than `radius_m` and append them to `out` (cleared
+    /// first). `vertex_area_m2` and `triangle_area_m2` give the contact area scaling.
+    pub fn detect(
+        &mut self,
+        x: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        topology: &MeshTopology,
+        vertex_area_m2: &[f64],
+        triangle_area_m2: &[f64],
+        radius_m: f64,
+        par: Par,
+        out: &mut Vec<SelfContact>,
+    ) {
+        out.clear();
+        if faces.is_empty() || radius_m <= 0.0 {
+            return;
+        }
+        // Cell size: the mean edge length, but at least the search diameter.
+        let mean_edge = faces
+            .iter()
+            .map(|t| (x[t[1] as usize] - x[t[0] as usize]).norm())
+            .sum::<f64>()
+            / faces.len() as f64;
+        let cell = mean_edge.max(2.0 * radius_m);
+        let inv_cell = 1.0 / cell;
+        self.entries.clear();
+        for (f, t) in faces.iter().enumerate() {
+            let [a, b, c] = t.map(|i| x[i as usize]);
+            let lo = a.inf(&b).inf(&c).add_scalar(-radius_m);
+            let hi = a.sup(&b).sup(&c).add_scalar(radius_m);
+            let (clo, chi) = (cell_of(&lo, inv_cell), cell_of(&hi, inv_cell));
+            for i in clo[0]..=chi[0] {
+                for j in clo[1]..=chi[1] {
+                    for k in clo[2]..=chi[2] {
+                        self.entries.push((cell_key([i, j, k]), f as u32));
+                    }
+                }
+            }
+        }
+        self.entries.sort_unstable();
+        self.closest.clear();
+        self.closest.resize(x.len(), [None, None]);
+        let entries = &self.entries;
+        let search = |v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
+            let p = x[v];
+            let key = cell_key(cell_of(&p, inv_cell));
+            let start = entries.partition_point(|e| e.0 < key);
+            let ring = topology.neighbours(v);
+            for &(k, f) in &entries[start..] {
+                if k != key {
+                    break;
+                }
+                let t = faces[f as usize];
+                if t.iter()
+                    .any(|&w| w as usize == v || ring.binary_search(&w).is_ok())
+                {
+                    continue;
+                }
+                let tx = t.map(|i| x[i as usize]);
+                let Some(d) = vertex_triangle(&p, &tx) else {
+                    continue;
+                };
+                if d.abs() >= radius_m {
+                    continue;
+                }
+                let side = usize::from(d < 0.0);
+                if slot[side].is_none_or(|(_, best)| d.abs() < best) {
+                    slot[side] = Some((f, d.abs()));
+                }
+            }
+        };
+        match par {
+            Par::Seq => self
+                .closest
+                .iter_mut()
+                .enumerate()
+                .for_each(|(v, slot)| search(v, slot)),
+            Par::Rayon => self
+                .closest
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(v, slot)| search(v, slot)),
+        }
+        for (v, slots) in self.closest.iter().enumerate() {
+            for (side, slot) in slots.iter().enumerate() {
+                if let Some((f, _)) = slot {
+                    out.push(SelfContact {
+                        vertex: v as u32,
+                        triangle: faces[*f as usize],
+                        side: if side == 0 { 1.0 } else { -1.0 },
+                        area_m2: vertex_area_m2[v].min(triangle_area_m2[*f as usize]),
+                    });
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,854 @@
+//! The implicit integrator: backward Euler with one (or a few) linearised Newton steps per
+//! substep, as ARCSim.
+//!
+//! # The step
+//!
+//! With `M` the lumped masses, `E` the potential (membrane, bending, contact, gravity),
+//! `f = −∇E`, `K` the PSD-projected Hessian of `E`, Rayleigh damping `−β K v⁺ − α M v⁺` and
+//! step `h`, backward Euler asks for `v⁺` with
+//!
+//! ```text
+//! r(v⁺) = M (v⁺ − v) − h f(x + h v⁺) + h β K v⁺ + h α M v⁺ = 0,     x⁺ = x + h v⁺.
+//! ```
+//!
+//! Newton from `v⁺ = 0` (i.e. linearising at the current positions `x`) gives, in one iteration,
+//!
+//! ```text
+//! (M (1 + h α) + h (h + β) K) Δv = h (f − (h + β) K v − α M v),     v⁺ = v + Δv,
+//! ```
+//!
+//! which is ARCSim's `(M − h (h + β) J) Δv = h (F + (h + β) J v)` with `J = −K` (plus mass
+//! damping). [`SimConfig::newton_iterations`] > 1 continues Newton on the same (frozen-stiffness)
+//! equations, re-evaluating forces and Hessians at `x + h v⁺`.
+//!
+//! Frozen per substep, as ARCSim: the tabulated membrane stiffness (looked up from the strain at
+//! the start), the bending coefficient `ke l² / (8 (A0 + A1))`, the obstacle contacts (normal and
+//! distance linearised at the start positions against the obstacle's *end-of-substep* pose) and
+//! the self-contact pairs and sides.
+//!
+//! # System
+//!
+//! The block pattern (vertex × vertex 3 × 3 blocks over mesh edges and hinge diagonals) is built
+//! once; element contributions are computed per element (in parallel when
+//! [`SimConfig::parallelism`] is `Rayon`) into per-element buffers, then added in a fixed order
+//! (deterministic). Obstacle contacts add diagonal blocks; self-contacts add only the diagonal
+//! blocks of their (PSD) Hessian, which keeps the pattern fixed (a principal block of a PSD
+//! matrix is PSD). Pinned vertices are eliminated symmetrically (their velocity is prescribed).
+//!
+//! # After the solve
+//!
+//! 1. Friction: a Coulomb impulse per obstacle contact (see [`crate::energy`]), `μ` =
+//!    [`SimConfig::friction_coefficient`].
+//! 2. Positions `x⁺ = x + h v⁺`.
+//! 3. Guarantee: a vertex more than [`SimConfig::max_penetration_m`] inside an obstacle is
+//!    projected to its surface and its inward normal velocity (relative to the obstacle) removed.
+//!    This is a fallback; [`StepStats::projected_vertices`] counts its use.
+//! 4. Checks: every value finite, kinetic energy below `½ M_total max_speed²`; otherwise the step
+//!    fails with [`StepFailure`] and the state is left unchanged.
+//!
+//! After the first step nothing is allocated (except when the number of contacts exceeds every
+//! earlier step's).
+
+use std::time::Instant;
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use sartor_body::Par;
+use serde::{Deserialize, Serialize};
+
+use crate::cloth::Cloth;
+use crate::collider::{Collider, Contact};
+use crate::energy::{
+    BendingHessian, ElementDerivatives, ObstacleContact, Penalty, Projection, SelfContact,
+    friction_velocity_change,
+};
+use crate::error::StepFailure;
+use crate::linsolve::{BlockPattern, LinearSolveStats, LinearSolver, LinearWorkspace};
+use crate::material::StrainStiffness;
+use crate::self_collision::SelfCollisionGrid;
+use crate::{Error, Result};
+
+/// Simulation settings. The defaults are ARCSim's body-scene settings where ARCSim has one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Gravity, m/s² (default `(0, −9.81, 0)`).
+    pub gravity_m_per_s2: Vector3<f64>,
+    /// Rayleigh stiffness damping β, s (ARCSim's material `damping`; default 0).
+    pub stiffness_damping_s: f64,
+    /// Mass damping α, 1/s (default 0).
+    pub mass_damping_per_s: f64,
+    /// Newton iterations per substep (default 1, as ARCSim).
+    pub newton_iterations: usize,
+    /// With several Newton iterations, stop when the largest velocity update is below this, m/s.
+    pub newton_tolerance_m_per_s: f64,
+    /// Linear solver.
+    pub linear_solver: LinearSolver,
+    /// Bending Hessian used in the solve (default ARCSim's Gauss–Newton; see [`BendingHessian`]).
+    pub bending_hessian: BendingHessian,
+    /// Contact penalty (obstacles and self-contact; ARCSim uses one for both).
+    pub contact_penalty: Penalty,
+    /// Cloth–obstacle friction coefficient μ (ARCSim's `obs_friction`, 0.3).
+    pub friction_coefficient: f64,
+    /// Vertex–triangle self-collision repulsion.
+    pub self_collision: bool,
+    /// Penetration depth beyond which the guarantee step projects a vertex out, m (1 mm).
+    pub max_penetration_m: f64,
+    /// Kinetic-energy bound as a speed: the step fails if `KE > ½ M_total max_speed²`, m/s.
+    pub max_speed_m_per_s: f64,
+    /// Run element loops, contact queries, CG and faer's Cholesky on rayon's pool. Element
+    /// loops, queries and CG give bit-identical results either way (fixed chunking, fixed
+    /// summation order); faer's parallel Cholesky may differ in the last bits. On a busy 2-core
+    /// machine the calling thread was faster (see the `step` benchmark).
+    #[serde(skip)]
+    pub parallelism: Par,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            gravity_m_per_s2: Vector3::new(0.0, -crate::energy::GRAVITY_M_PER_S2, 0.0),
+            stiffness_damping_s: 0.0,
+            mass_damping_per_s: 0.0,
+            newton_iterations: 1,
+            newton_tolerance_m_per_s: 1e-6,
+            linear_solver: LinearSolver::Cholesky,
+            bending_hessian: BendingHessian::GaussNewton,
+            contact_penalty: Penalty::default(),
+            friction_coefficient: 0.3,
+            self_collision: true,
+            max_penetration_m: 1e-3,
+            max_speed_m_per_s: 50.0,
+            parallelism: Par::Seq,
+        }
+    }
+}
+
+impl SimConfig {
+    /// Check the settings (finite, non-negative, at least one Newton iteration).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::invalid("simulation config", m));
+        if !self.gravity_m_per_s2.iter().all(|g| g.is_finite()) {
+            return bad(format!("gravity {:?} is not finite", self.gravity_m_per_s2));
+        }
+        for (name, value) in [
+            ("stiffness_damping_s", self.stiffness_damping_s),
+            ("mass_damping_per_s", self.mass_damping_per_s),
+            ("newton_tolerance_m_per_s", self.newton_tolerance_m_per_s),
+            ("friction_coefficient", self.friction_coefficient),
+            ("max_penetration_m", self.max_penetration_m),
+            (
+                "contact_penalty.stiffness_n_per_m3",
+                self.contact_penalty.stiffness_n_per_m3,
+            ),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(format!("{name} must be finite and ≥ 0, got {value}"));
+            }
+        }
+        if !(self.contact_penalty.thickness_m.is_finite() && self.contact_penalty.thickness_m > 0.0)
+        {
+            return bad(format!(
+                "contact_penalty.thickness_m must be positive, got {}",
+                self.contact_penalty.thickness_m
+            ));
+        }
+        if self.max_speed_m_per_s.is_nan() || self.max_speed_m_per_s <= 0.0 {
+            return bad(format!(
+                "max_speed_m_per_s must be positive, got {}",
+                self.max_speed_m_per_s
+            ));
+        }
+        if self.newton_iterations == 0 {
+            return bad("newton_iterations must be at least 1".into());
+        }
+        if let LinearSolver::ConjugateGradient {
+            max_iterations,
+            relative_tolerance,
+        } = self.linear_solver
+            && (max_iterations == 0 || !(relative_tolerance > 0.0 && relative_tolerance < 1.0))
+        {
+            return bad(format!(
+                "CG needs max_iterations ≥ 1 and 0 < relative_tolerance < 1, got {max_iterations}, {relative_tolerance}"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What one substep did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepStats {
+    /// Newton iterations performed.
+    pub newton_iterations: usize,
+    /// Largest velocity update of the last Newton iteration, m/s.
+    pub last_update_m_per_s: f64,
+    /// The last linear solve.
+    pub linear: LinearSolveStats,
+    /// CG iterations summed over the Newton iterations.
+    pub total_linear_iterations: usize,
+    /// Time computing forces and Hessians and assembling the system, s.
+    pub assemble_secs: f64,
+    /// Time in linear solves (factorisation + solve, or CG), s.
+    pub solve_secs: f64,
+    /// Time in contact queries and self-collision detection, s.
+    pub collision_secs: f64,
+    /// Wall time of the whole substep, s.
+    pub total_secs: f64,
+    /// Vertex–obstacle contacts within the thickness.
+    pub obstacle_contacts: usize,
+    /// Vertex–triangle self-contact pairs.
+    pub self_contacts: usize,
+    /// Vertices the guarantee step projected out of an obstacle.
+    pub projected_vertices: usize,
+    /// Kinetic energy after the step, J.
+    pub kinetic_energy_j: f64,
+    /// Largest vertex speed after the step, m/s.
+    pub max_speed_m_per_s: f64,
+}
+
+/// Energies of the current state, J (coefficients looked up at the current state).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnergyReport {
+    /// `½ Σ m v²`.
+    pub kinetic_j: f64,
+    /// `−Σ m g·x` (zero at the origin).
+    pub gravity_j: f64,
+    /// Membrane energy.
+    pub membrane_j: f64,
+    /// Bending energy.
+    pub bending_j: f64,
+}
+
+impl EnergyReport {
+    /// Sum of all terms.
+    pub fn total_j(&self) -> f64 {
+        self.kinetic_j + self.gravity_j + self.membrane_j + self.bending_j
+    }
+}
+
+/// Scratch buffers of a step (sized once).
+struct Workspace {
+    tri_stiffness: Vec<StrainStiffness>,
+    hinge_coefficient: Vec<f64>,
+    tri_out: Vec<ElementDerivatives<3>>,
+    hinge_out: Vec<ElementDerivatives<4>>,
+    self_out: Vec<ElementDerivatives<4>>,
+    obstacle_contacts: Vec<ObstacleContact>,
+    query: Vec<Option<Contact>>,
+    self_contacts: Vec<SelfContact>,
+    grid: SelfCollisionGrid,
+    stiffness: Vec<Matrix3<f64>>,
+    system: Vec<Matrix3<f64>>,
+    gradient: Vec<Vector3<f64>>,
+    rhs: Vec<Vector3<f64>>,
+    update: Vec<Vector3<f64>>,
+    v_plus: Vec<Vector3<f64>>,
+    x_iter: Vec<Vector3<f64>>,
+    x_new: Vec<Vector3<f64>>,
+    pin_velocity: Vec<Vector3<f64>>,
+    linear: LinearWorkspace,
+}
+
+/// A cloth being simulated: the cloth, its state (positions, velocities, pins) and the
+/// reusable solver state.
+pub struct Simulator {
+    cloth: Cloth,
+    config: SimConfig,
+    positions: Vec<Vector3<f64>>,
+    velocities: Vec<Vector3<f64>>,
+    pinned: Vec<bool>,
+    pin_targets: Vec<Vector3<f64>>,
+    time_secs: f64,
+    pattern: BlockPattern,
+    tri_slots: Vec<[u32; 9]>,
+    hinge_slots: Vec<[u32; 16]>,
+    triangle_area_m2: Vec<f64>,
+    ws: Workspace,
+}
+
+fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N] {
+    idx.map(|i| x[i as usize])
+}
+
+/// Apply `f(i, &mut item)` to every item, on rayon's pool or not.
+fn for_each_indexed<T: Send>(items: &mut [T], par: Par, f: impl Fn(usize, &mut T) + Sync) {
+    match par {
+        Par::Seq => items.iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
+        Par::Rayon => items.par_iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
+    }
+}
+
+impl Simulator {
+    /// Start a simulation at the cloth's rest shape, at rest.
+    pub fn new(cloth: Cloth, config: SimConfig) -> Result<Self> {
+        config.validate()?;
+        let n = cloth.n_vertices();
+        let mut pairs: Vec<[u32; 2]> = Vec::new();
+        for t in cloth.faces() {
+            pairs.extend([[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]]);
+        }
+        for h in cloth.hinges() {
+            pairs.push([h.vertices[2], h.vertices[3]]);
+        }
+        let pattern = BlockPattern::new(n, &pairs);
+        let slot = |a: u32, b: u32| {
+            pattern
+                .slot(a as usize, b as usize)
+                .expect("element pairs are in the pattern") as u32
+        };
+        let tri_slots = cloth
+            .faces()
+            .iter()
+            .map(|t| std::array::from_fn(|k| slot(t[k / 3], t[k % 3])))
+            .collect();
+        let hinge_slots = cloth
+            .hinges()
+            .iter()
+            .map(|h| std::array::from_fn(|k| slot(h.vertices[k / 4], h.vertices[k % 4])))
+            .collect();
+        let n_blocks = pattern.n_blocks();
+        let zeros = vec![Vector3::zeros(); n];
+        let ws = Workspace {
+            tri_stiffness: vec![StrainStiffness::default(); cloth.faces().len()],
+            hinge_coefficient: vec![0.0; cloth.hinges().len()],
+            tri_out: vec![ElementDerivatives::default(); cloth.faces().len()],
+            hinge_out: vec![ElementDerivatives::default(); cloth.hinges().len()],
+            self_out: Vec::new(),
+            obstacle_contacts: Vec::new(),
+            query: vec![None; n],
+            self_contacts: Vec::new(),
+            grid: SelfCollisionGrid::default(),
+            stiffness: vec![Matrix3::zeros(); n_blocks],
+            system: vec![Matrix3::zeros(); n_blocks],
+            gradient: zeros.clone(),
+            rhs: zeros.clone(),
+            update: zeros.clone(),
+            v_plus: zeros.clone(),
+            x_iter: zeros.clone(),
+            x_new: zeros.clone(),
+            pin_velocity: zeros.clone(),
+            linear: LinearWorkspace::new(&pattern),
+        };
+        Ok(Self {
+            positions: cloth.rest_mesh().positions().to_vec(),
+            velocities: zeros,
+            pinned: vec![false; n],
+            pin_targets: vec![Vector3::zeros(); n],
+            time_secs: 0.0,
+            triangle_area_m2: cloth.membranes().iter().map(|m| m.area_m2).collect(),
+            pattern,
+            tri_slots,
+            hinge_slots,
+            cloth,
+            config,
+            ws,
+        })
+    }
+
+    /// The cloth.
+    pub fn cloth(&self) -> &Cloth {
+        &self.cloth
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// Replace the settings (validated).
+    pub fn set_config(&mut self, config: SimConfig) -> Result<()> {
+        config.validate()?;
+        self.config = config;
+        Ok(())
+    }
+
+    /// Current positions, m.
+    pub fn positions(&self) -> &[Vector3<f64>] {
+        &self.positions
+    }
+
+    /// Current velocities, m/s.
+    pub fn velocities(&self) -> &[Vector3<f64>] {
+        &self.velocities
+    }
+
+    /// Simulated time, s.
+    pub fn time_secs(&self) -> f64 {
+        self.time_secs
+    }
+
+    fn check_state(&self, values: &[Vector3<f64>], what: &'static str) -> Result<()> {
+        if values.len() != self.positions.len() {
+            return Err(Error::invalid(
+                "cloth state",
+                format!(
+                    "{} {what} for {} vertices",
+                    values.len(),
+                    self.positions.len()
+                ),
+            ));
+        }
+        if let Some(i) = values.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(Error::invalid(
+                "cloth state",
+                format!("{what} of vertex {i} is not finite"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Set all positions (e.g. a garment placed on a body), m.
+    pub fn set_positions(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.check_state(positions, "positions")?;
+        self.positions.copy_from_slice(positions);
+        Ok(())
+    }
+
+    /// Set all velocities, m/s.
+    pub fn set_velocities(&mut self, velocities: &[Vector3<f64>]) -> Result<()> {
+        self.check_state(velocities, "velocities")?;
+        self.velocities.copy_from_slice(velocities);
+        Ok(())
+    }
+
+    /// Pin a vertex: at the end of every following step it is at `target_m` (update the target
+    /// before each step to move it). Its velocity becomes `(target − x) / h`.
+    pub fn pin(&mut self, vertex: usize, target_m: Vector3<f64>) -> Result<()> {
+        if vertex >= self.positions.len() || !target_m.iter().all(|c| c.is_finite()) {
+            return Err(Error::invalid(
+                "pin",
+                format!(
+                    "vertex {vertex} (of {}) at {target_m:?}",
+                    self.positions.len()
+                ),
+            ));
+        }
+        self.pinned[vertex] = true;
+        self.pin_targets[vertex] = target_m;
+        Ok(())
+    }
+
+    /// Release a pinned vertex.
+    pub fn unpin(&mut self, vertex: usize) {
+        if vertex < self.pinned.len() {
+            self.pinned[vertex] = false;
+        }
+    }
+
+    /// Whether each vertex is pinned.
+    pub fn pinned(&self) -> &[bool] {
+        &self.pinned
+    }
+
+    /// Energies of the current state.
+    pub fn energy(&self) -> EnergyReport {
+        let x = &self.positions;
+        let masses = self.cloth.masses_kg();
+        let mut report = EnergyReport::default();
+        for i in 0..x.len() {
+            report.kinetic_j += 0.5 * masses[i] * self.velocities[i].norm_squared();
+            report.gravity_j -= masses[i] * self.config.gravity_m_per_s2.dot(&x[i]);
+        }
+        let material = self.cloth.material();
+        for (m, t) in self.cloth.membranes().iter().zip(self.cloth.faces()) {
+            let xt = gather(x, *t);
+            let k = material.membrane().stiffness(&m.green_strain(&xt));
+            report.membrane_j += m.energy(&xt, &k);
+        }
+        for h in self.cloth.hinges() {
+            let xh = gather(x, h.vertices);
+            report.bending_j += h.energy(&xh, h.coefficient(&xh, material.bending()));
+        }
+        report
+    }
+
+    /// The elastic forces `−∇E` (membrane and bending, coefficients looked up at the current
+    /// state) on every vertex, N. Useful for reaction forces at pins.
+    pub fn elastic_forces(&self) -> Vec<Vector3<f64>> {
+        let x = &self.positions;
+        let material = self.cloth.material();
+        let mut f = vec![Vector3::zeros(); x.len()];
+        for (m, t) in self.cloth.membranes().iter().zip(self.cloth.faces()) {
+            let xt = gather(x, *t);
+            let k = material.membrane().stiffness(&m.green_strain(&xt));
+            let d = m.derivatives(&xt, &k, Projection::Psd);
+            for a in 0..3 {
+                f[t[a] as usize] -= d.gradient[a];
+            }
+        }
+        for h in self.cloth.hinges() {
+            let xh = gather(x, h.vertices);
+            let c = h.coefficient(&xh, material.bending());
+            let d = h.derivatives(&xh, c, BendingHessian::GaussNewton);
+            for a in 0..4 {
+                f[h.vertices[a] as usize] -= d.gradient[a];
+            }
+        }
+        f
+    }
+
+    /// Advance by one substep of `dt_secs`. `colliders` must already be at their pose for the
+    /// end of the substep. On failure the state is unchanged.
+    pub fn step(&mut self, dt_secs: f64, colliders: &[&dyn Collider]) -> Result<StepStats> {
+        if !(dt_secs.is_finite() && dt_secs > 0.0) {
+            return Err(Error::invalid(
+                "time step",
+                format!("must be finite and positive, got {dt_secs}"),
+            ));
+        }
+        let start = Instant::now();
+        let mut stats = StepStats::default();
+        let par = self.config.parallelism;
+        self.freeze_coefficients();
+        let t_collision = Instant::now();
+        self.find_contacts(colliders);
+        stats.collision_secs = t_collision.elapsed().as_secs_f64();
+        stats.obstacle_contacts = self.ws.obstacle_contacts.len();
+        stats.self_contacts = self.ws.self_contacts.len();
+
+        let h = dt_secs;
+        let n = self.positions.len();
+        for i in 0..n {
+            self.ws.pin_velocity[i] = if self.pinned[i] {
+                (self.pin_targets[i] - self.positions[i]) / h
+            } else {
+                Vector3::zeros()
+            };
+        }
+        // Newton on v⁺, starting from v⁺ = 0 (linearisation at x: the first iteration is ARCSim's
+        // step).
+        self.ws
+            .v_plus
+            .iter_mut()
+            .for_each(|v| *v = Vector3::zeros());
+        for iteration in 0..self.config.newton_iterations {
+            let t_assemble = Instant::now();
+            for i in 0..n {
+                self.ws.x_iter[i] = self.positions[i] + self.ws.v_plus[i] * h;
+            }
+            self.assemble();
+            self.build_system(h);
+            stats.assemble_secs += t_assemble.elapsed().as_secs_f64();
+            // Warm start: Δ = v − v⁺ (the current velocity as the guess for v⁺).
+            for i in 0..n {
+                self.ws.update[i] = self.velocities[i] - self.ws.v_plus[i];
+            }
+            let linear = match self.config.linear_solver {
+                LinearSolver::Cholesky => self.ws.linear.solve_cholesky(
+                    &self.pattern,
+                    &self.ws.system,
+                    &self.ws.rhs,
+                    &mut self.ws.update,
+                    par,
+                ),
+                LinearSolver::ConjugateGradient {
+                    max_iterations,
+                    relative_tolerance,
+                } => self.ws.linear.solve_cg(
+                    &self.pattern,
+                    &self.ws.system,
+                    &self.ws.rhs,
+                    &mut self.ws.update,
+                    max_iterations,
+                    relative_tolerance,
+                    par,
+                ),
+            }?;
+            stats.solve_secs += linear.factor_secs + linear.solve_secs;
+            stats.total_linear_iterations += linear.iterations;
+            stats.linear = linear;
+            stats.newton_iterations = iteration + 1;
+            let mut largest: f64 = 0.0;
+            for i in 0..n {
+                self.ws.v_plus[i] += self.ws.update[i];
+                largest = largest.max(self.ws.update[i].amax());
+            }
+            if !largest.is_finite() {
+                return Err(StepFailure::NonFinite {
+                    what: "velocity update",
+                }
+                .into());
+            }
+            stats.last_update_m_per_s = largest;
+            if iteration > 0 && largest < self.config.newton_tolerance_m_per_s {
+                break;
+            }
+        }
+
+        self.apply_friction(h);
+        for i in 0..n {
+            self.ws.x_new[i] = self.positions[i] + self.ws.v_plus[i] * h;
+        }
+        stats.projected_vertices = self.project_out(colliders);
+
+        let masses = self.cloth.masses_kg();
+        let mut kinetic = 0.0;
+        let mut max_speed: f64 = 0.0;
+        for i in 0..n {
+            let (x, v) = (&self.ws.x_new[i], &self.ws.v_plus[i]);
+            if !(x.iter().chain(v.iter()).all(|c| c.is_finite())) {
+                return Err(StepFailure::NonFinite {
+                    what: "cloth state",
+                }
+                .into());
+            }
+            kinetic += 0.5 * masses[i] * v.norm_squared();
+            max_speed = max_speed.max(v.norm());
+        }
+        let bound = 0.5 * self.cloth.total_mass_kg() * self.config.max_speed_m_per_s.powi(2);
+        if kinetic > bound {
+            return Err(StepFailure::EnergyBlowUp {
+                kinetic_energy_j: kinetic,
+                bound_j: bound,
+            }
+            .into());
+        }
+        std::mem::swap(&mut self.positions, &mut self.ws.x_new);
+        std::mem::swap(&mut self.velocities, &mut self.ws.v_plus);
+        self.time_secs += h;
+        stats.kinetic_energy_j = kinetic;
+        stats.max_speed_m_per_s = max_speed;
+        stats.total_secs = start.elapsed().as_secs_f64();
+        Ok(stats)
+    }
+
+    /// Look up the per-step material stiffness and bending coefficients at the current state.
+    fn freeze_coefficients(&mut self) {
+        let par = self.config.parallelism;
+        let x = &self.positions;
+        let material = self.cloth.material();
+        let membranes = self.cloth.membranes();
+        let faces = self.cloth.faces();
+        for_each_indexed(&mut self.ws.tri_stiffness, par, |t, k| {
+            *k = material
+                .membrane()
+                .stiffness(&membranes[t].green_strain(&gather(x, faces[t])));
+        });
+        let hinges = self.cloth.hinges();
+        for_each_indexed(&mut self.ws.hinge_coefficient, par, |e, c| {
+            *c = hinges[e].coefficient(&gather(x, hinges[e].vertices), material.bending());
+        });
+    }
+
+    /// Obstacle contacts (at the start positions, against the end-of-substep obstacles) and
+    /// self-contact pairs.
+    fn find_contacts(&mut self, colliders: &[&dyn Collider]) {
+        let par = self.config.parallelism;
+        let penalty = self.config.contact_penalty;
+        let x = &self.positions;
+        self.ws.obstacle_contacts.clear();
+        for (ci, collider) in colliders.iter().enumerate() {
+            for_each_indexed(&mut self.ws.query, par, |i, q| {
+                *q = collider
+                    .closest_within(x[i], penalty.thickness_m)
+                    .filter(|c| c.distance_m < penalty.thickness_m);
+            });
+            for (i, q) in self.ws.query.iter().enumerate() {
+                if let Some(c) = q {
+                    self.ws.obstacle_contacts.push(ObstacleContact {
+                        vertex: i as u32,
+                        collider: ci as u32,
+                        query_point: x[i],
+                        distance_m: c.distance_m,
+                        normal: c.normal,
+                        velocity_m_per_s: c.velocity_m_per_s,
+                        area_m2: self.cloth.vertex_areas_m2()[i],
+                    });
+                }
+            }
+        }
+        if self.config.self_collision {
+            self.ws.grid.detect(
+                x,
+                self.cloth.faces(),
+                self.cloth.topology(),
+                self.cloth.vertex_areas_m2(),
+                &self.triangle_area_m2,
+                2.0 * penalty.thickness_m,
+                par,
+                &mut self.ws.self_contacts,
+            );
+        } else {
+            self.ws.self_contacts.clear();
+        }
+        self.ws
+            .self_out
+            .resize(self.ws.self_contacts.len(), ElementDerivatives::default());
+    }
+
+    /// Gradient of the potential and its PSD Hessian at `x_iter`.
+    fn assemble(&mut self) {
+        let par = self.config.parallelism;
+        let bending_hessian = self.config.bending_hessian;
+        let penalty = self.config.contact_penalty;
+        let ws = &mut self.ws;
+        let x = &ws.x_iter;
+        let membranes = self.cloth.membranes();
+        let faces = self.cloth.faces();
+        let stiffness = &ws.tri_stiffness;
+        for_each_indexed(&mut ws.tri_out, par, |t, out| {
+            *out = membranes[t].derivatives(&gather(x, faces[t]), &stiffness[t], Projection::Psd);
+        });
+        let hinges = self.cloth.hinges();
+        let coefficient = &ws.hinge_coefficient;
+        for_each_indexed(&mut ws.hinge_out, par, |e, out| {
+            *out = hinges[e].derivatives(
+                &gather(x, hinges[e].vertices),
+                coefficient[e],
+                bending_hessian,
+            );
+        });
+        let self_contacts = &ws.self_contacts;
+        for_each_indexed(&mut ws.self_out, par, |s, out| {
+            let c = &self_contacts[s];
+            let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
+            *out = c.derivatives(&gather(x, idx), &penalty, Projection::Psd);
+        });
+
+        // Scatter in a fixed order.
+        let masses = self.cloth.masses_kg();
+        let gravity = self.config.gravity_m_per_s2;
+        ws.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
+        for (g, m) in ws.gradient.iter_mut().zip(masses) {
+            *g = -gravity * *m;
+        }
+        for ((t, out), slots) in faces.iter().zip(&ws.tri_out).zip(&self.tri_slots) {
+            for a in 0..3 {
+                ws.gradient[t[a] as usize] += out.gradient[a];
+                for b in 0..3 {
+                    ws.stiffness[slots[3 * a + b] as usize] += out.hessian[a][b];
+                }
+            }
+        }
+        for ((h, out), slots) in hinges.iter().zip(&ws.hinge_out).zip(&self.hinge_slots) {
+            for a in 0..4 {
+                ws.gradient[h.vertices[a] as usize] += out.gradient[a];
+                for b in 0..4 {
+                    ws.stiffness[slots[4 * a + b] as usize] += out.hessian[a][b];
+                }
+            }
+        }
+        for c in &ws.obstacle_contacts {
+            let i = c.vertex as usize;
+            let d = c.derivatives(&x[i], &penalty);
+            ws.gradient[i] += d.gradient[0];
+            ws.stiffness[self.pattern.diag_slot(i)] += d.hessian[0][0];
+        }
+        for (c, out) in ws.self_contacts.iter().zip(&ws.self_out) {
+            let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
+            for a in 0..4 {
+                let i = idx[a] as usize;
+                ws.gradient[i] += out.gradient[a];
+                ws.stiffness[self.pattern.diag_slot(i)] += out.hessian[a][a];
+            }
+        }
+    }
+
+    /// `A = M (1 + h α) + h (h + β) K` and `rhs = −r(v⁺)`, with pinned vertices eliminated.
+    fn build_system(&mut self, h: f64) {
+        let beta = self.config.stiffness_damping_s;
+        let alpha = self.config.mass_damping_per_s;
+        let masses = self.cloth.masses_kg();
+        let n = self.positions.len();
+        let ws = &mut self.ws;
+        let scale = h * (h + beta);
+        for (a, k) in ws.system.iter_mut().zip(&ws.stiffness) {
+            *a = k * scale;
+        }
+        for i in 0..n {
+            ws.system[self.pattern.diag_slot(i)] +=
+                Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
+        }
+        // −r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺.
+        for i in 0..n {
+            let mut kv = Vector3::zeros();
+            if beta != 0.0 {
+                for s in self.pattern.row(i) {
+                    kv += ws.stiffness[s] * ws.v_plus[self.pattern.cols()[s] as usize];
+                }
+            }
+            ws.rhs[i] = -(ws.v_plus[i] - self.velocities[i]) * masses[i]
+                - ws.gradient[i] * h
+                - kv * (h * beta)
+                - ws.v_plus[i] * (h * alpha * masses[i]);
+        }
+        // Pins: the update of a pinned vertex is known, δ_i = u_i − v⁺_i. Move its column to
+        // the right-hand side and replace its row by M_i δ_i = M_i (u_i − v⁺_i).
+        if self.pinned.iter().any(|&p| p) {
+            for i in 0..n {
+                if self.pinned[i] {
+                    continue;
+                }
+                for s in self.pattern.row(i) {
+                    let j = self.pattern.cols()[s] as usize;
+                    if self.pinned[j] {
+                        let known = ws.pin_velocity[j] - ws.v_plus[j];
+                        ws.rhs[i] -= ws.system[s] * known;
+                        ws.system[s] = Matrix3::zeros();
+                    }
+                }
+            }
+            for i in 0..n {
+                if !self.pinned[i] {
+                    continue;
+                }
+                for s in self.pattern.row(i) {
+                    ws.system[s] = Matrix3::zeros();
+                }
+                ws.system[self.pattern.diag_slot(i)] = Matrix3::identity() * masses[i];
+                ws.rhs[i] = (ws.pin_velocity[i] - ws.v_plus[i]) * masses[i];
+            }
+        }
+    }
+
+    /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]).
+    fn apply_friction(&mut self, h: f64) {
+        let mu = self.config.friction_coefficient;
+        if mu == 0.0 {
+            return;
+        }
+        let penalty = self.config.contact_penalty;
+        let masses = self.cloth.masses_kg();
+        for c in &self.ws.obstacle_contacts {
+            let i = c.vertex as usize;
+            if self.pinned[i] {
+                continue;
+            }
+            let x_end = self.positions[i] + self.ws.v_plus[i] * h;
+            let (_, de, _) = penalty.evaluate(c.distance_at(&x_end), c.area_m2);
+            let normal_impulse = (-de).max(0.0) * h;
+            let relative = self.ws.v_plus[i] - c.velocity_m_per_s;
+            self.ws.v_plus[i] +=
+                friction_velocity_change(&relative, &c.normal, mu, normal_impulse, masses[i]);
+        }
+    }
+
+    /// The guarantee step on `x_new` / `v_plus`; returns how many vertices it moved.
+    fn project_out(&mut self, colliders: &[&dyn Collider]) -> usize {
+        let tolerance = self.config.max_penetration_m;
+        let par = self.config.parallelism;
+        let mut moved = 0;
+        for collider in colliders {
+            let x = &self.ws.x_new;
+            for_each_indexed(&mut self.ws.query, par, |i, q| {
+                *q = collider
+                    .closest_within(x[i], 0.0)
+                    .filter(|c| c.distance_m < -tolerance);
+            });
+            for (i, q) in self.ws.query.iter().enumerate() {
+                let Some(c) = q else { continue };
+                if self.pinned[i] {
+                    continue;
+                }
+                self.ws.x_new[i] -= c.normal * c.distance_m;
+                let vn = (self.ws.v_plus[i] - c.velocity_m_per_s).dot(&c.normal);
+                if vn < 0.0 {
+                    self.ws.v_plus[i] -= c.normal * vn;
+                }
+                moved += 1;
+            }
+        }
+        moved
+    }
+}

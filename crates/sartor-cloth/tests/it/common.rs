@@ -1,0 +1,64 @@
+//! Shared fixtures: sheets, simulators and seeded random numbers.
+
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use sartor_cloth::{Cloth, Material, SimConfig, Simulator, rectangle_sheet};
+
+pub fn rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// A horizontal square sheet of side `size_m` centred at `(0, height_m, 0)`, `n × n` quads,
+/// normal +Y.
+pub fn horizontal_sheet(size_m: f64, n: usize, height_m: f64, material: Material) -> Cloth {
+    let mesh = rectangle_sheet(
+        Vector3::new(-0.5 * size_m, height_m, 0.5 * size_m),
+        Vector3::new(size_m, 0.0, 0.0),
+        Vector3::new(0.0, 0.0, -size_m),
+        n,
+        n,
+    )
+    .expect("valid sheet");
+    Cloth::new(mesh, material, None).expect("valid cloth")
+}
+
+/// A StVK sheet material (about the gray-interlock small-strain stiffness) with constant bending.
+pub fn stvk() -> Material {
+    Material::stvk(0.187, 10.0, 20.0, 2e-5).expect("valid material")
+}
+
+pub fn simulator(cloth: Cloth, config: SimConfig) -> Simulator {
+    Simulator::new(cloth, config).expect("valid simulator")
+}
+
+/// A UV sphere (closed, outward-oriented) of radius `radius_m` at `center`, `n` rings.
+pub fn uv_sphere(
+    center: Vector3<f64>,
+    radius_m: f64,
+    n: usize,
+) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+    let mut p = vec![center + Vector3::new(0.0, radius_m, 0.0)];
+    for i in 1..n {
+        let th = std::f64::consts::PI * i as f64 / n as f64;
+        for k in 0..2 * n {
+            let ph = std::f64::consts::PI * k as f64 / n as f64;
+            p.push(
+                center
+                    + Vector3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()) * radius_m,
+            );
+        }
+    }
+    p.push(center - Vector3::new(0.0, radius_m, 0.0));
+    let ring = |i: usize, k: usize| (1 + (i - 1) * 2 * n + k % (2 * n)) as u32;
+    let mut f = Vec::new();
+    for k in 0..2 * n {
+        f.push([0, ring(1, k + 1), ring(1, k)]);
+        for i in 1..n - 1 {
+            f.push([ring(i, k), ring(i, k + 1), ring(i + 1, k)]);
+            f.push([ring(i, k + 1), ring(i + 1, k + 1), ring(i + 1, k)]);
+        }
+        f.push([(p.len() - 1) as u32, ring(n - 1, k), ring(n - 1, k + 1)]);
+    }
+    (p, f)
+}

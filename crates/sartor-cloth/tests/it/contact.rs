@@ -1,0 +1,209 @@
+//! Obstacles: a sheet dropped on a sphere and on a floor comes to rest outside them (no vertex
+//! more than 1 mm inside); on a slope below atan(μ) it sticks, above it slides.
+
+use nalgebra::Vector3;
+use sartor_cloth::{
+    Cloth, Collider, Material, MeshCollider, Plane, SimConfig, Sphere, rectangle_sheet,
+};
+
+use crate::common::{horizontal_sheet, simulator, uv_sphere};
+
+const DT: f64 = 1.0 / 300.0;
+
+fn min_distance(positions: &[Vector3<f64>], collider: &dyn Collider) -> f64 {
+    positions
+        .iter()
+        .map(|p| collider.closest(*p).expect("answers").distance_m)
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[test]
+fn sheet_drapes_on_sphere_and_rests() {
+    // The draped corners swing slowly (barely damped by implicit Euler): light air drag
+    // (mass damping α = 2/s) lets the test reach rest in 3 s.
+    let sphere = Sphere::new(Vector3::zeros(), 0.08);
+    let cloth = horizontal_sheet(0.3, 14, 0.095, Material::gray_interlock());
+    let config = SimConfig {
+        mass_damping_per_s: 2.0,
+        ..SimConfig::default()
+    };
+    let mut sim = simulator(cloth, config);
+    let colliders = [&sphere as &dyn Collider];
+    let mut projected = 0;
+    let mut last = Default::default();
+    for step in 0..900 {
+        last = sim.step(DT, &colliders).expect("stable");
+        if step >= 450 {
+            projected += last.projected_vertices;
+        }
+    }
+    let d = min_distance(sim.positions(), &sphere);
+    eprintln!(
+        "sphere: min distance {:.2} mm, {} contacts, {} self-contacts, max speed {:.4} m/s",
+        d * 1e3,
+        last.obstacle_contacts,
+        last.self_contacts,
+        last.max_speed_m_per_s
+    );
+    assert!(
+        d > -1e-3,
+        "a vertex is {:.2} mm inside the sphere",
+        -d * 1e3
+    );
+    assert!(
+        last.obstacle_contacts > 0,
+        "the sheet should touch the sphere"
+    );
+    assert_eq!(
+        projected, 0,
+        "the projection fallback fired in the second second"
+    );
+    // Draped: the corners hang below the sphere's top.
+    let lowest = sim
+        .positions()
+        .iter()
+        .map(|p| p.y)
+        .fold(f64::INFINITY, f64::min);
+    assert!(lowest < 0.03, "lowest point {lowest}");
+    assert!(
+        last.max_speed_m_per_s < 0.01,
+        "still moving at {} m/s",
+        last.max_speed_m_per_s
+    );
+}
+
+#[test]
+fn sheet_rests_on_floor() {
+    let floor = Plane::horizontal(0.0);
+    let cloth = horizontal_sheet(0.2, 8, 0.02, Material::gray_interlock());
+    let mut sim = simulator(cloth, SimConfig::default());
+    let colliders = [&floor as &dyn Collider];
+    let mut last = Default::default();
+    for _ in 0..300 {
+        last = sim.step(DT, &colliders).expect("stable");
+    }
+    let d = min_distance(sim.positions(), &floor);
+    eprintln!(
+        "floor: min distance {:.3} mm, max speed {:.2e} m/s",
+        d * 1e3,
+        last.max_speed_m_per_s
+    );
+    assert!(d > -1e-3, "{:.2} mm below the floor", -d * 1e3);
+    // It rests near the repulsion thickness (5 mm), not on the floor itself.
+    assert!(d > 3e-3 && d < 5e-3, "rest distance {d}");
+    assert!(
+        last.max_speed_m_per_s < 1e-2,
+        "still moving at {}",
+        last.max_speed_m_per_s
+    );
+    assert_eq!(last.projected_vertices, 0);
+}
+
+/// Place a sheet on a slope tilted by `tilt_rad` (just touching: distance = thickness), let it
+/// go for one second and return how far its centroid moved downhill.
+fn slide_distance(tilt_rad: f64) -> f64 {
+    let config = SimConfig::default();
+    let thickness = config.contact_penalty.thickness_m;
+    let plane = Plane::tilted(Vector3::zeros(), tilt_rad);
+    let n = plane.normal();
+    let down = plane.downhill();
+    let across = n.cross(&down);
+    let size = 0.15;
+    let corner = n * thickness - down * (0.5 * size) - across * (0.5 * size);
+    let mesh = rectangle_sheet(corner, down * size, across * size, 6, 6).expect("valid");
+    let cloth = Cloth::new(mesh, Material::gray_interlock(), None).expect("valid");
+    let mut sim = simulator(cloth, config);
+    let centroid = |p: &[Vector3<f64>]| p.iter().sum::<Vector3<f64>>() / p.len() as f64;
+    let start = centroid(sim.positions());
+    let colliders = [&plane as &dyn Collider];
+    for _ in 0..300 {
+        sim.step(DT, &colliders).expect("stable");
+    }
+    let d = min_distance(sim.positions(), &plane);
+    assert!(d > -1e-3, "{:.2} mm inside the slope", -d * 1e3);
+    (centroid(sim.positions()) - start).dot(&down)
+}
+
+#[test]
+fn friction_sticks_below_and_slides_above_the_friction_angle() {
+    // μ = 0.3: atan(μ) = 16.7°.
+    let stick = slide_distance(10f64.to_radians());
+    eprintln!("10° slope: moved {:.3} mm in 1 s", stick * 1e3);
+    assert!(stick.abs() < 3e-3, "moved {:.2} mm at 10°", stick * 1e3);
+    let slide = slide_distance(30f64.to_radians());
+    eprintln!("30° slope: moved {:.1} mm in 1 s", slide * 1e3);
+    // Free sliding with Coulomb friction: ½ g (sin α − μ cos α) t² ≈ 1.2 m in 1 s.
+    assert!(slide > 0.05, "moved only {:.1} mm at 30°", slide * 1e3);
+    let expected = 0.5 * 9.81 * (30f64.to_radians().sin() - 0.3 * 30f64.to_radians().cos());
+    assert!(
+        slide < 1.1 * expected,
+        "slid {slide} m, more than frictional sliding allows"
+    );
+}
+
+#[test]
+fn mesh_collider_agrees_with_the_analytic_sphere() {
+    let (center, radius) = (Vector3::new(0.0, 0.1, 0.0), 0.1);
+    let (p, f) = uv_sphere(center, radius, 24);
+    let mut mesh = MeshCollider::new(&p, &f, 0.05).expect("valid mesh");
+    let sphere = Sphere::new(center, radius);
+    // The chord error of a 24-ring sphere of radius 10 cm is below 1 mm.
+    for q in [
+        Vector3::new(0.0, 0.205, 0.0),
+        Vector3::new(0.07, 0.17, 0.03),
+        Vector3::new(0.02, 0.12, -0.01), // deep inside
+        Vector3::new(0.0, 0.098, 0.099), // just inside, near the equator
+    ] {
+        let (a, b) = (
+            mesh.closest(q).expect("found"),
+            sphere.closest(q).expect("found"),
+        );
+        assert!((a.distance_m - b.distance_m).abs() < 1e-3, "{a:?} vs {b:?}");
+        assert!(a.normal.dot(&b.normal) > 0.95, "{a:?} vs {b:?}");
+    }
+    // Bounded search: far points are not reported, deep ones (within the search depth) are.
+    assert!(
+        mesh.closest_within(Vector3::new(0.0, 0.3, 0.0), 5e-3)
+            .is_none()
+    );
+    assert!(
+        mesh.closest_within(center + Vector3::new(0.0, 0.07, 0.0), 0.0)
+            .is_some()
+    );
+    // Moving it gives the surface velocity.
+    let moved: Vec<_> = p
+        .iter()
+        .map(|q| q + Vector3::new(0.0, 0.002, 0.0))
+        .collect();
+    mesh.move_to(&moved, 0.01).expect("valid");
+    let c = mesh.closest(Vector3::new(0.03, 0.25, 0.0)).expect("found");
+    assert!((c.velocity_m_per_s - Vector3::new(0.0, 0.2, 0.0)).norm() < 1e-9);
+}
+
+#[test]
+fn moving_mesh_body_lifts_the_sheet() {
+    // A sheet resting on a mesh sphere; the sphere rises at 0.2 m/s for 0.5 s and carries the
+    // sheet up without letting it through.
+    let (center, radius) = (Vector3::zeros(), 0.08);
+    let (p, f) = uv_sphere(center, radius, 16);
+    let mut body = MeshCollider::new(&p, &f, 0.05).expect("valid mesh");
+    let cloth = horizontal_sheet(0.2, 8, radius + 0.006, Material::gray_interlock());
+    let mut sim = simulator(cloth, SimConfig::default());
+    let mut offset = Vector3::zeros();
+    for _ in 0..150 {
+        offset += Vector3::new(0.0, 0.2 * DT, 0.0);
+        let moved: Vec<_> = p.iter().map(|q| q + offset).collect();
+        body.move_to(&moved, DT).expect("valid");
+        sim.step(DT, &[&body as &dyn Collider]).expect("stable");
+    }
+    let d = min_distance(sim.positions(), &body);
+    assert!(d > -1e-3, "{:.2} mm inside the moving body", -d * 1e3);
+    // The centre vertex rides on top of the sphere, near the repulsion thickness (5 mm).
+    let top = radius + offset.y;
+    let gap = sim.positions()[40].y - top;
+    assert!(
+        gap > 3e-3 && gap < 6e-3,
+        "centre vertex {:.2} mm above the top",
+        gap * 1e3
+    );
+}

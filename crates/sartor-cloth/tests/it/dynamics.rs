@@ -1,0 +1,246 @@
+//! Free fall, energy behaviour, coming to rest, Newton iterations, the two linear solvers and
+//! determinism.
+
+use nalgebra::Vector3;
+use sartor_cloth::{LinearSolver, Material, Par, SimConfig, Simulator};
+
+use crate::common::{horizontal_sheet, simulator, stvk};
+
+const G: f64 = 9.81;
+
+#[test]
+fn free_fall_matches_implicit_euler() {
+    // Backward Euler on a rigidly falling sheet: v_n = −g n h, y_n = y0 − g h² n (n + 1) / 2,
+    // i.e. exactly g t² / 2 + g h t / 2 below the start. We test
+    // |y − (y0 − g t²/2)| = g h t / 2 to 1e-9 relative (and x, z unchanged).
+    for material in [Material::gray_interlock(), stvk()] {
+        let cloth = horizontal_sheet(0.2, 6, 1.0, material);
+        let mut sim = simulator(cloth, SimConfig::default());
+        let start = sim.positions().to_vec();
+        let h = 1.0 / 300.0;
+        let steps = 90;
+        for _ in 0..steps {
+            sim.step(h, &[]).expect("stable");
+        }
+        let t = h * steps as f64;
+        let bound = G * h * t / 2.0;
+        for (p, p0) in sim.positions().iter().zip(&start) {
+            let error = (p.y - (p0.y - 0.5 * G * t * t)).abs();
+            assert!(
+                (error - bound).abs() <= 1e-9 * bound,
+                "error {error:.6e} vs implicit Euler's {bound:.6e}"
+            );
+            assert!((p.x - p0.x).abs() < 1e-12 && (p.z - p0.z).abs() < 1e-12);
+        }
+    }
+}
+
+/// A sheet pinned along one edge swings for `seconds` without damping; returns the largest
+/// increase of the total energy over its initial value, the largest increase from one step to
+/// the next, and the energy scale `m g L`.
+fn swing(material: Material, seconds: f64) -> (f64, f64, f64) {
+    let size = 0.2;
+    let cloth = horizontal_sheet(size, 8, 0.0, material);
+    let config = SimConfig {
+        self_collision: false,
+        ..SimConfig::default()
+    };
+    let mut sim = simulator(cloth, config);
+    let edge: Vec<usize> = (0..sim.positions().len())
+        .filter(|&i| (sim.positions()[i].x + 0.5 * size).abs() < 1e-9)
+        .collect();
+    assert_eq!(edge.len(), 9);
+    for &i in &edge {
+        let p = sim.positions()[i];
+        sim.pin(i, p).expect("valid pin");
+    }
+    let e0 = sim.energy().total_j();
+    let scale = sim.cloth().total_mass_kg() * G * size;
+    let h = 1.0 / 300.0;
+    let mut worst: f64 = f64::NEG_INFINITY;
+    let mut worst_step: f64 = f64::NEG_INFINITY;
+    let mut previous = e0;
+    let mut lowest = f64::INFINITY;
+    for _ in 0..(seconds / h).round() as usize {
+        sim.step(h, &[]).expect("stable");
+        let e = sim.energy().total_j();
+        worst = worst.max(e - e0);
+        worst_step = worst_step.max(e - previous);
+        previous = e;
+        lowest = lowest.min(e);
+    }
+    assert!(
+        lowest < e0 - 0.01 * scale,
+        "the sheet should swing down and dissipate"
+    );
+    (worst, worst_step, scale)
+}
+
+#[test]
+fn undamped_swing_never_gains_energy() {
+    // Implicit Euler is dissipative: kinetic + gravity + elastic energy never rises above its
+    // initial value over 10 s, and never rises from one step to the next by more than 1e-6 m g L
+    // (StVK with constant bending: a true potential).
+    let (gain, step_gain, scale) = swing(stvk(), 10.0);
+    eprintln!(
+        "StVK swing: largest gain over E0 {gain:.3e} J, largest step-to-step gain {step_gain:.3e} J, m g L = {scale:.3e} J"
+    );
+    assert!(
+        gain <= 0.0,
+        "energy rose above its initial value by {gain:.3e} J"
+    );
+    assert!(
+        step_gain <= 1e-6 * scale,
+        "energy rose by {step_gain:.3e} J in one step"
+    );
+    // Gray-interlock's stiffness depends on the strain (frozen per step, as ARCSim), so its
+    // "energy" is not exactly a Lyapunov function; over 3 s it stays below E0 and per-step rises
+    // stay below 1e-4 m g L.
+    let (gain, step_gain, scale) = swing(Material::gray_interlock(), 3.0);
+    eprintln!(
+        "gray-interlock swing: largest gain over E0 {gain:.3e} J, largest step-to-step gain {step_gain:.3e} J"
+    );
+    assert!(
+        gain <= 0.0,
+        "energy rose above its initial value by {gain:.3e} J"
+    );
+    assert!(
+        step_gain <= 1e-4 * scale,
+        "energy rose by {step_gain:.3e} J in one step"
+    );
+}
+
+#[test]
+fn hanging_sheet_comes_to_rest() {
+    // A vertical sheet pinned at its two top corners sags, buckles out of plane (the top edge
+    // is in compression) and stops. Its slowest modes (a ~1 Hz out-of-plane swing) are barely
+    // damped by implicit Euler (rate ω² h / 2 ≈ 0.07/s), so a light air drag (mass damping
+    // α = 2/s) brings it to rest within the test's 5 s: every vertex slower than 1 mm/s.
+    let size = 0.2;
+    let mesh = sartor_cloth::rectangle_sheet(
+        Vector3::new(-0.5 * size, 0.0, 0.0),
+        Vector3::new(size, 0.0, 0.0),
+        Vector3::new(0.0, -size, 0.0),
+        8,
+        8,
+    )
+    .expect("valid");
+    let cloth = sartor_cloth::Cloth::new(mesh, Material::gray_interlock(), None).expect("valid");
+    let config = SimConfig {
+        mass_damping_per_s: 2.0,
+        ..SimConfig::default()
+    };
+    let mut sim = simulator(cloth, config);
+    for i in [0, 8] {
+        let p = sim.positions()[i];
+        sim.pin(i, p).expect("valid pin");
+    }
+    let h = 1.0 / 300.0;
+    let mut stats = Default::default();
+    let mut fastest: f64 = 0.0;
+    for _ in 0..1500 {
+        stats = sim.step(h, &[]).expect("stable");
+        fastest = fastest.max(stats.max_speed_m_per_s);
+    }
+    assert!(
+        fastest > 0.03,
+        "the sheet should have moved ({fastest} m/s)"
+    );
+    assert!(
+        stats.max_speed_m_per_s < 1e-3,
+        "still moving at {} m/s after 5 s",
+        stats.max_speed_m_per_s
+    );
+    // It hangs: the bottom edge is below the start, the pins did not move.
+    assert!(sim.positions()[80].y < -size);
+    assert!((sim.positions()[0] - Vector3::new(-0.5 * size, 0.0, 0.0)).norm() < 1e-12);
+}
+
+/// Simulate a swinging sheet for 0.2 s with the given settings; returns the final positions.
+fn swing_positions(config: SimConfig, h: f64) -> Vec<Vector3<f64>> {
+    let cloth = horizontal_sheet(0.2, 6, 0.0, Material::gray_interlock());
+    let mut sim = simulator(cloth, config);
+    for i in 0..7 {
+        let p = sim.positions()[i * 7];
+        sim.pin(i * 7, p).expect("valid pin");
+    }
+    for _ in 0..(0.2 / h).round() as usize {
+        sim.step(h, &[]).expect("stable");
+    }
+    sim.positions().to_vec()
+}
+
+fn max_difference(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn newton_iterations_and_solvers_agree() {
+    let h = 1.0 / 300.0;
+    let one = swing_positions(SimConfig::default(), h);
+    let newton = swing_positions(
+        SimConfig {
+            newton_iterations: 5,
+            newton_tolerance_m_per_s: 1e-9,
+            ..SimConfig::default()
+        },
+        h,
+    );
+    let fine = swing_positions(
+        SimConfig {
+            newton_iterations: 5,
+            ..SimConfig::default()
+        },
+        h / 4.0,
+    );
+    let (d_newton, d_one_fine, d_newton_fine) = (
+        max_difference(&one, &newton),
+        max_difference(&one, &fine),
+        max_difference(&newton, &fine),
+    );
+    eprintln!(
+        "0.2 s swing: 1 vs 5 Newton iterations {:.3} mm; vs h/4 reference: 1 it {:.3} mm, 5 it {:.3} mm",
+        d_newton * 1e3,
+        d_one_fine * 1e3,
+        d_newton_fine * 1e3
+    );
+    // The single linearised step is a good approximation of the converged implicit step.
+    assert!(d_newton < 5e-3, "{d_newton}");
+    let cg = swing_positions(
+        SimConfig {
+            linear_solver: LinearSolver::ConjugateGradient {
+                max_iterations: 2000,
+                relative_tolerance: 1e-10,
+            },
+            ..SimConfig::default()
+        },
+        h,
+    );
+    let d_cg = max_difference(&one, &cg);
+    assert!(d_cg < 1e-7, "Cholesky and CG differ by {d_cg} m");
+}
+
+#[test]
+fn parallel_runs_are_identical() {
+    let run = |par: Par| {
+        let config = SimConfig {
+            linear_solver: LinearSolver::ConjugateGradient {
+                max_iterations: 1000,
+                relative_tolerance: 1e-9,
+            },
+            parallelism: par,
+            ..SimConfig::default()
+        };
+        let cloth = horizontal_sheet(0.2, 24, 0.0, Material::gray_interlock());
+        let mut sim: Simulator = simulator(cloth, config);
+        sim.pin(0, sim.positions()[0]).expect("valid pin");
+        for _ in 0..5 {
+            sim.step(1.0 / 300.0, &[]).expect("stable");
+        }
+        sim.positions().to_vec()
+    };
+    assert_eq!(run(Par::Seq), run(Par::Rayon));
+}

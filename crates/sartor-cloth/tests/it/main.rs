@@ -1,0 +1,10 @@
+//! sartor-cloth's integration tests (one binary, one module per area).
+
+mod common;
+mod contact;
+mod dynamics;
+mod failure;
+mod finite_difference;
+mod garment;
+mod material;
+mod stress_strain;

@@ -1,0 +1,162 @@
+//! `cargo xtask garment --config configs/garments/<name>.json [--out datasets/garments/<name>]`:
+//! build a garment template (procedural T-shirt or user OBJ) on the template body, save it
+//! (`garment.safetensors`, `garment.json`, `garment.obj`) and write `garment-report.json`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use sartor_body::io::{read_file, sha256_hex, write_atomic};
+use sartor_body::{BodyModel, MODEL_HEADER, MeshProximity};
+use sartor_cloth::{GARMENT_REPORT, GarmentConfig, GarmentReport, build_garment};
+use serde::Serialize;
+
+/// Arguments of `garment`.
+#[derive(clap::Args, Debug)]
+pub struct GarmentArgs {
+    /// The garment config (a T-shirt recipe or an OBJ import).
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Output folder (default: datasets/garments/<name>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Body model folder (default: the config's `body`, else the built-in body).
+    #[arg(long)]
+    pub body: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct Machine {
+    cores: usize,
+    cpu_model: String,
+}
+
+impl Machine {
+    fn current() -> Self {
+        let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split(':').nth(1))
+                    .map(|m| m.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into());
+        Self {
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            cpu_model,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct Timings {
+    load_body_s: f64,
+    build_s: f64,
+    save_s: f64,
+    report_s: f64,
+}
+
+#[derive(Serialize)]
+struct ReportFile<'a> {
+    #[serde(flatten)]
+    report: &'a GarmentReport,
+    tshirt: Option<&'a sartor_cloth::TshirtStats>,
+    config_path: String,
+    config_sha256: String,
+    body_dir: String,
+    relaxed_on_body: bool,
+    wall_time_s: f64,
+    timings: Timings,
+    machine: Machine,
+}
+
+/// Build, save and report one garment.
+pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let config_bytes = read_file(&args.config)?;
+    let config = GarmentConfig::from_json(&config_bytes, &args.config)?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new("datasets/garments").join(config.name()));
+    let body_dir = args
+        .body
+        .clone()
+        .or_else(|| config.body())
+        .unwrap_or_else(sartor_body::builtin_model_dir);
+    let t = Instant::now();
+    let body = BodyModel::load(&body_dir)
+        .with_context(|| format!("loading the body model from {}", body_dir.display()))?;
+    let body_header_sha256 = sha256_hex(&read_file(&body_dir.join(MODEL_HEADER))?);
+    let load_body_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let build = build_garment(
+        &config,
+        &args.config,
+        &config_bytes,
+        &body,
+        Some(body_header_sha256),
+    )
+    .with_context(|| format!("building the garment of {}", args.config.display()))?;
+    let garment = build.garment;
+    // Relaxation on the template body goes here, once the simulator's body collider exists:
+    // let garment = garment.with_template_positions(relax_on_body(&garment, &body)?)?;
+    // (it keeps the rest metric and replaces the template positions; set
+    // `relaxed_on_body` below accordingly).
+    let relaxed_on_body = false;
+    let build_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    garment
+        .save(&out)
+        .with_context(|| format!("saving the garment into {}", out.display()))?;
+    let save_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let proximity = MeshProximity::new(body.template().positions(), body.faces())?;
+    let report = GarmentReport::measure(&garment, Some(&proximity));
+    let report_s = t.elapsed().as_secs_f64();
+    let file = ReportFile {
+        report: &report,
+        tshirt: build.tshirt.as_ref(),
+        config_path: args.config.display().to_string(),
+        config_sha256: sha256_hex(&config_bytes),
+        body_dir: body_dir.display().to_string(),
+        relaxed_on_body,
+        wall_time_s: start.elapsed().as_secs_f64(),
+        timings: Timings {
+            load_body_s,
+            build_s,
+            save_s,
+            report_s,
+        },
+        machine: Machine::current(),
+    };
+    let mut json = serde_json::to_string_pretty(&file)?;
+    json.push('\n');
+    write_atomic(&out.join(GARMENT_REPORT), json.as_bytes())?;
+
+    let m = &report.mesh;
+    println!(
+        "wrote {}: {} triangles, {} vertices, {:.3} m², {} boundary loops, min angle {:.1}°, \
+         edges p5/p50/p95 {:.1}/{:.1}/{:.1} mm",
+        out.display(),
+        m.triangles,
+        m.vertices,
+        m.area_m2,
+        m.boundary_loops,
+        m.min_angle_deg,
+        m.edge_length.p5_mm,
+        m.edge_length.p50_mm,
+        m.edge_length.p95_mm
+    );
+    if let Some(fit) = &report.body {
+        println!(
+            "ease min/mean/max {:.1}/{:.1}/{:.1} mm, {} vertices inside the body; built in {build_s:.2} s",
+            fit.ease_min_mm, fit.ease_mean_mm, fit.ease_max_mm, fit.vertices_inside
+        );
+    }
+    Ok(())
+}
