@@ -330,3 +330,35 @@ fn malformed_files_give_clear_errors() {
         "{err}"
     );
 }
+
+/// The built-in body at the extremes: β = ±5 on every component with every joint (and the root)
+/// rotated by 179°, on a long clip, stays finite; non-finite shape or pose is an error.
+#[test]
+fn builtin_body_extremes_stay_finite() {
+    use nalgebra::UnitQuaternion;
+    let model = sartor_body::load_builtin().expect("built-in model loads");
+    let n_j = model.skeleton().n_joints();
+    let mut pose = sartor_body::Pose::rest(n_j);
+    for (j, q) in pose.local_rotations.iter_mut().enumerate() {
+        let axis = Vector3::new(1.0, (j as f64).sin(), (j as f64).cos()).normalize();
+        *q = UnitQuaternion::from_scaled_axis(axis * 179f64.to_radians());
+    }
+    pose.root_orientation =
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 179.9f64.to_radians());
+    for b in 0..model.n_betas() {
+        for s in [-5.0, 5.0] {
+            let mut betas = vec![0.0; model.n_betas()];
+            betas[b] = s;
+            let v = model.posed_vertices(&betas, &pose).expect("finite input");
+            assert!(
+                v.iter().all(|p| p.iter().all(|c| c.is_finite())),
+                "β{b} = {s}"
+            );
+        }
+    }
+    assert!(model.posed_vertices(&[f64::NAN], &pose).is_err());
+    let mut bad = pose.clone();
+    bad.local_rotations[5] =
+        UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(f64::INFINITY, 0.0, 0.0, 0.0));
+    assert!(model.posed_vertices(&[], &bad).is_err());
+}
