@@ -67,7 +67,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use serde_json::Value;
 
 use crate::io::read_file;
@@ -93,26 +93,7 @@ fn blender_to_ours() -> Matrix3<f64> {
 /// Bone rest axes from its direction and roll, as Blender's `vec_roll_to_mat3_normalized`
 /// (columns: the bone's X, Y (= `dir`) and Z axes in armature space).
 fn vec_roll_to_mat3(dir: &Vector3<f64>, roll: f64) -> Matrix3<f64> {
-    const SAFE_THRESHOLD: f64 = 6.1e-3;
-    const CRITICAL_THRESHOLD: f64 = 2.5e-4;
-    let nor = dir.normalize();
-    let (x, y, z) = (nor.x, nor.y, nor.z);
-    let mut theta = 1.0 + y;
-    let theta_alt = x * x + z * z;
-    let b = if theta > SAFE_THRESHOLD || theta_alt > CRITICAL_THRESHOLD * CRITICAL_THRESHOLD {
-        if theta <= SAFE_THRESHOLD {
-            theta = theta_alt * 0.5 + theta_alt * theta_alt * 0.125;
-        }
-        Matrix3::from_columns(&[
-            Vector3::new(1.0 - x * x / theta, -x, -x * z / theta),
-            Vector3::new(x, y, z),
-            Vector3::new(-x * z / theta, -z, 1.0 - z * z / theta),
-        ])
-    } else {
-        Matrix3::from_diagonal(&Vector3::new(-1.0, -1.0, 1.0))
-    };
-    let roll_m = Rotation3::from_axis_angle(&Unit::new_unchecked(nor), roll).into_inner();
-    roll_m * b
+    crate::makehuman::blender::vec_roll_to_mat3(&dir.normalize(), roll)
 }
 
 /// A bone of a MakeHuman rig file, in Blender armature space (metres, Z up, −Y forward).

@@ -27,7 +27,7 @@ use crate::io::read_file;
 use crate::{BodyModel, Error, Pose, Result};
 
 mod assets;
-mod blender;
+pub(crate) mod blender;
 mod import;
 mod pca;
 
