@@ -69,7 +69,7 @@ pub use makehuman::{
     TPOSE_FILE, TPoseReport, TopKReport, blender_euler_xyz, builtin_model_dir, import_makehuman,
     load_builtin, load_tpose,
 };
-pub use mesh::{MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
+pub use mesh::{Hinge, MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};
 pub use motion::{FPS, Motion, interpolate_pose};
 pub use motion_sources::{

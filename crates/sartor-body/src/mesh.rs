@@ -171,6 +171,16 @@ pub fn vertex_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vec
     normals
 }
 
+/// An interior edge with its two triangles (see [`MeshTopology::hinges`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hinge {
+    /// `[x0, x1, x2, x3]`: the edge `x0 → x1` as oriented in `faces[0]`, then the vertex opposite
+    /// it in `faces[0]` and in `faces[1]`.
+    pub vertices: [u32; 4],
+    /// The two triangles.
+    pub faces: [u32; 2],
+}
+
 /// Connectivity of a triangle mesh: unique edges, the faces around each edge, vertex
 /// neighbourhoods (CSR), boundary loops and connected components.
 #[derive(Clone, Debug)]
@@ -309,6 +319,40 @@ impl MeshTopology {
         loops
     }
 
+    /// Bending hinges: every interior edge with its two triangles, in the order of
+    /// [`Self::edges`]. Vertices are `[x0, x1, x2, x3]` where the first face contains the
+    /// directed edge `x0 → x1` and `x2`, `x3` are the vertices opposite the edge in the first and
+    /// second face.
+    pub fn hinges(&self) -> Vec<Hinge> {
+        let mut hinges = Vec::new();
+        for (edge, edge_faces) in self.edges.iter().zip(&self.edge_faces) {
+            let &[fa, fb] = edge_faces.as_slice() else {
+                continue;
+            };
+            let directed = |f: u32, p: u32, q: u32| {
+                let t = self.faces[f as usize];
+                (0..3).any(|k| t[k] == p && t[(k + 1) % 3] == q)
+            };
+            let (x0, x1) = if directed(fa, edge[0], edge[1]) {
+                (edge[0], edge[1])
+            } else {
+                (edge[1], edge[0])
+            };
+            let opposite = |f: u32| {
+                self.faces[f as usize]
+                    .into_iter()
+                    .find(|&v| v != x0 && v != x1)
+            };
+            if let (Some(x2), Some(x3)) = (opposite(fa), opposite(fb)) {
+                hinges.push(Hinge {
+                    vertices: [x0, x1, x2, x3],
+                    faces: [fa, fb],
+                });
+            }
+        }
+        hinges
+    }
+
     /// Connected components of the faces (by shared edges); returns a component id per face and
     /// the number of components.
     pub fn face_components(&self) -> (Vec<u32>, usize) {
@@ -432,6 +476,14 @@ mod tests {
         assert_eq!(t.neighbours(0), &[1, 2, 3]);
         assert_eq!(t.boundary_loops(), vec![vec![0, 1, 2, 3]]);
         assert_eq!(t.face_components().1, 1);
+        // One interior edge (0, 2): face 0 = [0, 1, 2] holds it as 2 → 0.
+        assert_eq!(
+            t.hinges(),
+            vec![Hinge {
+                vertices: [2, 0, 1, 3],
+                faces: [0, 1]
+            }]
+        );
         t.check_manifold().expect("manifold");
         let n = m.vertex_normals();
         assert!((n[0] - Vector3::z()).norm() < 1e-12);

@@ -100,28 +100,9 @@ impl Cloth {
         }
 
         let mut hinges = Vec::new();
-        for (edge, edge_faces) in topology.edges.iter().zip(&topology.edge_faces) {
-            let [fa, fb] = match edge_faces.as_slice() {
-                [fa, fb] => [*fa as usize, *fb as usize],
-                _ => continue,
-            };
-            // Orient so that face A contains the directed edge x0 → x1.
-            let directed = |f: usize, p: u32, q: u32| {
-                let t = faces[f];
-                (0..3).any(|k| t[k] == p && t[(k + 1) % 3] == q)
-            };
-            // On an oriented manifold, face `fa` contains the edge in one direction: call that
-            // direction x0 → x1.
-            let (x0, x1) = if directed(fa, edge[0], edge[1]) {
-                (edge[0], edge[1])
-            } else {
-                (edge[1], edge[0])
-            };
-            let opposite = |f: usize| faces[f].into_iter().find(|&v| v != x0 && v != x1);
-            let (Some(x2), Some(x3)) = (opposite(fa), opposite(fb)) else {
-                continue;
-            };
-            let vertices = [x0, x1, x2, x3];
+        for hinge in topology.hinges() {
+            let vertices = hinge.vertices;
+            let [fa, fb] = hinge.faces.map(|f| f as usize);
             let x = vertices.map(|i| positions[i as usize]);
             let e = x[1] - x[0];
             let angle_in = |f: usize| {

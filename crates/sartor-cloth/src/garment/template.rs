@@ -660,27 +660,9 @@ pub(crate) fn check_garment_topology(mesh: &TriMesh) -> Result<()> {
 
 /// Bending hinges in the order of the mesh's sorted unique edges (see [`Garment::hinges`]).
 fn hinges_of(mesh: &TriMesh) -> Vec<[u32; 4]> {
-    let topology = mesh.topology();
-    let faces = mesh.faces();
-    let mut hinges = Vec::new();
-    for (edge, edge_faces) in topology.edges.iter().zip(&topology.edge_faces) {
-        let [fa, fb] = match edge_faces.as_slice() {
-            [fa, fb] => [*fa as usize, *fb as usize],
-            _ => continue,
-        };
-        let directed = |f: usize, p: u32, q: u32| {
-            let t = faces[f];
-            (0..3).any(|k| t[k] == p && t[(k + 1) % 3] == q)
-        };
-        let (x0, x1) = if directed(fa, edge[0], edge[1]) {
-            (edge[0], edge[1])
-        } else {
-            (edge[1], edge[0])
-        };
-        let opposite = |f: usize| faces[f].into_iter().find(|&v| v != x0 && v != x1);
-        if let (Some(x2), Some(x3)) = (opposite(fa), opposite(fb)) {
-            hinges.push([x0, x1, x2, x3]);
-        }
-    }
-    hinges
+    mesh.topology()
+        .hinges()
+        .into_iter()
+        .map(|h| h.vertices)
+        .collect()
 }
