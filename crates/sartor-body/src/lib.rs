@@ -35,8 +35,10 @@
 //! ```
 
 mod amass;
+mod binding;
 mod bvh;
 mod error;
+mod features;
 pub mod io;
 mod makehuman;
 mod mesh;
@@ -58,11 +60,13 @@ pub use amass::{
     AmassData, AmassOptions, SMPL_BODY_PARENTS, SMPL_TO_RIG, load_amass, retarget_amass,
     retarget_amass_native_rate,
 };
+pub use binding::{faces_near, transfer_skin_weights};
 pub use bvh::{
     Bvh, BvhChannel, BvhJoint, BvhRetargetOptions, BvhRetargetReport, cmu_to_rig_name,
     load_bvh_motion, retarget_bvh, retarget_bvh_native_rate,
 };
 pub use error::{Error, Result};
+pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
 pub use makehuman::{
     BONE_FRAMES_FILE, BoneFrames, HeldOutReport, IMPORT_REPORT_FILE, ImportOptions, ImportReport,
     JointReport, MeshReport, PcaReport, SAMPLE_RANGES, ShapeSpaceReport, SkinWeightReport,

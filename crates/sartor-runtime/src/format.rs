@@ -94,28 +94,9 @@ pub enum OutputKind {
     Pca(usize),
 }
 
-/// Rotation encoding of a joint-rotation feature block.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RotationEncoding {
-    /// First two columns of the rotation matrix (6 values).
-    Rot6d,
-    /// Unit quaternion `(x, y, z, w)` (4 values).
-    Quaternion,
-    /// Rotation vector, radians (3 values).
-    AxisAngle,
-}
-
-impl RotationEncoding {
-    /// Values per joint.
-    pub fn width(self) -> usize {
-        match self {
-            Self::Rot6d => 6,
-            Self::Quaternion => 4,
-            Self::AxisAngle => 3,
-        }
-    }
-}
+/// Rotation encoding of a joint-rotation feature block: sartor-body's, so the runtime computes
+/// exactly the features the dataset trained on.
+pub use sartor_body::RotationEncoding;
 
 /// What a block of the wrinkle input holds.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
