@@ -194,6 +194,12 @@ mod tests {
             wrinkle_out: ones(3),
         };
         TrainingData::new(
+            crate::DataSource {
+                garment_id: "g".into(),
+                garment_sha256: "0".repeat(64),
+                body_id: "b".into(),
+                body_sha256: "1".repeat(64),
+            },
             1,
             layout,
             vec![shape],
@@ -257,6 +263,7 @@ mod tests {
         let mut seqs = d.sequences().to_vec();
         seqs[0].inputs.pop();
         let r = TrainingData::new(
+            d.source().clone(),
             1,
             d.layout().clone(),
             d.shapes().to_vec(),
@@ -268,6 +275,7 @@ mod tests {
         let mut seqs = d.sequences().to_vec();
         seqs[1].wrinkle_delta[0] = f32::NAN;
         let r = TrainingData::new(
+            d.source().clone(),
             1,
             d.layout().clone(),
             d.shapes().to_vec(),

@@ -158,9 +158,25 @@ impl PcaBasis {
     }
 }
 
+/// What the data was made from: the garment and the body, by name and content hash (an
+/// exported model carries them so a runtime can refuse a mismatched garment or body).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataSource {
+    /// Garment name, e.g. `tshirt-4210`.
+    pub garment_id: String,
+    /// SHA-256 of the garment's files.
+    pub garment_sha256: String,
+    /// Body model name, e.g. `makehuman`.
+    pub body_id: String,
+    /// SHA-256 of the body model's files.
+    pub body_sha256: String,
+}
+
 /// Everything a training run needs, validated.
 #[derive(Clone, Debug)]
 pub struct TrainingData {
+    source: DataSource,
     n_vertices: usize,
     layout: InputLayout,
     shapes: Vec<ShapeSample>,
@@ -172,6 +188,7 @@ pub struct TrainingData {
 impl TrainingData {
     /// Check every size, index and value and build. `pca`, if given, must have `3V` rows.
     pub fn new(
+        source: DataSource,
         n_vertices: usize,
         layout: InputLayout,
         shapes: Vec<ShapeSample>,
@@ -268,6 +285,7 @@ impl TrainingData {
             }
         }
         Ok(Self {
+            source,
             n_vertices,
             layout,
             shapes,
@@ -275,6 +293,11 @@ impl TrainingData {
             stats,
             pca,
         })
+    }
+
+    /// The garment and body the data was made from.
+    pub fn source(&self) -> &DataSource {
+        &self.source
     }
 
     /// Garment vertices `V`.

@@ -22,6 +22,7 @@ pub use batching::{
     window_count,
 };
 pub use data::{
-    InputLayout, MeanStd, NormStats, PcaBasis, SequenceSample, ShapeSample, Split, TrainingData,
+    DataSource, InputLayout, MeanStd, NormStats, PcaBasis, SequenceSample, ShapeSample, Split,
+    TrainingData,
 };
 pub use error::{Error, Result};
