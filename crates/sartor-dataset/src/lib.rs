@@ -8,6 +8,9 @@
 //!
 //! - [`TrainingData`]: the data in memory ([`ShapeSample`], [`SequenceSample`],
 //!   [`NormStats`], [`PcaBasis`], [`InputLayout`]), validated.
+//! - Ground truth ([`ClothBinding`], [`Smoother`] (ρ), [`fit_delta`], [`WrinkleExtractor`],
+//!   [`select_joints`]), statistics and PCA ([`compute_stats`], [`compute_pca`]).
+//! - Files ([`load_dataset`], [`Manifest`], `write_*`): safetensors + a manifest with hashes.
 //! - Batching ([`sequence_batches`], [`window`], [`frame_batches`], [`gather_frames`],
 //!   [`gather_shapes`]): deterministic under a seed, normalised.
 
@@ -16,6 +19,10 @@
 mod batching;
 mod data;
 mod error;
+mod extract;
+mod smoothing;
+mod stats;
+mod store;
 
 pub use batching::{
     Window, frame_batches, gather_frames, gather_shapes, sequence_batches, shuffled, window,
@@ -26,3 +33,12 @@ pub use data::{
     TrainingData,
 };
 pub use error::{Error, Result};
+pub use extract::{CLOTH_WEIGHT_CUTOFF, ClothBinding, WrinkleExtractor, fit_delta, select_joints};
+pub use smoothing::{Smoother, Smoothing};
+pub use stats::{MIN_STD, PcaSettings, compute_pca, compute_stats};
+pub use store::{
+    BINDING_FILE, DATASET_FORMAT, DATASET_VERSION, MANIFEST_FILE, Manifest, SEQUENCES_DIR,
+    SHAPES_FILE, STATS_FILE, SequenceEntry, ShapeEntry, load_dataset, read_binding, read_manifest,
+    read_sequence, sequence_file, write_binding, write_manifest, write_sequence, write_shapes,
+    write_stats,
+};

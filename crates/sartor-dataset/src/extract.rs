@@ -1,0 +1,223 @@
+//! Ground truth from simulations: the cloth binding (`T̄_c`, `W_c`), the fit displacement `Δ_G`
+//! and the wrinkle displacements `Δ_L`, and the choice of the joints the network sees.
+//!
+//! ```text
+//! T̄_c  = ρ(garment relaxed on the template body)
+//! W_c  = barycentric blend of the body weights at each T̄_c vertex's closest template-body point
+//! Δ_G  = ρ(S_c(β, 0)) − T̄_c
+//! Δ_L  = W⁻¹(S_c(β, θ), β, θ, W_c) − T̄_c − Δ_G
+//! ```
+//!
+//! `W⁻¹` is sartor-body's one inverse skinning ([`sartor_body::unskin_points`]); the transforms
+//! are the body's for shape β and pose θ (root motion included), so the recovered displacement
+//! lives in the rest space of the template.
+
+use nalgebra::Vector3;
+
+use sartor_body::{BodyModel, Par, Pose, SkinWeights, transfer_skin_weights, unskin_points};
+
+use crate::smoothing::Smoother;
+use crate::{Error, Result};
+
+/// Skin weights below this are dropped from `W_c` (and the rest renormalised): they move a
+/// vertex by less than a tenth of a millimetre per metre of bone motion.
+pub const CLOTH_WEIGHT_CUTOFF: f32 = 1e-4;
+
+/// The garment bound to the body: template, faces and cloth skin weights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClothBinding {
+    /// The garment as relaxed on the template body (before ρ).
+    pub relaxed: Vec<Vector3<f64>>,
+    /// `T̄_c = ρ(relaxed)`.
+    pub template: Vec<Vector3<f64>>,
+    /// Garment triangles.
+    pub faces: Vec<[u32; 3]>,
+    /// `W_c`, one row per garment vertex, over the body's joints.
+    pub skin_weights: SkinWeights,
+}
+
+impl ClothBinding {
+    /// Bind a garment relaxed on the template body (β = 0, rest pose): smooth it with ρ, then
+    /// transfer the body's weights to every template vertex.
+    pub fn new(
+        body: &BodyModel,
+        relaxed: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        smoother: &Smoother,
+    ) -> Result<Self> {
+        let template = smoother.apply(relaxed)?;
+        let skin_weights = transfer_skin_weights(
+            body.template().positions(),
+            body.faces(),
+            body.skin_weights(),
+            &template,
+            CLOTH_WEIGHT_CUTOFF,
+        )?;
+        Ok(Self {
+            relaxed: relaxed.to_vec(),
+            template,
+            faces: faces.to_vec(),
+            skin_weights,
+        })
+    }
+
+    /// Garment vertices `V`.
+    pub fn n_vertices(&self) -> usize {
+        self.template.len()
+    }
+}
+
+fn flatten(points: impl Iterator<Item = Vector3<f64>>, out: &mut Vec<f32>) {
+    for p in points {
+        out.extend([p.x as f32, p.y as f32, p.z as f32]);
+    }
+}
+
+fn check_frame(what: &'static str, frame: &[Vector3<f64>], n: usize) -> Result<()> {
+    if frame.len() != n {
+        return Err(Error::invalid(
+            what,
+            format!("{} cloth vertices for a garment of {n}", frame.len()),
+        ));
+    }
+    if let Some(i) = frame.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::invalid(
+            what,
+            format!("cloth vertex {i} is not finite"),
+        ));
+    }
+    Ok(())
+}
+
+/// `Δ_G = ρ(S_c(β, 0)) − T̄_c`, `[3V]`, from the cloth `rest_cloth` simulated on the body of
+/// shape β in the rest pose (no root motion).
+pub fn fit_delta(
+    binding: &ClothBinding,
+    smoother: &Smoother,
+    rest_cloth: &[Vector3<f64>],
+) -> Result<Vec<f32>> {
+    check_frame("fit displacement", rest_cloth, binding.n_vertices())?;
+    let smooth = smoother.apply(rest_cloth)?;
+    let mut out = Vec::with_capacity(3 * smooth.len());
+    flatten(
+        smooth.iter().zip(&binding.template).map(|(s, t)| s - t),
+        &mut out,
+    );
+    Ok(out)
+}
+
+/// Un-poses simulated cloth frames of one shape: `Δ_L` per frame.
+pub struct WrinkleExtractor<'a> {
+    body: &'a BodyModel,
+    binding: &'a ClothBinding,
+    joints: Vec<Vector3<f64>>,
+    /// `T̄_c + Δ_G`.
+    fitted: Vec<Vector3<f64>>,
+    rest: Vec<Vector3<f64>>,
+}
+
+impl<'a> WrinkleExtractor<'a> {
+    /// For shape `betas` with fit displacement `fit_delta` (`[3V]`).
+    pub fn new(
+        body: &'a BodyModel,
+        binding: &'a ClothBinding,
+        betas: &[f64],
+        fit_delta: &[f32],
+    ) -> Result<Self> {
+        let n = binding.n_vertices();
+        if fit_delta.len() != 3 * n {
+            return Err(Error::invalid(
+                "wrinkle extraction",
+                format!(
+                    "fit displacement has {} values for {n} vertices",
+                    fit_delta.len()
+                ),
+            ));
+        }
+        if binding.skin_weights.n_joints() != body.skeleton().n_joints() {
+            return Err(Error::invalid(
+                "wrinkle extraction",
+                format!(
+                    "cloth weights over {} joints, body has {}",
+                    binding.skin_weights.n_joints(),
+                    body.skeleton().n_joints()
+                ),
+            ));
+        }
+        let joints = body.shaped_joints(betas)?;
+        let fitted = binding
+            .template
+            .iter()
+            .enumerate()
+            .map(|(v, t)| {
+                t + Vector3::new(
+                    fit_delta[3 * v] as f64,
+                    fit_delta[3 * v + 1] as f64,
+                    fit_delta[3 * v + 2] as f64,
+                )
+            })
+            .collect();
+        Ok(Self {
+            body,
+            binding,
+            joints,
+            fitted,
+            rest: vec![Vector3::zeros(); n],
+        })
+    }
+
+    /// Append `Δ_L` (`3V` values) of one frame: `cloth` simulated at `pose`.
+    pub fn push_frame(
+        &mut self,
+        pose: &Pose,
+        cloth: &[Vector3<f64>],
+        out: &mut Vec<f32>,
+    ) -> Result<()> {
+        check_frame("wrinkle extraction", cloth, self.binding.n_vertices())?;
+        let (_, transforms) = self
+            .body
+            .skeleton()
+            .forward_kinematics(&self.joints, pose)?;
+        unskin_points(
+            cloth,
+            &self.binding.skin_weights,
+            &transforms,
+            &mut self.rest,
+            Par::Seq,
+        )?;
+        flatten(self.rest.iter().zip(&self.fitted).map(|(r, f)| r - f), out);
+        Ok(())
+    }
+}
+
+/// The joints whose rotations the wrinkle network sees: every joint that carries at least
+/// `min_weight` of some garment vertex's cloth skin weight, plus all their ancestors (a joint's
+/// rotation moves everything below it). In skeleton order. For a T-shirt this is the spine,
+/// neck, shoulders and arms down to where the sleeves end, and the root (whose entry is its
+/// tilt relative to gravity; see [`sartor_body::PoseFeatures`]).
+pub fn select_joints(body: &BodyModel, weights: &SkinWeights, min_weight: f32) -> Vec<String> {
+    let skeleton = body.skeleton();
+    let mut used = vec![false; skeleton.n_joints()];
+    for p in 0..weights.n_points() {
+        for (j, w) in weights.point(p) {
+            if w >= min_weight {
+                used[j] = true;
+            }
+        }
+    }
+    for j in (0..skeleton.n_joints()).rev() {
+        if used[j]
+            && let Some(parent) = skeleton.parents()[j]
+        {
+            used[parent] = true;
+        }
+    }
+    // Parents come before children in the skeleton order, so one reverse pass closes the set.
+    skeleton
+        .names()
+        .iter()
+        .zip(&used)
+        .filter(|(_, u)| **u)
+        .map(|(n, _)| n.clone())
+        .collect()
+}

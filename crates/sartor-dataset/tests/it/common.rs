@@ -1,0 +1,16 @@
+//! Shared fixtures: the built-in body and the tiny T-shirt.
+
+use std::path::Path;
+
+use sartor_body::{BodyModel, TriMesh, load_builtin, read_obj};
+
+pub fn body() -> BodyModel {
+    load_builtin().expect("the built-in body is committed")
+}
+
+/// The committed 500-triangle T-shirt (as relaxed on the template body).
+pub fn tiny_tshirt() -> TriMesh {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../datasets/garments/tshirt-tiny/garment.obj");
+    read_obj(&path).expect("the tiny T-shirt is committed")
+}

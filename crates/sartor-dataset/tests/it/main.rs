@@ -1,0 +1,4 @@
+//! sartor-dataset's integration tests (one binary).
+
+mod common;
+mod extract;
