@@ -17,6 +17,7 @@
 #![warn(missing_docs)]
 
 mod batching;
+mod build;
 mod data;
 mod error;
 mod extract;
@@ -27,6 +28,10 @@ mod store;
 pub use batching::{
     Window, frame_batches, gather_frames, gather_shapes, sequence_batches, shuffled, window,
     window_count,
+};
+pub use build::{
+    DatasetConfig, DatasetInputs, DatasetPlan, DatasetReport, MagnitudeMm, REPORT_FILE,
+    SequencePlan, ShapePlan, SimulatedMotion, SimulationSource, build_dataset,
 };
 pub use data::{
     DataSource, InputLayout, MeanStd, NormStats, PcaBasis, SequenceSample, ShapeSample, Split,

@@ -1,4 +1,5 @@
 //! sartor-dataset's integration tests (one binary).
 
+mod build;
 mod common;
 mod extract;
