@@ -84,6 +84,20 @@ pub struct AssetId {
     pub sha256: String,
 }
 
+impl AssetId {
+    /// Check that the name is not empty and the hash is 64 lower-case hex digits; the message
+    /// names `field`.
+    pub(crate) fn check(&self, field: &str) -> std::result::Result<(), String> {
+        if self.id.is_empty() {
+            return Err(format!("{field}.id is empty"));
+        }
+        if !is_sha256(&self.sha256) {
+            return Err(format!("{field}.sha256 is not 64 lower-case hex digits"));
+        }
+        Ok(())
+    }
+}
+
 /// The wrinkle regressor's output.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -233,7 +247,7 @@ pub struct ModelHeader {
     pub tensors_sha256: String,
 }
 
-fn is_sha256(s: &str) -> bool {
+pub(crate) fn is_sha256(s: &str) -> bool {
     s.len() == 64
         && s.bytes()
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
@@ -291,12 +305,7 @@ impl ModelHeader {
             ));
         }
         for (field, asset) in [("garment", &self.garment), ("body", &self.body)] {
-            if asset.id.is_empty() {
-                return Err(format!("{field}.id is empty"));
-            }
-            if !is_sha256(&asset.sha256) {
-                return Err(format!("{field}.sha256 is not 64 lower-case hex digits"));
-            }
+            asset.check(field)?;
         }
         let s = &self.sizes;
         for (field, v) in [

@@ -36,11 +36,22 @@
 //! # Ok::<(), sartor_runtime::Error>(())
 //! ```
 
+mod animator;
+mod binding;
+mod collision;
 mod error;
 mod format;
 mod kernels;
+mod lowrank;
 mod network;
 
+pub use animator::{
+    AnimatorOptions, CollisionCount, GarmentAnimator, GarmentCrowd, GarmentRig, LevelOfDetail,
+};
+pub use binding::{
+    BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
+};
+pub use collision::{BodyRegion, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
 pub use error::{Error, Result};
 pub use format::{
     AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,
@@ -51,4 +62,5 @@ pub use kernels::{
     GruCell, GruScratch, INT8_ZERO_ROW, Linear, Matrix, Mlp, MlpScratch, OutputLayer,
     OutputScratch, Parallelism, Precision, instruction_set,
 };
-pub use network::{GarmentNetwork, Workspace};
+pub use lowrank::{LowRank, truncated_svd};
+pub use network::{GarmentNetwork, NetworkOptions, Workspace};
