@@ -44,6 +44,7 @@ mod format;
 mod kernels;
 mod lowrank;
 mod network;
+mod writers;
 
 pub use animator::{
     AnimatorOptions, CollisionCount, GarmentAnimator, GarmentCrowd, GarmentRig, LevelOfDetail,
@@ -64,3 +65,9 @@ pub use kernels::{
 };
 pub use lowrank::{LowRank, truncated_svd};
 pub use network::{GarmentNetwork, NetworkOptions, Workspace};
+#[cfg(feature = "png")]
+pub use writers::render_png;
+pub use writers::{
+    Camera, Image, MeshSequence, Panel, Projection, RenderMesh, render, write_gltf,
+    write_obj_sequence,
+};

@@ -73,7 +73,12 @@ fn frames_allocate_nothing() {
         })
     };
     let cases = [
-        (&m, Precision::F32, collision(CollisionQuery::Bvh), true),
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::EXACT_BVH),
+            true,
+        ),
         (
             &m,
             Precision::Int8,

@@ -264,7 +264,15 @@ fn inside_over(clip_name: &str, collision: CollisionOptions) -> (usize, usize, u
 
 #[test]
 fn post_process_pushes_vertices_out_of_the_body() {
-    for query in [CollisionQuery::Bvh, CollisionQuery::DEFAULT_CANDIDATES] {
+    let band = CollisionQuery::BvhBand {
+        band_m: 0.005,
+        refresh_every: 8,
+    };
+    for query in [
+        CollisionQuery::EXACT_BVH,
+        band,
+        CollisionQuery::DEFAULT_CANDIDATES,
+    ] {
         let options = |passes| CollisionOptions {
             query,
             passes,
@@ -276,7 +284,8 @@ fn post_process_pushes_vertices_out_of_the_body() {
         // vertices that the noise moves more than about a centimetre relative to the body (a
         // trained model's wrinkles are smooth; `bench runtime` measures that case).
         let factor = match query {
-            CollisionQuery::Bvh => 100,
+            CollisionQuery::Bvh { .. } => 100,
+            CollisionQuery::BvhBand { .. } => 20,
             CollisionQuery::Candidates { .. } => 5,
         };
         for clip_name in ["walk_normal", "jumping_jacks"] {

@@ -10,3 +10,4 @@ mod format;
 mod network;
 mod rollout;
 mod scene;
+mod writers;
