@@ -19,7 +19,7 @@ use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sartor_body::io::{read_file, sha256_hex, write_atomic};
-use sartor_body::{BodyModel, MODEL_HEADER, Pose, RootFeature};
+use sartor_body::{BodyModel, CMU_MB_JOINTS, MODEL_HEADER, Pose, RootFeature};
 use sartor_runtime::{
     AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, Feature,
     FeatureBlock, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
@@ -65,29 +65,18 @@ const PAPER: [(usize, f64, f64); 4] = [
     (26066, 2.40, 6.87),
 ];
 
-/// Joints whose rotations the benchmark model sees (6D each): 20 body joints, no fingers.
-const JOINTS: [&str; 20] = [
-    "Hips",
-    "LeftUpLeg",
-    "LeftLeg",
-    "LeftFoot",
-    "RightUpLeg",
-    "RightLeg",
-    "RightFoot",
-    "LowerBack",
-    "Spine",
-    "Spine1",
-    "Neck",
-    "Head",
-    "LeftShoulder",
-    "LeftArm",
-    "LeftForeArm",
-    "LeftHand",
-    "RightShoulder",
-    "RightArm",
-    "RightForeArm",
-    "RightHand",
-];
+/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
+/// fingers, thumbs, hip joints, toes and the second neck joint.
+fn feature_joints() -> Vec<String> {
+    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
+    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
+    CMU_MB_JOINTS
+        .iter()
+        .map(|j| j.0)
+        .filter(keep)
+        .map(String::from)
+        .collect()
+}
 const N_BETAS: usize = 10;
 const FIT_HIDDEN: usize = 20;
 /// Body region: faces with a vertex within this distance of the garment at rest.
@@ -291,7 +280,7 @@ fn model(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let v = positions.len();
     let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
-    let rot = JOINTS.len() * 6;
+    let rot = feature_joints().len() * 6;
     let sizes = ModelSizes {
         n_vertices: v,
         n_betas: N_BETAS,
@@ -318,7 +307,7 @@ fn model(
                 len: rot,
                 feature: Feature::JointRotations {
                     encoding: RotationEncoding::Rot6d,
-                    joints: JOINTS.iter().map(|j| j.to_string()).collect(),
+                    joints: feature_joints(),
                 },
             },
             FeatureBlock {

@@ -284,14 +284,17 @@ impl MeshProximity {
     pub fn closest_within(&self, p: &Vector3<f64>, max_distance_m: f64) -> Option<ClosestPoint> {
         let mut best_d2 = max_distance_m * max_distance_m;
         let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
-        let mut stack = [0u32; 64];
+        // Nodes to visit with their box distance (computed once, when pushed).
+        let mut stack = [(0u32, 0.0f64); 64];
+        stack[0].1 = self.nodes[0].bounds.distance_sq(p);
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            if node.bounds.distance_sq(p) > best_d2 {
+            let (id, box_d2) = stack[top];
+            if box_d2 > best_d2 {
                 continue;
             }
+            let node = &self.nodes[id as usize];
             if node.count > 0 {
                 for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
                     let tri = self.tri(&self.faces[f as usize]);
@@ -309,16 +312,24 @@ impl MeshProximity {
                     }
                 }
             } else {
-                // Visit the nearer child first (pushed last).
+                // Visit the nearer child first (pushed last); children out of reach are not
+                // pushed at all.
                 let (l, r) = (node.left, node.right);
                 let (dl, dr) = (
                     self.nodes[l as usize].bounds.distance_sq(p),
                     self.nodes[r as usize].bounds.distance_sq(p),
                 );
-                let (near, far) = if dl <= dr { (l, r) } else { (r, l) };
-                stack[top] = far;
-                stack[top + 1] = near;
-                top += 2;
+                let (near, far) = if dl <= dr {
+                    ((l, dl), (r, dr))
+                } else {
+                    ((r, dr), (l, dl))
+                };
+                for child in [far, near] {
+                    if child.1 <= best_d2 {
+                        stack[top] = child;
+                        top += 1;
+                    }
+                }
             }
         }
         let (face, point, barycentric, feature) = best?;

@@ -11,7 +11,7 @@ use sartor_runtime::{
     GarmentNetwork, NetworkOptions, OutputKind, Parallelism, Precision,
 };
 
-use crate::scene::{JOINTS, binding, body, clip, model, rig};
+use crate::scene::{binding, body, clip, feature_joints, model, rig};
 
 fn no_pp() -> AnimatorOptions {
     AnimatorOptions {
@@ -39,7 +39,7 @@ fn a_frame_is_the_template_plus_fit_plus_wrinkles_skinned() {
     net.fit(&b, &mut fit, &mut ws, Parallelism::Sequential)
         .expect("fit");
     let spec = PoseFeatureSpec {
-        joints: JOINTS.iter().map(|j| j.to_string()).collect(),
+        joints: feature_joints(),
         encoding: RotationEncoding::Rot6d,
         root: RootFeature::ALL.to_vec(),
     };

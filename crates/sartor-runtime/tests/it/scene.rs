@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
-use sartor_body::{BodyModel, Pose, RootFeature, TriMesh};
+use sartor_body::{BodyModel, CMU_MB_JOINTS, Pose, RootFeature, TriMesh};
 use sartor_runtime::{
     AnimatorOptions, AssetId, Feature, FeatureBlock, GarmentBinding, GarmentModel, GarmentNetwork,
     GarmentRig, ModelHeader, ModelSizes, NetworkOptions, OutputKind, RotationEncoding,
@@ -13,29 +13,18 @@ use sartor_runtime::{
 
 use crate::common::random_model_with;
 
-/// The joints whose rotations the test models see.
-pub const JOINTS: [&str; 20] = [
-    "Hips",
-    "LeftUpLeg",
-    "LeftLeg",
-    "LeftFoot",
-    "RightUpLeg",
-    "RightLeg",
-    "RightFoot",
-    "LowerBack",
-    "Spine",
-    "Spine1",
-    "Neck",
-    "Head",
-    "LeftShoulder",
-    "LeftArm",
-    "LeftForeArm",
-    "LeftHand",
-    "RightShoulder",
-    "RightArm",
-    "RightForeArm",
-    "RightHand",
-];
+/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
+/// fingers, thumbs, hip joints, toes and the second neck joint.
+pub fn feature_joints() -> Vec<String> {
+    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
+    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
+    CMU_MB_JOINTS
+        .iter()
+        .map(|j| j.0)
+        .filter(keep)
+        .map(String::from)
+        .collect()
+}
 
 pub fn body() -> Arc<BodyModel> {
     static BODY: OnceLock<Arc<BodyModel>> = OnceLock::new();
@@ -87,7 +76,7 @@ pub fn binding() -> Arc<GarmentBinding> {
 /// The header of a model of the tiny T-shirt with the real input layout.
 pub fn header(output: OutputKind, gru_hidden: usize) -> ModelHeader {
     let n_betas = 10;
-    let rot = JOINTS.len() * 6;
+    let rot = feature_joints().len() * 6;
     let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
     ModelHeader::new(
         garment_id(),
@@ -114,7 +103,7 @@ pub fn header(output: OutputKind, gru_hidden: usize) -> ModelHeader {
                 len: rot,
                 feature: Feature::JointRotations {
                     encoding: RotationEncoding::Rot6d,
-                    joints: JOINTS.iter().map(|j| j.to_string()).collect(),
+                    joints: feature_joints(),
                 },
             },
             FeatureBlock {
