@@ -560,6 +560,10 @@ fn post_process(
         .cpu_ms
         .unwrap_or(f64::NAN);
     let queries = [
+        (
+            "none: pose and refit the region only (passes 0)".to_string(),
+            CollisionQuery::EXACT_BVH,
+        ),
         ("bvh exact".to_string(), CollisionQuery::EXACT_BVH),
         (
             "bvh r=3cm".to_string(),
@@ -581,6 +585,20 @@ fn post_process(
             CollisionQuery::BvhBand {
                 band_m: 0.01,
                 refresh_every: 8,
+            },
+        ),
+        (
+            "guarded candidates r=2cm k=8".to_string(),
+            CollisionQuery::GuardedCandidates {
+                radius_m: 0.02,
+                max_per_vertex: 8,
+            },
+        ),
+        (
+            "guarded candidates r=3cm k=16".to_string(),
+            CollisionQuery::GuardedCandidates {
+                radius_m: 0.03,
+                max_per_vertex: 16,
             },
         ),
         (
@@ -624,12 +642,13 @@ fn post_process(
         reference.push(bvh.frame(pose)?.to_vec());
     }
     let mut results = Vec::new();
-    for (name, query) in queries {
-        let mut timed = avatar(scene, network, options(par, Some(collision(query, 2))))?;
+    for (k, (name, query)) in queries.into_iter().enumerate() {
+        let passes = if k == 0 { 0 } else { 2 };
+        let mut timed = avatar(scene, network, options(par, Some(collision(query, passes))))?;
         let ms = time_frames(&mut timed, poses, args.warmup, args.frames)?
             .cpu_ms
             .unwrap_or(f64::NAN);
-        let mut a = avatar(scene, network, options(par, Some(collision(query, 2))))?;
+        let mut a = avatar(scene, network, options(par, Some(collision(query, passes))))?;
         let (mut inside, mut near, mut differing) = (0, 0, 0);
         for (pose, want) in poses.iter().take(args.frames).zip(&reference) {
             let got = a.frame(pose)?;

@@ -297,19 +297,7 @@ impl MeshProximity {
             let node = &self.nodes[id as usize];
             if node.count > 0 {
                 for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    let tri = self.tri(&self.faces[f as usize]);
-                    // The triangle's box is a cheap lower bound: skip triangles that cannot beat
-                    // the best so far (same results, a fraction of the work).
-                    if triangle_box_distance_sq(p, &tri) > best_d2 {
-                        continue;
-                    }
-                    let (q, bary, feature) = closest_on_triangle(p, &tri);
-                    let d2 = (q - p).norm_squared();
-                    let better = d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0));
-                    if better || (best.is_none() && d2 <= best_d2) {
-                        best_d2 = d2;
-                        best = Some((f, q, bary, feature));
-                    }
+                    self.consider(p, f, &mut best_d2, &mut best);
                 }
             } else {
                 // Visit the nearer child first (pushed last); children out of reach are not
@@ -347,16 +335,35 @@ impl MeshProximity {
         let mut best_d2 = f64::INFINITY;
         let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
         for &f in faces {
-            let tri = self.tri(&self.faces[f as usize]);
-            let (q, bary, feature) = closest_on_triangle(p, &tri);
-            let d2 = (q - p).norm_squared();
-            if d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0)) {
-                best_d2 = d2;
-                best = Some((f, q, bary, feature));
-            }
+            self.consider(p, f, &mut best_d2, &mut best);
         }
         let (face, point, barycentric, feature) = best?;
         Some(self.answer(p, face, point, barycentric, feature))
+    }
+
+    /// Test face `f` against the best so far (smaller distance wins, ties go to the smaller
+    /// face index; with no best yet, any face within `best_d2` is taken).
+    #[inline]
+    fn consider(
+        &self,
+        p: &Vector3<f64>,
+        f: u32,
+        best_d2: &mut f64,
+        best: &mut Option<(u32, Vector3<f64>, [f64; 3], Feature)>,
+    ) {
+        let tri = self.tri(&self.faces[f as usize]);
+        // The triangle's box is a cheap lower bound: skip triangles that cannot beat the best
+        // so far (same results, a fraction of the work).
+        if triangle_box_distance_sq(p, &tri) > *best_d2 {
+            return;
+        }
+        let (q, bary, feature) = closest_on_triangle(p, &tri);
+        let d2 = (q - p).norm_squared();
+        let better = d2 < *best_d2 || (d2 == *best_d2 && best.is_some_and(|b| f < b.0));
+        if better || (best.is_none() && d2 <= *best_d2) {
+            *best_d2 = d2;
+            *best = Some((f, q, bary, feature));
+        }
     }
 
     /// Every triangle within `radius_m` of `p`, as `(face, distance_m)` sorted by distance

@@ -7,21 +7,31 @@
 //! Only the body region the garment can touch is used ([`BodyRegion`]): its vertices are the
 //! only body vertices skinned per frame, and the query structure is built over its faces only.
 //!
-//! # Two ways to find the closest body primitive ([`CollisionQuery`])
+//! # Finding the closest body primitive ([`CollisionQuery`])
 //!
-//! - [`CollisionQuery::Bvh`] (the default, exact): a bounding-volume hierarchy over the region,
-//!   refitted every frame. Each cloth vertex starts its search from the distance to the face it
-//!   was closest to in the previous query (temporal coherence: the same answer, less work).
+//! - [`CollisionQuery::Bvh`] (the default, exact with an infinite radius): a bounding-volume
+//!   hierarchy over the region, refitted every frame. Each cloth vertex starts its search from
+//!   the distance to the face it was closest to in its previous query (temporal coherence: the
+//!   same answer, less work).
+//! - [`CollisionQuery::BvhBand`]: exact within a band around the surface, a sign test against
+//!   the last closest face outside it, an exact query per vertex every few frames.
 //! - [`CollisionQuery::Candidates`]: when the shape is set, each cloth vertex (at `T̄_c + Δ_G`)
-//!   keeps the region faces within `radius_m` of it on the shaped body `T_b(β)` in rest pose,
-//!   at most `max_per_vertex` of them, nearest first; per frame only those are tested. This is
-//!   exact only while each vertex stays near the body part it was near at rest. It misses the
-//!   collisions that matter most — a sleeve pressed into the torso when the arm comes down, a hem
-//!   into the thigh — because the faces of the other body part were never candidates.
-//!   `cargo xtask bench runtime` measures both: on the 4,210-triangle T-shirt walking, the
-//!   candidates (2 cm, 8 faces) cost about a third of the BVH but left 811 of 822 colliding
-//!   vertex-frames inside the body, the BVH 10 (squeezed ones, see
-//!   [`CollisionOptions::passes`]). Kept as an option for garments that hug a single body part.
+//!   keeps the region faces within `radius_m` of it on the shaped body `T_b(β)` in rest pose;
+//!   per frame only those are tested. Exact only while each vertex stays near the body part it
+//!   was near at rest: it misses the collisions that matter most — a sleeve pressed into the
+//!   torso when the arm comes down — because the other part's faces were never candidates.
+//! - [`CollisionQuery::GuardedCandidates`]: the candidates, plus a per-part bounding-box guard
+//!   that sends a vertex to the exact BVH query whenever a body part none of its candidates
+//!   belongs to comes within the margin.
+//!
+//! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking (int8
+//! network, one thread, CPU time on a loaded 2-core machine; inside = cloth vertex-frames left
+//! inside the body, of 533,640, 10,057 before the post-process): exact BVH 7.0 ms per frame,
+//! 108 inside (vertices squeezed between two body parts, see [`CollisionOptions::passes`]);
+//! guarded candidates (2 cm, 8) about 4.3 ms, ~3× the BVH's misses; band (5 mm) 3.3 ms,
+//! ~20× the misses; plain candidates 2.4 ms but most collisions missed. Posing and refitting the
+//! region alone costs 0.6 ms. The exact BVH stays the default; the others are there for levels
+//! of detail that trade contact accuracy for time.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -54,6 +64,17 @@ pub enum CollisionQuery {
         band_m: f64,
         /// Frames between two exact queries of one vertex (at least 1).
         refresh_every: usize,
+    },
+    /// [`CollisionQuery::Candidates`] guarded by body parts: the region's faces are grouped by
+    /// the joint that moves them most; per frame each part gets a bounding box, and a vertex gets
+    /// the exact BVH query when the box of a part none of its candidates belongs to comes within
+    /// the margin (another body part may touch it: the sleeve and the torso). Otherwise its
+    /// candidates answer: they cover its own parts, whose faces move with it.
+    GuardedCandidates {
+        /// Faces within this distance of the vertex at rest are candidates, metres.
+        radius_m: f64,
+        /// At most this many candidates per vertex, nearest first.
+        max_per_vertex: usize,
     },
     /// Per cloth vertex, the region faces near it at rest (chosen when the shape is set).
     Candidates {
@@ -138,6 +159,10 @@ impl CollisionOptions {
         if let CollisionQuery::Candidates {
             radius_m,
             max_per_vertex,
+        }
+        | CollisionQuery::GuardedCandidates {
+            radius_m,
+            max_per_vertex,
         } = self.query
             && !(radius_m.is_finite() && radius_m > 0.0 && max_per_vertex > 0)
         {
@@ -160,6 +185,11 @@ pub struct BodyRegion {
     vertices: Vec<u32>,
     faces: Vec<[u32; 3]>,
     skin_weights: SkinWeights,
+    /// Per face, its body part (0..64): the joint with the largest summed weight over its
+    /// vertices, numbered in order of first appearance. `None` when the region spans more than
+    /// 64 parts (the guarded query then always searches the tree).
+    face_parts: Option<Vec<u8>>,
+    n_parts: usize,
 }
 
 impl BodyRegion {
@@ -185,7 +215,7 @@ impl BodyRegion {
                 vertices.push(v as u32);
             }
         }
-        let faces = region_faces
+        let faces: Vec<[u32; 3]> = region_faces
             .iter()
             .map(|&f| body_faces[f as usize].map(|v| index[v as usize]))
             .collect();
@@ -208,11 +238,42 @@ impl BodyRegion {
             sub_weights,
             body.skin_weights().n_joints(),
         )?;
+        let (face_parts, n_parts) = Self::parts(&faces, &skin_weights);
         Ok(Self {
             vertices,
             faces,
             skin_weights,
+            face_parts,
+            n_parts,
         })
+    }
+
+    /// Group the faces by dominant joint (see [`BodyRegion`]'s `face_parts`).
+    fn parts(faces: &[[u32; 3]], weights: &SkinWeights) -> (Option<Vec<u8>>, usize) {
+        let mut part_of_joint = vec![u8::MAX; weights.n_joints()];
+        let mut n_parts = 0usize;
+        let mut sums = vec![0.0f32; weights.n_joints()];
+        let mut face_parts = Vec::with_capacity(faces.len());
+        for t in faces {
+            sums.fill(0.0);
+            for &v in t {
+                for (j, w) in weights.point(v as usize) {
+                    sums[j] += w;
+                }
+            }
+            let joint = (0..sums.len())
+                .max_by(|&a, &b| sums[a].total_cmp(&sums[b]).then(b.cmp(&a)))
+                .unwrap_or(0);
+            if part_of_joint[joint] == u8::MAX {
+                if n_parts == 64 {
+                    return (None, 0);
+                }
+                part_of_joint[joint] = n_parts as u8;
+                n_parts += 1;
+            }
+            face_parts.push(part_of_joint[joint]);
+        }
+        (Some(face_parts), n_parts)
     }
 
     /// Body vertex index of each region vertex, ascending.
@@ -242,6 +303,10 @@ pub(crate) struct Collider {
     query: CollisionQuery,
     /// Frames posed so far (turns of the band query's refresh).
     frame: usize,
+    /// Per cloth vertex, the parts of its candidate faces (bit `g`: part `g`).
+    own_parts: Vec<u64>,
+    /// Per body part, the box of its posed faces (`min`, `max`); empty unless guarded.
+    part_boxes: Vec<(Vector3<f64>, Vector3<f64>)>,
     /// CSR candidate faces per cloth vertex (empty for the BVH query).
     offsets: Vec<u32>,
     candidates: Vec<u32>,
@@ -285,8 +350,12 @@ impl Collider {
             .map(|&v| shaped_body[v as usize])
             .collect();
         let proximity = MeshProximity::new(&rest, &region.faces)?;
-        let (mut offsets, mut candidates) = (Vec::new(), Vec::new());
+        let (mut offsets, mut candidates, mut own_parts) = (Vec::new(), Vec::new(), Vec::new());
         if let CollisionQuery::Candidates {
+            radius_m,
+            max_per_vertex,
+        }
+        | CollisionQuery::GuardedCandidates {
             radius_m,
             max_per_vertex,
         } = options.query
@@ -295,13 +364,26 @@ impl Collider {
             offsets.push(0u32);
             for p in cloth_rest {
                 let near = proximity.faces_within(&p.cast::<f64>(), radius_m);
-                candidates.extend(near.iter().take(max_per_vertex).map(|&(f, _)| f));
+                let mine = &near[..near.len().min(max_per_vertex)];
+                candidates.extend(mine.iter().map(|&(f, _)| f));
                 offsets.push(candidates.len() as u32);
+                if let Some(parts) = &region.face_parts {
+                    own_parts.push(
+                        mine.iter()
+                            .fold(0u64, |m, &(f, _)| m | (1u64 << parts[f as usize])),
+                    );
+                }
             }
         }
+        let guarded = matches!(options.query, CollisionQuery::GuardedCandidates { .. });
+        let part_boxes = if guarded && region.face_parts.is_some() {
+            vec![(Vector3::zeros(), Vector3::zeros()); region.n_parts]
+        } else {
+            Vec::new()
+        };
         let radius_m = match options.query {
             CollisionQuery::Bvh { radius_m } => radius_m,
-            CollisionQuery::BvhBand { .. } | CollisionQuery::Candidates { .. } => f64::INFINITY,
+            _ => f64::INFINITY,
         };
         Ok(Self {
             margin_m: options.margin_m,
@@ -315,6 +397,8 @@ impl Collider {
             proximity,
             offsets,
             candidates,
+            own_parts,
+            part_boxes,
         })
     }
 
@@ -348,6 +432,19 @@ impl Collider {
         )?;
         self.proximity.update_positions(&self.posed)?;
         self.frame = self.frame.wrapping_add(1);
+        if let (Some(parts), false) = (&region.face_parts, self.part_boxes.is_empty()) {
+            self.part_boxes.fill((
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ));
+            for (t, &g) in region.faces.iter().zip(parts) {
+                let b = &mut self.part_boxes[g as usize];
+                for &v in t {
+                    b.0 = b.0.inf(&self.posed[v as usize]);
+                    b.1 = b.1.sup(&self.posed[v as usize]);
+                }
+            }
+        }
         Ok(())
     }
 
@@ -395,9 +492,13 @@ impl Collider {
                         let refresh = (i + this.frame).is_multiple_of(refresh_every);
                         this.closest_band(&q, state, band_m, refresh)
                     }
-                    CollisionQuery::Candidates { .. } => {
-                        let (a, b) = (this.offsets[i] as usize, this.offsets[i + 1] as usize);
-                        this.proximity.closest_among(&q, &this.candidates[a..b])
+                    CollisionQuery::Candidates { .. } => this.closest_candidate(&q, i),
+                    CollisionQuery::GuardedCandidates { .. } => {
+                        if this.foreign_part_near(&q, i) {
+                            this.closest_from(&q, state)
+                        } else {
+                            this.closest_candidate(&q, i)
+                        }
                     }
                 };
                 if let Some(c) = hit
@@ -443,6 +544,30 @@ impl Collider {
             state.last_face = c.face;
         }
         hit
+    }
+
+    /// The closest point among cloth vertex `i`'s candidate faces.
+    fn closest_candidate(&self, q: &Vector3<f64>, i: usize) -> Option<sartor_body::ClosestPoint> {
+        let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
+        self.proximity.closest_among(q, &self.candidates[a..b])
+    }
+
+    /// Whether the box of a body part that none of vertex `i`'s candidates belongs to is within
+    /// the margin of `q` (always true without part boxes: the caller then searches the tree).
+    fn foreign_part_near(&self, q: &Vector3<f64>, i: usize) -> bool {
+        let Some(&own) = self.own_parts.get(i) else {
+            return true;
+        };
+        if self.part_boxes.is_empty() {
+            return true;
+        }
+        let m2 = self.margin_m * self.margin_m;
+        self.part_boxes.iter().enumerate().any(|(g, (lo, hi))| {
+            own & (1u64 << g) == 0 && {
+                let d = (lo - q).sup(&(q - hi)).sup(&Vector3::zeros());
+                d.norm_squared() <= m2
+            }
+        })
     }
 
     /// The [`CollisionQuery::BvhBand`] query (`refresh`: this vertex's turn for the exact one).

@@ -89,6 +89,24 @@ fn frames_allocate_nothing() {
         (
             &m,
             Precision::F32,
+            collision(CollisionQuery::GuardedCandidates {
+                radius_m: 0.02,
+                max_per_vertex: 8,
+            }),
+            true,
+        ),
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::BvhBand {
+                band_m: 0.005,
+                refresh_every: 4,
+            }),
+            true,
+        ),
+        (
+            &m,
+            Precision::F32,
             collision(CollisionQuery::DEFAULT_CANDIDATES),
             false,
         ),

@@ -268,9 +268,14 @@ fn post_process_pushes_vertices_out_of_the_body() {
         band_m: 0.005,
         refresh_every: 8,
     };
+    let guarded = CollisionQuery::GuardedCandidates {
+        radius_m: 0.02,
+        max_per_vertex: 8,
+    };
     for query in [
         CollisionQuery::EXACT_BVH,
         band,
+        guarded,
         CollisionQuery::DEFAULT_CANDIDATES,
     ] {
         let options = |passes| CollisionOptions {
@@ -285,7 +290,7 @@ fn post_process_pushes_vertices_out_of_the_body() {
         // trained model's wrinkles are smooth; `bench runtime` measures that case).
         let factor = match query {
             CollisionQuery::Bvh { .. } => 100,
-            CollisionQuery::BvhBand { .. } => 20,
+            CollisionQuery::BvhBand { .. } | CollisionQuery::GuardedCandidates { .. } => 20,
             CollisionQuery::Candidates { .. } => 5,
         };
         for clip_name in ["walk_normal", "jumping_jacks"] {
