@@ -25,13 +25,13 @@
 //!   belongs to comes within the margin.
 //!
 //! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking (int8
-//! network, one thread, CPU time on a loaded 2-core machine; inside = cloth vertex-frames left
-//! inside the body, of 533,640, 10,057 before the post-process): exact BVH 7.0 ms per frame,
-//! 108 inside (vertices squeezed between two body parts, see [`CollisionOptions::passes`]);
-//! guarded candidates (2 cm, 8) about 4.3 ms, ~3× the BVH's misses; band (5 mm) 3.3 ms,
-//! ~20× the misses; plain candidates 2.4 ms but most collisions missed. Posing and refitting the
-//! region alone costs 0.6 ms. The exact BVH stays the default; the others are there for levels
-//! of detail that trade contact accuracy for time.
+//! network, one thread, CPU time on a loaded 2-core machine; "inside" counts cloth vertex-frames
+//! left inside the body, of 533,640, 10,057 before the post-process). Post-process cost per
+//! frame and inside after: exact BVH 7.3 ms, 108 (vertices squeezed between two body parts, see
+//! [`CollisionOptions::passes`]); guarded candidates (2 cm, 8) 4.0 ms, 385; band (5 mm,
+//! refresh 16) 3.2 ms, 2,426; plain candidates 2.4 ms, 9,943. Posing and refitting the region
+//! alone costs 0.4 ms. The exact BVH stays the default; the others are there for levels of
+//! detail that trade contact accuracy for time.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
