@@ -91,6 +91,21 @@ impl CollisionQuery {
         radius_m: f64::INFINITY,
     };
 
+    /// `(radius_m, max_per_vertex)` of the two candidate queries.
+    fn candidates(&self) -> Option<(f64, usize)> {
+        match *self {
+            Self::Candidates {
+                radius_m,
+                max_per_vertex,
+            }
+            | Self::GuardedCandidates {
+                radius_m,
+                max_per_vertex,
+            } => Some((radius_m, max_per_vertex)),
+            Self::Bvh { .. } | Self::BvhBand { .. } => None,
+        }
+    }
+
     /// Candidate faces within 2 cm of each vertex at rest, at most 8 (see the module docs for
     /// what it misses).
     pub const DEFAULT_CANDIDATES: Self = Self::Candidates {
@@ -156,14 +171,7 @@ impl CollisionOptions {
                 format!("the BVH search radius must be positive, got {radius_m}"),
             ));
         }
-        if let CollisionQuery::Candidates {
-            radius_m,
-            max_per_vertex,
-        }
-        | CollisionQuery::GuardedCandidates {
-            radius_m,
-            max_per_vertex,
-        } = self.query
+        if let Some((radius_m, max_per_vertex)) = self.query.candidates()
             && !(radius_m.is_finite() && radius_m > 0.0 && max_per_vertex > 0)
         {
             return Err(Error::invalid(
@@ -351,15 +359,7 @@ impl Collider {
             .collect();
         let proximity = MeshProximity::new(&rest, &region.faces)?;
         let (mut offsets, mut candidates, mut own_parts) = (Vec::new(), Vec::new(), Vec::new());
-        if let CollisionQuery::Candidates {
-            radius_m,
-            max_per_vertex,
-        }
-        | CollisionQuery::GuardedCandidates {
-            radius_m,
-            max_per_vertex,
-        } = options.query
-        {
+        if let Some((radius_m, max_per_vertex)) = options.query.candidates() {
             offsets.reserve(cloth_rest.len() + 1);
             offsets.push(0u32);
             for p in cloth_rest {
