@@ -34,7 +34,7 @@
 //!   "garment": { "id": "tshirt", "sha256": "<64 hex>" },
 //!   "body": { "id": "makehuman", "sha256": "<64 hex>" },
 //!   "sizes": {
-//!     "n_vertices": 4424, "n_betas": 10, "n_pose_features": 138,
+//!     "n_vertices": 4424, "n_betas": 10, "n_pose_features": 136,
 //!     "fit_hidden": 20, "gru_hidden": 1500,
 //!     "output": "dense",
 //!     "linear_baseline": false
@@ -42,16 +42,19 @@
 //!   "wrinkle_inputs": [
 //!     { "name": "betas", "offset": 0, "len": 10, "feature": "betas" },
 //!     { "name": "pose", "offset": 10, "len": 132, "feature":
-//!       { "joint_rotations": { "encoding": "rot6d", "joints": ["spine", "..."] } } },
-//!     { "name": "root", "offset": 142, "len": 6, "feature":
-//!       { "root": { "components": ["vel_x", "vel_y", "vel_z", "ang_x", "ang_y", "ang_z"] } } }
+//!       { "joint_rotations": { "encoding": "rot6d", "joints": ["Spine", "..."] } } },
+//!     { "name": "root", "offset": 142, "len": 4, "feature":
+//!       { "root": { "components": ["vel_x", "vel_y", "vel_z", "yaw_rate"] } } }
 //!   ],
 //!   "tensors_sha256": "<sha256 of model.safetensors>"
 //! }
 //! ```
 //!
 //! `output` is `"dense"` or `{ "pca": k }`; `encoding` is `"rot6d"` (6 values per joint),
-//! `"quaternion"` (4) or `"axis_angle"` (3). The blocks of `wrinkle_inputs` tile
+//! `"quaternion"` (4) or `"axis_angle"` (3). The animator ([`crate::GarmentRig`]) computes each
+//! pose block with `sartor_body::PoseFeatures`, so joint names must be the body's and root
+//! components must be `sartor_body::RootFeature` names (`vel_x`, `vel_y`, `vel_z`,
+//! `yaw_rate`); the format itself accepts any names. The blocks of `wrinkle_inputs` tile
 //! `0..n_betas + n_pose_features` in order; exactly one is `"betas"` (of length `n_betas`).
 //! The fit MLP's input is β itself (`n_betas` values).
 
