@@ -25,14 +25,16 @@ pub struct GarmentArgs {
     pub body: Option<PathBuf>,
 }
 
+/// The machine a report was made on.
 #[derive(Serialize)]
-struct Machine {
+pub(crate) struct Machine {
     cores: usize,
     cpu_model: String,
 }
 
 impl Machine {
-    fn current() -> Self {
+    /// Cores and CPU model of this machine.
+    pub(crate) fn current() -> Self {
         let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
             .ok()
             .and_then(|s| {

@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench_runtime;
 mod body;
 mod garment;
 mod import_body;
@@ -25,6 +26,19 @@ enum Command {
     ImportMotion(motions::ImportMotionArgs),
     /// Build a garment template (procedural T-shirt or user OBJ) into datasets/garments/<name>.
     Garment(garment::GarmentArgs),
+    /// Benchmarks that write bench-<name>.json.
+    Bench {
+        /// Which benchmark.
+        #[command(subcommand)]
+        which: BenchCommand,
+    },
+}
+
+/// The benchmarks of `cargo xtask bench`.
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// The runtime against the paper's Table 1 (bench-runtime.json).
+    Runtime(bench_runtime::BenchRuntimeArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -34,5 +48,8 @@ fn main() -> anyhow::Result<()> {
         Command::Body(args) => body::body(&args),
         Command::ImportMotion(args) => motions::import_motion(&args),
         Command::Garment(args) => garment::garment(&args),
+        Command::Bench { which } => match which {
+            BenchCommand::Runtime(args) => bench_runtime::bench_runtime(&args),
+        },
     }
 }

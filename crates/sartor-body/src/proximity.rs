@@ -284,39 +284,128 @@ impl MeshProximity {
     pub fn closest_within(&self, p: &Vector3<f64>, max_distance_m: f64) -> Option<ClosestPoint> {
         let mut best_d2 = max_distance_m * max_distance_m;
         let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
-        let mut stack = [0u32; 64];
+        // Nodes to visit with their box distance (computed once, when pushed).
+        let mut stack = [(0u32, 0.0f64); 64];
+        stack[0].1 = self.nodes[0].bounds.distance_sq(p);
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            if node.bounds.distance_sq(p) > best_d2 {
+            let (id, box_d2) = stack[top];
+            if box_d2 > best_d2 {
                 continue;
             }
+            let node = &self.nodes[id as usize];
             if node.count > 0 {
                 for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    let tri = self.tri(&self.faces[f as usize]);
-                    let (q, bary, feature) = closest_on_triangle(p, &tri);
-                    let d2 = (q - p).norm_squared();
-                    let better = d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0));
-                    if better || (best.is_none() && d2 <= best_d2) {
-                        best_d2 = d2;
-                        best = Some((f, q, bary, feature));
-                    }
+                    self.consider(p, f, &mut best_d2, &mut best);
                 }
             } else {
-                // Visit the nearer child first (pushed last).
+                // Visit the nearer child first (pushed last); children out of reach are not
+                // pushed at all.
                 let (l, r) = (node.left, node.right);
                 let (dl, dr) = (
                     self.nodes[l as usize].bounds.distance_sq(p),
                     self.nodes[r as usize].bounds.distance_sq(p),
                 );
-                let (near, far) = if dl <= dr { (l, r) } else { (r, l) };
-                stack[top] = far;
-                stack[top + 1] = near;
-                top += 2;
+                let (near, far) = if dl <= dr {
+                    ((l, dl), (r, dr))
+                } else {
+                    ((r, dr), (l, dl))
+                };
+                for child in [far, near] {
+                    if child.1 <= best_d2 {
+                        stack[top] = child;
+                        top += 1;
+                    }
+                }
             }
         }
         let (face, point, barycentric, feature) = best?;
+        Some(self.answer(p, face, point, barycentric, feature))
+    }
+
+    /// Closest point to `p` among the triangles `faces` only (indices into [`Self::faces`]),
+    /// with the same tie rule, sign and normal as [`Self::closest`]; `None` when `faces` is
+    /// empty. For callers that know in advance which few triangles can be closest (e.g. a
+    /// cloth vertex and the body triangles near it at rest): no tree walk.
+    ///
+    /// # Panics
+    /// If a face index is out of range.
+    pub fn closest_among(&self, p: &Vector3<f64>, faces: &[u32]) -> Option<ClosestPoint> {
+        let mut best_d2 = f64::INFINITY;
+        let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
+        for &f in faces {
+            self.consider(p, f, &mut best_d2, &mut best);
+        }
+        let (face, point, barycentric, feature) = best?;
+        Some(self.answer(p, face, point, barycentric, feature))
+    }
+
+    /// Test face `f` against the best so far (smaller distance wins, ties go to the smaller
+    /// face index; with no best yet, any face within `best_d2` is taken).
+    #[inline]
+    fn consider(
+        &self,
+        p: &Vector3<f64>,
+        f: u32,
+        best_d2: &mut f64,
+        best: &mut Option<(u32, Vector3<f64>, [f64; 3], Feature)>,
+    ) {
+        let tri = self.tri(&self.faces[f as usize]);
+        // The triangle's box is a cheap lower bound: skip triangles that cannot beat the best
+        // so far (same results, a fraction of the work).
+        if triangle_box_distance_sq(p, &tri) > *best_d2 {
+            return;
+        }
+        let (q, bary, feature) = closest_on_triangle(p, &tri);
+        let d2 = (q - p).norm_squared();
+        let better = d2 < *best_d2 || (d2 == *best_d2 && best.is_some_and(|b| f < b.0));
+        if better || (best.is_none() && d2 <= *best_d2) {
+            *best_d2 = d2;
+            *best = Some((f, q, bary, feature));
+        }
+    }
+
+    /// Every triangle within `radius_m` of `p`, as `(face, distance_m)` sorted by distance
+    /// (ties by face index). Allocates the result.
+    pub fn faces_within(&self, p: &Vector3<f64>, radius_m: f64) -> Vec<(u32, f64)> {
+        let r2 = radius_m * radius_m;
+        let mut found = Vec::new();
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if node.bounds.distance_sq(p) > r2 {
+                continue;
+            }
+            if node.count > 0 {
+                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                    let tri = self.tri(&self.faces[f as usize]);
+                    let d2 = (closest_on_triangle(p, &tri).0 - p).norm_squared();
+                    if d2 <= r2 {
+                        found.push((f, d2.sqrt()));
+                    }
+                }
+            } else {
+                stack[top] = node.left;
+                stack[top + 1] = node.right;
+                top += 2;
+            }
+        }
+        found.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        found
+    }
+
+    /// The query result for the closest `point` of `face` (on `feature`) to `p`.
+    fn answer(
+        &self,
+        p: &Vector3<f64>,
+        face: u32,
+        point: Vector3<f64>,
+        barycentric: [f64; 3],
+        feature: Feature,
+    ) -> ClosestPoint {
         let t = self.faces[face as usize];
         let normal = match feature {
             Feature::Face => self.face_normals[face as usize],
@@ -329,13 +418,13 @@ impl MeshProximity {
         } else {
             1.0
         };
-        Some(ClosestPoint {
+        ClosestPoint {
             face,
             point,
             barycentric,
             signed_distance_m: sign * d,
             normal,
-        })
+        }
     }
 }
 
@@ -345,6 +434,19 @@ enum Feature {
     /// Edge k = (v_k, v_{k+1}).
     Edge(usize),
     Vertex(usize),
+}
+
+/// Squared distance from `p` to the axis-aligned box of the triangle.
+#[inline]
+fn triangle_box_distance_sq(p: &Vector3<f64>, [a, b, c]: &[Vector3<f64>; 3]) -> f64 {
+    let mut d2 = 0.0;
+    for k in 0..3 {
+        let lo = a[k].min(b[k]).min(c[k]);
+        let hi = a[k].max(b[k]).max(c[k]);
+        let d = (lo - p[k]).max(p[k] - hi).max(0.0);
+        d2 += d * d;
+    }
+    d2
 }
 
 /// Closest point on triangle `[a, b, c]` to `p` (Ericson, Real-Time Collision Detection §5.1.5),
@@ -478,5 +580,41 @@ mod tests {
             assert_eq!(c.signed_distance_m < 0.0, inside, "{q}");
         }
         assert!(m.update_positions(&p[..4]).is_err());
+    }
+
+    #[test]
+    fn closest_among_and_faces_within_agree_with_the_tree() {
+        let (p, f) = cube();
+        let m = MeshProximity::new(&p, &f).expect("valid");
+        let all: Vec<u32> = (0..f.len() as u32).collect();
+        for i in 0..100 {
+            let x = i as f64 * 0.61;
+            let q = Vector3::new(x.sin(), (0.9 * x).cos(), (1.7 * x).sin()) * 0.8;
+            assert_eq!(m.closest_among(&q, &all), Some(m.closest(&q)));
+            let within = m.faces_within(&q, 0.3);
+            let brute: Vec<u32> = (0..f.len() as u32)
+                .filter(|&t| {
+                    let tri = f[t as usize].map(|i| p[i as usize]);
+                    (closest_on_triangle(&q, &tri).0 - q).norm() <= 0.3
+                })
+                .collect();
+            let mut got: Vec<u32> = within.iter().map(|w| w.0).collect();
+            assert!(within.windows(2).all(|w| w[0].1 <= w[1].1));
+            got.sort_unstable();
+            assert_eq!(got, brute, "{q}");
+            // Among a subset: the best of that subset, not of the mesh.
+            if let Some(&(first, _)) = within.first() {
+                assert_eq!(m.closest(&q).face, first);
+            }
+        }
+        assert!(m.closest_among(&Vector3::zeros(), &[]).is_none());
+        let c = m
+            .closest_among(&Vector3::new(0.0, 0.0, 0.7), &[0, 1])
+            .expect("two faces");
+        // The bottom face (z = −0.5, normal −z) seen from above: behind it, 1.2 away.
+        assert!(
+            c.face < 2 && (c.signed_distance_m + 1.2).abs() < 1e-12,
+            "{c:?}"
+        );
     }
 }

@@ -184,25 +184,23 @@ impl Pose {
         if !self.root_translation_m.iter().all(|c| c.is_finite()) {
             return Err(Error::invalid("pose", "root translation is not finite"));
         }
-        let check = |q: &UnitQuaternion<f64>, what: &str| -> Result<()> {
+        // `joint`: `None` for the root orientation. The label is formatted only on error: a
+        // valid pose is checked without allocating (the runtime validates every frame).
+        let check = |q: &UnitQuaternion<f64>, joint: Option<usize>| -> Result<()> {
             let c = q.as_ref().coords;
-            if !c.iter().all(|x| x.is_finite()) {
-                return Err(Error::invalid(
-                    "pose",
-                    format!("{what} rotation is not finite"),
-                ));
-            }
-            if (c.norm() - 1.0).abs() > 1e-6 {
-                return Err(Error::invalid(
-                    "pose",
-                    format!("{what} rotation is not a unit quaternion"),
-                ));
-            }
-            Ok(())
+            let fault = if !c.iter().all(|x| x.is_finite()) {
+                "is not finite"
+            } else if (c.norm() - 1.0).abs() > 1e-6 {
+                "is not a unit quaternion"
+            } else {
+                return Ok(());
+            };
+            let what = joint.map_or_else(|| "root".to_string(), |j| format!("joint {j}"));
+            Err(Error::invalid("pose", format!("{what} rotation {fault}")))
         };
-        check(&self.root_orientation, "root")?;
+        check(&self.root_orientation, None)?;
         for (j, q) in self.local_rotations.iter().enumerate() {
-            check(q, &format!("joint {j}"))?;
+            check(q, Some(j))?;
         }
         Ok(())
     }

@@ -34,7 +34,7 @@
 //!   "garment": { "id": "tshirt", "sha256": "<64 hex>" },
 //!   "body": { "id": "makehuman", "sha256": "<64 hex>" },
 //!   "sizes": {
-//!     "n_vertices": 4424, "n_betas": 10, "n_pose_features": 138,
+//!     "n_vertices": 4424, "n_betas": 10, "n_pose_features": 136,
 //!     "fit_hidden": 20, "gru_hidden": 1500,
 //!     "output": "dense",
 //!     "linear_baseline": false
@@ -42,16 +42,19 @@
 //!   "wrinkle_inputs": [
 //!     { "name": "betas", "offset": 0, "len": 10, "feature": "betas" },
 //!     { "name": "pose", "offset": 10, "len": 132, "feature":
-//!       { "joint_rotations": { "encoding": "rot6d", "joints": ["spine", "..."] } } },
-//!     { "name": "root", "offset": 142, "len": 6, "feature":
-//!       { "root": { "components": ["vel_x", "vel_y", "vel_z", "ang_x", "ang_y", "ang_z"] } } }
+//!       { "joint_rotations": { "encoding": "rot6d", "joints": ["Spine", "..."] } } },
+//!     { "name": "root", "offset": 142, "len": 4, "feature":
+//!       { "root": { "components": ["vel_x", "vel_y", "vel_z", "yaw_rate"] } } }
 //!   ],
 //!   "tensors_sha256": "<sha256 of model.safetensors>"
 //! }
 //! ```
 //!
 //! `output` is `"dense"` or `{ "pca": k }`; `encoding` is `"rot6d"` (6 values per joint),
-//! `"quaternion"` (4) or `"axis_angle"` (3). The blocks of `wrinkle_inputs` tile
+//! `"quaternion"` (4) or `"axis_angle"` (3). The animator ([`crate::GarmentRig`]) computes each
+//! pose block with `sartor_body::PoseFeatures`, so joint names must be the body's and root
+//! components must be `sartor_body::RootFeature` names (`vel_x`, `vel_y`, `vel_z`,
+//! `yaw_rate`); the format itself accepts any names. The blocks of `wrinkle_inputs` tile
 //! `0..n_betas + n_pose_features` in order; exactly one is `"betas"` (of length `n_betas`).
 //! The fit MLP's input is β itself (`n_betas` values).
 
@@ -82,6 +85,20 @@ pub struct AssetId {
     pub id: String,
     /// Lower-case hex SHA-256 of the asset's files.
     pub sha256: String,
+}
+
+impl AssetId {
+    /// Check that the name is not empty and the hash is 64 lower-case hex digits; the message
+    /// names `field`.
+    pub(crate) fn check(&self, field: &str) -> std::result::Result<(), String> {
+        if self.id.is_empty() {
+            return Err(format!("{field}.id is empty"));
+        }
+        if !is_sha256(&self.sha256) {
+            return Err(format!("{field}.sha256 is not 64 lower-case hex digits"));
+        }
+        Ok(())
+    }
 }
 
 /// The wrinkle regressor's output.
@@ -233,7 +250,7 @@ pub struct ModelHeader {
     pub tensors_sha256: String,
 }
 
-fn is_sha256(s: &str) -> bool {
+pub(crate) fn is_sha256(s: &str) -> bool {
     s.len() == 64
         && s.bytes()
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
@@ -291,12 +308,7 @@ impl ModelHeader {
             ));
         }
         for (field, asset) in [("garment", &self.garment), ("body", &self.body)] {
-            if asset.id.is_empty() {
-                return Err(format!("{field}.id is empty"));
-            }
-            if !is_sha256(&asset.sha256) {
-                return Err(format!("{field}.sha256 is not 64 lower-case hex digits"));
-            }
+            asset.check(field)?;
         }
         let s = &self.sizes;
         for (field, v) in [

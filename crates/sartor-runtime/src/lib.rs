@@ -16,8 +16,25 @@
 //!   CPU has them ([`instruction_set`] says which; `SARTOR_RUNTIME_ISA=portable` forces the
 //!   portable code, for comparisons); the only `unsafe` code of the crate is that dispatch
 //!   module. Error bounds of f16 and int8 storage are documented in `kernels/matrix.rs`.
-//! - **Network** ([`GarmentNetwork`], [`Workspace`]): normalisation, fit, one wrinkle frame,
-//!   batches; a frame allocates nothing.
+//! - **Network** ([`GarmentNetwork`], [`Workspace`], [`NetworkOptions`]): normalisation, fit,
+//!   one wrinkle frame, batches; a frame allocates nothing. A reduced output rank is chosen at
+//!   load: the first `k'` PCA components, or a truncated SVD of a dense layer
+//!   ([`truncated_svd`]).
+//! - **Binding** ([`GarmentBinding`]): `binding.safetensors` + `binding.json` beside the model:
+//!   garment template `T̄_c`, triangles, cloth skin weights `W_c`, the body region the garment
+//!   can touch, garment and body ids; validated on load and against the model and the body.
+//! - **Animation** ([`GarmentRig`], [`GarmentAnimator`], [`GarmentCrowd`]): the rig shares the
+//!   loaded assets (`Arc`) across avatars; an avatar caches `R_G(β)`, `J(β)` and the shaped body
+//!   region once per shape, then turns each pose into garment vertices —
+//!   `T̄_c + Δ_G + Δ_L`, skinned with `W_c` by `sartor_body::skin_points`, then the collision
+//!   post-process ([`CollisionOptions`], [`CollisionQuery`]) — carrying the GRU state and the
+//!   previous pose. A crowd steps many avatars with one pass over the weights. A frame
+//!   allocates nothing (tested with a counting allocator).
+//! - **Levels of detail** ([`LevelOfDetail`]): precision and output rank at load, fit-only
+//!   mode (static try-on), post-process on or off and its query.
+//! - **Writers** ([`write_obj_sequence`], [`write_gltf`], [`render`], `render_png`): OBJ
+//!   sequences, animated glTF 2.0 (morph targets, validated with the Khronos validator), and a
+//!   software rasterizer for previews (PNG with the default `png` feature).
 //!
 //! ```
 //! use sartor_runtime::{GruCell, Matrix, Parallelism, Precision};
@@ -36,11 +53,23 @@
 //! # Ok::<(), sartor_runtime::Error>(())
 //! ```
 
+mod animator;
+mod binding;
+mod collision;
 mod error;
 mod format;
 mod kernels;
+mod lowrank;
 mod network;
+mod writers;
 
+pub use animator::{
+    AnimatorOptions, CollisionCount, GarmentAnimator, GarmentCrowd, GarmentRig, LevelOfDetail,
+};
+pub use binding::{
+    BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
+};
+pub use collision::{BodyRegion, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
 pub use error::{Error, Result};
 pub use format::{
     AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,
@@ -51,4 +80,11 @@ pub use kernels::{
     GruCell, GruScratch, INT8_ZERO_ROW, Linear, Matrix, Mlp, MlpScratch, OutputLayer,
     OutputScratch, Parallelism, Precision, instruction_set,
 };
-pub use network::{GarmentNetwork, Workspace};
+pub use lowrank::{LowRank, truncated_svd};
+pub use network::{GarmentNetwork, NetworkOptions, Workspace};
+#[cfg(feature = "png")]
+pub use writers::render_png;
+pub use writers::{
+    Camera, Image, MeshSequence, Panel, Projection, RenderMesh, render, write_gltf,
+    write_obj_sequence,
+};

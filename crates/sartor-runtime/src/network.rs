@@ -9,6 +9,7 @@ use crate::kernels::{
     GruCell, GruScratch, Linear, Matrix, Mlp, MlpScratch, OutputLayer, OutputScratch, Parallelism,
     Precision,
 };
+use crate::lowrank::truncated_svd;
 
 /// `x ↦ (x − mean) / std` into `out`.
 fn normalise(x: &[f32], stats: &MeanStd, out: &mut [f32]) {
@@ -64,6 +65,20 @@ impl Workspace {
     }
 }
 
+/// How a network is loaded: the weight precision and, optionally, a reduced output rank. Part
+/// of a level of detail ([`crate::LevelOfDetail`]); decided once, at load.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NetworkOptions {
+    /// Storage of every weight matrix (biases and statistics stay f32).
+    pub precision: Precision,
+    /// Use a rank-`r` wrinkle output instead of the full one. A PCA-output model keeps its first
+    /// `r ≤ k` components (the coefficient rows and basis columns); a dense model replaces its
+    /// `3V × H` layer by a truncated SVD `(3V × r)(r × H)`, computed once here (see
+    /// [`truncated_svd`]), which costs `r (3V + H)` instead of `3V H` multiply–adds per frame.
+    /// `None` keeps the model's own output.
+    pub output_rank: Option<usize>,
+}
+
 /// A garment model ready to run: `R_G(β)` (fit MLP) and `R_L(β, θ)` (wrinkle GRU + output
 /// layer), optionally the linear baseline, with every weight matrix stored in one
 /// [`Precision`].
@@ -77,6 +92,7 @@ impl Workspace {
 pub struct GarmentNetwork {
     header: ModelHeader,
     precision: Precision,
+    output_rank: Option<usize>,
     fit: Mlp,
     gru: GruCell,
     output: OutputLayer,
@@ -90,6 +106,18 @@ pub struct GarmentNetwork {
 impl GarmentNetwork {
     /// Store the model's weight matrices in `precision` (biases and statistics stay f32).
     pub fn new(model: GarmentModel, precision: Precision) -> Result<Self> {
+        Self::with_options(
+            model,
+            NetworkOptions {
+                precision,
+                output_rank: None,
+            },
+        )
+    }
+
+    /// Build with a precision and an optional reduced output rank ([`NetworkOptions`]).
+    pub fn with_options(model: GarmentModel, options: NetworkOptions) -> Result<Self> {
+        let precision = options.precision;
         let (header, w) = model.into_parts();
         let s = header.sizes;
         let (b, i, hf, h, o3) = (
@@ -113,14 +141,38 @@ impl GarmentNetwork {
             w.gru.bias_hh,
         )?;
         let out_rows = s.wrinkle_out_rows();
-        let coefficients = linear(out_rows, h, w.wrinkle_out.weight, w.wrinkle_out.bias)?;
-        let output = match (s.output, w.pca) {
-            (OutputKind::Pca(k), Some(pca)) => OutputLayer::pca(
-                coefficients,
-                Matrix::from_f32(o3, k, pca.basis, precision)?,
-                pca.mean,
-            )?,
-            (OutputKind::Dense, None) => OutputLayer::Dense(coefficients),
+        let (out_w, out_b) = (w.wrinkle_out.weight, w.wrinkle_out.bias);
+        let output = match (s.output, w.pca, options.output_rank) {
+            (OutputKind::Pca(k), Some(pca), rank) => {
+                let r = rank.unwrap_or(k);
+                if r == 0 || r > k {
+                    return Err(Error::invalid(
+                        "output rank",
+                        format!("{r} is not in 1..={k} (the model's PCA components)"),
+                    ));
+                }
+                let basis: Vec<f32> = pca
+                    .basis
+                    .chunks_exact(k)
+                    .flat_map(|row| row[..r].iter().copied())
+                    .collect();
+                OutputLayer::pca(
+                    linear(r, h, out_w[..r * h].to_vec(), out_b[..r].to_vec())?,
+                    Matrix::from_f32(o3, r, basis, precision)?,
+                    pca.mean,
+                )?
+            }
+            (OutputKind::Dense, None, None) => {
+                OutputLayer::Dense(linear(out_rows, h, out_w, out_b)?)
+            }
+            (OutputKind::Dense, None, Some(r)) => {
+                let low = truncated_svd(&out_w, o3, h, r)?;
+                OutputLayer::pca(
+                    linear(r, h, low.right, vec![0.0; r])?,
+                    Matrix::from_f32(o3, r, low.left, precision)?,
+                    out_b,
+                )?
+            }
             _ => {
                 return Err(Error::invalid(
                     "model",
@@ -135,6 +187,7 @@ impl GarmentNetwork {
         Ok(Self {
             header,
             precision,
+            output_rank: options.output_rank,
             fit,
             gru,
             output,
@@ -148,8 +201,35 @@ impl GarmentNetwork {
 
     /// [`GarmentModel::load`] then [`GarmentNetwork::new`]; errors name the file.
     pub fn load(dir: &Path, precision: Precision) -> Result<Self> {
+        Self::load_with(
+            dir,
+            NetworkOptions {
+                precision,
+                output_rank: None,
+            },
+        )
+    }
+
+    /// [`GarmentModel::load`] then [`GarmentNetwork::with_options`]; errors name the file.
+    pub fn load_with(dir: &Path, options: NetworkOptions) -> Result<Self> {
         let model = GarmentModel::load(dir)?;
-        Self::new(model, precision).map_err(|e| e.in_file(dir.join(crate::MODEL_TENSORS)))
+        Self::with_options(model, options).map_err(|e| e.in_file(dir.join(crate::MODEL_TENSORS)))
+    }
+
+    /// The reduced output rank it was built with (`None`: the model's own output).
+    pub fn output_rank(&self) -> Option<usize> {
+        self.output_rank
+    }
+
+    /// Bytes held by the fit MLP's weight matrices.
+    pub fn fit_weight_bytes(&self) -> usize {
+        self.fit.weight_bytes()
+    }
+
+    /// Bytes held by the wrinkle regressor's weight matrices (GRU and output layer; the paper's
+    /// "GRU" memory).
+    pub fn wrinkle_weight_bytes(&self) -> usize {
+        self.gru.weight_bytes() + self.output.weight_bytes()
     }
 
     /// The model's header (sizes, input layout, garment and body ids).

@@ -84,6 +84,12 @@ fn dense(rng: &mut ChaCha8Rng, rows: usize, cols: usize) -> DenseWeights {
 }
 
 pub fn random_model(seed: u64, sizes: ModelSizes) -> GarmentModel {
+    random_model_with(seed, header(sizes), 0.01)
+}
+
+/// A random model for `header`, with displacement statistics of about `scale_m` metres.
+pub fn random_model_with(seed: u64, header: ModelHeader, scale_m: f32) -> GarmentModel {
+    let sizes = header.sizes;
     let mut r = rng(seed);
     let (b, i, hf, h, o3) = (
         sizes.n_betas,
@@ -114,11 +120,11 @@ pub fn random_model(seed: u64, sizes: ModelSizes) -> GarmentModel {
         norm: NormStats {
             fit_in: mean_std(&mut r, b, 1.0),
             wrinkle_in: mean_std(&mut r, i, 1.0),
-            fit_out: mean_std(&mut r, o3, 0.01),
-            wrinkle_out: mean_std(&mut r, o3, 0.01),
+            fit_out: mean_std(&mut r, o3, scale_m),
+            wrinkle_out: mean_std(&mut r, o3, scale_m),
         },
     };
-    GarmentModel::new(header(sizes), weights).expect("a valid random model")
+    GarmentModel::new(header, weights).expect("a valid random model")
 }
 
 fn affine(w: &[f32], b: &[f32], x: &[f64]) -> Vec<f64> {

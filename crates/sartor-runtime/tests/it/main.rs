@@ -1,7 +1,13 @@
-//! Integration tests of sartor-runtime: the model format, the network against an f64
-//! reference, batching and threading, and a long GRU rollout.
+//! Integration tests of sartor-runtime: the model and binding formats, the network against an
+//! f64 reference, batching and threading, a long GRU rollout, the animator on the built-in body,
+//! and a count of allocations per frame.
 
+mod alloc;
+mod animator;
+mod binding;
 mod common;
 mod format;
 mod network;
 mod rollout;
+mod scene;
+mod writers;

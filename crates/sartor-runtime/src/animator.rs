@@ -1,0 +1,691 @@
+//! Garment animation per avatar: [`GarmentRig`] (the shared, immutable assets of one level of
+//! detail), [`GarmentAnimator`] (one avatar: shape cache, GRU state, previous pose, buffers) and
+//! [`GarmentCrowd`] (many avatars stepping together, sharing one pass over the weights).
+//!
+//! One frame of one avatar:
+//!
+//! 1. the wrinkle input: β and the pose features of `sartor_body::PoseFeatures` (joint
+//!    rotations, root velocities from the previous pose), laid out as the model's header says;
+//! 2. `Δ_L = R_L(β, θ)`, one GRU step (skipped in fit-only mode: `Δ_L = 0`);
+//! 3. `T_c = T̄_c + Δ_G + Δ_L` with `Δ_G = R_G(β)` cached by `set_shape`;
+//! 4. `M_c = W(T_c, β, θ, W_c)` by `sartor_body::skin_points`, with the body's skinning
+//!    transforms at `J(β)` (cached);
+//! 5. the collision post-process (optional, see `collision.rs`) against the body region, posed
+//!    from `T_b(β)` (cached).
+//!
+//! After `set_shape`, a frame allocates nothing (the integration tests count allocations).
+
+use std::ops::Range;
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use sartor_body::{
+    BodyModel, BoneTransform, FPS, Par, Pose, PoseFeatureSpec, PoseFeatures, RootFeature,
+    RotationEncoding, skin_points,
+};
+
+use crate::binding::GarmentBinding;
+use crate::collision::{BodyRegion, Collider, CollisionOptions};
+use crate::error::{Error, Result, check_finite, check_len};
+use crate::format::Feature;
+use crate::kernels::{Parallelism, Precision};
+use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
+
+/// What an avatar computes per frame (the scene-side half of a [`LevelOfDetail`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AnimatorOptions {
+    /// Run the wrinkle GRU. `false` is the fit-only mode for static try-on: `Δ_L = 0`, the garment
+    /// is `T̄_c + R_G(β)` skinned (no GRU cost, no temporal state).
+    pub wrinkles: bool,
+    /// The collision post-process, or `None` to skip it.
+    pub collision: Option<CollisionOptions>,
+    /// Threads for the network, the skinning and the post-process (results do not depend on it).
+    pub parallelism: Parallelism,
+    /// Time between frames, seconds (the root velocities of the pose features): the training
+    /// data's frame rate, 30 fps.
+    pub frame_dt_secs: f64,
+}
+
+impl Default for AnimatorOptions {
+    /// Wrinkles on, post-process on (defaults of [`CollisionOptions`]), one thread, 30 fps.
+    fn default() -> Self {
+        Self {
+            wrinkles: true,
+            collision: Some(CollisionOptions::default()),
+            parallelism: Parallelism::Sequential,
+            frame_dt_secs: 1.0 / FPS,
+        }
+    }
+}
+
+/// A level of detail: everything a scene may trade for speed, in one place. Each field's cost and
+/// error is measured by `cargo xtask bench runtime` and the trade-off report.
+///
+/// | option | where | effect |
+/// | --- | --- | --- |
+/// | `network.precision` | load | f32 / f16 / int8 weights: memory and bandwidth ÷1 / ÷2 / ÷4 |
+/// | `network.output_rank` | load | rank-`r` output (PCA prefix or truncated SVD) |
+/// | `animator.wrinkles` | per rig | fit-only mode for static try-on (no GRU) |
+/// | `animator.collision` | per rig | collision post-process on / off, and its query |
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LevelOfDetail {
+    /// How the network is loaded.
+    pub network: NetworkOptions,
+    /// What each avatar computes.
+    pub animator: AnimatorOptions,
+}
+
+impl LevelOfDetail {
+    /// The full model in f32 with the post-process: the reference.
+    pub fn full() -> Self {
+        Self::default()
+    }
+
+    /// A light setting for crowds: int8 weights, rank-64 output, post-process on.
+    pub fn reduced() -> Self {
+        Self {
+            network: NetworkOptions {
+                precision: Precision::Int8,
+                output_rank: Some(64),
+            },
+            animator: AnimatorOptions::default(),
+        }
+    }
+
+    /// Static try-on: fit only (no GRU), post-process on.
+    pub fn static_try_on() -> Self {
+        Self {
+            network: NetworkOptions::default(),
+            animator: AnimatorOptions {
+                wrinkles: false,
+                ..AnimatorOptions::default()
+            },
+        }
+    }
+}
+
+/// How the wrinkle input vector is filled: β at one range, each pose block by its own
+/// `PoseFeatures` into its own range.
+#[derive(Clone, Debug)]
+struct InputMap {
+    betas: Range<usize>,
+    blocks: Vec<(Range<usize>, PoseFeatures)>,
+}
+
+impl InputMap {
+    fn new(network: &GarmentNetwork, body: &BodyModel) -> Result<Self> {
+        let mut betas = 0..0;
+        let mut blocks = Vec::new();
+        for block in &network.header().wrinkle_inputs {
+            let range = block.offset..block.offset + block.len;
+            let spec = match &block.feature {
+                Feature::Betas => {
+                    betas = range;
+                    continue;
+                }
+                Feature::JointRotations { encoding, joints } => PoseFeatureSpec {
+                    joints: joints.clone(),
+                    encoding: *encoding,
+                    root: Vec::new(),
+                },
+                Feature::Root { components } => PoseFeatureSpec {
+                    joints: Vec::new(),
+                    encoding: RotationEncoding::Rot6d,
+                    root: components
+                        .iter()
+                        .map(|c| RootFeature::from_name(c))
+                        .collect::<sartor_body::Result<_>>()?,
+                },
+            };
+            blocks.push((range, spec.bind(body.skeleton())?));
+        }
+        Ok(Self { betas, blocks })
+    }
+}
+
+/// The assets one level of detail of one garment shares across all its avatars: network,
+/// binding, body model (each `Arc`-shared, so several rigs can share weights or bodies), the
+/// options, the input layout and the body region. Immutable.
+#[derive(Debug)]
+pub struct GarmentRig {
+    network: Arc<GarmentNetwork>,
+    binding: Arc<GarmentBinding>,
+    body: Arc<BodyModel>,
+    options: AnimatorOptions,
+    inputs: InputMap,
+    region: BodyRegion,
+}
+
+impl GarmentRig {
+    /// Check that the three assets belong together (the binding against the model's header and
+    /// the body, the model's joints against the body's skeleton, β counts) and prepare the
+    /// input layout and the body region.
+    pub fn new(
+        network: Arc<GarmentNetwork>,
+        binding: Arc<GarmentBinding>,
+        body: Arc<BodyModel>,
+        options: AnimatorOptions,
+    ) -> Result<Self> {
+        binding.check_model(network.header())?;
+        binding.check_body(&body)?;
+        if network.n_betas() > body.n_betas() {
+            return Err(Error::invalid(
+                "garment rig",
+                format!(
+                    "the model takes {} betas, the body {:?} has {}",
+                    network.n_betas(),
+                    body.name(),
+                    body.n_betas()
+                ),
+            ));
+        }
+        if !(options.frame_dt_secs.is_finite() && options.frame_dt_secs > 0.0) {
+            return Err(Error::invalid(
+                "animator options",
+                format!(
+                    "frame_dt_secs must be finite and positive, got {}",
+                    options.frame_dt_secs
+                ),
+            ));
+        }
+        if let Some(c) = &options.collision {
+            c.validate()?;
+        }
+        let inputs = InputMap::new(&network, &body)?;
+        let region = BodyRegion::new(&body, binding.region_faces())?;
+        Ok(Self {
+            network,
+            binding,
+            body,
+            options,
+            inputs,
+            region,
+        })
+    }
+
+    /// The network.
+    pub fn network(&self) -> &Arc<GarmentNetwork> {
+        &self.network
+    }
+
+    /// The binding.
+    pub fn binding(&self) -> &Arc<GarmentBinding> {
+        &self.binding
+    }
+
+    /// The body model.
+    pub fn body(&self) -> &Arc<BodyModel> {
+        &self.body
+    }
+
+    /// The options.
+    pub fn options(&self) -> &AnimatorOptions {
+        &self.options
+    }
+
+    /// The body region the post-process uses.
+    pub fn region(&self) -> &BodyRegion {
+        &self.region
+    }
+
+    /// Garment vertices `V`.
+    pub fn n_vertices(&self) -> usize {
+        self.binding.n_vertices()
+    }
+
+    fn par(&self) -> Par {
+        match self.options.parallelism {
+            Parallelism::Sequential => Par::Seq,
+            Parallelism::Rayon => Par::Rayon,
+        }
+    }
+}
+
+/// Counts of cloth vertices against the exact closest point of the posed body region.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CollisionCount {
+    /// Vertices inside the body (negative signed distance).
+    pub inside: usize,
+    /// Vertices closer than `margin − tolerance` (inside ones included).
+    pub within_margin: usize,
+}
+
+/// One avatar's state, everything but the network buffers (which a crowd batches).
+#[derive(Clone, Debug)]
+struct Avatar {
+    betas: Vec<f32>,
+    rest_joints: Vec<Vector3<f64>>,
+    fit: Vec<f32>,
+    cloth_rest: Vec<Vector3<f32>>,
+    unposed: Vec<Vector3<f32>>,
+    posed_joints: Vec<Vector3<f64>>,
+    transforms: Vec<BoneTransform<f64>>,
+    transforms_f32: Vec<BoneTransform<f32>>,
+    previous: Pose,
+    has_previous: bool,
+    collider: Option<Collider>,
+    vertices: Vec<Vector3<f32>>,
+    pushed: usize,
+}
+
+impl Avatar {
+    fn new(rig: &GarmentRig) -> Self {
+        let (v, j) = (rig.n_vertices(), rig.body.skeleton().n_joints());
+        Self {
+            betas: Vec::new(),
+            rest_joints: vec![Vector3::zeros(); j],
+            fit: vec![0.0; 3 * v],
+            cloth_rest: vec![Vector3::zeros(); v],
+            unposed: vec![Vector3::zeros(); v],
+            posed_joints: vec![Vector3::zeros(); j],
+            transforms: vec![BoneTransform::identity(); j],
+            transforms_f32: vec![BoneTransform::identity(); j],
+            previous: Pose::rest(j),
+            has_previous: false,
+            collider: None,
+            vertices: rig.binding.template().to_vec(),
+            pushed: 0,
+        }
+    }
+
+    /// Cache `R_G(β)`, `T̄_c + Δ_G`, `J(β)` and the shaped body region.
+    fn set_shape(&mut self, rig: &GarmentRig, betas: &[f32], ws: &mut Workspace) -> Result<()> {
+        check_len("betas", betas.len(), rig.network.n_betas())?;
+        check_finite("betas", betas)?;
+        let par = rig.options.parallelism;
+        rig.network.fit(betas, &mut self.fit, ws, par)?;
+        let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
+        let rest_joints = rig.body.shaped_joints(&betas64)?;
+        let template = rig.binding.template();
+        let cloth_rest: Vec<Vector3<f32>> = template
+            .iter()
+            .zip(self.fit.chunks_exact(3))
+            .map(|(t, d)| t + Vector3::new(d[0], d[1], d[2]))
+            .collect();
+        let collider = match &rig.options.collision {
+            Some(options) => {
+                let shaped = rig.body.shaped_vertices(&betas64)?;
+                Some(Collider::new(&rig.region, &shaped, &cloth_rest, options)?)
+            }
+            None => None,
+        };
+        self.betas = betas.to_vec();
+        self.rest_joints = rest_joints;
+        self.cloth_rest = cloth_rest;
+        self.collider = collider;
+        Ok(())
+    }
+
+    /// The wrinkle input of `pose` (β, then the pose blocks) into `x`.
+    fn features(&self, rig: &GarmentRig, pose: &Pose, x: &mut [f32]) -> Result<()> {
+        x[rig.inputs.betas.clone()].copy_from_slice(&self.betas);
+        let previous = self.has_previous.then_some(&self.previous);
+        for (range, features) in &rig.inputs.blocks {
+            features.compute(
+                previous,
+                pose,
+                rig.options.frame_dt_secs,
+                &mut x[range.clone()],
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Compose, skin and post-process one frame; `wrinkle` is `Δ_L` (`None`: zero).
+    fn finish(
+        &mut self,
+        rig: &GarmentRig,
+        pose: &Pose,
+        wrinkle: Option<&[f32]>,
+        par: Par,
+    ) -> Result<()> {
+        rig.body.skeleton().forward_kinematics_into(
+            &self.rest_joints,
+            pose,
+            &mut self.posed_joints,
+            &mut self.transforms,
+        )?;
+        for (t32, t) in self.transforms_f32.iter_mut().zip(&self.transforms) {
+            *t32 = t.to_f32();
+        }
+        match wrinkle {
+            Some(w) => {
+                for ((u, r), d) in self
+                    .unposed
+                    .iter_mut()
+                    .zip(&self.cloth_rest)
+                    .zip(w.chunks_exact(3))
+                {
+                    *u = r + Vector3::new(d[0], d[1], d[2]);
+                }
+            }
+            None => self.unposed.copy_from_slice(&self.cloth_rest),
+        }
+        skin_points(
+            &self.unposed,
+            rig.binding.skin_weights(),
+            &self.transforms_f32,
+            &mut self.vertices,
+            par,
+        )?;
+        self.pushed = 0;
+        if let Some(collider) = &mut self.collider {
+            collider.pose(&rig.region, &self.transforms, par)?;
+            self.pushed = collider.resolve(&mut self.vertices, par);
+        }
+        // Field by field: the derived `Pose::clone_from` would allocate a new rotation vector
+        // (the lengths agree: the pose was validated against the skeleton).
+        self.previous.root_translation_m = pose.root_translation_m;
+        self.previous.root_orientation = pose.root_orientation;
+        self.previous
+            .local_rotations
+            .copy_from_slice(&pose.local_rotations);
+        self.has_previous = true;
+        Ok(())
+    }
+
+    fn collision_count(&self, tolerance_m: f64) -> Option<CollisionCount> {
+        let collider = self.collider.as_ref()?;
+        let margin = collider.margin_m() - tolerance_m;
+        let mut count = CollisionCount::default();
+        for p in &self.vertices {
+            let d = collider.exact(p).signed_distance_m;
+            count.inside += usize::from(d < 0.0);
+            count.within_margin += usize::from(d < margin);
+        }
+        Some(count)
+    }
+}
+
+/// One avatar wearing the garment: `set_shape` once, then `frame` per pose. Carries the GRU state
+/// and the previous pose between frames; `reset` starts a new sequence.
+///
+/// ```no_run
+/// use std::sync::Arc;
+/// use sartor_runtime::{GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig, LevelOfDetail};
+///
+/// let dir = std::path::Path::new("runs/tshirt/export");
+/// let lod = LevelOfDetail::full();
+/// let rig = Arc::new(GarmentRig::new(
+///     Arc::new(GarmentNetwork::load_with(dir, lod.network)?),
+///     Arc::new(GarmentBinding::load(dir)?),
+///     Arc::new(sartor_body::load_builtin()?),
+///     lod.animator,
+/// )?);
+/// let mut avatar = GarmentAnimator::new(rig.clone())?;
+/// avatar.set_shape(&[0.5, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])?;
+/// for pose in sartor_body::procedural::clip("walk_normal")?.frames() {
+///     let garment = avatar.frame(pose)?; // V posed vertices, metres
+///     let _ = garment;
+/// }
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct GarmentAnimator {
+    rig: Arc<GarmentRig>,
+    avatar: Avatar,
+    ws: Workspace,
+    state: Vec<f32>,
+    x: Vec<f32>,
+    wrinkle: Vec<f32>,
+}
+
+impl GarmentAnimator {
+    /// An avatar of shape β = 0 at the start of a sequence.
+    pub fn new(rig: Arc<GarmentRig>) -> Result<Self> {
+        let net = &rig.network;
+        let mut s = Self {
+            avatar: Avatar::new(&rig),
+            ws: net.workspace(1),
+            state: net.initial_state(),
+            x: vec![0.0; net.input_size()],
+            wrinkle: vec![0.0; net.output_size()],
+            rig,
+        };
+        let zeros = vec![0.0; s.rig.network.n_betas()];
+        s.set_shape(&zeros)?;
+        Ok(s)
+    }
+
+    /// The shared assets.
+    pub fn rig(&self) -> &Arc<GarmentRig> {
+        &self.rig
+    }
+
+    /// Set the body shape β (`n_betas` of the model, finite): caches `R_G(β)`, `J(β)` and the
+    /// shaped body region (and the candidate faces of the post-process). Allocates; call it once
+    /// per avatar, not per frame. Does not reset the sequence.
+    pub fn set_shape(&mut self, betas: &[f32]) -> Result<()> {
+        self.avatar.set_shape(&self.rig, betas, &mut self.ws)
+    }
+
+    /// The current β.
+    pub fn betas(&self) -> &[f32] {
+        &self.avatar.betas
+    }
+
+    /// Start a new sequence: zero GRU state, no previous pose (zero root velocity next frame).
+    pub fn reset(&mut self) {
+        self.state.fill(0.0);
+        self.avatar.has_previous = false;
+    }
+
+    /// Animate one frame; returns the garment's `V` posed vertices (metres). Errors (leaving the
+    /// avatar as it was) on a pose that is not finite, not unit, or of another skeleton.
+    /// Allocation-free.
+    pub fn frame(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
+        let rig = &*self.rig;
+        let par = rig.par();
+        pose.validate(rig.body.skeleton().n_joints())?;
+        let wrinkle = if rig.options.wrinkles {
+            self.avatar.features(rig, pose, &mut self.x)?;
+            rig.network.wrinkle_step(
+                &self.x,
+                &mut self.state,
+                &mut self.wrinkle,
+                &mut self.ws,
+                rig.options.parallelism,
+            )?;
+            Some(&self.wrinkle[..])
+        } else {
+            None
+        };
+        self.avatar.finish(rig, pose, wrinkle, par)?;
+        Ok(&self.avatar.vertices)
+    }
+
+    /// [`GarmentAnimator::frame`], copying the vertices into `out` (`V` entries).
+    pub fn frame_into(&mut self, pose: &Pose, out: &mut [Vector3<f32>]) -> Result<()> {
+        check_len("garment output", out.len(), self.rig.n_vertices())?;
+        out.copy_from_slice(self.frame(pose)?);
+        Ok(())
+    }
+
+    /// The garment's posed vertices of the last frame (the template before the first).
+    pub fn vertices(&self) -> &[Vector3<f32>] {
+        &self.avatar.vertices
+    }
+
+    /// Garment triangles.
+    pub fn faces(&self) -> &[[u32; 3]] {
+        self.rig.binding.faces()
+    }
+
+    /// The unposed garment of the last frame, `T̄_c + Δ_G + Δ_L` (before skinning).
+    pub fn unposed(&self) -> &[Vector3<f32>] {
+        &self.avatar.unposed
+    }
+
+    /// `Δ_G = R_G(β)`, `3V` values (metres), cached by `set_shape`.
+    pub fn fit_displacement(&self) -> &[f32] {
+        &self.avatar.fit
+    }
+
+    /// The GRU state (`H` values).
+    pub fn state(&self) -> &[f32] {
+        &self.state
+    }
+
+    /// Vertices the post-process moved in the last frame (0 when it is off).
+    pub fn last_frame_pushed(&self) -> usize {
+        self.avatar.pushed
+    }
+
+    /// The body region posed in the last frame, as region vertices (see
+    /// [`crate::BodyRegion`]); `None` when the post-process is off.
+    pub fn posed_region(&self) -> Option<&[Vector3<f64>]> {
+        self.avatar.collider.as_ref().map(|c| c.posed())
+    }
+
+    /// Count the last frame's cloth vertices inside the posed body region or within
+    /// `margin − tolerance_m` of it, by the exact (tree) query, whatever the configured query;
+    /// `None` when the post-process is off. For checks and reports, not per frame in a game.
+    pub fn collision_count(&self, tolerance_m: f64) -> Option<CollisionCount> {
+        self.avatar.collision_count(tolerance_m)
+    }
+
+    /// Mean candidate faces per cloth vertex of the candidate query (0 for the BVH, `None`
+    /// when the post-process is off).
+    pub fn mean_candidates(&self) -> Option<f64> {
+        self.avatar.collider.as_ref().map(|c| c.mean_candidates())
+    }
+}
+
+/// `N` avatars of one rig stepping together: the GRU and output layer run once per frame for all
+/// of them, sharing one pass over the weights (the batched kernels); each avatar's result is
+/// bitwise equal to animating it alone with a [`GarmentAnimator`]. With
+/// [`Parallelism::Rayon`] the per-avatar skinning and post-process run on rayon's pool, one
+/// avatar per task.
+#[derive(Clone, Debug)]
+pub struct GarmentCrowd {
+    rig: Arc<GarmentRig>,
+    avatars: Vec<Avatar>,
+    ws: Workspace,
+    states: Vec<f32>,
+    xs: Vec<f32>,
+    wrinkles: Vec<f32>,
+}
+
+impl GarmentCrowd {
+    /// `n` avatars (at least 1) of shape β = 0 at the start of a sequence.
+    pub fn new(rig: Arc<GarmentRig>, n: usize) -> Result<Self> {
+        if n == 0 {
+            return Err(Error::invalid("crowd", "needs at least one avatar"));
+        }
+        let net = &rig.network;
+        let mut ws = net.workspace(n);
+        let zeros = vec![0.0; net.n_betas()];
+        let mut avatars = Vec::with_capacity(n);
+        for _ in 0..n {
+            let mut a = Avatar::new(&rig);
+            a.set_shape(&rig, &zeros, &mut ws)?;
+            avatars.push(a);
+        }
+        Ok(Self {
+            avatars,
+            ws,
+            states: vec![0.0; n * net.state_size()],
+            xs: vec![0.0; n * net.input_size()],
+            wrinkles: vec![0.0; n * net.output_size()],
+            rig,
+        })
+    }
+
+    /// Number of avatars.
+    pub fn len(&self) -> usize {
+        self.avatars.len()
+    }
+
+    /// Always false (a crowd has at least one avatar).
+    pub fn is_empty(&self) -> bool {
+        self.avatars.is_empty()
+    }
+
+    fn avatar_index(&self, i: usize) -> Result<usize> {
+        if i < self.avatars.len() {
+            Ok(i)
+        } else {
+            Err(Error::invalid(
+                "crowd",
+                format!("avatar {i} of {}", self.avatars.len()),
+            ))
+        }
+    }
+
+    /// Set avatar `i`'s shape (see [`GarmentAnimator::set_shape`]).
+    pub fn set_shape(&mut self, i: usize, betas: &[f32]) -> Result<()> {
+        let i = self.avatar_index(i)?;
+        self.avatars[i].set_shape(&self.rig, betas, &mut self.ws)
+    }
+
+    /// Start a new sequence for avatar `i`.
+    pub fn reset(&mut self, i: usize) -> Result<()> {
+        let i = self.avatar_index(i)?;
+        let h = self.rig.network.state_size();
+        self.states[i * h..(i + 1) * h].fill(0.0);
+        self.avatars[i].has_previous = false;
+        Ok(())
+    }
+
+    /// Animate one frame of every avatar, `poses[i]` for avatar `i`. Allocation-free with
+    /// [`Parallelism::Sequential`].
+    pub fn frame(&mut self, poses: &[Pose]) -> Result<()> {
+        check_len("crowd poses", poses.len(), self.avatars.len())?;
+        let rig = &*self.rig;
+        let n = self.avatars.len();
+        let (n_in, n_out) = (rig.network.input_size(), rig.network.output_size());
+        let j = rig.body.skeleton().n_joints();
+        for pose in poses {
+            pose.validate(j)?;
+        }
+        if rig.options.wrinkles {
+            for ((a, pose), x) in self
+                .avatars
+                .iter()
+                .zip(poses)
+                .zip(self.xs.chunks_exact_mut(n_in))
+            {
+                a.features(rig, pose, x)?;
+            }
+            rig.network.wrinkle_step_batch(
+                &self.xs,
+                n,
+                &mut self.states,
+                &mut self.wrinkles,
+                &mut self.ws,
+                rig.options.parallelism,
+            )?;
+        }
+        let wrinkles = rig.options.wrinkles;
+        let finish = |((a, pose), w): ((&mut Avatar, &Pose), &[f32])| {
+            a.finish(rig, pose, wrinkles.then_some(w), Par::Seq)
+        };
+        match rig.options.parallelism {
+            Parallelism::Sequential => self
+                .avatars
+                .iter_mut()
+                .zip(poses)
+                .zip(self.wrinkles.chunks_exact(n_out))
+                .try_for_each(finish),
+            Parallelism::Rayon => self
+                .avatars
+                .par_iter_mut()
+                .zip(poses)
+                .zip(self.wrinkles.par_chunks_exact(n_out))
+                .try_for_each(finish),
+        }
+    }
+
+    /// Avatar `i`'s posed garment vertices of the last frame.
+    pub fn vertices(&self, i: usize) -> Result<&[Vector3<f32>]> {
+        let i = self.avatar_index(i)?;
+        Ok(&self.avatars[i].vertices)
+    }
+
+    /// Vertices the post-process moved in avatar `i`'s last frame.
+    pub fn last_frame_pushed(&self, i: usize) -> Result<usize> {
+        let i = self.avatar_index(i)?;
+        Ok(self.avatars[i].pushed)
+    }
+}

@@ -1,0 +1,148 @@
+//! A frame allocates nothing: a counting global allocator for this test binary counts the
+//! allocations made by the current thread while frames run.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use sartor_runtime::{
+    AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentCrowd,
+    NetworkOptions, OutputKind, Precision,
+};
+
+use crate::scene::{clip, model, rig};
+
+thread_local! {
+    /// Allocations by this thread (const-initialised, no destructor: using it never allocates).
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    // `try_with`: a thread being torn down has no thread-locals left; do not count there.
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+}
+
+/// The system allocator, counting allocations per thread.
+struct Counting;
+
+// SAFETY: every method forwards its arguments unchanged to the system allocator, which upholds
+// the `GlobalAlloc` contract; the counting touches only a thread-local `Cell`.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count();
+        // SAFETY: forwarded unchanged (the caller's guarantees hold for `System` too).
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        count();
+        // SAFETY: as above.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count();
+        // SAFETY: as above; `ptr` came from this allocator, i.e. from `System`.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: as above.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_during(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+#[test]
+fn frames_allocate_nothing() {
+    let poses = clip("walk_normal", 12, 2);
+    let m = model(40, OutputKind::Dense, 32);
+    let pca = model(41, OutputKind::Pca(6), 32);
+    let collision = |query| {
+        Some(CollisionOptions {
+            query,
+            ..CollisionOptions::default()
+        })
+    };
+    let cases = [
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::EXACT_BVH),
+            true,
+        ),
+        (
+            &m,
+            Precision::Int8,
+            collision(CollisionQuery::DEFAULT_CANDIDATES),
+            true,
+        ),
+        (&pca, Precision::F16, None, true),
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::GuardedCandidates {
+                radius_m: 0.02,
+                max_per_vertex: 8,
+            }),
+            true,
+        ),
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::BvhBand {
+                band_m: 0.005,
+                refresh_every: 4,
+            }),
+            true,
+        ),
+        (
+            &m,
+            Precision::F32,
+            collision(CollisionQuery::DEFAULT_CANDIDATES),
+            false,
+        ),
+    ];
+    for (model, precision, collision, wrinkles) in cases {
+        let options = AnimatorOptions {
+            wrinkles,
+            collision,
+            ..AnimatorOptions::default()
+        };
+        let network = NetworkOptions {
+            precision,
+            output_rank: None,
+        };
+        let rig = rig(model, network, options);
+        let mut avatar = GarmentAnimator::new(rig.clone()).expect("avatar");
+        avatar.set_shape(&[0.5; 10]).expect("finite");
+        let mut crowd = GarmentCrowd::new(rig, 3).expect("crowd");
+        let mut out = vec![nalgebra::Vector3::zeros(); avatar.vertices().len()];
+        // Warm up (lazily initialised statics such as the instruction-set choice).
+        avatar.frame(&poses[0]).expect("frame");
+        let trios: Vec<Vec<sartor_body::Pose>> = poses.iter().map(|p| vec![p.clone(); 3]).collect();
+        crowd.frame(&trios[0]).expect("frame");
+        let n = allocations_during(|| {
+            for (pose, trio) in poses.iter().zip(&trios).skip(1) {
+                avatar.frame_into(pose, &mut out).expect("frame");
+                crowd.frame(trio).expect("frame");
+            }
+            avatar.reset();
+            avatar.frame(&poses[3]).expect("frame");
+        });
+        assert_eq!(
+            n, 0,
+            "{precision:?} wrinkles {wrinkles} collision {collision:?}: {n} allocations"
+        );
+        // The counter counts (the test can fail).
+        assert!(allocations_during(|| avatar.set_shape(&[0.1; 10]).expect("finite")) > 0);
+    }
+}

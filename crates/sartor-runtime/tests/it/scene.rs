@@ -1,0 +1,143 @@
+//! A small scene for the animator tests: the built-in body, the committed tiny T-shirt (266
+//! vertices), its binding, and random models whose input layout is the real one (β, 20 joints
+//! in 6D, 4 root values).
+
+use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+
+use sartor_body::{BodyModel, CMU_MB_JOINTS, Pose, RootFeature, TriMesh};
+use sartor_runtime::{
+    AnimatorOptions, AssetId, Feature, FeatureBlock, GarmentBinding, GarmentModel, GarmentNetwork,
+    GarmentRig, ModelHeader, ModelSizes, NetworkOptions, OutputKind, RotationEncoding,
+};
+
+use crate::common::random_model_with;
+
+/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
+/// fingers, thumbs, hip joints, toes and the second neck joint.
+pub fn feature_joints() -> Vec<String> {
+    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
+    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
+    CMU_MB_JOINTS
+        .iter()
+        .map(|j| j.0)
+        .filter(keep)
+        .map(String::from)
+        .collect()
+}
+
+pub fn body() -> Arc<BodyModel> {
+    static BODY: OnceLock<Arc<BodyModel>> = OnceLock::new();
+    BODY.get_or_init(|| Arc::new(sartor_body::load_builtin().expect("built-in body")))
+        .clone()
+}
+
+pub fn garment_mesh() -> TriMesh {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../datasets/garments/tshirt-tiny/garment.obj");
+    sartor_body::read_obj(&path).expect("tiny T-shirt")
+}
+
+pub fn garment_id() -> AssetId {
+    AssetId {
+        id: "tshirt-tiny".into(),
+        sha256: "c".repeat(64),
+    }
+}
+
+pub fn body_id() -> AssetId {
+    AssetId {
+        id: "makehuman".into(),
+        sha256: "d".repeat(64),
+    }
+}
+
+pub fn binding() -> Arc<GarmentBinding> {
+    static BINDING: OnceLock<Arc<GarmentBinding>> = OnceLock::new();
+    BINDING
+        .get_or_init(|| {
+            let mesh = garment_mesh();
+            Arc::new(
+                GarmentBinding::from_body(
+                    garment_id(),
+                    mesh.positions(),
+                    mesh.faces(),
+                    body_id(),
+                    &body(),
+                    0.03,
+                    0.0,
+                )
+                .expect("binding"),
+            )
+        })
+        .clone()
+}
+
+/// The header of a model of the tiny T-shirt with the real input layout.
+pub fn header(output: OutputKind, gru_hidden: usize) -> ModelHeader {
+    let n_betas = 10;
+    let rot = feature_joints().len() * 6;
+    let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
+    ModelHeader::new(
+        garment_id(),
+        body_id(),
+        ModelSizes {
+            n_vertices: binding().n_vertices(),
+            n_betas,
+            n_pose_features: rot + root.len(),
+            fit_hidden: 8,
+            gru_hidden,
+            output,
+            linear_baseline: false,
+        },
+        vec![
+            FeatureBlock {
+                name: "betas".into(),
+                offset: 0,
+                len: n_betas,
+                feature: Feature::Betas,
+            },
+            FeatureBlock {
+                name: "pose".into(),
+                offset: n_betas,
+                len: rot,
+                feature: Feature::JointRotations {
+                    encoding: RotationEncoding::Rot6d,
+                    joints: feature_joints(),
+                },
+            },
+            FeatureBlock {
+                name: "root".into(),
+                offset: n_betas + rot,
+                len: root.len(),
+                feature: Feature::Root { components: root },
+            },
+        ],
+    )
+}
+
+/// A random model of the tiny T-shirt: displacements of about 1 cm.
+pub fn model(seed: u64, output: OutputKind, gru_hidden: usize) -> GarmentModel {
+    random_model_with(seed, header(output, gru_hidden), 0.01)
+}
+
+pub fn rig(
+    model: &GarmentModel,
+    network: NetworkOptions,
+    options: AnimatorOptions,
+) -> Arc<GarmentRig> {
+    let net = GarmentNetwork::with_options(model.clone(), network).expect("network");
+    Arc::new(GarmentRig::new(Arc::new(net), binding(), body(), options).expect("rig"))
+}
+
+/// `n` frames of a procedural clip, every `step`-th frame (a fast test motion).
+pub fn clip(name: &str, n: usize, step: usize) -> Vec<Pose> {
+    let motion = sartor_body::procedural::clip(name).expect("clip");
+    motion
+        .frames()
+        .iter()
+        .step_by(step)
+        .take(n)
+        .cloned()
+        .collect()
+}

@@ -1,0 +1,859 @@
+//! `cargo xtask bench runtime`: the paper's Table 1 side by side. For T-shirts of 4,210 / 8,710
+//! / 17,710 / 26,066 triangles, a model at the paper's sizes (fit MLP 20, GRU 1500, dense
+//! output) with random weights, animated over a procedural clip on the built-in body: ms per
+//! frame without and with the collision post-process, on one thread and on all, in f32, f16
+//! and int8; model memory; the post-process query measured (BVH against candidate triangles:
+//! time and misses); reduced models. Writes `bench-runtime.json`.
+//!
+//! The random output layers are smooth over the garment (`W = Φ R`, `Φ` 16 low-frequency
+//! functions of the vertex position, `R` random), so the wrinkles look like wrinkles (about
+//! 5 mm, smooth) rather than per-vertex noise: that matters for the post-process, not for the
+//! network's speed (the stored matrix is dense `3V × H`).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use nalgebra::Vector3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use sartor_body::io::{read_file, sha256_hex, write_atomic};
+use sartor_body::{BodyModel, CMU_MB_JOINTS, MODEL_HEADER, Pose, RootFeature};
+use sartor_runtime::{
+    AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, Feature,
+    FeatureBlock, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
+    GruWeights, MeanStd, ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats,
+    OutputKind, Parallelism, PcaWeights, Precision, RotationEncoding, instruction_set,
+};
+use serde::Serialize;
+
+use crate::garment::Machine;
+
+/// Arguments of `bench runtime`.
+#[derive(clap::Args, Debug)]
+pub struct BenchRuntimeArgs {
+    /// Output file.
+    #[arg(long, default_value = "bench-runtime.json")]
+    pub out: PathBuf,
+    /// Garment sizes (triangles) to run; each needs `configs/garments/tshirt-<n>.json` or
+    /// `datasets/garments/tshirt-<n>`.
+    #[arg(long, value_delimiter = ',', default_values_t = [4210usize, 8710, 17710, 26066])]
+    pub triangles: Vec<usize>,
+    /// Procedural clip to animate.
+    #[arg(long, default_value = "walk_normal")]
+    pub clip: String,
+    /// Frames run before timing (GRU state and caches warm up).
+    #[arg(long, default_value_t = 20)]
+    pub warmup: usize,
+    /// Frames timed per configuration.
+    #[arg(long, default_value_t = 120)]
+    pub frames: usize,
+    /// GRU hidden size of the paper-size model.
+    #[arg(long, default_value_t = 1500)]
+    pub gru_hidden: usize,
+    /// Garment size (triangles) of the post-process comparison and the reduced models.
+    #[arg(long, default_value_t = 8710)]
+    pub reference_triangles: usize,
+}
+
+/// The paper's Table 1 (Titan X + i7): triangles, ms per frame without / with post-process.
+const PAPER: [(usize, f64, f64); 4] = [
+    (4210, 1.47, 3.39),
+    (8710, 1.51, 4.01),
+    (17710, 2.12, 5.47),
+    (26066, 2.40, 6.87),
+];
+
+/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
+/// fingers, thumbs, hip joints, toes and the second neck joint.
+fn feature_joints() -> Vec<String> {
+    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
+    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
+    CMU_MB_JOINTS
+        .iter()
+        .map(|j| j.0)
+        .filter(keep)
+        .map(String::from)
+        .collect()
+}
+const N_BETAS: usize = 10;
+const FIT_HIDDEN: usize = 20;
+/// Body region: faces with a vertex within this distance of the garment at rest.
+const REGION_MARGIN_M: f64 = 0.03;
+/// The template shape: the random fit displacement does not follow the body's shape change, so
+/// another shape would put the garment inside a larger body.
+const BETAS: [f32; N_BETAS] = [0.0; N_BETAS];
+
+#[derive(Serialize)]
+struct Paper {
+    ms_per_frame: f64,
+    ms_per_frame_pp: f64,
+    device: &'static str,
+}
+
+#[derive(Serialize)]
+struct Memory {
+    precision: &'static str,
+    fit_mb: f64,
+    wrinkle_mb: f64,
+}
+
+#[derive(Serialize)]
+struct Run {
+    precision: &'static str,
+    threads: usize,
+    /// Median over the timed frames.
+    ms_per_frame: f64,
+    ms_per_frame_pp: f64,
+    ms_per_frame_mean: f64,
+    ms_per_frame_pp_mean: f64,
+    /// Mean CPU time of the thread per frame (one thread only): robust to a loaded machine.
+    cpu_ms_per_frame: Option<f64>,
+    cpu_ms_per_frame_pp: Option<f64>,
+    /// Ours over the paper's (below 1: faster than the paper's GPU).
+    ratio_to_paper: Option<f64>,
+    ratio_to_paper_pp: Option<f64>,
+    cpu_ratio_to_paper: Option<f64>,
+    cpu_ratio_to_paper_pp: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct GarmentResult {
+    triangles: usize,
+    vertices: usize,
+    source: String,
+    region_faces: usize,
+    region_vertices: usize,
+    paper: Option<Paper>,
+    memory: Vec<Memory>,
+    runs: Vec<Run>,
+}
+
+#[derive(Serialize)]
+struct QueryResult {
+    query: String,
+    /// Mean CPU ms per frame of the whole frame with this post-process (int8 network, 1
+    /// thread).
+    cpu_ms_per_frame_pp: f64,
+    /// The post-process's own share: `cpu_ms_per_frame_pp` minus the same frame without it.
+    cpu_ms_post_process: f64,
+    mean_candidates_per_vertex: f64,
+    /// Over the clip, after the post-process: cloth vertices inside the body, and closer than
+    /// the margin − 0.01 mm (exact query).
+    inside_after: usize,
+    within_margin_after: usize,
+    /// Vertices whose final position differs from the BVH's by more than 1 µm.
+    differing_from_bvh: usize,
+}
+
+#[derive(Serialize)]
+struct PostProcess {
+    triangles: usize,
+    frames: usize,
+    vertex_frames: usize,
+    inside_before: usize,
+    within_margin_before: usize,
+    queries: Vec<QueryResult>,
+    default_query: String,
+}
+
+#[derive(Serialize)]
+struct Reduced {
+    name: String,
+    triangles: usize,
+    gru_hidden: usize,
+    output: String,
+    precision: &'static str,
+    threads: usize,
+    ms_per_frame: f64,
+    ms_per_frame_pp: f64,
+    cpu_ms_per_frame: Option<f64>,
+    cpu_ms_per_frame_pp: Option<f64>,
+    wrinkle_mb: f64,
+    load_s: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    command: String,
+    machine: Machine,
+    instruction_set: &'static str,
+    threads_all: usize,
+    load_average_start: String,
+    load_average_end: String,
+    clip: String,
+    warmup_frames: usize,
+    timed_frames: usize,
+    model: ModelSizes,
+    garments: Vec<GarmentResult>,
+    post_process: Option<PostProcess>,
+    reduced: Vec<Reduced>,
+    notes: Vec<&'static str>,
+    wall_time_s: f64,
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// The T-shirt of `triangles`: the committed template if present, else built from its recipe.
+fn tshirt(triangles: usize, body: &BodyModel) -> anyhow::Result<(sartor_body::TriMesh, String)> {
+    let name = format!("tshirt-{triangles}");
+    let dir = Path::new("datasets/garments").join(&name);
+    if dir.join(sartor_cloth::GARMENT_HEADER).exists() {
+        let g = sartor_cloth::Garment::load(&dir)?;
+        return Ok((g.mesh().clone(), dir.display().to_string()));
+    }
+    let path = Path::new("configs/garments").join(format!("{name}.json"));
+    let bytes = read_file(&path)?;
+    let config = sartor_cloth::GarmentConfig::from_json(&bytes, &path)?;
+    let build = sartor_cloth::build_garment(&config, &path, &bytes, body, None)
+        .with_context(|| format!("building {}", path.display()))?;
+    Ok((build.garment.mesh().clone(), path.display().to_string()))
+}
+
+fn uniform(rng: &mut ChaCha8Rng, n: usize, amp: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.random_range(-amp..amp)).collect()
+}
+
+/// `[3V, cols]` weights smooth over the garment: `W[3v + c, j] = Σ_k φ_k(p_v) R[k, c, j]` with
+/// 16 plane waves `φ_k` of wavelength 10–40 cm and `R` uniform; scaled so that `W x` has about
+/// unit spread for inputs in [−1, 1].
+fn smooth_weights(rng: &mut ChaCha8Rng, positions: &[Vector3<f64>], cols: usize) -> Vec<f32> {
+    const K: usize = 16;
+    let waves: Vec<(Vector3<f64>, f64)> = (0..K)
+        .map(|_| {
+            let dir = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            )
+            .try_normalize(1e-9)
+            .unwrap_or_else(Vector3::x);
+            let wavelength = rng.random_range(0.1..0.4);
+            (
+                dir * (std::f64::consts::TAU / wavelength),
+                rng.random_range(0.0..std::f64::consts::TAU),
+            )
+        })
+        .collect();
+    let amp = 3.0 / ((cols * K) as f32 / 2.0).sqrt();
+    let r = uniform(rng, K * 3 * cols, amp);
+    let mut w = vec![0.0f32; positions.len() * 3 * cols];
+    for (v, p) in positions.iter().enumerate() {
+        let phi: Vec<f32> = waves
+            .iter()
+            .map(|(k, phase)| (k.dot(p) + phase).sin() as f32)
+            .collect();
+        for c in 0..3 {
+            let row = &mut w[(3 * v + c) * cols..(3 * v + c + 1) * cols];
+            for (k, &f) in phi.iter().enumerate() {
+                let rk = &r[(k * 3 + c) * cols..(k * 3 + c + 1) * cols];
+                for (o, &x) in row.iter_mut().zip(rk) {
+                    *o += f * x;
+                }
+            }
+        }
+    }
+    w
+}
+
+fn mean_std(n: usize, std: f32) -> MeanStd {
+    MeanStd {
+        mean: vec![0.0; n],
+        std: vec![std; n],
+    }
+}
+
+/// A random model of the garment with the real input layout.
+fn model(
+    garment: &AssetId,
+    body: &AssetId,
+    positions: &[Vector3<f64>],
+    gru_hidden: usize,
+    output: OutputKind,
+    seed: u64,
+) -> anyhow::Result<GarmentModel> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let v = positions.len();
+    let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
+    let rot = feature_joints().len() * 6;
+    let sizes = ModelSizes {
+        n_vertices: v,
+        n_betas: N_BETAS,
+        n_pose_features: rot + root.len(),
+        fit_hidden: FIT_HIDDEN,
+        gru_hidden,
+        output,
+        linear_baseline: false,
+    };
+    let header = ModelHeader::new(
+        garment.clone(),
+        body.clone(),
+        sizes,
+        vec![
+            FeatureBlock {
+                name: "betas".into(),
+                offset: 0,
+                len: N_BETAS,
+                feature: Feature::Betas,
+            },
+            FeatureBlock {
+                name: "pose".into(),
+                offset: N_BETAS,
+                len: rot,
+                feature: Feature::JointRotations {
+                    encoding: RotationEncoding::Rot6d,
+                    joints: feature_joints(),
+                },
+            },
+            FeatureBlock {
+                name: "root".into(),
+                offset: N_BETAS + rot,
+                len: root.len(),
+                feature: Feature::Root { components: root },
+            },
+        ],
+    );
+    let (i, h, o3) = (sizes.wrinkle_inputs(), gru_hidden, 3 * v);
+    let a = 1.0 / (h as f32).sqrt();
+    let dense = |rng: &mut ChaCha8Rng, rows: usize, cols: usize| {
+        let a = 1.0 / (cols as f32).sqrt();
+        DenseWeights {
+            weight: uniform(rng, rows * cols, a),
+            bias: uniform(rng, rows, a),
+        }
+    };
+    let fit_hidden = dense(&mut rng, FIT_HIDDEN, N_BETAS);
+    let fit_out = DenseWeights {
+        weight: smooth_weights(&mut rng, positions, FIT_HIDDEN),
+        bias: vec![0.0; o3],
+    };
+    let gru = GruWeights {
+        weight_ih: uniform(&mut rng, 3 * h * i, a),
+        weight_hh: uniform(&mut rng, 3 * h * h, a),
+        bias_ih: uniform(&mut rng, 3 * h, a),
+        bias_hh: uniform(&mut rng, 3 * h, a),
+    };
+    let (wrinkle_out, pca) = match output {
+        OutputKind::Dense => (
+            DenseWeights {
+                weight: smooth_weights(&mut rng, positions, h),
+                bias: vec![0.0; o3],
+            },
+            None,
+        ),
+        OutputKind::Pca(k) => (
+            dense(&mut rng, k, h),
+            Some(PcaWeights {
+                basis: smooth_weights(&mut rng, positions, k),
+                mean: vec![0.0; o3],
+            }),
+        ),
+    };
+    let weights = ModelWeights {
+        fit_hidden,
+        fit_out,
+        gru,
+        wrinkle_out,
+        pca,
+        lr: None,
+        norm: NormStats {
+            fit_in: mean_std(N_BETAS, 1.0),
+            wrinkle_in: mean_std(i, 1.0),
+            fit_out: mean_std(o3, 0.002),
+            wrinkle_out: mean_std(o3, 0.005),
+        },
+    };
+    Ok(GarmentModel::new(header, weights)?)
+}
+
+/// CPU time of the calling thread, nanoseconds (Linux `schedstat`; `None` elsewhere). Unlike
+/// wall time it does not count the time other processes hold the core, so single-thread
+/// figures stay comparable on a loaded machine.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// Timings of `frames` frames after `warmup`, cycling through `poses`.
+struct Timing {
+    /// Wall time per frame, ms.
+    wall_ms: Vec<f64>,
+    /// Mean CPU time of the calling thread per frame, ms (meaningful for one thread only).
+    cpu_ms: Option<f64>,
+}
+
+fn time_frames(
+    avatar: &mut GarmentAnimator,
+    poses: &[Pose],
+    warmup: usize,
+    frames: usize,
+) -> anyhow::Result<Timing> {
+    avatar.reset();
+    let mut wall_ms = Vec::with_capacity(frames);
+    let mut cpu_start = None;
+    for t in 0..warmup + frames {
+        if t == warmup {
+            cpu_start = thread_cpu_ns();
+        }
+        let pose = &poses[t % poses.len()];
+        let start = Instant::now();
+        std::hint::black_box(avatar.frame(pose)?);
+        if t >= warmup {
+            wall_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let cpu_ms = match (cpu_start, thread_cpu_ns()) {
+        (Some(a), Some(b)) => Some((b - a) as f64 / 1e6 / frames.max(1) as f64),
+        _ => None,
+    };
+    Ok(Timing { wall_ms, cpu_ms })
+}
+
+fn median(times: &[f64]) -> f64 {
+    let mut s = times.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+fn mean(times: &[f64]) -> f64 {
+    times.iter().sum::<f64>() / times.len().max(1) as f64
+}
+
+/// The assets of one garment.
+struct Scene {
+    body: Arc<BodyModel>,
+    binding: Arc<GarmentBinding>,
+    positions: Vec<Vector3<f64>>,
+    garment_id: AssetId,
+    body_id: AssetId,
+    source: String,
+}
+
+fn scene(triangles: usize, body: &Arc<BodyModel>, body_id: &AssetId) -> anyhow::Result<Scene> {
+    let (mesh, source) = tshirt(triangles, body)?;
+    let garment_id = AssetId {
+        id: format!("tshirt-{triangles}"),
+        sha256: sha256_hex(sartor_body::obj_text(mesh.positions(), mesh.faces()).as_bytes()),
+    };
+    let binding = GarmentBinding::from_body(
+        garment_id.clone(),
+        mesh.positions(),
+        mesh.faces(),
+        body_id.clone(),
+        body,
+        REGION_MARGIN_M,
+        0.0,
+    )?;
+    Ok(Scene {
+        body: body.clone(),
+        binding: Arc::new(binding),
+        positions: mesh.positions().to_vec(),
+        garment_id,
+        body_id: body_id.clone(),
+        source,
+    })
+}
+
+fn avatar(
+    scene: &Scene,
+    network: &Arc<GarmentNetwork>,
+    options: AnimatorOptions,
+) -> anyhow::Result<GarmentAnimator> {
+    let rig = GarmentRig::new(
+        network.clone(),
+        scene.binding.clone(),
+        scene.body.clone(),
+        options,
+    )?;
+    let mut a = GarmentAnimator::new(Arc::new(rig))?;
+    a.set_shape(&BETAS)?;
+    Ok(a)
+}
+
+fn options(parallelism: Parallelism, collision: Option<CollisionOptions>) -> AnimatorOptions {
+    AnimatorOptions {
+        collision,
+        parallelism,
+        ..AnimatorOptions::default()
+    }
+}
+
+const PRECISIONS: [Precision; 3] = [Precision::F32, Precision::F16, Precision::Int8];
+
+/// Time one network at both thread counts, with and without the default post-process.
+fn runs(
+    scene: &Scene,
+    network: &Arc<GarmentNetwork>,
+    poses: &[Pose],
+    args: &BenchRuntimeArgs,
+    paper: Option<(f64, f64)>,
+) -> anyhow::Result<Vec<Run>> {
+    let threads_all = rayon::current_num_threads();
+    let mut out = Vec::new();
+    for (par, threads) in [
+        (Parallelism::Sequential, 1),
+        (Parallelism::Rayon, threads_all),
+    ] {
+        let mut plain = avatar(scene, network, options(par, None))?;
+        let mut pp = avatar(
+            scene,
+            network,
+            options(par, Some(CollisionOptions::default())),
+        )?;
+        let t = time_frames(&mut plain, poses, args.warmup, args.frames)?;
+        let t_pp = time_frames(&mut pp, poses, args.warmup, args.frames)?;
+        let (ms, ms_pp) = (median(&t.wall_ms), median(&t_pp.wall_ms));
+        let single = threads == 1;
+        let (cpu, cpu_pp) = (t.cpu_ms.filter(|_| single), t_pp.cpu_ms.filter(|_| single));
+        println!(
+            "  {:>4} {threads} thread(s): {ms:7.3} ms/frame, {ms_pp:7.3} with post-process \
+             (CPU {:.3} / {:.3})",
+            network.precision().name(),
+            cpu.unwrap_or(f64::NAN),
+            cpu_pp.unwrap_or(f64::NAN)
+        );
+        out.push(Run {
+            precision: network.precision().name(),
+            threads,
+            ms_per_frame: ms,
+            ms_per_frame_pp: ms_pp,
+            ms_per_frame_mean: mean(&t.wall_ms),
+            ms_per_frame_pp_mean: mean(&t_pp.wall_ms),
+            cpu_ms_per_frame: cpu,
+            cpu_ms_per_frame_pp: cpu_pp,
+            ratio_to_paper: paper.map(|p| ms / p.0),
+            ratio_to_paper_pp: paper.map(|p| ms_pp / p.1),
+            cpu_ratio_to_paper: paper.zip(cpu).map(|(p, c)| c / p.0),
+            cpu_ratio_to_paper_pp: paper.zip(cpu_pp).map(|(p, c)| c / p.1),
+        });
+    }
+    Ok(out)
+}
+
+/// BVH against candidate triangles at one garment size: time and misses over the clip.
+fn post_process(
+    scene: &Scene,
+    network: &Arc<GarmentNetwork>,
+    poses: &[Pose],
+    args: &BenchRuntimeArgs,
+) -> anyhow::Result<PostProcess> {
+    let par = Parallelism::Sequential;
+    let mut plain = avatar(scene, network, options(par, None))?;
+    let base = time_frames(&mut plain, poses, args.warmup, args.frames)?
+        .cpu_ms
+        .unwrap_or(f64::NAN);
+    let queries = [
+        (
+            "none: pose and refit the region only (passes 0)".to_string(),
+            CollisionQuery::EXACT_BVH,
+        ),
+        ("bvh exact".to_string(), CollisionQuery::EXACT_BVH),
+        (
+            "bvh r=3cm".to_string(),
+            CollisionQuery::Bvh { radius_m: 0.03 },
+        ),
+        (
+            "bvh r=1cm".to_string(),
+            CollisionQuery::Bvh { radius_m: 0.01 },
+        ),
+        (
+            "bvh band 5mm refresh 16".to_string(),
+            CollisionQuery::BvhBand {
+                band_m: 0.005,
+                refresh_every: 16,
+            },
+        ),
+        (
+            "bvh band 1cm refresh 8".to_string(),
+            CollisionQuery::BvhBand {
+                band_m: 0.01,
+                refresh_every: 8,
+            },
+        ),
+        (
+            "guarded candidates r=2cm k=8".to_string(),
+            CollisionQuery::GuardedCandidates {
+                radius_m: 0.02,
+                max_per_vertex: 8,
+            },
+        ),
+        (
+            "guarded candidates r=3cm k=16".to_string(),
+            CollisionQuery::GuardedCandidates {
+                radius_m: 0.03,
+                max_per_vertex: 16,
+            },
+        ),
+        (
+            "candidates r=2cm k=8".to_string(),
+            CollisionQuery::Candidates {
+                radius_m: 0.02,
+                max_per_vertex: 8,
+            },
+        ),
+        (
+            "candidates r=4cm k=32".to_string(),
+            CollisionQuery::Candidates {
+                radius_m: 0.04,
+                max_per_vertex: 32,
+            },
+        ),
+    ];
+    let collision = |query, passes| CollisionOptions {
+        query,
+        passes,
+        ..CollisionOptions::default()
+    };
+    // Collisions before the post-process (detect only), and the BVH's result per frame.
+    let mut detect = avatar(
+        scene,
+        network,
+        options(par, Some(collision(CollisionQuery::EXACT_BVH, 0))),
+    )?;
+    let mut bvh = avatar(
+        scene,
+        network,
+        options(par, Some(collision(CollisionQuery::EXACT_BVH, 2))),
+    )?;
+    let (mut inside_before, mut near_before) = (0, 0);
+    let mut reference = Vec::new();
+    for pose in poses.iter().take(args.frames) {
+        detect.frame(pose)?;
+        let c = detect.collision_count(1e-5).context("post-process on")?;
+        inside_before += c.inside;
+        near_before += c.within_margin;
+        reference.push(bvh.frame(pose)?.to_vec());
+    }
+    let mut results = Vec::new();
+    for (k, (name, query)) in queries.into_iter().enumerate() {
+        let passes = if k == 0 { 0 } else { 2 };
+        let mut timed = avatar(scene, network, options(par, Some(collision(query, passes))))?;
+        let ms = time_frames(&mut timed, poses, args.warmup, args.frames)?
+            .cpu_ms
+            .unwrap_or(f64::NAN);
+        let mut a = avatar(scene, network, options(par, Some(collision(query, passes))))?;
+        let (mut inside, mut near, mut differing) = (0, 0, 0);
+        for (pose, want) in poses.iter().take(args.frames).zip(&reference) {
+            let got = a.frame(pose)?;
+            differing += got
+                .iter()
+                .zip(want)
+                .filter(|(p, q)| (*p - *q).norm() > 1e-6)
+                .count();
+            let c = a.collision_count(1e-5).context("post-process on")?;
+            inside += c.inside;
+            near += c.within_margin;
+        }
+        println!(
+            "  post-process {name}: {ms:.3} ms/frame ({:.3} ms pp), inside after {inside}, \
+             within margin {near}, differing from the BVH {differing}",
+            ms - base
+        );
+        results.push(QueryResult {
+            query: name,
+            cpu_ms_per_frame_pp: ms,
+            cpu_ms_post_process: ms - base,
+            mean_candidates_per_vertex: a.mean_candidates().unwrap_or(0.0),
+            inside_after: inside,
+            within_margin_after: near,
+            differing_from_bvh: differing,
+        });
+    }
+    let n = poses.len().min(args.frames);
+    Ok(PostProcess {
+        triangles: scene.binding.faces().len(),
+        frames: n,
+        vertex_frames: n * scene.binding.n_vertices(),
+        inside_before,
+        within_margin_before: near_before,
+        queries: results,
+        default_query: format!("{:?}", CollisionOptions::default().query),
+    })
+}
+
+/// Reduced models at one garment size, int8, one thread.
+fn reduced(scene: &Scene, poses: &[Pose], args: &BenchRuntimeArgs) -> anyhow::Result<Vec<Reduced>> {
+    let mut out = Vec::new();
+    let variants = [
+        ("gru256-pca64", 256, OutputKind::Pca(64), None),
+        ("gru256-dense-rank64", 256, OutputKind::Dense, Some(64)),
+        (
+            "gru1500-dense-rank64",
+            args.gru_hidden,
+            OutputKind::Dense,
+            Some(64),
+        ),
+    ];
+    for (name, hidden, output, rank) in variants {
+        let m = model(
+            &scene.garment_id,
+            &scene.body_id,
+            &scene.positions,
+            hidden,
+            output,
+            11,
+        )?;
+        let start = Instant::now();
+        let network = Arc::new(GarmentNetwork::with_options(
+            m,
+            NetworkOptions {
+                precision: Precision::Int8,
+                output_rank: rank,
+            },
+        )?);
+        let load_s = start.elapsed().as_secs_f64();
+        let par = Parallelism::Sequential;
+        let mut plain = avatar(scene, &network, options(par, None))?;
+        let mut pp = avatar(
+            scene,
+            &network,
+            options(par, Some(CollisionOptions::default())),
+        )?;
+        let t = time_frames(&mut plain, poses, args.warmup, args.frames)?;
+        let t_pp = time_frames(&mut pp, poses, args.warmup, args.frames)?;
+        let (ms, ms_pp) = (median(&t.wall_ms), median(&t_pp.wall_ms));
+        let (cpu, cpu_pp) = (t.cpu_ms, t_pp.cpu_ms);
+        println!(
+            "  reduced {name} int8: {ms:.3} ms/frame, {ms_pp:.3} with post-process (CPU {:.3} / \
+             {:.3}; load {load_s:.2} s)",
+            cpu.unwrap_or(f64::NAN),
+            cpu_pp.unwrap_or(f64::NAN)
+        );
+        out.push(Reduced {
+            name: name.into(),
+            triangles: scene.binding.faces().len(),
+            gru_hidden: hidden,
+            output: match (output, rank) {
+                (OutputKind::Pca(k), _) => format!("pca {k}"),
+                (OutputKind::Dense, Some(r)) => format!("dense, truncated SVD rank {r}"),
+                (OutputKind::Dense, None) => "dense".into(),
+            },
+            precision: "int8",
+            threads: 1,
+            ms_per_frame: ms,
+            ms_per_frame_pp: ms_pp,
+            cpu_ms_per_frame: cpu,
+            cpu_ms_per_frame_pp: cpu_pp,
+            wrinkle_mb: network.wrinkle_weight_bytes() as f64 / 1e6,
+            load_s,
+        });
+    }
+    Ok(out)
+}
+
+/// Run the benchmark and write the report.
+pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let load_average_start = load_average();
+    let body_dir = sartor_body::builtin_model_dir();
+    let body = Arc::new(BodyModel::load(&body_dir)?);
+    let body_id = AssetId {
+        id: body.name().to_string(),
+        sha256: sha256_hex(&read_file(&body_dir.join(MODEL_HEADER))?),
+    };
+    let motion = sartor_body::procedural::clip(&args.clip)?;
+    let poses = motion.frames().to_vec();
+    let mut garments = Vec::new();
+    let mut post = None;
+    let mut reduced_models = Vec::new();
+    let mut model_sizes = None;
+    for &triangles in &args.triangles {
+        let t = Instant::now();
+        let scene = scene(triangles, &body, &body_id)?;
+        let m = model(
+            &scene.garment_id,
+            &scene.body_id,
+            &scene.positions,
+            args.gru_hidden,
+            OutputKind::Dense,
+            7,
+        )?;
+        model_sizes = Some(m.header().sizes);
+        println!(
+            "tshirt-{triangles}: {} vertices, {} region faces (set up in {:.1} s)",
+            scene.positions.len(),
+            scene.binding.region_faces().len(),
+            t.elapsed().as_secs_f64()
+        );
+        let paper = PAPER.iter().find(|p| p.0 == triangles).map(|p| (p.1, p.2));
+        let mut memory = Vec::new();
+        let mut runs_all = Vec::new();
+        for precision in PRECISIONS {
+            let network = Arc::new(GarmentNetwork::new(m.clone(), precision)?);
+            memory.push(Memory {
+                precision: precision.name(),
+                fit_mb: network.fit_weight_bytes() as f64 / 1e6,
+                wrinkle_mb: network.wrinkle_weight_bytes() as f64 / 1e6,
+            });
+            runs_all.extend(runs(&scene, &network, &poses, args, paper)?);
+            if triangles == args.reference_triangles && precision == Precision::Int8 {
+                post = Some(post_process(&scene, &network, &poses, args)?);
+            }
+        }
+        if triangles == args.reference_triangles {
+            reduced_models = reduced(&scene, &poses, args)?;
+        }
+        let region = sartor_runtime::BodyRegion::new(&body, scene.binding.region_faces())?;
+        garments.push(GarmentResult {
+            triangles: scene.binding.faces().len(),
+            vertices: scene.positions.len(),
+            source: scene.source.clone(),
+            region_faces: region.faces().len(),
+            region_vertices: region.vertices().len(),
+            paper: paper.map(|(a, b)| Paper {
+                ms_per_frame: a,
+                ms_per_frame_pp: b,
+                device: "NVIDIA Titan X + Intel i7 (Santesteban et al. 2019, Table 1)",
+            }),
+            memory,
+            runs: runs_all,
+        });
+    }
+    let report = Report {
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        machine: Machine::current(),
+        instruction_set: instruction_set(),
+        threads_all: rayon::current_num_threads(),
+        load_average_start,
+        load_average_end: load_average(),
+        clip: args.clip.clone(),
+        warmup_frames: args.warmup,
+        timed_frames: args.frames,
+        model: model_sizes.context("no garment size given")?,
+        garments,
+        post_process: post,
+        reduced: reduced_models,
+        notes: vec![
+            "ms_per_frame is the median over the timed frames of one avatar's whole frame: pose \
+             features, GRU step and output layer, T̄_c + Δ_G + Δ_L, skinning with W_c, and (for \
+             ms_per_frame_pp) posing the body region and the collision post-process (2 mm \
+             margin, default query, 2 passes).",
+            "Weights are random (timing only). memory is in MB of 10^6 bytes; wrinkle_mb is \
+             the GRU plus the output layer (the paper's 'GRU' figure).",
+            "The paper's figures are on an NVIDIA Titan X GPU; ours on the CPU listed.",
+        ],
+        wall_time_s: start.elapsed().as_secs_f64(),
+    };
+    let mut json = serde_json::to_string_pretty(&report)?;
+    json.push('\n');
+    write_atomic(&args.out, json.as_bytes())?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
