@@ -28,7 +28,7 @@ use sartor_runtime::{
 };
 use serde::Serialize;
 
-use crate::garment::Machine;
+use crate::machine::Machine;
 
 /// Arguments of `bench runtime`.
 #[derive(clap::Args, Debug)]

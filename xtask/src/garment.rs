@@ -1,6 +1,7 @@
 //! `cargo xtask garment --config configs/garments/<name>.json [--out datasets/garments/<name>]`:
-//! build a garment template (procedural T-shirt or user OBJ) on the template body, save it
-//! (`garment.safetensors`, `garment.json`, `garment.obj`) and write `garment-report.json`.
+//! build a garment template (procedural T-shirt or user OBJ) on the template body, relax it on
+//! the body with the simulator (unless `--no-relax`), save it (`garment.safetensors`,
+//! `garment.json`, `garment.obj`) and write `garment-report.json`.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -8,8 +9,13 @@ use std::time::Instant;
 use anyhow::Context;
 use sartor_body::io::{read_file, sha256_hex, write_atomic};
 use sartor_body::{BodyModel, MODEL_HEADER, MeshProximity};
-use sartor_cloth::{GARMENT_REPORT, GarmentConfig, GarmentReport, build_garment};
+use sartor_cloth::{
+    GARMENT_REPORT, GarmentConfig, GarmentReport, Material, RelaxConfig, RelaxReport,
+    build_garment, relax_on_body,
+};
 use serde::Serialize;
+
+use crate::machine::Machine;
 
 /// Arguments of `garment`.
 #[derive(clap::Args, Debug)]
@@ -23,38 +29,19 @@ pub struct GarmentArgs {
     /// Body model folder (default: the config's `body`, else the built-in body).
     #[arg(long)]
     pub body: Option<PathBuf>,
-}
-
-/// The machine a report was made on.
-#[derive(Serialize)]
-pub(crate) struct Machine {
-    cores: usize,
-    cpu_model: String,
-}
-
-impl Machine {
-    /// Cores and CPU model of this machine.
-    pub(crate) fn current() -> Self {
-        let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
-            .ok()
-            .and_then(|s| {
-                s.lines()
-                    .find(|l| l.starts_with("model name"))
-                    .and_then(|l| l.split(':').nth(1))
-                    .map(|m| m.trim().to_string())
-            })
-            .unwrap_or_else(|| "unknown".into());
-        Self {
-            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
-            cpu_model,
-        }
-    }
+    /// Save the garment as cut, without relaxing it on the body.
+    #[arg(long)]
+    pub no_relax: bool,
+    /// Cloth material for the relaxation (ARCSim JSON; default: gray interlock).
+    #[arg(long)]
+    pub material: Option<PathBuf>,
 }
 
 #[derive(Serialize)]
 struct Timings {
     load_body_s: f64,
     build_s: f64,
+    relax_s: f64,
     save_s: f64,
     report_s: f64,
 }
@@ -68,6 +55,7 @@ struct ReportFile<'a> {
     config_sha256: String,
     body_dir: String,
     relaxed_on_body: bool,
+    relaxation: Option<RelaxReport>,
     wall_time_s: f64,
     timings: Timings,
     machine: Machine,
@@ -102,13 +90,22 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         Some(body_header_sha256),
     )
     .with_context(|| format!("building the garment of {}", args.config.display()))?;
-    let garment = build.garment;
-    // Relaxation on the template body goes here, once the simulator's body collider exists:
-    // let garment = garment.with_template_positions(relax_on_body(&garment, &body)?)?;
-    // (it keeps the rest metric and replaces the template positions; set
-    // `relaxed_on_body` below accordingly).
-    let relaxed_on_body = false;
     let build_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let (garment, relaxation) = if args.no_relax {
+        (build.garment, None)
+    } else {
+        let material = match &args.material {
+            Some(path) => Material::from_json_file(path)?,
+            None => Material::gray_interlock(),
+        };
+        let (garment, report) =
+            relax_on_body(&build.garment, &body, &material, &RelaxConfig::default())
+                .with_context(|| format!("relaxing {} on the body", config.name()))?;
+        (garment, Some(report))
+    };
+    let relax_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
     garment
@@ -125,12 +122,14 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         tshirt: build.tshirt.as_ref(),
         config_path: args.config.display().to_string(),
         config_sha256: sha256_hex(&config_bytes),
-        body_dir: body_dir.display().to_string(),
-        relaxed_on_body,
+        body_dir: crate::workspace_relative(&body_dir),
+        relaxed_on_body: relaxation.is_some(),
+        relaxation: relaxation.clone(),
         wall_time_s: start.elapsed().as_secs_f64(),
         timings: Timings {
             load_body_s,
             build_s,
+            relax_s,
             save_s,
             report_s,
         },
@@ -154,6 +153,16 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         m.edge_length.p50_mm,
         m.edge_length.p95_mm
     );
+    if let Some(r) = &relaxation {
+        println!(
+            "relaxed on the body in {} frames ({relax_s:.1} s): largest speed {:.2} mm/s, \
+             closest to the body {:.1} mm, moved {:.1} mm on average",
+            r.frames,
+            r.max_speed_m_per_s * 1e3,
+            r.min_signed_distance_mm,
+            r.mean_displacement_mm
+        );
+    }
     if let Some(fit) = &report.body {
         println!(
             "ease min/mean/max {:.1}/{:.1}/{:.1} mm, {} vertices inside the body; built in {build_s:.2} s",

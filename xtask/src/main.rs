@@ -1,12 +1,16 @@
 //! `cargo xtask <command>`: sartor's command line. Each subcommand parses its arguments, calls
 //! one library function and prints or writes a report.
 
+use std::path::{Path, PathBuf};
+
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod bench_runtime;
 mod body;
 mod garment;
 mod import_body;
+mod machine;
 mod motions;
 
 #[derive(Parser)]
@@ -26,19 +30,9 @@ enum Command {
     ImportMotion(motions::ImportMotionArgs),
     /// Build a garment template (procedural T-shirt or user OBJ) into datasets/garments/<name>.
     Garment(garment::GarmentArgs),
-    /// Benchmarks that write bench-<name>.json.
-    Bench {
-        /// Which benchmark.
-        #[command(subcommand)]
-        which: BenchCommand,
-    },
-}
-
-/// The benchmarks of `cargo xtask bench`.
-#[derive(Subcommand)]
-enum BenchCommand {
-    /// The runtime against the paper's Table 1 (bench-runtime.json).
-    Runtime(bench_runtime::BenchRuntimeArgs),
+    /// Benchmarks that write JSON reports (`bench sim`: the cloth simulator per garment size;
+    /// `bench runtime`: the runtime against the paper's Table 1).
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -48,8 +42,23 @@ fn main() -> anyhow::Result<()> {
         Command::Body(args) => body::body(&args),
         Command::ImportMotion(args) => motions::import_motion(&args),
         Command::Garment(args) => garment::garment(&args),
-        Command::Bench { which } => match which {
-            BenchCommand::Runtime(args) => bench_runtime::bench_runtime(&args),
-        },
+        Command::Bench(args) => bench::bench(&args),
+    }
+}
+
+/// The workspace root (this crate's parent folder).
+pub(crate) fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// `path` relative to the workspace root when it lies inside it (so reports do not depend on
+/// where the checkout is), else as given.
+pub(crate) fn workspace_relative(path: &Path) -> String {
+    match (path.canonicalize(), workspace_root().canonicalize()) {
+        (Ok(p), Ok(r)) => p.strip_prefix(&r).map_or_else(
+            |_| path.display().to_string(),
+            |rel| rel.display().to_string(),
+        ),
+        _ => path.display().to_string(),
     }
 }

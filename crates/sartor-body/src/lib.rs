@@ -14,6 +14,8 @@
 //!   MakeHuman walk ([`import_walk_cycle`]), CMU-style BVH ([`Bvh`], [`retarget_bvh`]) and
 //!   AMASS-style `.npz` ([`load_amass`]), retargeted by world orientation onto a
 //!   [`RetargetBody`]; [`load_motion`] picks one from a command-line spec.
+//! - With the `mcap` feature: [`McapWriter`] / [`read_mcap`], deterministic MCAP files with
+//!   `foxglove.SceneUpdate` triangle-list previews (opens in Foxglove).
 //!
 //! ```
 //! use sartor_body::{Pose, Skeleton, SkinWeights, BoneTransform, Par, skin_points, unskin_points};
@@ -41,6 +43,8 @@ mod error;
 mod features;
 pub mod io;
 mod makehuman;
+#[cfg(feature = "mcap")]
+mod mcap_file;
 mod mesh;
 mod model;
 mod motion;
@@ -72,6 +76,11 @@ pub use makehuman::{
     JointReport, MeshReport, PcaReport, SAMPLE_RANGES, ShapeSpaceReport, SkinWeightReport,
     TPOSE_FILE, TPoseReport, TopKReport, blender_euler_xyz, builtin_model_dir, import_makehuman,
     load_builtin, load_tpose,
+};
+#[cfg(feature = "mcap")]
+pub use mcap_file::{
+    McapContents, McapMessage, McapWriter, OwnedSceneMesh, SCENE_FRAME_ID, SCENE_UPDATE_SCHEMA,
+    SceneMesh, decode_scene, read_mcap,
 };
 pub use mesh::{Hinge, MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};

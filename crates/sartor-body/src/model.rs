@@ -286,9 +286,17 @@ impl BodyModel {
         Ok(hi - lo)
     }
 
-    /// Save into `dir` as `model.safetensors` + `model.json`, atomically and deterministically
-    /// (values stored as f32; the same model gives the same bytes).
-    pub fn save(&self, dir: &Path) -> Result<()> {
+    /// SHA-256 (lower-case hex) of the model's tensor file as [`Self::save`] would write it
+    /// now: identifies the body in the outputs made with it (deterministic for a given model
+    /// file). It is the `tensors_sha256` of the `model.json` written with it; a model *loaded*
+    /// from a file may hash differently from that file, because loading renormalises the skin
+    /// weights (not bit-idempotent in f32).
+    pub fn content_sha256(&self) -> Result<String> {
+        Ok(sha256_hex(&self.tensor_bytes()?))
+    }
+
+    /// The bytes of `model.safetensors` (deterministic).
+    fn tensor_bytes(&self) -> Result<Vec<u8>> {
         let (v, j, nb) = (self.n_vertices(), self.skeleton.n_joints(), self.n_betas);
         let f32s = |xs: &[f64]| xs.iter().map(|&x| x as f32).collect::<Vec<_>>();
         let flat = |ps: &[Vector3<f64>]| {
@@ -333,7 +341,14 @@ impl BodyModel {
             "skin_weights".to_string(),
             OwnedTensor::f32(&[weights.len()], weights.iter().copied()),
         );
-        let bytes = serialize_tensors(&tensors, None)?;
+        serialize_tensors(&tensors, None)
+    }
+
+    /// Save into `dir` as `model.safetensors` + `model.json`, atomically and deterministically
+    /// (values stored as f32; the same model gives the same bytes).
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        let (v, nb) = (self.n_vertices(), self.n_betas);
+        let bytes = self.tensor_bytes()?;
         let header = Header {
             format: FORMAT.into(),
             version: 1,

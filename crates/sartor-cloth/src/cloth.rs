@@ -5,6 +5,7 @@ use nalgebra::Vector3;
 use sartor_body::{MeshTopology, TriMesh};
 
 use crate::energy::{BendingRest, MembraneRest, dihedral_angle};
+use crate::garment::Garment;
 use crate::material::Material;
 use crate::{Error, Result};
 
@@ -117,16 +118,7 @@ impl Cloth {
             });
         }
 
-        let mut area_m2 = vec![0.0; rest.n_vertices()];
-        for (t, m) in faces.iter().zip(&membranes) {
-            for &v in t {
-                area_m2[v as usize] += m.area_m2 / 3.0;
-            }
-        }
-        let mass_kg = area_m2
-            .iter()
-            .map(|a| a * material.density_kg_per_m2())
-            .collect();
+        let (area_m2, mass_kg) = lumped_areas_and_masses(&rest, &membranes, &material);
         Ok(Self {
             u_axes: frames.iter().map(|(u, _)| *u).collect(),
             rest,
@@ -139,7 +131,101 @@ impl Cloth {
         })
     }
 
-    /// The rest mesh.
+    /// A cloth made of a garment template: it starts at the template positions, with the
+    /// garment's own rest metric — rest edge matrices and areas, material frames, rest dihedral
+    /// angles — which for a template relaxed on the body (or a sewing pattern) differs from the
+    /// template shape. [`Cloth::new`] would instead take the template shape itself as the rest
+    /// state.
+    pub fn from_garment(garment: &Garment, material: Material) -> Result<Self> {
+        let rest = garment.mesh().clone();
+        let topology = rest.topology();
+        let faces = rest.faces();
+        let membranes: Vec<MembraneRest> = garment
+            .rest_dm()
+            .iter()
+            .zip(garment.rest_area_m2())
+            .enumerate()
+            .map(|(f, (dm, &area_m2))| {
+                dm.try_inverse()
+                    .filter(|inv| inv.iter().all(|v| v.is_finite()) && area_m2 > 0.0)
+                    .map(|inv_dm| MembraneRest { inv_dm, area_m2 })
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            "garment",
+                            format!("triangle {f} has a degenerate rest shape"),
+                        )
+                    })
+            })
+            .collect::<Result<_>>()?;
+        let hinges_in = topology.hinges();
+        if hinges_in.len() != garment.hinges().len() {
+            return Err(Error::invalid(
+                "garment",
+                format!(
+                    "{} hinges stored for {} interior edges",
+                    garment.hinges().len(),
+                    hinges_in.len()
+                ),
+            ));
+        }
+        let mut hinges = Vec::with_capacity(hinges_in.len());
+        for (i, (hinge, &rest_angle_rad)) in hinges_in
+            .iter()
+            .zip(garment.rest_dihedral_rad())
+            .enumerate()
+        {
+            let vertices = hinge.vertices;
+            if vertices != garment.hinges()[i] {
+                return Err(Error::invalid(
+                    "garment",
+                    format!("hinge {i} does not match the mesh's interior edge"),
+                ));
+            }
+            let [fa, fb] = hinge.faces.map(|f| f as usize);
+            // The edge x0 → x1 in each face's rest (u, v) coordinates: corner k of face f sits
+            // at 0, Dm[:, 0], Dm[:, 1].
+            let angle_in = |f: usize| -> Result<f64> {
+                let t = faces[f];
+                let dm = garment.rest_dm()[f];
+                let corner = |v: u32| {
+                    t.iter().position(|&c| c == v).map(|k| match k {
+                        0 => nalgebra::Vector2::zeros(),
+                        _ => dm.column(k - 1).into_owned(),
+                    })
+                };
+                match (corner(vertices[0]), corner(vertices[1])) {
+                    (Some(a), Some(b)) => {
+                        let e = b - a;
+                        Ok(e.y.atan2(e.x))
+                    }
+                    _ => Err(Error::invalid(
+                        "garment",
+                        format!("hinge {i}: its edge is not in face {f}"),
+                    )),
+                }
+            };
+            hinges.push(BendingRest {
+                vertices,
+                rest_angle_rad,
+                area_sum_m2: membranes[fa].area_m2 + membranes[fb].area_m2,
+                edge_angle_rad: [angle_in(fa)?, angle_in(fb)?],
+            });
+        }
+        let (area_m2, mass_kg) = lumped_areas_and_masses(&rest, &membranes, &material);
+        Ok(Self {
+            u_axes: garment.frame_u().to_vec(),
+            rest,
+            topology,
+            material,
+            membranes,
+            hinges,
+            mass_kg,
+            area_m2,
+        })
+    }
+
+    /// The mesh the simulation starts from: the rest shape for [`Cloth::new`], the garment
+    /// template for [`Cloth::from_garment`] (faces and topology are the same either way).
     pub fn rest_mesh(&self) -> &TriMesh {
         &self.rest
     }
@@ -193,6 +279,26 @@ impl Cloth {
     pub fn total_mass_kg(&self) -> f64 {
         self.mass_kg.iter().sum()
     }
+}
+
+/// Per vertex, a third of the rest area of each adjacent triangle, and that area times the
+/// material's density.
+fn lumped_areas_and_masses(
+    mesh: &TriMesh,
+    membranes: &[MembraneRest],
+    material: &Material,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut area_m2 = vec![0.0; mesh.n_vertices()];
+    for (t, m) in mesh.faces().iter().zip(membranes) {
+        for &v in t {
+            area_m2[v as usize] += m.area_m2 / 3.0;
+        }
+    }
+    let mass_kg = area_m2
+        .iter()
+        .map(|a| a * material.density_kg_per_m2())
+        .collect();
+    (area_m2, mass_kg)
 }
 
 /// A rectangular sheet of `nu × nv` quads split into triangles with alternating diagonals:

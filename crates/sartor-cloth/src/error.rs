@@ -38,6 +38,37 @@ pub enum StepFailure {
     },
 }
 
+/// Why a simulated sequence (or a frame of it) was rejected.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SequenceFailure {
+    /// A substep failed (NaN, energy blow-up, solver failure).
+    #[error("{0}")]
+    Step(StepFailure),
+    /// After a frame, a cloth vertex was deeper inside the body than the tolerance.
+    #[error(
+        "cloth vertex {vertex} is {depth_mm:.2} mm inside the body (tolerance {tolerance_mm:.2} mm)"
+    )]
+    Penetration {
+        /// The vertex.
+        vertex: usize,
+        /// How deep, mm.
+        depth_mm: f64,
+        /// The tolerance, mm.
+        tolerance_mm: f64,
+    },
+    /// A cloth vertex came within the contact thickness of a body triangle that was left out
+    /// of the contact region (the region was too small).
+    #[error(
+        "cloth vertex {vertex} came within {distance_mm:.2} mm of a body triangle outside the contact region"
+    )]
+    OutsideRegion {
+        /// The vertex.
+        vertex: usize,
+        /// Its distance to the excluded triangle, mm.
+        distance_mm: f64,
+    },
+}
+
 /// Everything that can go wrong in `sartor-cloth`. Each variant names the file (when there is
 /// one) and the fault.
 #[derive(Debug, thiserror::Error)]
@@ -73,6 +104,19 @@ pub enum Error {
     /// A simulation step was rejected; the state is unchanged.
     #[error("simulation step failed: {0}")]
     Step(#[from] StepFailure),
+    /// A sequence could not be simulated, even with the retries the config allows; nothing was
+    /// written.
+    #[error("{sequence}: failed at frame {frame} after {attempts} attempts: {reason}")]
+    SequenceFailed {
+        /// Which sequence (garment, shape, motion).
+        sequence: String,
+        /// The frame (0-based, in the sequence's frames) that failed last.
+        frame: usize,
+        /// Attempts made at that frame.
+        attempts: usize,
+        /// Why.
+        reason: SequenceFailure,
+    },
 }
 
 /// `Result` with [`Error`].

@@ -16,7 +16,11 @@
 //! - [`Garment`]: garment templates with their rest metric and file format, made by
 //!   [`build_garment`] from a config: the procedural T-shirt ([`build_tshirt`]) or a user OBJ
 //!   ([`import_obj_garment`]); isotropic remeshing to an exact triangle count
-//!   ([`remesh_to_count`]).
+//!   ([`remesh_to_count`]); [`relax_on_body`] lets a template come to rest on the body.
+//! - [`simulate_sequence`]: the simulator driven by a moving body through the paper's protocol
+//!   (blend shape and pose from rest, settle, play the motion) with failure detection and
+//!   retries ([`DriveConfig`]); its result, a [`ClothSequence`], is one MCAP file per (shape,
+//!   motion) with a Foxglove preview ([`ClothSequence::write`], [`ClothSequence::read`]).
 //!
 //! ```
 //! use nalgebra::Vector3;
@@ -42,20 +46,28 @@
 
 #![warn(missing_docs)]
 
+mod benchmark;
 mod cloth;
 mod collider;
+mod drive;
 pub mod energy;
 mod error;
 mod garment;
 mod linsolve;
 mod material;
 mod mesh_collider;
+mod relax;
 mod self_collision;
+mod sequence;
 mod solver;
 
+pub use benchmark::{SequenceBenchmark, benchmark_sequence};
 pub use cloth::{Cloth, rectangle_sheet};
 pub use collider::{Collider, Contact, Plane, Sphere};
-pub use error::{Error, Result, StepFailure};
+pub use drive::{
+    DriveConfig, PreviewConfig, RegionConfig, RetryConfig, contact_region, simulate_sequence,
+};
+pub use error::{Error, Result, SequenceFailure, StepFailure};
 pub use garment::{
     BodyFit, GARMENT_HEADER, GARMENT_OBJ, GARMENT_REPORT, GARMENT_TENSORS, Garment, GarmentBuild,
     GarmentConfig, GarmentProvenance, GarmentReport, LengthStatsMm, MATERIAL_FRAME_CONVENTION,
@@ -71,5 +83,11 @@ pub use material::{
     StrainStiffness, StretchingTable, StvkMembrane, TabulatedMembrane,
 };
 pub use mesh_collider::MeshCollider;
+pub use relax::{RelaxConfig, RelaxReport, relax_on_body};
 pub use sartor_body::Par;
+pub use sequence::{
+    BodyId, ClothSequence, FrameInfo, GarmentId, MotionId, Phase, PreviewFrame, RegionStats,
+    SEQUENCE_FORMAT, SEQUENCE_METADATA, SequenceFrame, SequenceHeader, SequencePreview,
+    SequenceTiming, SolverTotals, SubstepStats,
+};
 pub use solver::{EnergyReport, SimConfig, Simulator, StepStats};

@@ -396,6 +396,13 @@ impl Garment {
         &self.provenance
     }
 
+    /// SHA-256 (lower-case hex) of the garment's tensor file as [`Garment::save`] writes it
+    /// (the `tensors_sha256` of its `garment.json`): identifies the garment in the outputs
+    /// made with it.
+    pub fn content_sha256(&self) -> Result<String> {
+        Ok(sha256_hex(&self.tensors()?))
+    }
+
     fn tensors(&self) -> Result<Vec<u8>> {
         let (n_v, n_f, n_h) = (
             self.mesh.n_vertices(),

@@ -2,6 +2,7 @@
 
 mod common;
 mod contact;
+mod drive;
 mod dynamics;
 mod failure;
 mod finite_difference;

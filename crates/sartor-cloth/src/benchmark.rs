@@ -1,0 +1,116 @@
+//! Timing the driver on a motion: the figures of `cargo xtask bench sim`.
+
+use std::time::Instant;
+
+use sartor_body::{BodyModel, Motion};
+use serde::{Deserialize, Serialize};
+
+use crate::Result;
+use crate::drive::{DriveConfig, simulate_sequence};
+use crate::garment::Garment;
+use crate::material::Material;
+use crate::sequence::Phase;
+
+/// What [`benchmark_sequence`] measured. Times are wall-clock (noisy on a shared machine);
+/// iteration and contact counts are deterministic.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SequenceBenchmark {
+    /// Motion frames timed.
+    pub frames_timed: usize,
+    /// Mean wall time of a motion frame, ms.
+    pub ms_per_frame: f64,
+    /// Slowest motion frame, ms.
+    pub max_ms_per_frame: f64,
+    /// Frames simulated in all (blend and rest included).
+    pub frames_total: usize,
+    /// Substeps over all frames.
+    pub substeps_total: usize,
+    /// Frames that needed a retry with more substeps.
+    pub retried_frames: usize,
+    /// Newton iterations per substep (all frames).
+    pub newton_iterations_per_substep: f64,
+    /// CG iterations per substep (0 with Cholesky).
+    pub linear_iterations_per_substep: f64,
+    /// Vertex–body contacts per substep.
+    pub obstacle_contacts_per_substep: f64,
+    /// Self-contact pairs per substep.
+    pub self_contacts_per_substep: f64,
+    /// Vertices moved by the projection fallback, over all substeps.
+    pub projected_vertices: usize,
+    /// Body triangles in the contact region.
+    pub body_faces_kept: usize,
+    /// Split of the wall time per frame (all frames), ms: assembly.
+    pub assemble_ms_per_frame: f64,
+    /// Linear solves, ms per frame.
+    pub solve_ms_per_frame: f64,
+    /// Contact queries and self-collision detection, ms per frame.
+    pub collision_ms_per_frame: f64,
+    /// Posing the body and refitting the collider, ms per frame.
+    pub body_ms_per_frame: f64,
+    /// End-of-frame checks, ms per frame.
+    pub check_ms_per_frame: f64,
+    /// Region selection (once per sequence), ms.
+    pub region_ms: f64,
+}
+
+/// Simulate `garment` on the body at rest shape through `motion` with `config` and time every
+/// frame: the mean over the motion's frames (blend and rest frames are simulated, not timed),
+/// the split of the time and the solver's statistics.
+pub fn benchmark_sequence(
+    body: &BodyModel,
+    garment: &Garment,
+    material: &Material,
+    motion: &Motion,
+    config: &DriveConfig,
+) -> Result<SequenceBenchmark> {
+    let betas = vec![0.0; body.n_betas()];
+    let mut stamps =
+        Vec::with_capacity(motion.n_frames() + config.blend_frames + config.rest_frames);
+    let start = Instant::now();
+    let sequence = simulate_sequence(
+        body,
+        garment,
+        material,
+        &betas,
+        Some(motion),
+        config,
+        &mut |done, _| {
+            // A region restart starts again from frame 0: keep the last run's times.
+            stamps.truncate(done - 1);
+            stamps.push(start.elapsed().as_secs_f64());
+        },
+    )?;
+    let first_motion = sequence
+        .frames
+        .iter()
+        .position(|f| f.phase == Phase::Motion)
+        .unwrap_or(sequence.frames.len());
+    let frame_ms: Vec<f64> = (first_motion..stamps.len())
+        .map(|i| (stamps[i] - if i == 0 { 0.0 } else { stamps[i - 1] }) * 1e3)
+        .collect();
+    let h = &sequence.header;
+    let substeps = h.substeps.total.max(1) as f64;
+    let n_frames = sequence.frames.len().max(1) as f64;
+    let timing = sequence.timing.unwrap_or_default();
+    let per_frame = |secs: f64| secs * 1e3 / n_frames;
+    Ok(SequenceBenchmark {
+        frames_timed: frame_ms.len(),
+        ms_per_frame: frame_ms.iter().sum::<f64>() / frame_ms.len().max(1) as f64,
+        max_ms_per_frame: frame_ms.iter().copied().fold(0.0, f64::max),
+        frames_total: sequence.frames.len(),
+        substeps_total: h.substeps.total,
+        retried_frames: h.substeps.retried_frames,
+        newton_iterations_per_substep: h.solver.newton_iterations as f64 / substeps,
+        linear_iterations_per_substep: h.solver.linear_iterations as f64 / substeps,
+        obstacle_contacts_per_substep: h.solver.obstacle_contacts as f64 / substeps,
+        self_contacts_per_substep: h.solver.self_contacts as f64 / substeps,
+        projected_vertices: h.solver.projected_vertices,
+        body_faces_kept: h.region.faces_kept,
+        assemble_ms_per_frame: per_frame(timing.assemble_secs),
+        solve_ms_per_frame: per_frame(timing.solve_secs),
+        collision_ms_per_frame: per_frame(timing.collision_secs),
+        body_ms_per_frame: per_frame(timing.body_secs),
+        check_ms_per_frame: per_frame(timing.check_secs),
+        region_ms: timing.region_secs * 1e3,
+    })
+}

@@ -1,0 +1,1119 @@
+//! Driving the simulator with a moving body: the paper's protocol for one (shape, motion)
+//! sequence.
+//!
+//! # Protocol
+//!
+//! The cloth starts from the garment template at rest, on the body in its rest state (β = 0,
+//! rest pose: the state the template was relaxed in). Then, one frame at a time:
+//!
+//! 1. **Blend** (N = [`DriveConfig::blend_frames`] frames): shape and pose go from the rest
+//!    state to (β, the motion's first pose), eased (cubic smoothstep, as
+//!    [`sartor_body::Motion::blended_from_rest`]).
+//! 2. **Rest** (M = [`DriveConfig::rest_frames`] frames): the first pose is held while the cloth
+//!    settles.
+//! 3. **Motion**: one frame per motion frame (its first frame is the held pose).
+//!
+//! Without a motion (the rest-pose simulation of the garment fit Δ_G) only β is blended, in the
+//! rest pose; the last frame is `S_c(β, 0)`.
+//!
+//! If the motion's first frame is away from the origin, the rest state is moved rigidly to its
+//! root position and heading (cloth included), which changes nothing physically: gravity is
+//! vertical and the simulation is invariant under such moves.
+//!
+//! # Body
+//!
+//! The posed body is computed once per frame with sartor-body's skinning and linearly
+//! interpolated for every substep; the collider ([`MeshCollider::move_to`]) is refitted every
+//! substep, its velocities (for friction) are the interpolation's.
+//!
+//! Only the body region near the garment takes part ([`RegionConfig`]): the garment template is
+//! carried along with the body — shaped by the shape displacement of its closest body point and
+//! skinned with skin weights transferred from the body ([`sartor_body::transfer_skin_weights`])
+//! — through every frame, and body triangles with a vertex within [`RegionConfig::margin_m`] of
+//! it in any frame ([`sartor_body::faces_near`]) are kept. After every frame the cloth is
+//! checked against the excluded triangles: a vertex within the contact thickness of one means
+//! the region was too small, and the sequence restarts with a doubled margin.
+//!
+//! # Failures
+//!
+//! A frame fails on a [`StepFailure`] (NaN, energy blow-up, solver non-convergence) or when a
+//! cloth vertex ends it more than [`DriveConfig::penetration_tolerance_m`] inside the body
+//! region. The frame is then redone from its start with [`RetryConfig::substep_factor`] times
+//! more substeps, up to [`RetryConfig::max_frame_retries`] times; the following frames go back
+//! to the configured substeps. A frame that still fails fails the sequence
+//! ([`Error::SequenceFailed`]); nothing is written.
+//!
+//! # Determinism
+//!
+//! With [`SimConfig::parallelism`] = [`Par::Seq`] (the default; callers parallelise across
+//! sequences) the same inputs give bit-identical outputs, retries included: a retry restarts
+//! from the saved state of the frame and depends on nothing else.
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use sartor_body::io::sha256_hex;
+use sartor_body::{
+    BodyModel, BoneTransform, MeshProximity, Motion, Par, Pose, faces_near, interpolate_pose,
+    skin_points, split_heading, transfer_skin_weights,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::cloth::Cloth;
+use crate::collider::Collider;
+use crate::error::SequenceFailure;
+use crate::garment::Garment;
+use crate::material::Material;
+use crate::mesh_collider::MeshCollider;
+use crate::sequence::{
+    BodyId, ClothSequence, GarmentId, MotionId, Phase, PreviewFrame, RegionStats, SEQUENCE_FORMAT,
+    SequenceFrame, SequenceHeader, SequencePreview, SequenceTiming, SolverTotals, SubstepStats,
+};
+use crate::solver::{SimConfig, Simulator};
+use crate::{Error, Result};
+
+/// Which body triangles take part in contact.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RegionConfig {
+    /// Use every body triangle (no selection). Default `false`: a T-shirt does not need the
+    /// legs, and fewer triangles make every contact query and refit cheaper.
+    pub whole_body: bool,
+    /// Keep body triangles with a vertex within this distance of the garment carried along with
+    /// the body in any frame, m. Default 0.1 m: the cloth hangs up to a few centimetres off its
+    /// skinned template (folds, a flaring hem or sleeve) and limbs move between frames; the
+    /// excluded-region check after every frame catches a margin that is too small.
+    pub margin_m: f64,
+    /// How deep inside the body a cloth vertex is still found by contacts, the projection
+    /// fallback and the penetration check, m ([`MeshCollider::new`]). Default 0.05 m: deeper
+    /// than any penetration a substep can make, shallower than the half-thickness of the torso.
+    pub search_depth_m: f64,
+    /// After every frame, fail the frame if a cloth vertex is within the contact thickness of an
+    /// excluded body triangle (the sequence then restarts with a doubled margin). Default
+    /// `true`.
+    pub check_excluded: bool,
+}
+
+impl Default for RegionConfig {
+    fn default() -> Self {
+        Self {
+            whole_body: false,
+            margin_m: 0.1,
+            search_depth_m: 0.05,
+            check_excluded: true,
+        }
+    }
+}
+
+/// What to do when a frame fails.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RetryConfig {
+    /// Times a failed frame is redone, each time with `substep_factor` times more substeps.
+    /// Default 3 (up to 8 × the substeps: 80 per frame, a 0.42 ms step at 30 fps).
+    pub max_frame_retries: usize,
+    /// Substep multiplier per retry. Default 2.
+    pub substep_factor: usize,
+    /// Restarts of the whole sequence with a doubled region margin when the cloth reaches an
+    /// excluded body triangle. Default 2.
+    pub max_region_restarts: usize,
+}
+
+impl Default for RetryConfig {
+    fn default() -> Self {
+        Self {
+            max_frame_retries: 3,
+            substep_factor: 2,
+            max_region_restarts: 2,
+        }
+    }
+}
+
+/// The Foxglove preview written with each sequence.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PreviewConfig {
+    /// Write the cloth and the body region every this many frames (0: no preview). Default 10:
+    /// 3 previews per second at 30 fps, enough to see the motion, about a tenth of the file.
+    pub every_n_frames: usize,
+}
+
+impl Default for PreviewConfig {
+    fn default() -> Self {
+        Self { every_n_frames: 10 }
+    }
+}
+
+/// Settings of [`simulate_sequence`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DriveConfig {
+    /// Substeps per frame. Default 10: a 3.33 ms step at 30 fps, the paper's.
+    pub substeps_per_frame: usize,
+    /// N, frames over which shape and pose blend from the rest state. Default 30 (1 s): slow
+    /// enough that the cloth follows a body growing by several centimetres without being
+    /// thrown.
+    pub blend_frames: usize,
+    /// M, frames the first pose is held before the motion. Default 30 (1 s): the cloth loses
+    /// the blend's motion (friction, the integrator's damping) before the motion starts.
+    pub rest_frames: usize,
+    /// After every frame no cloth vertex may be deeper inside the body region than this, m.
+    /// Default 1 mm (the issue's guarantee); at least [`SimConfig::max_penetration_m`].
+    pub penetration_tolerance_m: f64,
+    /// The body region that takes part.
+    pub region: RegionConfig,
+    /// Retries.
+    pub retry: RetryConfig,
+    /// The preview.
+    pub preview: PreviewConfig,
+    /// The simulator (defaults: ARCSim's body scenes).
+    pub sim: SimConfig,
+}
+
+impl Default for DriveConfig {
+    fn default() -> Self {
+        Self {
+            substeps_per_frame: 10,
+            blend_frames: 30,
+            rest_frames: 30,
+            penetration_tolerance_m: 1e-3,
+            region: RegionConfig::default(),
+            retry: RetryConfig::default(),
+            preview: PreviewConfig::default(),
+            sim: SimConfig::default(),
+        }
+    }
+}
+
+/// Most substeps a frame may take (retries included).
+const MAX_SUBSTEPS_PER_FRAME: usize = 10_000;
+
+impl DriveConfig {
+    /// Check the settings.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::invalid("drive config", m));
+        self.sim.validate()?;
+        if self.substeps_per_frame == 0 {
+            return bad("substeps_per_frame must be at least 1".into());
+        }
+        if self.retry.max_frame_retries > 0 && self.retry.substep_factor < 2 {
+            return bad("retry.substep_factor must be at least 2".into());
+        }
+        let most = (0..self.retry.max_frame_retries).try_fold(self.substeps_per_frame, |n, _| {
+            n.checked_mul(self.retry.substep_factor)
+        });
+        if most.is_none_or(|n| n > MAX_SUBSTEPS_PER_FRAME) {
+            return bad(format!(
+                "{} substeps × {}^{} retries exceeds {MAX_SUBSTEPS_PER_FRAME} per frame",
+                self.substeps_per_frame, self.retry.substep_factor, self.retry.max_frame_retries
+            ));
+        }
+        if !(self.penetration_tolerance_m.is_finite()
+            && self.penetration_tolerance_m >= self.sim.max_penetration_m)
+        {
+            return bad(format!(
+                "penetration_tolerance_m {} must be finite and ≥ sim.max_penetration_m {}",
+                self.penetration_tolerance_m, self.sim.max_penetration_m
+            ));
+        }
+        for (name, value) in [
+            ("region.margin_m", self.region.margin_m),
+            ("region.search_depth_m", self.region.search_depth_m),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(format!("{name} must be finite and ≥ 0, got {value}"));
+            }
+        }
+        Ok(())
+    }
+
+    /// SHA-256 of the config's canonical JSON (serde's field order, no whitespace); stored in
+    /// every sequence so outputs made with different settings are told apart.
+    pub fn sha256(&self) -> Result<String> {
+        let json =
+            serde_json::to_vec(self).map_err(|e| Error::invalid("drive config", e.to_string()))?;
+        Ok(sha256_hex(&json))
+    }
+
+    /// Parse and validate a config from JSON; `path` names the file in errors.
+    pub fn from_json(bytes: &[u8], path: &std::path::Path) -> Result<Self> {
+        let config: Self = serde_json::from_slice(bytes)
+            .map_err(|e| Error::format(path, format!("line {}: {e}", e.line())))?;
+        config
+            .validate()
+            .map_err(|e| Error::format(path, e.to_string()))?;
+        Ok(config)
+    }
+}
+
+/// The body state at the end of one frame.
+#[derive(Clone, Debug)]
+pub(crate) struct Keyframe {
+    phase: Phase,
+    motion_frame: Option<usize>,
+    betas: Vec<f64>,
+    pose: Pose,
+}
+
+/// `0` at 0, `1` at 1, cubic in between (C1), as `Motion::blended_from_rest`.
+fn ease(s: f64) -> f64 {
+    let s = s.clamp(0.0, 1.0);
+    s * s * (3.0 - 2.0 * s)
+}
+
+/// The rest state the sequence starts from (β = 0, rest pose at the first pose's root position
+/// and heading) and the body state at the end of every frame.
+fn schedule(
+    n_joints: usize,
+    betas: &[f64],
+    motion: Option<&Motion>,
+    config: &DriveConfig,
+) -> (Pose, Vec<Keyframe>) {
+    let first = motion.map_or_else(|| Pose::rest(n_joints), |m| m.frames()[0].clone());
+    let start = Pose {
+        root_translation_m: first.root_translation_m,
+        root_orientation: split_heading(&first.root_orientation).0,
+        ..Pose::rest(n_joints)
+    };
+    let n = config.blend_frames;
+    let mut keys = Vec::with_capacity(n + config.rest_frames + motion.map_or(0, Motion::n_frames));
+    for k in 1..=n {
+        let s = ease(k as f64 / n as f64);
+        keys.push(Keyframe {
+            phase: Phase::Blend,
+            motion_frame: None,
+            betas: betas.iter().map(|b| b * s).collect(),
+            pose: interpolate_pose(&start, &first, s),
+        });
+    }
+    for _ in 0..config.rest_frames {
+        keys.push(Keyframe {
+            phase: Phase::Rest,
+            motion_frame: None,
+            betas: betas.to_vec(),
+            pose: first.clone(),
+        });
+    }
+    for (j, pose) in motion.iter().flat_map(|m| m.frames()).enumerate() {
+        keys.push(Keyframe {
+            phase: Phase::Motion,
+            motion_frame: Some(j),
+            betas: betas.to_vec(),
+            pose: pose.clone(),
+        });
+    }
+    (start, keys)
+}
+
+/// Poses the body into caller buffers, re-shaping only when β changes.
+pub(crate) struct BodyPoser<'a> {
+    body: &'a BodyModel,
+    betas: Option<Vec<f64>>,
+    shaped: Vec<Vector3<f64>>,
+    joints: Vec<Vector3<f64>>,
+    posed_joints: Vec<Vector3<f64>>,
+    transforms: Vec<BoneTransform<f64>>,
+}
+
+impl<'a> BodyPoser<'a> {
+    pub(crate) fn new(body: &'a BodyModel) -> Self {
+        let j = body.skeleton().n_joints();
+        Self {
+            body,
+            betas: None,
+            shaped: vec![Vector3::zeros(); body.n_vertices()],
+            joints: vec![Vector3::zeros(); j],
+            posed_joints: vec![Vector3::zeros(); j],
+            transforms: vec![BoneTransform::identity(); j],
+        }
+    }
+
+    /// `M_b(β, θ)` into `out`; afterwards [`BodyPoser::transforms`] are this pose's.
+    pub(crate) fn pose_into(
+        &mut self,
+        betas: &[f64],
+        pose: &Pose,
+        out: &mut [Vector3<f64>],
+    ) -> Result<()> {
+        if self.betas.as_deref() != Some(betas) {
+            self.body.shaped_vertices_into(betas, &mut self.shaped)?;
+            self.joints = self.body.shaped_joints(betas)?;
+            self.betas = Some(betas.to_vec());
+        }
+        self.body.skeleton().forward_kinematics_into(
+            &self.joints,
+            pose,
+            &mut self.posed_joints,
+            &mut self.transforms,
+        )?;
+        skin_points(
+            &self.shaped,
+            self.body.skin_weights(),
+            &self.transforms,
+            out,
+            Par::Seq,
+        )?;
+        Ok(())
+    }
+
+    /// The shaped rest body `T_b(β)` of the last [`BodyPoser::pose_into`].
+    fn shaped(&self) -> &[Vector3<f64>] {
+        &self.shaped
+    }
+
+    /// The skinning transforms of the last [`BodyPoser::pose_into`].
+    fn transforms(&self) -> &[BoneTransform<f64>] {
+        &self.transforms
+    }
+}
+
+/// The body region: which body triangles take part in contact.
+pub(crate) struct Region {
+    /// Per body triangle, whether it is kept.
+    pub(crate) kept: Vec<bool>,
+}
+
+impl Region {
+    /// Every triangle.
+    pub(crate) fn whole(body: &BodyModel) -> Self {
+        Self {
+            kept: vec![true; body.faces().len()],
+        }
+    }
+
+    /// The triangles near the garment carried along with the body through `keys` (and the
+    /// start state `start`): the garment template is shaped by the shape displacement of its
+    /// closest template-body point, skinned with transferred skin weights, and every body
+    /// triangle with a vertex within `margin_m` of it in some frame is kept.
+    pub(crate) fn near_garment(
+        body: &BodyModel,
+        garment: &Garment,
+        start: &Pose,
+        keys: &[Keyframe],
+        margin_m: f64,
+    ) -> Result<Self> {
+        let template = body.template().positions();
+        let proximity = MeshProximity::new(template, body.faces())?;
+        let anchors: Vec<_> = garment
+            .positions()
+            .iter()
+            .map(|p| proximity.closest(p))
+            .collect();
+        let weights = transfer_skin_weights(
+            template,
+            body.faces(),
+            body.skin_weights(),
+            garment.positions(),
+            0.0,
+        )?;
+        let mut kept = vec![false; body.faces().len()];
+        let mut poser = BodyPoser::new(body);
+        let mut body_posed = vec![Vector3::zeros(); body.n_vertices()];
+        let n_g = garment.positions().len();
+        let (mut g_shaped, mut g_posed) =
+            (vec![Vector3::zeros(); n_g], vec![Vector3::zeros(); n_g]);
+        let zeros = vec![0.0; body.n_betas()];
+        let states = std::iter::once((zeros.as_slice(), start))
+            .chain(keys.iter().map(|k| (k.betas.as_slice(), &k.pose)));
+        let mut previous: Option<(&[f64], &Pose)> = None;
+        for (betas, pose) in states {
+            // Held poses repeat: one look is enough.
+            if previous == Some((betas, pose)) {
+                continue;
+            }
+            previous = Some((betas, pose));
+            poser.pose_into(betas, pose, &mut body_posed)?;
+            let shaped = poser.shaped();
+            let faces = body.faces();
+            for ((g, p), c) in g_shaped.iter_mut().zip(garment.positions()).zip(&anchors) {
+                let t = faces[c.face as usize];
+                *g = p
+                    + (0..3)
+                        .map(|k| {
+                            (shaped[t[k] as usize] - template[t[k] as usize]) * c.barycentric[k]
+                        })
+                        .sum::<Vector3<f64>>();
+            }
+            skin_points(
+                &g_shaped,
+                &weights,
+                poser.transforms(),
+                &mut g_posed,
+                Par::Seq,
+            )?;
+            for f in faces_near(&body_posed, faces, &g_posed, garment.faces(), margin_m)? {
+                kept[f as usize] = true;
+            }
+        }
+        Ok(Self { kept })
+    }
+
+    fn faces(&self, body: &BodyModel, kept: bool) -> Vec<[u32; 3]> {
+        body.faces()
+            .iter()
+            .zip(&self.kept)
+            .filter(|(_, k)| **k == kept)
+            .map(|(t, _)| *t)
+            .collect()
+    }
+
+    /// Number of triangles kept.
+    pub(crate) fn n_kept(&self) -> usize {
+        self.kept.iter().filter(|k| **k).count()
+    }
+}
+
+/// Why a frame could not be simulated.
+pub(crate) enum FrameError {
+    /// A physical failure (retry with more substeps, or report).
+    Failure(SequenceFailure),
+    /// A programming or input error: stop.
+    Hard(Error),
+}
+
+impl From<Error> for FrameError {
+    fn from(e: Error) -> Self {
+        match e {
+            Error::Step(f) => Self::Failure(SequenceFailure::Step(f)),
+            other => Self::Hard(other),
+        }
+    }
+}
+
+/// What the per-frame checks measured.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct FrameChecks {
+    /// Deepest vertex inside the body region, m (0 if none).
+    pub(crate) max_penetration_m: f64,
+    /// Closest vertex to an excluded triangle, m (`INFINITY` when none is within the search
+    /// radius or there is no check).
+    pub(crate) min_excluded_distance_m: f64,
+    /// Kinetic energy, J.
+    pub(crate) kinetic_energy_j: f64,
+    /// Largest vertex speed, m/s.
+    pub(crate) max_speed_m_per_s: f64,
+}
+
+/// The cloth, the body collider and the per-frame machinery: advances one frame at a time with
+/// retries. Shared by [`simulate_sequence`] and [`crate::relax_on_body`].
+pub(crate) struct FrameStepper {
+    pub(crate) sim: Simulator,
+    /// The kept body triangles over their own vertices ([`compact`]).
+    collider: MeshCollider,
+    /// Body vertex of each collider vertex.
+    region_vertices: Vec<u32>,
+    /// The collider's vertices at the frame's start and end, and at the current substep.
+    region_prev: Vec<Vector3<f64>>,
+    region_next: Vec<Vector3<f64>>,
+    /// Excluded body triangles (for the check), if any.
+    guard: Option<MeshProximity>,
+    guard_radius_m: f64,
+    tolerance_m: f64,
+    fps: f64,
+    base_substeps: usize,
+    retry: RetryConfig,
+    body_sub: Vec<Vector3<f64>>,
+    saved_x: Vec<Vector3<f64>>,
+    saved_v: Vec<Vector3<f64>>,
+    pub(crate) totals: SolverTotals,
+    pub(crate) timing: SequenceTiming,
+    pub(crate) substeps: SubstepStats,
+    pub(crate) min_excluded_distance_m: f64,
+}
+
+impl FrameStepper {
+    /// A stepper for `garment` on the body at `body_start` (all body vertices), in contact with
+    /// the triangles `region` keeps; the cloth starts at `cloth_start`.
+    pub(crate) fn new(
+        body: &BodyModel,
+        garment: &Garment,
+        material: &Material,
+        config: &DriveConfig,
+        region: &Region,
+        body_start: &[Vector3<f64>],
+        cloth_start: &[Vector3<f64>],
+        fps: f64,
+    ) -> Result<Self> {
+        let (region_vertices, region_faces) = compact(&region.faces(body, true), body.n_vertices());
+        let region_start: Vec<Vector3<f64>> = region_vertices
+            .iter()
+            .map(|&v| body_start[v as usize])
+            .collect();
+        let collider =
+            MeshCollider::new(&region_start, &region_faces, config.region.search_depth_m)?;
+        let excluded = region.faces(body, false);
+        let guard = if config.region.check_excluded && !excluded.is_empty() {
+            Some(MeshProximity::new(body_start, &excluded)?)
+        } else {
+            None
+        };
+        let mut sim = Simulator::new(
+            Cloth::from_garment(garment, material.clone())?,
+            config.sim.clone(),
+        )?;
+        sim.set_positions(cloth_start)?;
+        let n = cloth_start.len();
+        Ok(Self {
+            sim,
+            collider,
+            region_vertices,
+            region_prev: region_start.clone(),
+            region_next: region_start.clone(),
+            body_sub: region_start,
+            guard,
+            guard_radius_m: config.region.margin_m,
+            tolerance_m: config.penetration_tolerance_m,
+            fps,
+            base_substeps: config.substeps_per_frame,
+            retry: config.retry.clone(),
+            saved_x: vec![Vector3::zeros(); n],
+            saved_v: vec![Vector3::zeros(); n],
+            totals: SolverTotals::default(),
+            timing: SequenceTiming::default(),
+            substeps: SubstepStats {
+                base: config.substeps_per_frame,
+                min: usize::MAX,
+                max: 0,
+                total: 0,
+                retried_frames: 0,
+                failed_attempts: 0,
+                region_restarts: 0,
+            },
+            min_excluded_distance_m: f64::INFINITY,
+        })
+    }
+
+    /// The contact thickness, m.
+    fn thickness_m(&self) -> f64 {
+        self.sim.config().contact_penalty.thickness_m
+    }
+
+    /// Simulate one frame while the body goes from `prev` to `next` (all body vertices);
+    /// returns the substeps used and what the checks measured. On failure the frame is redone
+    /// with more substeps; the last failure is returned with the attempts made.
+    pub(crate) fn advance(
+        &mut self,
+        prev: &[Vector3<f64>],
+        next: &[Vector3<f64>],
+    ) -> std::result::Result<(usize, FrameChecks), (FrameError, usize)> {
+        self.saved_x.copy_from_slice(self.sim.positions());
+        self.saved_v.copy_from_slice(self.sim.velocities());
+        let mut substeps = self.base_substeps;
+        let mut attempt = 0;
+        loop {
+            let mut totals = SolverTotals::default();
+            match self.try_frame(substeps, prev, next, &mut totals) {
+                Ok(checks) => {
+                    self.commit(substeps, attempt, &totals, &checks);
+                    return Ok((substeps, checks));
+                }
+                Err(FrameError::Hard(e)) => return Err((FrameError::Hard(e), attempt + 1)),
+                Err(failure) => {
+                    self.substeps.failed_attempts += 1;
+                    if attempt == self.retry.max_frame_retries {
+                        return Err((failure, attempt + 1));
+                    }
+                    let restore = self
+                        .sim
+                        .set_positions(&self.saved_x)
+                        .and_then(|()| self.sim.set_velocities(&self.saved_v));
+                    if let Err(e) = restore {
+                        return Err((FrameError::Hard(e), attempt + 1));
+                    }
+                    substeps *= self.retry.substep_factor;
+                    attempt += 1;
+                }
+            }
+        }
+    }
+
+    fn commit(&mut self, substeps: usize, attempt: usize, totals: &SolverTotals, c: &FrameChecks) {
+        let s = &mut self.substeps;
+        s.min = s.min.min(substeps);
+        s.max = s.max.max(substeps);
+        s.total += substeps;
+        if attempt > 0 {
+            s.retried_frames += 1;
+        }
+        let t = &mut self.totals;
+        t.newton_iterations += totals.newton_iterations;
+        t.linear_iterations += totals.linear_iterations;
+        t.obstacle_contacts += totals.obstacle_contacts;
+        t.max_obstacle_contacts = t.max_obstacle_contacts.max(totals.max_obstacle_contacts);
+        t.self_contacts += totals.self_contacts;
+        t.max_self_contacts = t.max_self_contacts.max(totals.max_self_contacts);
+        t.projected_vertices += totals.projected_vertices;
+        t.max_kinetic_energy_j = t.max_kinetic_energy_j.max(c.kinetic_energy_j);
+        t.max_speed_m_per_s = t.max_speed_m_per_s.max(c.max_speed_m_per_s);
+        t.max_penetration_m = t.max_penetration_m.max(c.max_penetration_m);
+        self.min_excluded_distance_m = self.min_excluded_distance_m.min(c.min_excluded_distance_m);
+    }
+
+    fn try_frame(
+        &mut self,
+        substeps: usize,
+        prev: &[Vector3<f64>],
+        next: &[Vector3<f64>],
+        totals: &mut SolverTotals,
+    ) -> std::result::Result<FrameChecks, FrameError> {
+        let h = 1.0 / (self.fps * substeps as f64);
+        // Back to the frame's start pose (a retry's collider is wherever the failure left it).
+        let t_body = Instant::now();
+        for ((a, b), &v) in self
+            .region_prev
+            .iter_mut()
+            .zip(&mut self.region_next)
+            .zip(&self.region_vertices)
+        {
+            *a = prev[v as usize];
+            *b = next[v as usize];
+        }
+        self.collider.move_to(&self.region_prev, h)?;
+        self.timing.body_secs += t_body.elapsed().as_secs_f64();
+        let mut last = None;
+        for s in 1..=substeps {
+            let t_body = Instant::now();
+            if s == substeps {
+                self.body_sub.copy_from_slice(&self.region_next);
+            } else {
+                let a = s as f64 / substeps as f64;
+                for ((b, p), q) in self
+                    .body_sub
+                    .iter_mut()
+                    .zip(&self.region_prev)
+                    .zip(&self.region_next)
+                {
+                    *b = p + (q - p) * a;
+                }
+            }
+            self.collider.move_to(&self.body_sub, h)?;
+            self.timing.body_secs += t_body.elapsed().as_secs_f64();
+            let stats = self.sim.step(h, &[&self.collider as &dyn Collider])?;
+            self.timing.assemble_secs += stats.assemble_secs;
+            self.timing.solve_secs += stats.solve_secs;
+            self.timing.collision_secs += stats.collision_secs;
+            totals.newton_iterations += stats.newton_iterations;
+            totals.linear_iterations += stats.total_linear_iterations;
+            totals.obstacle_contacts += stats.obstacle_contacts;
+            totals.max_obstacle_contacts =
+                totals.max_obstacle_contacts.max(stats.obstacle_contacts);
+            totals.self_contacts += stats.self_contacts;
+            totals.max_self_contacts = totals.max_self_contacts.max(stats.self_contacts);
+            totals.projected_vertices += stats.projected_vertices;
+            last = Some(stats);
+        }
+        let t_check = Instant::now();
+        let checks = self.check(next, last.unwrap_or_default());
+        self.timing.check_secs += t_check.elapsed().as_secs_f64();
+        checks
+    }
+
+    /// The end-of-frame checks: penetration of the body region and distance to the excluded
+    /// triangles.
+    fn check(
+        &mut self,
+        next: &[Vector3<f64>],
+        last: crate::solver::StepStats,
+    ) -> std::result::Result<FrameChecks, FrameError> {
+        let mut checks = FrameChecks {
+            min_excluded_distance_m: f64::INFINITY,
+            kinetic_energy_j: last.kinetic_energy_j,
+            max_speed_m_per_s: last.max_speed_m_per_s,
+            ..FrameChecks::default()
+        };
+        let mut deepest = None;
+        for (i, p) in self.sim.positions().iter().enumerate() {
+            if let Some(c) = self.collider.closest_within(*p, 0.0)
+                && -c.distance_m > checks.max_penetration_m
+            {
+                checks.max_penetration_m = -c.distance_m;
+                deepest = Some(i);
+            }
+        }
+        if let Some(vertex) = deepest
+            && checks.max_penetration_m > self.tolerance_m
+        {
+            return Err(FrameError::Failure(SequenceFailure::Penetration {
+                vertex,
+                depth_mm: checks.max_penetration_m * 1e3,
+                tolerance_mm: self.tolerance_m * 1e3,
+            }));
+        }
+        if let Some(guard) = &mut self.guard {
+            guard.update_positions(next).map_err(Error::from)?;
+            let mut closest = None;
+            for (i, p) in self.sim.positions().iter().enumerate() {
+                if let Some(c) = guard.closest_within(p, self.guard_radius_m)
+                    && c.signed_distance_m.abs() < checks.min_excluded_distance_m
+                {
+                    checks.min_excluded_distance_m = c.signed_distance_m.abs();
+                    closest = Some(i);
+                }
+            }
+            let thickness = self.thickness_m();
+            if let Some(vertex) = closest
+                && checks.min_excluded_distance_m < thickness
+            {
+                return Err(FrameError::Failure(SequenceFailure::OutsideRegion {
+                    vertex,
+                    distance_mm: checks.min_excluded_distance_m * 1e3,
+                }));
+            }
+        }
+        Ok(checks)
+    }
+}
+
+/// Check β and the motion against the body: β padded with zeros to the model's length, the
+/// motion resampled to [`sartor_body::FPS`].
+fn prepare_inputs(
+    body: &BodyModel,
+    betas: &[f64],
+    motion: Option<&Motion>,
+) -> Result<(Vec<f64>, Option<Motion>)> {
+    body.check_betas(betas)?;
+    let mut padded = betas.to_vec();
+    padded.resize(body.n_betas(), 0.0);
+    let Some(motion) = motion else {
+        return Ok((padded, None));
+    };
+    if motion.joint_names() != body.skeleton().names() {
+        return Err(Error::invalid(
+            "motion",
+            format!(
+                "{}: its joints are not the body's ({} vs {} joints, or another order)",
+                motion.name(),
+                motion.joint_names().len(),
+                body.skeleton().n_joints()
+            ),
+        ));
+    }
+    let motion = if (motion.fps() - sartor_body::FPS).abs() > 1e-9 {
+        motion.resample(sartor_body::FPS)?
+    } else {
+        motion.clone()
+    };
+    Ok((padded, Some(motion)))
+}
+
+/// A short name of a sequence for messages.
+fn sequence_name(garment: &Garment, betas: &[f64], motion: Option<&Motion>) -> String {
+    format!(
+        "{} on β {:?} / {}",
+        garment.name(),
+        betas,
+        motion.map_or("rest pose", Motion::name)
+    )
+}
+
+/// Simulate `garment` (of `material`) on `body` with shape `betas` through `motion` (`None`:
+/// the rest-pose simulation for the garment fit, see the [module docs](self)), with the
+/// paper's protocol: blend, rest, motion. `progress(done, total)` is called after every frame
+/// (frames start again from 0 if the sequence restarts with a larger body region).
+///
+/// `betas` may be shorter than the model's (missing components are zero); the sequence holds
+/// it padded. Returns the frames and their header, ready for [`ClothSequence::write`]; a
+/// sequence that fails even with the retries of `config.retry` is an
+/// [`Error::SequenceFailed`].
+pub fn simulate_sequence(
+    body: &BodyModel,
+    garment: &Garment,
+    material: &Material,
+    betas: &[f64],
+    motion: Option<&Motion>,
+    config: &DriveConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ClothSequence> {
+    let started = Instant::now();
+    config.validate()?;
+    let (betas, prepared) = prepare_inputs(body, betas, motion)?;
+    let betas = betas.as_slice();
+    let motion_id = match motion {
+        Some(m) => Some(MotionId {
+            name: m.name().to_string(),
+            sha256: sha256_hex(
+                &serde_json::to_vec(m).map_err(|e| Error::invalid("motion", e.to_string()))?,
+            ),
+            n_frames: prepared.as_ref().map_or(0, Motion::n_frames),
+        }),
+        None => None,
+    };
+    let (start, keys) = schedule(body.skeleton().n_joints(), betas, prepared.as_ref(), config);
+    let name = sequence_name(garment, betas, motion);
+    let mut margin_m = config.region.margin_m;
+    let mut restarts = 0;
+    loop {
+        let mut attempt_config = config.clone();
+        attempt_config.region.margin_m = margin_m;
+        match run(
+            body,
+            garment,
+            material,
+            &start,
+            &keys,
+            &attempt_config,
+            progress,
+        ) {
+            Ok(mut sequence) => {
+                let h = &mut sequence.header;
+                h.betas = betas.to_vec();
+                h.motion = motion_id;
+                h.drive_config = config.clone();
+                h.drive_config_sha256 = config.sha256()?;
+                h.substeps.region_restarts = restarts;
+                if let Some(timing) = &mut sequence.timing {
+                    timing.total_secs = started.elapsed().as_secs_f64();
+                }
+                return Ok(sequence);
+            }
+            Err((FrameError::Hard(e), _, _)) => return Err(e),
+            Err((FrameError::Failure(reason), frame, attempts)) => {
+                let outside = matches!(reason, SequenceFailure::OutsideRegion { .. });
+                if outside && restarts < config.retry.max_region_restarts {
+                    restarts += 1;
+                    margin_m *= 2.0;
+                    continue;
+                }
+                return Err(Error::SequenceFailed {
+                    sequence: name,
+                    frame,
+                    attempts,
+                    reason,
+                });
+            }
+        }
+    }
+}
+
+/// The body triangles (ascending indices into `body.faces()`) that take part in contact when
+/// [`simulate_sequence`] simulates `garment` on shape `betas` through `motion` with `config`:
+/// all of them with [`RegionConfig::whole_body`], else those near the garment carried along
+/// with the body (see the [module docs](self)). A sequence that restarted with a larger region
+/// used the margin its header records ([`RegionStats::margin_m`]).
+pub fn contact_region(
+    body: &BodyModel,
+    garment: &Garment,
+    betas: &[f64],
+    motion: Option<&Motion>,
+    config: &DriveConfig,
+) -> Result<Vec<u32>> {
+    config.validate()?;
+    let (betas, prepared) = prepare_inputs(body, betas, motion)?;
+    let (start, keys) = schedule(
+        body.skeleton().n_joints(),
+        &betas,
+        prepared.as_ref(),
+        config,
+    );
+    let region = if config.region.whole_body {
+        Region::whole(body)
+    } else {
+        Region::near_garment(body, garment, &start, &keys, config.region.margin_m)?
+    };
+    Ok((0..body.faces().len() as u32)
+        .filter(|&f| region.kept[f as usize])
+        .collect())
+}
+
+/// One attempt at a whole sequence with `config.region.margin_m`.
+fn run(
+    body: &BodyModel,
+    garment: &Garment,
+    material: &Material,
+    start: &Pose,
+    keys: &[Keyframe],
+    config: &DriveConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> std::result::Result<ClothSequence, (FrameError, usize, usize)> {
+    let hard = |e: Error| (FrameError::Hard(e), 0, 0);
+    let fps = sartor_body::FPS;
+    let t_region = Instant::now();
+    let region = if config.region.whole_body {
+        Region::whole(body)
+    } else {
+        Region::near_garment(body, garment, start, keys, config.region.margin_m).map_err(hard)?
+    };
+    let region_secs = t_region.elapsed().as_secs_f64();
+
+    let mut poser = BodyPoser::new(body);
+    let mut prev = vec![Vector3::zeros(); body.n_vertices()];
+    let zeros = vec![0.0; body.n_betas()];
+    poser.pose_into(&zeros, start, &mut prev).map_err(hard)?;
+    // The template moved rigidly with the start state (identity for a motion starting at the
+    // origin): every joint has the root's transform in a rest pose.
+    let rigid = poser.transforms()[0];
+    let cloth_start: Vec<Vector3<f64>> =
+        garment.positions().iter().map(|p| rigid.apply(p)).collect();
+    let mut stepper = FrameStepper::new(
+        body,
+        garment,
+        material,
+        config,
+        &region,
+        &prev,
+        &cloth_start,
+        fps,
+    )
+    .map_err(hard)?;
+    stepper.timing.region_secs = region_secs;
+
+    // The preview's body: the kept triangles over their own vertices.
+    let every = config.preview.every_n_frames;
+    let (preview_vertices, preview_faces) = compact(&region.faces(body, true), body.n_vertices());
+    let mut preview_frames = Vec::new();
+
+    let mut next = prev.clone();
+    let mut frames = Vec::with_capacity(keys.len());
+    for (i, key) in keys.iter().enumerate() {
+        poser
+            .pose_into(&key.betas, &key.pose, &mut next)
+            .map_err(hard)?;
+        let (substeps, _) = stepper
+            .advance(&prev, &next)
+            .map_err(|(e, attempts)| (e, i, attempts))?;
+        frames.push(SequenceFrame {
+            phase: key.phase,
+            motion_frame: key.motion_frame,
+            substeps,
+            betas: key.betas.clone(),
+            pose: key.pose.clone(),
+            positions: stepper
+                .sim
+                .positions()
+                .iter()
+                .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                .collect(),
+        });
+        if every > 0 && i % every == 0 {
+            preview_frames.push(PreviewFrame {
+                frame: i,
+                body_positions: preview_vertices
+                    .iter()
+                    .map(|&v| next[v as usize].map(|c| c as f32).into())
+                    .collect(),
+            });
+        }
+        std::mem::swap(&mut prev, &mut next);
+        progress(i + 1, keys.len());
+    }
+
+    let n_motion = keys.iter().filter(|k| k.phase == Phase::Motion).count();
+    if stepper.substeps.min == usize::MAX {
+        stepper.substeps.min = 0;
+    }
+    let header = SequenceHeader {
+        format: SEQUENCE_FORMAT.into(),
+        version: 1,
+        units: "m".into(),
+        axes: "+Y up, +Z forward, +X body's left".into(),
+        garment: GarmentId {
+            name: garment.name().to_string(),
+            sha256: garment.content_sha256().map_err(hard)?,
+            n_vertices: garment.positions().len(),
+            n_faces: garment.faces().len(),
+        },
+        body: BodyId {
+            name: body.name().to_string(),
+            sha256: body.content_sha256().map_err(|e| hard(e.into()))?,
+            n_betas: body.n_betas(),
+            joint_names: body.skeleton().names().to_vec(),
+        },
+        material: material.to_file(),
+        drive_config: config.clone(),
+        drive_config_sha256: String::new(),
+        motion: None,
+        betas: Vec::new(),
+        fps,
+        blend_frames: config.blend_frames,
+        rest_frames: config.rest_frames,
+        motion_frames: n_motion,
+        n_frames: keys.len(),
+        region: RegionStats {
+            faces_kept: region.n_kept(),
+            faces_total: body.faces().len(),
+            margin_m: config.region.margin_m,
+            min_excluded_distance_m: stepper
+                .min_excluded_distance_m
+                .is_finite()
+                .then_some(stepper.min_excluded_distance_m),
+        },
+        substeps: stepper.substeps.clone(),
+        solver: stepper.totals.clone(),
+        preview_frames: preview_frames.len(),
+    };
+    Ok(ClothSequence {
+        header,
+        faces: garment.faces().to_vec(),
+        frames,
+        preview: (every > 0).then_some(SequencePreview {
+            every_n_frames: every,
+            body_faces: preview_faces,
+            frames: preview_frames,
+        }),
+        timing: Some(stepper.timing),
+    })
+}
+
+/// The vertices `faces` use (ascending) and the faces re-indexed into that list.
+fn compact(faces: &[[u32; 3]], n_vertices: usize) -> (Vec<u32>, Vec<[u32; 3]>) {
+    let mut index = vec![u32::MAX; n_vertices];
+    let mut used: Vec<u32> = faces.iter().flatten().copied().collect();
+    used.sort_unstable();
+    used.dedup();
+    for (k, &v) in used.iter().enumerate() {
+        index[v as usize] = k as u32;
+    }
+    let faces = faces.iter().map(|t| t.map(|v| index[v as usize])).collect();
+    (used, faces)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_hash_stably() {
+        let c = DriveConfig::default();
+        c.validate().expect("defaults are valid");
+        assert_eq!(c.sha256().expect("hash"), c.clone().sha256().expect("hash"));
+        let mut d = c.clone();
+        d.rest_frames += 1;
+        assert_ne!(c.sha256().expect("hash"), d.sha256().expect("hash"));
+        let json = serde_json::to_vec(&c).expect("json");
+        let back = DriveConfig::from_json(&json, std::path::Path::new("c.json")).expect("parse");
+        assert_eq!(back, c);
+        let e = DriveConfig::from_json(br#"{"colour": 1}"#, std::path::Path::new("c.json"))
+            .expect_err("unknown field");
+        assert!(e.to_string().contains("c.json") && e.to_string().contains("colour"));
+        let bad = DriveConfig {
+            penetration_tolerance_m: 1e-4,
+            ..DriveConfig::default()
+        };
+        assert!(
+            bad.validate().is_err(),
+            "tolerance below the projection threshold"
+        );
+    }
+
+    #[test]
+    fn schedule_blends_then_rests_then_moves() {
+        let config = DriveConfig {
+            blend_frames: 4,
+            rest_frames: 2,
+            ..DriveConfig::default()
+        };
+        let (start, keys) = schedule(3, &[2.0], None, &config);
+        assert_eq!(start, Pose::rest(3));
+        assert_eq!(keys.len(), 6);
+        assert_eq!(keys[3].betas, vec![2.0], "the blend ends at β");
+        assert!(keys[0].betas[0] > 0.0 && keys[0].betas[0] < keys[1].betas[0]);
+        assert!(keys[4..].iter().all(|k| k.phase == Phase::Rest));
+    }
+
+    #[test]
+    fn compact_reindexes() {
+        let (used, faces) = compact(&[[5, 2, 9], [9, 2, 7]], 10);
+        assert_eq!(used, vec![2, 5, 7, 9]);
+        assert_eq!(faces, vec![[1, 0, 3], [3, 0, 2]]);
+    }
+}

@@ -1,0 +1,348 @@
+//! The moving-body driver and its sequence files, on the committed 500-triangle T-shirt and
+//! the built-in body: penetration, the body region, determinism, the MCAP round trip, failures
+//! and retries, relaxation.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use nalgebra::Vector3;
+use sartor_body::{BodyModel, MeshProximity, Motion};
+use sartor_cloth::{
+    ClothSequence, DriveConfig, Error, Garment, LinearSolver, Material, Phase, RelaxConfig,
+    SequenceFailure, StepFailure, contact_region, relax_on_body, simulate_sequence,
+};
+
+fn body() -> &'static BodyModel {
+    static BODY: OnceLock<BodyModel> = OnceLock::new();
+    BODY.get_or_init(|| sartor_body::load_builtin().expect("the built-in body"))
+}
+
+fn tshirt() -> Garment {
+    Garment::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/garments/tshirt-tiny"),
+    )
+    .expect("datasets/garments/tshirt-tiny")
+}
+
+/// A fresh empty folder under the system's temporary folder.
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sartor-drive-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temporary folder");
+    dir
+}
+
+/// A short, quick sequence setting: 3 blend and 2 rest frames, a preview every 2 frames.
+fn quick_config() -> DriveConfig {
+    let mut c = DriveConfig {
+        blend_frames: 3,
+        rest_frames: 2,
+        ..DriveConfig::default()
+    };
+    c.preview.every_n_frames = 2;
+    c
+}
+
+/// Eight frames from the middle of a fast clip (the arms swing through the sleeves).
+fn clip() -> Motion {
+    let m = sartor_body::procedural::clip("arm_circles_fast").expect("procedural clip");
+    m.slice(40..48).expect("frames")
+}
+
+fn simulate(
+    betas: &[f64],
+    motion: Option<&Motion>,
+    config: &DriveConfig,
+) -> sartor_cloth::Result<ClothSequence> {
+    simulate_sequence(
+        body(),
+        &tshirt(),
+        &Material::gray_interlock(),
+        betas,
+        motion,
+        config,
+        &mut |_, _| {},
+    )
+}
+
+fn betas(first: f64) -> Vec<f64> {
+    let mut b = vec![0.0; body().n_betas()];
+    b[0] = first;
+    b
+}
+
+#[test]
+fn a_tshirt_follows_a_fast_clip_without_penetration() {
+    let motion = clip();
+    let config = quick_config();
+    let betas = betas(1.0);
+    let seq = simulate(&betas, Some(&motion), &config).expect("simulates");
+    let h = &seq.header;
+    assert_eq!(seq.frames.len(), 3 + 2 + motion.n_frames());
+    assert_eq!(h.motion_frames, motion.n_frames());
+    assert_eq!(seq.phase_frames(Phase::Blend).count(), 3);
+    assert_eq!(seq.frames[5].motion_frame, Some(0));
+    assert_eq!(seq.frames[4].betas, betas, "the blend ends at β");
+    assert!(seq.frames[0].betas[0] > 0.0 && seq.frames[0].betas[0] < 1.0);
+    assert_eq!(seq.frames[7].pose, motion.frames()[2]);
+
+    // The region: far fewer triangles than the body, and every excluded one stays farther than
+    // the contact thickness from the cloth in every frame. Penetration, measured against the
+    // whole body posed from the β and pose stored with each frame: at most 1 mm.
+    let kept = contact_region(body(), &tshirt(), &betas, Some(&motion), &config).expect("region");
+    let n_faces = body().faces().len();
+    assert_eq!(kept.len(), h.region.faces_kept);
+    assert!(
+        kept.len() < n_faces / 2 && kept.len() > n_faces / 20,
+        "{} of {n_faces}",
+        kept.len()
+    );
+    let mut is_kept = vec![false; n_faces];
+    kept.iter().for_each(|&f| is_kept[f as usize] = true);
+    let excluded: Vec<[u32; 3]> = body()
+        .faces()
+        .iter()
+        .zip(&is_kept)
+        .filter(|(_, k)| !**k)
+        .map(|(t, _)| *t)
+        .collect();
+    let thickness = config.sim.contact_penalty.thickness_m;
+    let mut deepest: f64 = 0.0;
+    let mut closest_excluded = f64::INFINITY;
+    for (i, frame) in seq.frames.iter().enumerate() {
+        let posed = body()
+            .posed_vertices(&frame.betas, &frame.pose)
+            .expect("pose");
+        let whole = MeshProximity::new(&posed, body().faces()).expect("body");
+        let outside = MeshProximity::new(&posed, &excluded).expect("excluded");
+        for p in frame.positions_vec3() {
+            let p: Vector3<f64> = p.cast();
+            assert!(p.iter().all(|c| c.is_finite()), "frame {i}");
+            deepest = deepest.max(-whole.closest(&p).signed_distance_m);
+            closest_excluded = closest_excluded.min(outside.closest(&p).signed_distance_m.abs());
+        }
+    }
+    assert!(deepest <= 1e-3 + 1e-6, "{:.3} mm inside", deepest * 1e3);
+    assert!(
+        closest_excluded > thickness,
+        "{:.2} mm from an excluded triangle",
+        closest_excluded * 1e3
+    );
+    assert!(
+        h.solver.max_obstacle_contacts > 0,
+        "the cloth touches the body"
+    );
+    // The stored identities: the garment's is the hash in its garment.json.
+    assert_eq!(h.body.sha256, body().content_sha256().expect("hash"));
+    let garment_json: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../datasets/garments/tshirt-tiny/garment.json"),
+        )
+        .expect("garment.json"),
+    )
+    .expect("json");
+    assert_eq!(garment_json["tensors_sha256"], h.garment.sha256.as_str());
+    assert_eq!(h.garment.sha256, tshirt().content_sha256().expect("hash"));
+}
+
+#[test]
+fn sequence_files_round_trip_and_bad_files_are_named() {
+    let dir = temp_dir("round-trip");
+    // β shorter than the model's is padded with zeros.
+    let seq = simulate(&[-1.0], None, &quick_config()).expect("simulates");
+    assert_eq!(seq.header.betas, betas(-1.0));
+    assert_eq!(seq.frames.len(), 5);
+    assert!(seq.header.motion.is_none());
+    let path = dir.join("rest.mcap");
+    seq.write(&path).expect("write");
+    let back = ClothSequence::read(&path).expect("read back");
+    assert_eq!(back.header, seq.header);
+    assert_eq!(back.faces, seq.faces);
+    assert_eq!(back.frames, seq.frames);
+    assert_eq!(back.preview, seq.preview);
+    assert!(back.timing.is_none() && seq.timing.is_some());
+    let preview = back.preview.expect("a preview every 2 frames");
+    assert_eq!(
+        preview.frames.iter().map(|p| p.frame).collect::<Vec<_>>(),
+        vec![0, 2, 4]
+    );
+    assert!(!preview.body_faces.is_empty());
+
+    let bytes = std::fs::read(&path).expect("bytes");
+    for (name, bad) in [
+        ("truncated.mcap", bytes[..bytes.len() * 2 / 3].to_vec()),
+        ("empty.mcap", Vec::new()),
+        ("text.mcap", b"not an mcap file".to_vec()),
+    ] {
+        let bad_path = dir.join(name);
+        std::fs::write(&bad_path, bad).expect("write");
+        let e = ClothSequence::read(&bad_path).expect_err("malformed");
+        assert!(e.to_string().contains(name), "{e}");
+    }
+    // A well-formed MCAP file whose header was tampered with (hash mismatch).
+    let mut tampered = seq.clone();
+    tampered.header.drive_config.rest_frames += 1;
+    let e = tampered
+        .to_bytes(&dir.join("x.mcap"))
+        .expect_err("inconsistent");
+    assert!(e.to_string().contains("drive_config"), "{e}");
+    let e = ClothSequence::read(&dir.join("missing.mcap")).expect_err("missing");
+    assert!(e.to_string().contains("missing.mcap"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn reruns_give_byte_identical_files() {
+    let motion = clip().slice(0..3).expect("frames");
+    let path = Path::new("same.mcap");
+    let run = || {
+        simulate(&betas(0.5), Some(&motion), &quick_config())
+            .expect("simulates")
+            .to_bytes(path)
+            .expect("bytes")
+    };
+    let (a, b) = (run(), run());
+    assert!(a == b, "two runs differ ({} vs {} bytes)", a.len(), b.len());
+}
+
+#[test]
+fn failures_are_retried_then_reported_and_nothing_is_written() {
+    let dir = temp_dir("failure");
+    let out = dir.join("failed.mcap");
+    // A kinetic-energy bound no motion meets: every attempt fails.
+    let mut config = quick_config();
+    config.sim.max_speed_m_per_s = 1e-9;
+    config.retry.max_frame_retries = 1;
+    let result = simulate(&betas(0.0), None, &config).and_then(|s| s.write(&out));
+    match result {
+        Err(Error::SequenceFailed {
+            frame,
+            attempts,
+            reason: SequenceFailure::Step(StepFailure::EnergyBlowUp { .. }),
+            ..
+        }) => {
+            assert_eq!(frame, 0);
+            assert_eq!(attempts, 2);
+        }
+        other => panic!("expected a failed sequence, got {other:?}"),
+    }
+    assert!(!out.exists(), "a failed sequence must not be written");
+    // A NaN shape is refused before simulating.
+    let e = simulate(&betas(f64::NAN), None, &quick_config()).expect_err("NaN β");
+    assert!(e.to_string().contains("NaN"), "{e}");
+    assert!(!out.exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_frame_that_fails_is_redone_with_more_substeps() {
+    // Conjugate gradients capped at a few iterations converge on the smaller steps of a retry
+    // (the system M + h²K is better conditioned) but not on the configured ones.
+    let mut config = quick_config();
+    config.blend_frames = 2;
+    config.rest_frames = 0;
+    config.preview.every_n_frames = 0;
+    config.sim.linear_solver = LinearSolver::ConjugateGradient {
+        max_iterations: 12,
+        relative_tolerance: 1e-4,
+    };
+    let seq = simulate(&betas(2.0), None, &config).expect("simulates after retries");
+    let s = &seq.header.substeps;
+    assert!(s.retried_frames > 0 && s.failed_attempts > 0, "{s:?}");
+    assert!(s.max > s.base && s.min == s.base || s.min > s.base, "{s:?}");
+    assert!(
+        seq.frames
+            .iter()
+            .any(|f| f.substeps > config.substeps_per_frame)
+    );
+    assert_eq!(
+        s.total,
+        seq.frames.iter().map(|f| f.substeps).sum::<usize>()
+    );
+}
+
+#[test]
+fn the_relaxed_template_is_at_rest_on_the_template_body() {
+    // The committed template was relaxed on the body: simulating it there again (β = 0, rest
+    // pose) leaves it where it is, and relaxing it again stops after the minimum frames.
+    let garment = tshirt();
+    let seq = simulate(&betas(0.0), None, &quick_config()).expect("simulates");
+    let last = seq.last_frame().expect("frames").positions_vec3();
+    let moved = last
+        .iter()
+        .zip(garment.positions())
+        .map(|(a, b)| (a.cast::<f64>() - b).norm())
+        .fold(0.0, f64::max);
+    assert!(moved < 2e-3, "moved {:.2} mm", moved * 1e3);
+
+    let config = RelaxConfig {
+        min_frames: 3,
+        max_frames: 30,
+        ..RelaxConfig::default()
+    };
+    let (relaxed, report) =
+        relax_on_body(&garment, body(), &Material::gray_interlock(), &config).expect("relaxes");
+    assert!(report.frames < 30, "{report:?}");
+    assert_eq!(report.vertices_inside, 0);
+    assert_eq!(report.self_intersecting_pairs, 0);
+    assert!(report.min_signed_distance_mm > 0.0, "{report:?}");
+    assert!(report.max_displacement_mm < 2.0, "{report:?}");
+    assert_eq!(
+        relaxed.rest_dm(),
+        garment.rest_dm(),
+        "the rest metric is kept"
+    );
+    // Too few frames to come to rest is an error that says so.
+    let impatient = RelaxConfig {
+        min_frames: 1,
+        max_frames: 1,
+        max_speed_m_per_s: 1e-12,
+        ..RelaxConfig::default()
+    };
+    let e = relax_on_body(&garment, body(), &Material::gray_interlock(), &impatient)
+        .expect_err("not at rest");
+    assert!(e.to_string().contains("did not come to rest"), "{e}");
+}
+
+#[test]
+fn a_cloth_from_a_garment_keeps_its_rest_metric() {
+    use sartor_cloth::Cloth;
+    let garment = tshirt();
+    let cloth = Cloth::from_garment(&garment, Material::gray_interlock()).expect("cloth");
+    assert_eq!(cloth.rest_mesh().positions(), garment.positions());
+    for (m, (dm, area)) in cloth
+        .membranes()
+        .iter()
+        .zip(garment.rest_dm().iter().zip(garment.rest_area_m2()))
+    {
+        assert!((m.inv_dm * dm - nalgebra::Matrix2::identity()).norm() < 1e-9);
+        assert_eq!(m.area_m2, *area);
+    }
+    // A garment whose template is its rest shape gives the same cloth as `Cloth::new`.
+    let unrelaxed = Garment::from_surface(
+        garment.name(),
+        garment.mesh(),
+        garment.frame_u(),
+        garment.provenance().clone(),
+    )
+    .expect("garment");
+    let a = Cloth::from_garment(&unrelaxed, Material::gray_interlock()).expect("cloth");
+    let b = Cloth::new(
+        unrelaxed.mesh().clone(),
+        Material::gray_interlock(),
+        Some(unrelaxed.frame_u()),
+    )
+    .expect("cloth");
+    for (ha, hb) in a.hinges().iter().zip(b.hinges()) {
+        assert_eq!(ha.vertices, hb.vertices);
+        assert!((ha.rest_angle_rad - hb.rest_angle_rad).abs() < 1e-6);
+        for k in 0..2 {
+            let d = (ha.edge_angle_rad[k] - hb.edge_angle_rad[k]).rem_euclid(std::f64::consts::TAU);
+            assert!(d.min(std::f64::consts::TAU - d) < 1e-5, "{ha:?} {hb:?}");
+        }
+    }
+    for (ma, mb) in a.masses_kg().iter().zip(b.masses_kg()) {
+        assert!((ma - mb).abs() < 1e-6 * mb);
+    }
+}

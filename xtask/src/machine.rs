@@ -1,0 +1,38 @@
+//! The machine a report was made on (reports that carry timings say where they were taken).
+
+use serde::Serialize;
+
+/// Cores and CPU model.
+#[derive(Clone, Debug, Serialize)]
+pub struct Machine {
+    /// Logical cores available to this process.
+    pub cores: usize,
+    /// `model name` from /proc/cpuinfo ("unknown" elsewhere).
+    pub cpu_model: String,
+}
+
+impl Machine {
+    /// This machine.
+    pub fn current() -> Self {
+        let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split(':').nth(1))
+                    .map(|m| m.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into());
+        Self {
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            cpu_model,
+        }
+    }
+}
+
+/// The 1, 5 and 15 minute load averages (as `uptime` prints them), if /proc/loadavg exists.
+pub fn load_average() -> Option<[f64; 3]> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    let mut fields = text.split_whitespace().map(|f| f.parse::<f64>().ok());
+    Some([fields.next()??, fields.next()??, fields.next()??])
+}
