@@ -36,3 +36,11 @@ pub fn load_average() -> Option<[f64; 3]> {
     let mut fields = text.split_whitespace().map(|f| f.parse::<f64>().ok());
     Some([fields.next()??, fields.next()??, fields.next()??])
 }
+
+/// Write `value` as pretty JSON (with a final newline) atomically.
+pub fn write_json(path: &std::path::Path, value: &impl Serialize) -> anyhow::Result<()> {
+    let mut json = serde_json::to_string_pretty(value)?;
+    json.push('\n');
+    sartor_body::io::write_atomic(path, json.as_bytes())?;
+    Ok(())
+}

@@ -8,10 +8,13 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod bench_runtime;
 mod body;
+mod dataset;
+mod experiment;
 mod garment;
 mod import_body;
 mod machine;
 mod motions;
+mod simulate;
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "sartor: learning-based garment animation")]
@@ -33,6 +36,10 @@ enum Command {
     /// Benchmarks that write JSON reports (`bench sim`: the cloth simulator per garment size;
     /// `bench runtime`: the runtime against the paper's Table 1).
     Bench(bench::BenchArgs),
+    /// Simulate every (shape, motion) pair of an experiment (resumable, shardable).
+    Simulate(simulate::SimulateArgs),
+    /// Build an experiment's training data from its simulations.
+    Dataset(dataset::DatasetArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -43,6 +50,8 @@ fn main() -> anyhow::Result<()> {
         Command::ImportMotion(args) => motions::import_motion(&args),
         Command::Garment(args) => garment::garment(&args),
         Command::Bench(args) => bench::bench(&args),
+        Command::Simulate(args) => simulate::simulate(&args),
+        Command::Dataset(args) => dataset::dataset(&args),
     }
 }
 

@@ -1,0 +1,404 @@
+//! `cargo xtask simulate --config C [--shard I/N] [--jobs J]`: simulate every (shape, motion)
+//! pair of an experiment, plus each shape's rest-pose simulation (for Δ_G), into
+//! `runs/<name>/sim/<shape>__<motion>.mcap`.
+//!
+//! - Parallel over sequences (each sequence runs on one thread, so its result does not depend
+//!   on the thread count), with a progress bar (sequences, frames, ETA).
+//! - Resumable: a finished file is skipped; files are written under a temporary name and
+//!   renamed when complete, so a partial file never counts.
+//! - Sharded: `--shard I/N` takes every N-th job starting at I (in a fixed order), so N
+//!   machines split the work deterministically and their outputs merge by copying files into
+//!   one folder. Without `--shard`, `JOB_COMPLETION_INDEX` (Kubernetes Indexed Job) or
+//!   `SLURM_ARRAY_TASK_ID` (SLURM array) give I, and `--shard-count`, `SARTOR_SHARDS` or
+//!   `SLURM_ARRAY_TASK_COUNT` give N.
+//! - A sequence that fails (NaN, blow-up, penetration, non-convergence, even after the
+//!   simulator's retries) is never written as ground truth: a `failed/<stem>.json` note records
+//!   why, and the dataset step leaves it out.
+//! - Writes `simulate.json` (or `simulate-shard-I-of-N.json`): jobs done, skipped and failed,
+//!   frames, wall time, ms per frame.
+
+use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use sartor_body::{BodyModel, Motion, MotionSourceOptions, RetargetBody, load_motion};
+use sartor_cloth::{DriveConfig, Garment, Material, simulate_sequence};
+use serde::Serialize;
+
+use crate::experiment::{Experiment, ExperimentArgs, REST_MOTION, sequence_stem};
+use crate::machine::{Machine, write_json};
+
+/// Arguments of `simulate`.
+#[derive(clap::Args, Debug)]
+pub struct SimulateArgs {
+    /// The experiment.
+    #[command(flatten)]
+    pub experiment: ExperimentArgs,
+    /// This machine's shard: `I/N` (0-based I).
+    #[arg(long)]
+    pub shard: Option<String>,
+    /// The number of shards when the index comes from the environment.
+    #[arg(long)]
+    pub shard_count: Option<usize>,
+    /// Sequences simulated at once (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+}
+
+/// One simulation job.
+#[derive(Clone, Debug)]
+pub struct Job {
+    /// Index into the plan's shapes.
+    pub shape: usize,
+    /// Motion name, or [`REST_MOTION`].
+    pub motion: String,
+    /// Output file stem.
+    pub stem: String,
+}
+
+/// Every job of an experiment in a fixed order: each shape's rest simulation, then the plan's
+/// sequences.
+pub fn jobs(e: &Experiment) -> Vec<Job> {
+    let plan = e.plan();
+    let mut jobs: Vec<Job> = plan
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Job {
+            shape: i,
+            motion: REST_MOTION.into(),
+            stem: sequence_stem(&s.id, REST_MOTION),
+        })
+        .collect();
+    jobs.extend(plan.sequences.iter().map(|q| Job {
+        shape: q.shape,
+        motion: q.motion.clone(),
+        stem: sequence_stem(&plan.shapes[q.shape].id, &q.motion),
+    }));
+    jobs
+}
+
+/// `(index, count)` of this machine's shard.
+pub fn resolve_shard(
+    shard: Option<&str>,
+    shard_count: Option<usize>,
+    env: &dyn Fn(&str) -> Option<String>,
+) -> anyhow::Result<(usize, usize)> {
+    let parse = |what: &str, v: &str| -> anyhow::Result<usize> {
+        v.trim()
+            .parse()
+            .with_context(|| format!("{what} {v:?} is not a non-negative integer"))
+    };
+    let (index, count) = if let Some(s) = shard {
+        let (i, n) = s
+            .split_once('/')
+            .with_context(|| format!("--shard {s:?}: expected I/N, e.g. 3/16"))?;
+        (parse("shard index", i)?, parse("shard count", n)?)
+    } else if let Some(i) = env("JOB_COMPLETION_INDEX").or_else(|| env("SLURM_ARRAY_TASK_ID")) {
+        let n = match shard_count {
+            Some(n) => n,
+            None => match env("SARTOR_SHARDS").or_else(|| env("SLURM_ARRAY_TASK_COUNT")) {
+                Some(n) => parse("shard count", &n)?,
+                None => bail!(
+                    "a shard index came from the environment but not the count: pass --shard-count N or set SARTOR_SHARDS"
+                ),
+            },
+        };
+        (parse("shard index", &i)?, n)
+    } else {
+        (0, 1)
+    };
+    if count == 0 || index >= count {
+        bail!("shard {index}/{count}: need 0 ≤ I < N");
+    }
+    Ok((index, count))
+}
+
+/// Loads everything a simulation job needs.
+pub struct SimInputs {
+    /// The body.
+    pub body: BodyModel,
+    /// The garment template (relaxed on the template body).
+    pub garment: Garment,
+    /// The cloth material.
+    pub material: Material,
+    /// The driver settings.
+    pub drive: DriveConfig,
+    /// Motion sources.
+    pub motions: MotionSourceOptions,
+}
+
+impl SimInputs {
+    /// Load the experiment's body, garment, material and settings.
+    pub fn load(e: &Experiment) -> anyhow::Result<Self> {
+        let body = BodyModel::load(&e.body)
+            .with_context(|| format!("loading the body model from {}", e.body.display()))?;
+        let garment = Garment::load(&e.garment)
+            .with_context(|| format!("loading the garment from {}", e.garment.display()))?;
+        let material = if e.material == "gray_interlock" {
+            Material::gray_interlock()
+        } else {
+            Material::from_json_file(Path::new(&e.material))
+                .with_context(|| format!("loading the material {}", e.material))?
+        };
+        let drive: DriveConfig = serde_json::from_value(e.simulation.clone())
+            .context("the config's \"simulation\" section")?;
+        let motions = MotionSourceOptions {
+            motions_dir: crate::workspace_root().join("datasets/motions"),
+            body: RetargetBody::load(&e.body).ok(),
+            lenient: false,
+            up_axis: sartor_body::UpAxis::Y,
+        };
+        Ok(Self {
+            body,
+            garment,
+            material,
+            drive,
+            motions,
+        })
+    }
+
+    /// The motion of a job, cut to the experiment's `max_frames`.
+    pub fn motion(&self, e: &Experiment, name: &str) -> anyhow::Result<Motion> {
+        let m = load_motion(name, &self.motions).with_context(|| format!("motion {name:?}"))?;
+        Ok(match e.motions.max_frames {
+            Some(n) if n < m.n_frames() => m.slice(0..n)?,
+            _ => m,
+        })
+    }
+}
+
+#[derive(Serialize)]
+struct FailedJob {
+    stem: String,
+    reason: String,
+}
+
+#[derive(Serialize)]
+struct SimulateReport {
+    config: String,
+    config_sha256: String,
+    simulation_sha256: String,
+    shard_index: usize,
+    shard_count: usize,
+    jobs_in_shard: usize,
+    jobs_done: usize,
+    jobs_skipped_existing: usize,
+    jobs_failed: usize,
+    failed: Vec<FailedJob>,
+    frames_simulated: usize,
+    wall_time_s: f64,
+    threads: usize,
+    /// Wall time per simulated frame times the threads used: the cost of a frame on one core.
+    ms_per_frame_per_thread: f64,
+    /// Wall time per simulated frame (throughput of the whole run).
+    ms_per_frame_wall: f64,
+    machine: Machine,
+}
+
+/// Failure notes go here, inside the sim folder.
+pub const FAILED_DIR: &str = "failed";
+
+/// Run `simulate`.
+pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let e = args.experiment.load()?;
+    let (index, count) = resolve_shard(args.shard.as_deref(), args.shard_count, &|k| {
+        std::env::var(k).ok()
+    })?;
+    let inputs = SimInputs::load(&e)?;
+    let out = e.sim_dir();
+    std::fs::create_dir_all(out.join(FAILED_DIR))
+        .with_context(|| format!("creating {}", out.display()))?;
+    write_json(&out.join("config.json"), &e)?;
+    let plan = e.plan();
+    let mine: Vec<Job> = jobs(&e)
+        .into_iter()
+        .enumerate()
+        .filter(|(k, _)| k % count == index)
+        .map(|(_, j)| j)
+        .collect();
+    let todo: Vec<&Job> = mine
+        .iter()
+        .filter(|j| !out.join(format!("{}.mcap", j.stem)).exists())
+        .collect();
+    let skipped = mine.len() - todo.len();
+    // Frames per job, for the ETA.
+    let frames_of = |j: &Job| -> anyhow::Result<usize> {
+        let n = if j.motion == REST_MOTION {
+            0
+        } else {
+            inputs.motion(&e, &j.motion)?.n_frames()
+        };
+        Ok(inputs.drive.blend_frames + inputs.drive.rest_frames + n)
+    };
+    let total_frames: usize = todo
+        .iter()
+        .map(|j| frames_of(j))
+        .collect::<anyhow::Result<Vec<_>>>()?
+        .iter()
+        .sum();
+    let bar = ProgressBar::new(total_frames as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} simulate [{elapsed_precise}] {wide_bar} {pos}/{len} frames ({per_sec}, ETA {eta}) {msg}",
+        )?,
+    );
+    let sequences_done = AtomicUsize::new(0);
+    let failed = Mutex::new(Vec::new());
+    let frames_done = AtomicUsize::new(0);
+    let threads = args
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    bar.set_message(format!("0/{} sequences", todo.len()));
+    let result: anyhow::Result<()> = pool.install(|| {
+        todo.par_iter().try_for_each(|job| -> anyhow::Result<()> {
+            let shape = &plan.shapes[job.shape];
+            let mut betas = shape.betas.clone();
+            betas.resize(inputs.body.n_betas(), 0.0);
+            let motion = if job.motion == REST_MOTION {
+                None
+            } else {
+                Some(inputs.motion(&e, &job.motion)?)
+            };
+            let mut last = 0usize;
+            let mut on_frame = |done: usize, _total: usize| {
+                bar.inc((done - last) as u64);
+                frames_done.fetch_add(done - last, Ordering::Relaxed);
+                last = done;
+            };
+            let path = out.join(format!("{}.mcap", job.stem));
+            match simulate_sequence(
+                &inputs.body,
+                &inputs.garment,
+                &inputs.material,
+                &betas,
+                motion.as_ref(),
+                &inputs.drive,
+                &mut on_frame,
+            ) {
+                Ok(sequence) => {
+                    sequence
+                        .write(&path)
+                        .with_context(|| format!("writing {}", path.display()))?;
+                    let _ = std::fs::remove_file(
+                        out.join(FAILED_DIR).join(format!("{}.json", job.stem)),
+                    );
+                }
+                Err(err) => {
+                    let note = FailedJob {
+                        stem: job.stem.clone(),
+                        reason: err.to_string(),
+                    };
+                    write_json(
+                        &out.join(FAILED_DIR).join(format!("{}.json", job.stem)),
+                        &note,
+                    )?;
+                    bar.println(format!("failed: {} — {}", job.stem, note.reason));
+                    failed
+                        .lock()
+                        .map_err(|_| anyhow::anyhow!("poisoned lock"))?
+                        .push(note);
+                }
+            }
+            let n = sequences_done.fetch_add(1, Ordering::Relaxed) + 1;
+            bar.set_message(format!("{n}/{} sequences", todo.len()));
+            Ok(())
+        })
+    });
+    bar.finish();
+    result?;
+    let failed = failed
+        .into_inner()
+        .map_err(|_| anyhow::anyhow!("poisoned lock"))?;
+    let wall = start.elapsed().as_secs_f64();
+    let frames = frames_done.load(Ordering::Relaxed);
+    let per_frame_wall = if frames > 0 {
+        wall * 1e3 / frames as f64
+    } else {
+        0.0
+    };
+    let report = SimulateReport {
+        config: crate::workspace_relative(&args.experiment.config),
+        config_sha256: Experiment::section_sha256(&e)?,
+        simulation_sha256: Experiment::section_sha256(&inputs.drive)?,
+        shard_index: index,
+        shard_count: count,
+        jobs_in_shard: mine.len(),
+        jobs_done: todo.len() - failed.len(),
+        jobs_skipped_existing: skipped,
+        jobs_failed: failed.len(),
+        failed,
+        frames_simulated: frames,
+        wall_time_s: wall,
+        threads,
+        ms_per_frame_per_thread: per_frame_wall * threads.min(todo.len().max(1)) as f64,
+        ms_per_frame_wall: per_frame_wall,
+        machine: Machine::current(),
+    };
+    let name = if count == 1 {
+        "simulate.json".to_string()
+    } else {
+        format!("simulate-shard-{index}-of-{count}.json")
+    };
+    write_json(&out.join(&name), &report)?;
+    println!(
+        "simulate: {} done, {} already there, {} failed; {} frames in {:.1} s ({:.1} ms/frame/thread) → {}",
+        report.jobs_done,
+        skipped,
+        report.jobs_failed,
+        frames,
+        wall,
+        report.ms_per_frame_per_thread,
+        out.join(&name).display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_come_from_flags_or_the_environment() {
+        let none = |_: &str| None;
+        assert_eq!(resolve_shard(None, None, &none).expect("ok"), (0, 1));
+        assert_eq!(
+            resolve_shard(Some("3/16"), None, &none).expect("ok"),
+            (3, 16)
+        );
+        assert!(resolve_shard(Some("16/16"), None, &none).is_err());
+        assert!(resolve_shard(Some("3"), None, &none).is_err());
+        let k8s = |k: &str| (k == "JOB_COMPLETION_INDEX").then(|| "2".to_string());
+        assert_eq!(resolve_shard(None, Some(4), &k8s).expect("ok"), (2, 4));
+        assert!(resolve_shard(None, None, &k8s).is_err(), "count missing");
+        let slurm = |k: &str| match k {
+            "SLURM_ARRAY_TASK_ID" => Some("5".to_string()),
+            "SLURM_ARRAY_TASK_COUNT" => Some("8".to_string()),
+            _ => None,
+        };
+        assert_eq!(resolve_shard(None, None, &slurm).expect("ok"), (5, 8));
+    }
+
+    #[test]
+    fn every_shape_gets_a_rest_job_and_file_names_are_unique() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/default.json");
+        let e = Experiment::load(&path).expect("valid");
+        let all = jobs(&e);
+        let n_shapes = e.shapes.train.len() + e.shapes.held_out.len();
+        assert_eq!(
+            all.iter().filter(|j| j.motion == REST_MOTION).count(),
+            n_shapes
+        );
+        assert_eq!(all.len(), n_shapes + e.plan().sequences.len());
+        let stems: std::collections::BTreeSet<&String> = all.iter().map(|j| &j.stem).collect();
+        assert_eq!(stems.len(), all.len(), "unique file names");
+    }
+}

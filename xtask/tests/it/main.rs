@@ -1,0 +1,3 @@
+//! End-to-end tests of the command line (one binary): the tiny pipeline as CI runs it.
+
+mod pipeline;
