@@ -32,12 +32,42 @@ use crate::format::Feature;
 use crate::kernels::{Parallelism, Precision};
 use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
 
+/// Where an avatar's shaped garment `T̄_c + Δ` comes from, set once per shape.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FitMode {
+    /// `Δ = Δ_G = R_G(β)`, the fit MLP: the method of the paper.
+    #[default]
+    Network,
+    /// Retargeting, the baseline for new shapes with no learned fit: each cloth vertex moves with
+    /// its closest point on the template body (β = 0, rest pose), found once per rig,
+    /// `Δ(v) = Σ_k b_k (T_b(β) − T_b(0))[f_k]` over the three vertices `f_k` of that triangle with
+    /// barycentric weights `b_k`. The garment follows the body's shape change as if glued to it.
+    Retarget,
+    /// `Δ = 0`: the template `T̄_c` as it is (with no wrinkles, the LBS baseline: the template
+    /// skinned to the posed body).
+    Template,
+}
+
+/// Where an avatar's per-frame wrinkles `Δ_L` come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum WrinkleMode {
+    /// `Δ_L = R_L(β, θ)`, one step of the wrinkle GRU per frame: the method of the paper.
+    #[default]
+    Gru,
+    /// The linear baseline (LR) in place of the GRU: one linear layer of the same inputs, no
+    /// state. The model must carry it (`linear_baseline` in its header).
+    Linear,
+    /// `Δ_L = 0`: the fit-only mode for static try-on (no network cost per frame, no state).
+    None,
+}
+
 /// What an avatar computes per frame (the scene-side half of a [`LevelOfDetail`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AnimatorOptions {
-    /// Run the wrinkle GRU. `false` is the fit-only mode for static try-on: `Δ_L = 0`, the garment
-    /// is `T̄_c + R_G(β)` skinned (no GRU cost, no temporal state).
-    pub wrinkles: bool,
+    /// The shaped garment: the fit MLP (default) or a baseline.
+    pub fit: FitMode,
+    /// The wrinkles: the GRU (default), the linear baseline, or none (static try-on).
+    pub wrinkles: WrinkleMode,
     /// The collision post-process, or `None` to skip it.
     pub collision: Option<CollisionOptions>,
     /// Threads for the network, the skinning and the post-process (results do not depend on it).
@@ -51,7 +81,8 @@ impl Default for AnimatorOptions {
     /// Wrinkles on, post-process on (defaults of [`CollisionOptions`]), one thread, 30 fps.
     fn default() -> Self {
         Self {
-            wrinkles: true,
+            fit: FitMode::Network,
+            wrinkles: WrinkleMode::Gru,
             collision: Some(CollisionOptions::default()),
             parallelism: Parallelism::Sequential,
             frame_dt_secs: 1.0 / FPS,
@@ -98,7 +129,7 @@ impl LevelOfDetail {
         Self {
             network: NetworkOptions::default(),
             animator: AnimatorOptions {
-                wrinkles: false,
+                wrinkles: WrinkleMode::None,
                 ..AnimatorOptions::default()
             },
         }
@@ -155,6 +186,9 @@ pub struct GarmentRig {
     options: AnimatorOptions,
     inputs: InputMap,
     region: BodyRegion,
+    /// For [`FitMode::Retarget`]: per cloth vertex, the closest template-body triangle's vertices
+    /// and barycentric weights.
+    retarget: Option<Vec<([u32; 3], [f64; 3])>>,
 }
 
 impl GarmentRig {
@@ -192,8 +226,18 @@ impl GarmentRig {
         if let Some(c) = &options.collision {
             c.validate()?;
         }
+        if options.wrinkles == WrinkleMode::Linear && !network.has_linear_baseline() {
+            return Err(Error::invalid(
+                "animator options",
+                "the linear baseline was asked for, but the model has none",
+            ));
+        }
         let inputs = InputMap::new(&network, &body)?;
         let region = BodyRegion::new(&body, binding.region_faces())?;
+        let retarget = match options.fit {
+            FitMode::Retarget => Some(retarget_binding(&body, binding.template())?),
+            FitMode::Network | FitMode::Template => None,
+        };
         Ok(Self {
             network,
             binding,
@@ -201,6 +245,7 @@ impl GarmentRig {
             options,
             inputs,
             region,
+            retarget,
         })
     }
 
@@ -240,6 +285,23 @@ impl GarmentRig {
             Parallelism::Rayon => Par::Rayon,
         }
     }
+}
+
+/// Each cloth vertex's closest point on the template body (β = 0, rest pose): the triangle's
+/// vertices and barycentric weights ([`FitMode::Retarget`]).
+fn retarget_binding(
+    body: &BodyModel,
+    template: &[Vector3<f32>],
+) -> Result<Vec<([u32; 3], [f64; 3])>> {
+    let mesh = body.template();
+    let proximity = sartor_body::MeshProximity::new(mesh.positions(), mesh.faces())?;
+    Ok(template
+        .iter()
+        .map(|p| {
+            let c = proximity.closest(&p.cast::<f64>());
+            (mesh.faces()[c.face as usize], c.barycentric)
+        })
+        .collect())
 }
 
 /// Counts of cloth vertices against the exact closest point of the posed body region.
@@ -294,8 +356,22 @@ impl Avatar {
         check_len("betas", betas.len(), rig.network.n_betas())?;
         check_finite("betas", betas)?;
         let par = rig.options.parallelism;
-        rig.network.fit(betas, &mut self.fit, ws, par)?;
         let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
+        match (rig.options.fit, &rig.retarget) {
+            (FitMode::Network, _) => rig.network.fit(betas, &mut self.fit, ws, par)?,
+            (FitMode::Retarget, Some(bound)) => {
+                let shaped = rig.body.shaped_vertices(&betas64)?;
+                let rest = rig.body.template().positions();
+                for (d, (tri, b)) in self.fit.chunks_exact_mut(3).zip(bound) {
+                    let mut delta = Vector3::zeros();
+                    for (&v, &w) in tri.iter().zip(b) {
+                        delta += (shaped[v as usize] - rest[v as usize]) * w;
+                    }
+                    d.copy_from_slice(delta.cast::<f32>().as_slice());
+                }
+            }
+            (FitMode::Template, _) | (FitMode::Retarget, None) => self.fit.fill(0.0),
+        }
         let rest_joints = rig.body.shaped_joints(&betas64)?;
         let template = rig.binding.template();
         let cloth_rest: Vec<Vector3<f32>> = template
@@ -385,11 +461,15 @@ impl Avatar {
         Ok(())
     }
 
-    fn collision_count(&self, tolerance_m: f64) -> Option<CollisionCount> {
+    fn collision_count(
+        &self,
+        vertices: &[Vector3<f32>],
+        tolerance_m: f64,
+    ) -> Option<CollisionCount> {
         let collider = self.collider.as_ref()?;
         let margin = collider.margin_m() - tolerance_m;
         let mut count = CollisionCount::default();
-        for p in &self.vertices {
+        for p in vertices {
             let d = collider.exact(p).signed_distance_m;
             count.inside += usize::from(d < 0.0);
             count.within_margin += usize::from(d < margin);
@@ -471,6 +551,17 @@ impl GarmentAnimator {
         self.avatar.has_previous = false;
     }
 
+    /// Start a new sequence that continues from `previous` (zero GRU state, `previous` as the
+    /// pose before the next frame, for its root velocities): how the training data begins a
+    /// motion after the rest frames, and how an application resumes a character standing still.
+    pub fn reset_from(&mut self, previous: &Pose) -> Result<()> {
+        previous.validate(self.rig.body.skeleton().n_joints())?;
+        self.reset();
+        self.avatar.previous.clone_from(previous);
+        self.avatar.has_previous = true;
+        Ok(())
+    }
+
     /// Animate one frame; returns the garment's `V` posed vertices (metres). Errors (leaving the
     /// avatar as it was) on a pose that is not finite, not unit, or of another skeleton.
     /// Allocation-free.
@@ -478,18 +569,26 @@ impl GarmentAnimator {
         let rig = &*self.rig;
         let par = rig.par();
         pose.validate(rig.body.skeleton().n_joints())?;
-        let wrinkle = if rig.options.wrinkles {
-            self.avatar.features(rig, pose, &mut self.x)?;
-            rig.network.wrinkle_step(
-                &self.x,
-                &mut self.state,
-                &mut self.wrinkle,
-                &mut self.ws,
-                rig.options.parallelism,
-            )?;
-            Some(&self.wrinkle[..])
-        } else {
-            None
+        let par_net = rig.options.parallelism;
+        let wrinkle = match rig.options.wrinkles {
+            WrinkleMode::Gru => {
+                self.avatar.features(rig, pose, &mut self.x)?;
+                rig.network.wrinkle_step(
+                    &self.x,
+                    &mut self.state,
+                    &mut self.wrinkle,
+                    &mut self.ws,
+                    par_net,
+                )?;
+                Some(&self.wrinkle[..])
+            }
+            WrinkleMode::Linear => {
+                self.avatar.features(rig, pose, &mut self.x)?;
+                rig.network
+                    .linear_baseline(&self.x, &mut self.wrinkle, &mut self.ws, par_net)?;
+                Some(&self.wrinkle[..])
+            }
+            WrinkleMode::None => None,
         };
         self.avatar.finish(rig, pose, wrinkle, par)?;
         Ok(&self.avatar.vertices)
@@ -542,7 +641,20 @@ impl GarmentAnimator {
     /// `margin − tolerance_m` of it, by the exact (tree) query, whatever the configured query;
     /// `None` when the post-process is off. For checks and reports, not per frame in a game.
     pub fn collision_count(&self, tolerance_m: f64) -> Option<CollisionCount> {
-        self.avatar.collision_count(tolerance_m)
+        self.avatar
+            .collision_count(&self.avatar.vertices, tolerance_m)
+    }
+
+    /// [`GarmentAnimator::collision_count`] of other vertices (`V` of them) against this
+    /// avatar's body as posed in the last frame: e.g. the same frame from an animator without
+    /// the post-process, or the ground truth. `None` when the post-process is off.
+    pub fn collision_count_of(
+        &self,
+        vertices: &[Vector3<f32>],
+        tolerance_m: f64,
+    ) -> Result<Option<CollisionCount>> {
+        check_len("garment vertices", vertices.len(), self.rig.n_vertices())?;
+        Ok(self.avatar.collision_count(vertices, tolerance_m))
     }
 
     /// Mean candidate faces per cloth vertex of the candidate query (0 for the BVH, `None`
@@ -639,7 +751,8 @@ impl GarmentCrowd {
         for pose in poses {
             pose.validate(j)?;
         }
-        if rig.options.wrinkles {
+        let wrinkles = rig.options.wrinkles != WrinkleMode::None;
+        if wrinkles {
             for ((a, pose), x) in self
                 .avatars
                 .iter()
@@ -648,16 +761,28 @@ impl GarmentCrowd {
             {
                 a.features(rig, pose, x)?;
             }
-            rig.network.wrinkle_step_batch(
+        }
+        match rig.options.wrinkles {
+            WrinkleMode::Gru => rig.network.wrinkle_step_batch(
                 &self.xs,
                 n,
                 &mut self.states,
                 &mut self.wrinkles,
                 &mut self.ws,
                 rig.options.parallelism,
-            )?;
+            )?,
+            WrinkleMode::Linear => {
+                for (x, out) in self
+                    .xs
+                    .chunks_exact(n_in)
+                    .zip(self.wrinkles.chunks_exact_mut(n_out))
+                {
+                    rig.network
+                        .linear_baseline(x, out, &mut self.ws, rig.options.parallelism)?;
+                }
+            }
+            WrinkleMode::None => {}
         }
-        let wrinkles = rig.options.wrinkles;
         let finish = |((a, pose), w): ((&mut Avatar, &Pose), &[f32])| {
             a.finish(rig, pose, wrinkles.then_some(w), Par::Seq)
         };

@@ -64,7 +64,8 @@ mod network;
 mod writers;
 
 pub use animator::{
-    AnimatorOptions, CollisionCount, GarmentAnimator, GarmentCrowd, GarmentRig, LevelOfDetail,
+    AnimatorOptions, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd, GarmentRig,
+    LevelOfDetail, WrinkleMode,
 };
 pub use binding::{
     BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,

@@ -113,7 +113,11 @@ fn frames_allocate_nothing() {
     ];
     for (model, precision, collision, wrinkles) in cases {
         let options = AnimatorOptions {
-            wrinkles,
+            wrinkles: if wrinkles {
+                sartor_runtime::WrinkleMode::Gru
+            } else {
+                sartor_runtime::WrinkleMode::None
+            },
             collision,
             ..AnimatorOptions::default()
         };

@@ -156,7 +156,7 @@ fn fit_only_mode_is_the_fitted_template_skinned() {
         &m,
         NetworkOptions::default(),
         AnimatorOptions {
-            wrinkles: false,
+            wrinkles: sartor_runtime::WrinkleMode::None,
             ..no_pp()
         },
     );
@@ -405,4 +405,119 @@ fn reduced_output_ranks() {
     assert_eq!(net.output_rank(), Some(4));
     let full_net = GarmentNetwork::new(model(9, OutputKind::Dense, 16), Precision::F32).expect("n");
     assert!(net.wrinkle_weight_bytes() < full_net.wrinkle_weight_bytes());
+}
+
+#[test]
+fn baselines_lbs_and_retarget_are_the_template_moved_by_the_body() {
+    use sartor_runtime::{FitMode, WrinkleMode};
+    let m = model(5, OutputKind::Dense, 16);
+    let opts = |fit| AnimatorOptions {
+        fit,
+        wrinkles: WrinkleMode::None,
+        ..no_pp()
+    };
+    let lbs = rig(&m, NetworkOptions::default(), opts(FitMode::Template));
+    let retarget = rig(&m, NetworkOptions::default(), opts(FitMode::Retarget));
+    let pose = &clip("walk_normal", 8, 3)[7];
+    let template = binding().template().to_vec();
+
+    // LBS: the template itself, skinned.
+    let mut a = GarmentAnimator::new(lbs).expect("avatar");
+    a.set_shape(&betas(1.5)).expect("shape");
+    a.frame(pose).expect("frame");
+    assert_eq!(a.unposed(), &template[..]);
+    assert!(a.fit_displacement().iter().all(|&d| d == 0.0));
+
+    // Retarget at β = 0 moves nothing; at β ≠ 0 each vertex moves by its closest body point's
+    // shape displacement, which is bounded by the body's largest vertex displacement.
+    let mut r = GarmentAnimator::new(retarget).expect("avatar");
+    r.frame(pose).expect("frame");
+    assert!(r.fit_displacement().iter().all(|d| d.abs() < 1e-7));
+    let b = betas(1.5);
+    r.set_shape(&b).expect("shape");
+    let body = body();
+    let b64: Vec<f64> = b.iter().map(|&x| f64::from(x)).collect();
+    let shaped = body.shaped_vertices(&b64).expect("shaped");
+    let max_body = shaped
+        .iter()
+        .zip(body.template().positions())
+        .map(|(s, t)| (s - t).norm())
+        .fold(0.0, f64::max);
+    let d = r.fit_displacement().to_vec();
+    let moved: Vec<f64> = d
+        .chunks_exact(3)
+        .map(|c| Vector3::new(c[0], c[1], c[2]).cast::<f64>().norm())
+        .collect();
+    let max_moved = moved.iter().copied().fold(0.0, f64::max);
+    assert!(max_moved > 1e-3, "β = 1.5 moves the garment: {max_moved} m");
+    assert!(max_moved <= max_body + 1e-6, "{max_moved} > {max_body}");
+    // A vertex glued to the body: the one closest to a body vertex follows it to within the
+    // offset's change (the closest point's barycentric blend).
+    r.frame(pose).expect("frame");
+    for (u, (t, c)) in r
+        .unposed()
+        .iter()
+        .zip(template.iter().zip(d.chunks_exact(3)))
+    {
+        assert_eq!(*u, t + Vector3::new(c[0], c[1], c[2]));
+    }
+}
+
+#[test]
+fn linear_baseline_mode_needs_the_baseline_and_replaces_the_gru() {
+    use sartor_runtime::{GarmentRig, WrinkleMode};
+    use std::sync::Arc;
+    let mut h = crate::scene::header(OutputKind::Dense, 16);
+    h.sizes.linear_baseline = true;
+    let with_lr = crate::common::random_model_with(6, h, 0.01);
+    let opts = AnimatorOptions {
+        wrinkles: WrinkleMode::Linear,
+        ..no_pp()
+    };
+    let r = rig(&with_lr, NetworkOptions::default(), opts);
+    let mut a = GarmentAnimator::new(r).expect("avatar");
+    a.set_shape(&betas(0.7)).expect("shape");
+    let poses = clip("arm_swing_large", 6, 4);
+    let first = a.frame(&poses[2]).expect("frame").to_vec();
+    assert!(a.state().iter().all(|&h| h == 0.0), "no GRU state is used");
+    // Stateless: the same (previous, current) poses give the same garment.
+    a.reset();
+    a.frame(&poses[2]).expect("frame");
+    assert_eq!(a.vertices(), &first[..]);
+    let gru = rig(&with_lr, NetworkOptions::default(), no_pp());
+    let mut g = GarmentAnimator::new(gru).expect("avatar");
+    g.set_shape(&betas(0.7)).expect("shape");
+    assert_ne!(g.frame(&poses[2]).expect("frame"), &first[..]);
+
+    // A model without the baseline is refused at rig time, naming the fault.
+    let (mut header, weights) = with_lr.into_parts();
+    header.sizes.linear_baseline = false;
+    let mut weights = weights;
+    weights.lr = None;
+    let plain = sartor_runtime::GarmentModel::new(header, weights).expect("valid");
+    let net = Arc::new(GarmentNetwork::new(plain, Precision::F32).expect("net"));
+    let e = GarmentRig::new(net, binding(), body(), opts).expect_err("no baseline");
+    assert!(e.to_string().contains("linear baseline"), "{e}");
+}
+
+#[test]
+fn reset_from_sets_the_previous_pose_and_zeroes_the_state() {
+    let m = model(7, OutputKind::Dense, 16);
+    let mut a = GarmentAnimator::new(rig(&m, NetworkOptions::default(), no_pp())).expect("a");
+    let poses = clip("run_fast", 6, 4);
+    for p in &poses[..4] {
+        a.frame(p).expect("frame");
+    }
+    // From the same pose as the frame: zero velocity, as after a plain reset.
+    a.reset_from(&poses[5]).expect("valid");
+    assert!(a.state().iter().all(|&h| h == 0.0));
+    let still = a.frame(&poses[5]).expect("frame").to_vec();
+    a.reset();
+    assert_eq!(a.frame(&poses[5]).expect("frame"), &still[..]);
+    // From an earlier pose of a running clip: the root moved, so the input and output differ.
+    a.reset_from(&poses[4]).expect("valid");
+    assert_ne!(a.frame(&poses[5]).expect("frame"), &still[..]);
+    // A pose of another skeleton is an error.
+    let bad = sartor_body::Pose::rest(3);
+    assert!(a.reset_from(&bad).is_err());
 }
