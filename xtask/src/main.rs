@@ -9,11 +9,13 @@ mod bench;
 mod bench_runtime;
 mod body;
 mod dataset;
+mod eval;
 mod experiment;
 mod garment;
 mod import_body;
 mod machine;
 mod motions;
+mod plot;
 mod simulate;
 
 #[derive(Parser)]
@@ -40,6 +42,8 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Build an experiment's training data from its simulations.
     Dataset(dataset::DatasetArgs),
+    /// Judge the exported model and the baselines on held-out ground truth: eval.json, plots.
+    Eval(eval::EvalArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -52,6 +56,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench::bench(&args),
         Command::Simulate(args) => simulate::simulate(&args),
         Command::Dataset(args) => dataset::dataset(&args),
+        Command::Eval(args) => eval::eval(&args),
     }
 }
 

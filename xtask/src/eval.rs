@@ -1,0 +1,797 @@
+//! `cargo xtask eval --config C`: judge the exported model against the simulator's held-out
+//! ground truth, next to the baselines, and write `runs/<name>/eval/eval.json` with plots.
+//!
+//! # Methods (all through `sartor_runtime`, each with and without the collision post-process)
+//!
+//! | name | shaped garment ([`FitMode`]) | wrinkles ([`WrinkleMode`]) |
+//! | --- | --- | --- |
+//! | `ours` | fit MLP `T̄_c + R_G(β)` | wrinkle GRU `R_L(β, θ)` |
+//! | `lr` | fit MLP | the linear baseline (one linear layer of the GRU's inputs) |
+//! | `lbs` | the template `T̄_c` | none: the template skinned to the shaped, posed body |
+//! | `retarget` | `T̄_c` moved with its closest template-body point's shape displacement | none |
+//!
+//! # Test sets
+//!
+//! - `held_out_motions`: every held-out clip on every training shape (`--nominal-only`: on the
+//!   training shape closest to β = 0 only, as the paper did); methods `ours`, `lbs`, `lr`.
+//! - `held_out_shapes`: every held-out shape with the config's `held_out_shapes` clips; methods
+//!   `ours`, `retarget`, `lbs`.
+//!
+//! # Metrics, per method
+//!
+//! - `mean_vertex_error_mm`: mean over frames and vertices of `|x − x_gt|` after the
+//!   post-process (the runtime's default output); `mean_vertex_error_mm_before_pp` without it.
+//! - `collision_percent_before_pp`, `collision_percent_after_pp`: the share of cloth vertices
+//!   inside the posed body (negative signed distance to the body region the post-process uses,
+//!   by the exact query), over all frames.
+//! - per sequence: the per-frame error curve (after the post-process), β and its distance to
+//!   the nearest training shape.
+//!
+//! The frames are the motion frames of the simulation; each sequence starts from a zero GRU
+//! state with the pose before its first frame as the previous pose, exactly as the dataset
+//! built the training inputs.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use sartor_body::{BodyModel, Pose};
+use sartor_dataset::{ShapePlan, SimulatedMotion, SimulationSource};
+use sartor_runtime::{
+    AnimatorOptions, Camera, FitMode, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,
+    NetworkOptions, Panel, RenderMesh, WrinkleMode, render_png,
+};
+use serde::Serialize;
+
+use crate::dataset::{SequenceFiles, failed_stems};
+use crate::experiment::{Experiment, ExperimentArgs, sequence_stem};
+use crate::machine::{Machine, write_json};
+use crate::plot::{Chart, Series, write_charts};
+
+/// Arguments of `eval`.
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// The experiment.
+    #[command(flatten)]
+    pub experiment: ExperimentArgs,
+    /// The exported model folder (default: `runs/<name>/export`).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Held-out motions on the nominal shape only (the training shape closest to β = 0).
+    #[arg(long)]
+    pub nominal_only: bool,
+    /// Frames shown in the rendered comparison.
+    #[arg(long, default_value_t = 4)]
+    pub render_frames: usize,
+}
+
+/// A method: how the runtime shapes and wrinkles the garment.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Fit MLP + wrinkle GRU.
+    Ours,
+    /// The template skinned.
+    Lbs,
+    /// Fit MLP + linear wrinkles.
+    Lr,
+    /// The template moved with the body's shape change, skinned.
+    Retarget,
+}
+
+impl Method {
+    /// The report name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ours => "ours",
+            Self::Lbs => "lbs",
+            Self::Lr => "lr",
+            Self::Retarget => "retarget",
+        }
+    }
+
+    /// The animator options of this method (post-process as given).
+    pub fn options(self, base: AnimatorOptions) -> AnimatorOptions {
+        let (fit, wrinkles) = match self {
+            Self::Ours => (FitMode::Network, WrinkleMode::Gru),
+            Self::Lbs => (FitMode::Template, WrinkleMode::None),
+            Self::Lr => (FitMode::Network, WrinkleMode::Linear),
+            Self::Retarget => (FitMode::Retarget, WrinkleMode::None),
+        };
+        AnimatorOptions {
+            fit,
+            wrinkles,
+            ..base
+        }
+    }
+}
+
+/// The loaded assets of an evaluation.
+pub struct Assets {
+    /// The body.
+    pub body: Arc<BodyModel>,
+    /// The binding.
+    pub binding: Arc<GarmentBinding>,
+    /// The exported model folder.
+    pub model_dir: PathBuf,
+}
+
+impl Assets {
+    /// Load the body of `e` and the binding of the model in `model_dir`.
+    pub fn load(e: &Experiment, model_dir: &Path) -> anyhow::Result<Self> {
+        let body = BodyModel::load(&e.body)
+            .with_context(|| format!("loading the body model from {}", e.body.display()))?;
+        let binding = GarmentBinding::load(model_dir).with_context(|| {
+            format!(
+                "loading the garment binding from {} (run `cargo xtask export` first)",
+                model_dir.display()
+            )
+        })?;
+        Ok(Self {
+            body: Arc::new(body),
+            binding: Arc::new(binding),
+            model_dir: model_dir.to_path_buf(),
+        })
+    }
+
+    /// A rig of `network` with `options`.
+    pub fn rig(
+        &self,
+        network: &Arc<GarmentNetwork>,
+        options: AnimatorOptions,
+    ) -> anyhow::Result<Arc<GarmentRig>> {
+        Ok(Arc::new(GarmentRig::new(
+            network.clone(),
+            self.binding.clone(),
+            self.body.clone(),
+            options,
+        )?))
+    }
+
+    /// The network loaded with `options`.
+    pub fn network(&self, options: NetworkOptions) -> anyhow::Result<Arc<GarmentNetwork>> {
+        Ok(Arc::new(
+            GarmentNetwork::load_with(&self.model_dir, options).with_context(|| {
+                format!(
+                    "loading the garment model from {}",
+                    self.model_dir.display()
+                )
+            })?,
+        ))
+    }
+}
+
+/// One ground-truth sequence of a test set.
+pub struct TestSequence {
+    /// Shape id.
+    pub shape: String,
+    /// Motion name.
+    pub motion: String,
+    /// Distance of β to the nearest training shape.
+    pub shape_distance: f64,
+    /// The simulation.
+    pub truth: SimulatedMotion,
+}
+
+/// Error and collisions of one method on one sequence.
+#[derive(Clone, Debug, Default)]
+pub struct SequenceMetrics {
+    /// Mean vertex error per frame after the post-process, metres.
+    pub per_frame_m: Vec<f64>,
+    /// The same before the post-process.
+    pub per_frame_before_pp_m: Vec<f64>,
+    /// Vertices inside the body, summed over frames, before and after the post-process.
+    pub inside_before: usize,
+    /// See `inside_before`.
+    pub inside_after: usize,
+    /// Vertices × frames.
+    pub vertex_frames: usize,
+}
+
+fn mean_distance(a: &[Vector3<f32>], b: &[Vector3<f64>]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p.cast::<f64>() - q).norm())
+        .sum::<f64>()
+        / a.len().max(1) as f64
+}
+
+/// Run `pp` (with the post-process) and `raw` (without) rigs of one method over `seq`.
+/// `keep` lists frames whose post-processed vertices are returned (for pictures).
+pub fn run_sequence(
+    pp: &Arc<GarmentRig>,
+    raw: &Arc<GarmentRig>,
+    seq: &TestSequence,
+    keep: &[usize],
+) -> anyhow::Result<(SequenceMetrics, Vec<Vec<Vector3<f32>>>)> {
+    let betas: Vec<f32> = seq.truth.betas.iter().map(|&b| b as f32).collect();
+    let n_betas = pp.network().n_betas();
+    anyhow::ensure!(
+        betas.len() >= n_betas,
+        "{}: β has {} components, the model takes {n_betas}",
+        sequence_stem(&seq.shape, &seq.motion),
+        betas.len()
+    );
+    let mut a = GarmentAnimator::new(pp.clone())?;
+    let mut b = GarmentAnimator::new(raw.clone())?;
+    for anim in [&mut a, &mut b] {
+        anim.set_shape(&betas[..n_betas])?;
+        anim.reset_from(&seq.truth.previous_pose)?;
+    }
+    let n = a.rig().n_vertices();
+    let mut m = SequenceMetrics::default();
+    let mut kept = Vec::new();
+    for (t, (pose, truth)) in seq.truth.poses.iter().zip(&seq.truth.cloth).enumerate() {
+        anyhow::ensure!(
+            truth.len() == n,
+            "{}: the ground truth has {} vertices, the model's garment {n}",
+            sequence_stem(&seq.shape, &seq.motion),
+            truth.len()
+        );
+        let before = b.frame(pose)?;
+        a.frame(pose)?;
+        let after = a.vertices();
+        m.per_frame_before_pp_m.push(mean_distance(before, truth));
+        m.per_frame_m.push(mean_distance(after, truth));
+        let count_before = a.collision_count_of(before, 0.0)?.unwrap_or_default();
+        let count_after = a.collision_count(0.0).unwrap_or_default();
+        m.inside_before += count_before.inside;
+        m.inside_after += count_after.inside;
+        m.vertex_frames += n;
+        if keep.contains(&t) {
+            kept.push(after.to_vec());
+        }
+    }
+    Ok((m, kept))
+}
+
+/// A method's numbers on a test set, as written to eval.json.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodReport {
+    /// Mean over frames and vertices, after the post-process, mm.
+    pub mean_vertex_error_mm: f64,
+    /// The same before the post-process, mm.
+    pub mean_vertex_error_mm_before_pp: f64,
+    /// The worst frame's mean error, mm.
+    pub max_frame_error_mm: f64,
+    /// Share of cloth vertices inside the body before the post-process, %.
+    pub collision_percent_before_pp: f64,
+    /// The same after it, %.
+    pub collision_percent_after_pp: f64,
+    /// Frames evaluated.
+    pub frames: usize,
+    /// Per sequence.
+    pub sequences: Vec<SequenceReport>,
+}
+
+/// One sequence of a [`MethodReport`].
+#[derive(Clone, Debug, Serialize)]
+pub struct SequenceReport {
+    /// Shape id.
+    pub shape: String,
+    /// Motion.
+    pub motion: String,
+    /// Distance of β to the nearest training shape.
+    pub shape_distance: f64,
+    /// Mean vertex error, mm.
+    pub mean_vertex_error_mm: f64,
+    /// Per frame, mm.
+    pub per_frame_error_mm: Vec<f64>,
+    /// Inside the body after the post-process, %.
+    pub collision_percent_after_pp: f64,
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 { f64::NAN } else { s / n as f64 }
+}
+
+fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport {
+    let all = |f: fn(&SequenceMetrics) -> &Vec<f64>| mean(metrics.iter().flat_map(f).copied());
+    let vf: usize = metrics.iter().map(|m| m.vertex_frames).sum();
+    let pct = |x: usize| 100.0 * x as f64 / vf.max(1) as f64;
+    MethodReport {
+        mean_vertex_error_mm: 1e3 * all(|m| &m.per_frame_m),
+        mean_vertex_error_mm_before_pp: 1e3 * all(|m| &m.per_frame_before_pp_m),
+        max_frame_error_mm: 1e3
+            * metrics
+                .iter()
+                .flat_map(|m| m.per_frame_m.iter().copied())
+                .fold(0.0, f64::max),
+        collision_percent_before_pp: pct(metrics.iter().map(|m| m.inside_before).sum()),
+        collision_percent_after_pp: pct(metrics.iter().map(|m| m.inside_after).sum()),
+        frames: metrics.iter().map(|m| m.per_frame_m.len()).sum(),
+        sequences: seqs
+            .iter()
+            .zip(metrics)
+            .map(|(s, m)| SequenceReport {
+                shape: s.shape.clone(),
+                motion: s.motion.clone(),
+                shape_distance: s.shape_distance,
+                mean_vertex_error_mm: 1e3 * mean(m.per_frame_m.iter().copied()),
+                per_frame_error_mm: m.per_frame_m.iter().map(|e| 1e3 * e).collect(),
+                collision_percent_after_pp: 100.0 * m.inside_after as f64
+                    / m.vertex_frames.max(1) as f64,
+            })
+            .collect(),
+    }
+}
+
+/// The test sequences of an experiment, without those whose simulation failed.
+pub struct TestSets {
+    /// Held-out motions on training shapes.
+    pub motions: Vec<(ShapePlan, String)>,
+    /// Held-out shapes.
+    pub shapes: Vec<(ShapePlan, String)>,
+    /// Stems of test sequences skipped because their simulation failed.
+    pub skipped: Vec<String>,
+}
+
+/// The two test sets of an experiment: held-out motions and held-out shapes.
+pub fn test_sets(e: &Experiment, nominal_only: bool) -> anyhow::Result<TestSets> {
+    let plan = e.plan();
+    let failed = failed_stems(&e.sim_dir())?;
+    let train: Vec<&ShapePlan> = plan
+        .shapes
+        .iter()
+        .filter(|s| s.split == sartor_dataset::Split::Train)
+        .collect();
+    let norm = |b: &[f64]| b.iter().map(|x| x * x).sum::<f64>();
+    let nominal = train
+        .iter()
+        .min_by(|a, b| norm(&a.betas).total_cmp(&norm(&b.betas)))
+        .map(|s| s.id.clone());
+    let mut motions = Vec::new();
+    let mut shapes = Vec::new();
+    let mut skipped = Vec::new();
+    for q in &plan.sequences {
+        let shape = &plan.shapes[q.shape];
+        let stem = sequence_stem(&shape.id, &q.motion);
+        let set = match q.split {
+            sartor_dataset::Split::HeldOutMotions => {
+                if nominal_only && Some(&shape.id) != nominal.as_ref() {
+                    continue;
+                }
+                &mut motions
+            }
+            sartor_dataset::Split::HeldOutShapes => &mut shapes,
+            _ => continue,
+        };
+        if failed.contains(&stem) || failed.contains(&sequence_stem(&shape.id, "rest")) {
+            skipped.push(stem);
+        } else {
+            set.push((shape.clone(), q.motion.clone()));
+        }
+    }
+    Ok(TestSets {
+        motions,
+        shapes,
+        skipped,
+    })
+}
+
+/// Distance of `betas` to the nearest training shape of `e` (components beyond a shape's list
+/// are 0).
+pub fn shape_distance(e: &Experiment, betas: &[f64]) -> f64 {
+    e.shapes
+        .train
+        .iter()
+        .map(|s| {
+            let n = betas.len().max(s.betas.len());
+            (0..n)
+                .map(|i| {
+                    let d = betas.get(i).copied().unwrap_or(0.0)
+                        - s.betas.get(i).copied().unwrap_or(0.0);
+                    d * d
+                })
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Load the ground truth of `set`.
+pub fn load_truth(
+    e: &Experiment,
+    files: &SequenceFiles,
+    set: &[(ShapePlan, String)],
+) -> anyhow::Result<Vec<TestSequence>> {
+    set.par_iter()
+        .map(|(shape, motion)| {
+            let truth = files.motion(shape, motion)?;
+            Ok(TestSequence {
+                shape: shape.id.clone(),
+                motion: motion.clone(),
+                shape_distance: shape_distance(e, &shape.betas),
+                truth,
+            })
+        })
+        .collect()
+}
+
+/// Evaluate `method` on `seqs` (sequences in parallel).
+pub fn evaluate(
+    assets: &Assets,
+    network: &Arc<GarmentNetwork>,
+    method: Method,
+    seqs: &[TestSequence],
+    bar: &ProgressBar,
+) -> anyhow::Result<MethodReport> {
+    let base = AnimatorOptions::default();
+    let pp = assets.rig(network, method.options(base))?;
+    let raw = assets.rig(
+        network,
+        method.options(AnimatorOptions {
+            collision: None,
+            ..base
+        }),
+    )?;
+    let metrics = seqs
+        .par_iter()
+        .map(|s| {
+            let r = run_sequence(&pp, &raw, s, &[]).map(|(m, _)| m);
+            bar.inc(s.truth.poses.len() as u64);
+            r
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(summarise(seqs, &metrics))
+}
+
+#[derive(Serialize)]
+struct EvalReport {
+    config: String,
+    model: String,
+    nominal_only: bool,
+    held_out_motions: serde_json::Map<String, serde_json::Value>,
+    held_out_shapes: serde_json::Map<String, serde_json::Value>,
+    ground_truth_collision_percent: f64,
+    skipped_failed_simulations: Vec<String>,
+    notes: Vec<String>,
+    wall_time_s: f64,
+    machine: Machine,
+}
+
+/// The folder of an experiment's evaluation.
+pub fn eval_dir(e: &Experiment) -> PathBuf {
+    e.run_dir().join("eval")
+}
+
+/// The default exported model folder of an experiment.
+pub fn export_dir(e: &Experiment) -> PathBuf {
+    e.run_dir().join("export")
+}
+
+/// Run `eval`.
+pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let e = args.experiment.load()?;
+    let model_dir = args.model.clone().unwrap_or_else(|| export_dir(&e));
+    let assets = Assets::load(&e, &model_dir)?;
+    let network = assets.network(NetworkOptions::default())?;
+    let TestSets {
+        motions: motion_set,
+        shapes: shape_set,
+        skipped,
+    } = test_sets(&e, args.nominal_only)?;
+    anyhow::ensure!(
+        !motion_set.is_empty() || !shape_set.is_empty(),
+        "{}: nothing to evaluate (no held-out sequence was simulated)",
+        e.name
+    );
+    let files = SequenceFiles::new(
+        &e.sim_dir(),
+        assets.binding.garment().sha256.clone(),
+        assets.body.n_betas(),
+    );
+    let motions = load_truth(&e, &files, &motion_set)?;
+    let shapes = load_truth(&e, &files, &shape_set)?;
+
+    let mut notes = Vec::new();
+    let mut motion_methods = vec![Method::Ours, Method::Lbs];
+    if network.has_linear_baseline() {
+        motion_methods.push(Method::Lr);
+    } else {
+        notes.push("the model carries no linear baseline: `lr` was not evaluated".to_owned());
+    }
+    let shape_methods = [Method::Ours, Method::Retarget, Method::Lbs];
+    let frames = |s: &[TestSequence]| s.iter().map(|q| q.truth.poses.len()).sum::<usize>();
+    let total = motion_methods.len() * frames(&motions) + shape_methods.len() * frames(&shapes);
+    let bar = ProgressBar::new(total as u64).with_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let mut reports = Vec::new();
+    for (set, methods, seqs) in [
+        ("held_out_motions", &motion_methods[..], &motions),
+        ("held_out_shapes", &shape_methods[..], &shapes),
+    ] {
+        let mut map = serde_json::Map::new();
+        if seqs.is_empty() {
+            notes.push(format!("{set}: no sequences"));
+        } else {
+            for &m in methods {
+                bar.set_message(m.name());
+                let r = evaluate(&assets, &network, m, seqs, &bar)?;
+                map.insert(m.name().to_owned(), serde_json::to_value(&r)?);
+            }
+        }
+        reports.push(map);
+    }
+    bar.finish_and_clear();
+    let shapes_map = reports.pop().unwrap_or_default();
+    let motions_map = reports.pop().unwrap_or_default();
+
+    // The simulator's own contacts, by the same count (its vertices against the same region).
+    let gt_inside = ground_truth_collisions(&assets, &network, &motions, &shapes)?;
+
+    let dir = eval_dir(&e);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    plot_errors(&dir, &motions_map, &shapes_map)?;
+    render_comparison(&dir, &assets, &network, &motions, args.render_frames)?;
+    let report = EvalReport {
+        config: args.experiment.config.display().to_string(),
+        model: model_dir.display().to_string(),
+        nominal_only: args.nominal_only,
+        held_out_motions: motions_map,
+        held_out_shapes: shapes_map,
+        ground_truth_collision_percent: gt_inside,
+        skipped_failed_simulations: skipped,
+        notes,
+        wall_time_s: start.elapsed().as_secs_f64(),
+        machine: Machine::current(),
+    };
+    let path = dir.join("eval.json");
+    write_json(&path, &report)?;
+    print_summary(&report);
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+fn ground_truth_collisions(
+    assets: &Assets,
+    network: &Arc<GarmentNetwork>,
+    motions: &[TestSequence],
+    shapes: &[TestSequence],
+) -> anyhow::Result<f64> {
+    let rig = assets.rig(network, Method::Lbs.options(AnimatorOptions::default()))?;
+    let counts = motions
+        .par_iter()
+        .chain(shapes.par_iter())
+        .map(|s| -> anyhow::Result<(usize, usize)> {
+            let betas: Vec<f32> = s.truth.betas.iter().map(|&b| b as f32).collect();
+            let mut a = GarmentAnimator::new(rig.clone())?;
+            a.set_shape(&betas[..rig.network().n_betas()])?;
+            let mut inside = 0;
+            let mut total = 0;
+            for (pose, truth) in s.truth.poses.iter().zip(&s.truth.cloth) {
+                a.frame(pose)?;
+                let gt: Vec<Vector3<f32>> = truth.iter().map(|p| p.cast::<f32>()).collect();
+                inside += a.collision_count_of(&gt, 0.0)?.unwrap_or_default().inside;
+                total += gt.len();
+            }
+            Ok((inside, total))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (inside, total) = counts.iter().fold((0, 0), |(i, t), &(a, b)| (i + a, t + b));
+    Ok(100.0 * inside as f64 / total.max(1) as f64)
+}
+
+fn print_summary(r: &EvalReport) {
+    for (set, map) in [
+        ("held-out motions", &r.held_out_motions),
+        ("held-out shapes", &r.held_out_shapes),
+    ] {
+        for (name, v) in map {
+            println!(
+                "{set:>16} {name:>8}: {:7.2} mm ({:7.2} before pp), inside {:5.2} % → {:5.2} %",
+                v["mean_vertex_error_mm"].as_f64().unwrap_or(f64::NAN),
+                v["mean_vertex_error_mm_before_pp"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                v["collision_percent_before_pp"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                v["collision_percent_after_pp"].as_f64().unwrap_or(f64::NAN),
+            );
+        }
+    }
+}
+
+/// Per-frame error of each held-out clip (averaged over its shapes, frame by frame) for each
+/// method (the paper's Fig. 7), and error against shape distance (Fig. 8).
+fn plot_errors(
+    dir: &Path,
+    motions: &serde_json::Map<String, serde_json::Value>,
+    shapes: &serde_json::Map<String, serde_json::Value>,
+) -> anyhow::Result<()> {
+    let seqs = |v: &serde_json::Value| -> Vec<SequenceReport> {
+        serde_json::from_value::<Vec<SeqIn>>(v["sequences"].clone())
+            .unwrap_or_default()
+            .into_iter()
+            .map(SeqIn::into_report)
+            .collect()
+    };
+    let mut clips: Vec<String> = Vec::new();
+    for v in motions.values() {
+        for s in seqs(v) {
+            if !clips.contains(&s.motion) {
+                clips.push(s.motion);
+            }
+        }
+    }
+    let mut charts = Vec::new();
+    for clip in &clips {
+        let mut series = Vec::new();
+        for (name, v) in motions {
+            let curves: Vec<Vec<f64>> = seqs(v)
+                .into_iter()
+                .filter(|s| &s.motion == clip)
+                .map(|s| s.per_frame_error_mm)
+                .collect();
+            let len = curves.iter().map(Vec::len).min().unwrap_or(0);
+            let points = (0..len)
+                .map(|t| (t as f64, mean(curves.iter().map(|c| c[t]))))
+                .collect();
+            series.push(Series {
+                name: name.clone(),
+                points,
+                markers: false,
+            });
+        }
+        charts.push(Chart {
+            title: format!("held-out motion: {clip}"),
+            x_label: "frame".into(),
+            y_label: "mean vertex error (mm)".into(),
+            series,
+        });
+    }
+    if !charts.is_empty() {
+        write_charts(&dir.join("error_per_frame"), &charts, 2, (560, 360))?;
+    }
+    let series: Vec<Series> = shapes
+        .iter()
+        .map(|(name, v)| Series {
+            name: name.clone(),
+            points: seqs(v)
+                .iter()
+                .map(|s| (s.shape_distance, s.mean_vertex_error_mm))
+                .collect(),
+            markers: true,
+        })
+        .collect();
+    if !series.is_empty() {
+        let chart = Chart {
+            title: "held-out shapes".into(),
+            x_label: "β distance to the nearest training shape".into(),
+            y_label: "mean vertex error (mm)".into(),
+            series,
+        };
+        write_charts(&dir.join("error_vs_shape"), &[chart], 1, (640, 420))?;
+    }
+    Ok(())
+}
+
+/// `SequenceReport` read back from the JSON value (the report is built once, as JSON).
+#[derive(serde::Deserialize)]
+struct SeqIn {
+    shape: String,
+    motion: String,
+    shape_distance: f64,
+    mean_vertex_error_mm: f64,
+    per_frame_error_mm: Vec<f64>,
+    collision_percent_after_pp: f64,
+}
+
+impl SeqIn {
+    fn into_report(self) -> SequenceReport {
+        SequenceReport {
+            shape: self.shape,
+            motion: self.motion,
+            shape_distance: self.shape_distance,
+            mean_vertex_error_mm: self.mean_vertex_error_mm,
+            per_frame_error_mm: self.per_frame_error_mm,
+            collision_percent_after_pp: self.collision_percent_after_pp,
+        }
+    }
+}
+
+/// Colours of the rendered comparison (linear RGB).
+const BODY_COLOR: [f32; 3] = [0.55, 0.45, 0.40];
+const TRUTH_COLOR: [f32; 3] = [0.20, 0.45, 0.20];
+const OURS_COLOR: [f32; 3] = [0.15, 0.30, 0.60];
+const LBS_COLOR: [f32; 3] = [0.60, 0.20, 0.15];
+
+/// `compare.png`: a few frames of the first held-out clip on its first shape, each as ground
+/// truth | ours | LBS on the posed body.
+fn render_comparison(
+    dir: &Path,
+    assets: &Assets,
+    network: &Arc<GarmentNetwork>,
+    motions: &[TestSequence],
+    n_frames: usize,
+) -> anyhow::Result<()> {
+    let Some(seq) = motions.first() else {
+        return Ok(());
+    };
+    let len = seq.truth.poses.len();
+    if n_frames == 0 || len == 0 {
+        return Ok(());
+    }
+    let keep: Vec<usize> = (0..n_frames.min(len))
+        .map(|k| (k + 1) * len / (n_frames.min(len) + 1))
+        .collect();
+    let mut outputs = Vec::new();
+    for m in [Method::Ours, Method::Lbs] {
+        let pp = assets.rig(network, m.options(AnimatorOptions::default()))?;
+        let raw = assets.rig(
+            network,
+            m.options(AnimatorOptions {
+                collision: None,
+                ..AnimatorOptions::default()
+            }),
+        )?;
+        outputs.push(run_sequence(&pp, &raw, seq, &keep)?.1);
+    }
+    let body = &assets.body;
+    let faces = assets.binding.faces();
+    let bodies: Vec<Vec<Vector3<f32>>> = keep
+        .iter()
+        .map(|&t| posed_body(body, &seq.truth.betas, &seq.truth.poses[t]))
+        .collect::<anyhow::Result<_>>()?;
+    let truths: Vec<Vec<Vector3<f32>>> = keep
+        .iter()
+        .map(|&t| seq.truth.cloth[t].iter().map(|p| p.cast::<f32>()).collect())
+        .collect();
+    let mut panels = Vec::new();
+    for (k, body_k) in bodies.iter().enumerate() {
+        let cloths = [
+            (&truths[k], TRUTH_COLOR),
+            (&outputs[0][k], OURS_COLOR),
+            (&outputs[1][k], LBS_COLOR),
+        ];
+        let body_mesh = RenderMesh {
+            positions: body_k,
+            faces: body.faces(),
+            color: BODY_COLOR,
+        };
+        let first = [
+            body_mesh,
+            RenderMesh {
+                positions: cloths[0].0,
+                faces,
+                color: cloths[0].1,
+            },
+        ];
+        let camera = Camera::framing(&first[1..], Vector3::new(0.35, 0.15, 1.0), true);
+        for (cloth, color) in cloths {
+            panels.push(Panel {
+                meshes: vec![
+                    body_mesh,
+                    RenderMesh {
+                        positions: cloth,
+                        faces,
+                        color,
+                    },
+                ],
+                camera,
+            });
+        }
+    }
+    let path = dir.join("compare.png");
+    render_png(&path, &panels, 240, 300, [1.0, 1.0, 1.0])?;
+    Ok(())
+}
+
+fn posed_body(body: &BodyModel, betas: &[f64], pose: &Pose) -> anyhow::Result<Vec<Vector3<f32>>> {
+    let mut b = betas.to_vec();
+    b.resize(body.n_betas(), 0.0);
+    Ok(body
+        .posed_vertices(&b, pose)?
+        .iter()
+        .map(|p| p.cast::<f32>())
+        .collect())
+}

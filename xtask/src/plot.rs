@@ -1,0 +1,221 @@
+//! Charts for the reports (plotters): a grid of line / scatter charts written as PNG and SVG,
+//! atomically. Text is drawn with the embedded DejaVu Sans (xtask/assets), so plotting needs no
+//! system fonts.
+
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+use anyhow::{Context, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// One series of a chart.
+#[derive(Clone, Debug)]
+pub struct Series {
+    /// Legend entry.
+    pub name: String,
+    /// `(x, y)` points, drawn in order.
+    pub points: Vec<(f64, f64)>,
+    /// Draw markers only (a scatter), not a line.
+    pub markers: bool,
+}
+
+/// One chart of a grid.
+#[derive(Clone, Debug)]
+pub struct Chart {
+    /// Caption.
+    pub title: String,
+    /// X axis label.
+    pub x_label: String,
+    /// Y axis label.
+    pub y_label: String,
+    /// The series; colours follow their order.
+    pub series: Vec<Series>,
+}
+
+/// Colours by series index (colour-blind safe, Okabe–Ito).
+const PALETTE: [RGBColor; 7] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(86, 180, 233),
+    RGBColor(0, 0, 0),
+];
+
+fn register_font() {
+    static FONT: Once = Once::new();
+    FONT.call_once(|| {
+        let bytes: &'static [u8] = include_bytes!("../assets/DejaVuSans.ttf");
+        for style in [FontStyle::Normal, FontStyle::Bold] {
+            // The font is embedded and known to parse; a failure would show as missing text.
+            let _ = plotters::style::register_font("sans-serif", style, bytes);
+        }
+    });
+}
+
+/// Draw `charts` in a grid of `columns` columns, each chart `cell` pixels, into `<stem>.png` and
+/// `<stem>.svg` (each written to a temporary name and renamed). Returns the two paths.
+pub fn write_charts(
+    stem: &Path,
+    charts: &[Chart],
+    columns: usize,
+    cell: (u32, u32),
+) -> anyhow::Result<Vec<PathBuf>> {
+    anyhow::ensure!(
+        !charts.is_empty(),
+        "no charts to draw into {}",
+        stem.display()
+    );
+    register_font();
+    let columns = columns.clamp(1, charts.len());
+    let rows = charts.len().div_ceil(columns);
+    let size = (cell.0 * columns as u32, cell.1 * rows as u32);
+    let mut written = Vec::new();
+    for ext in ["png", "svg"] {
+        let path = stem.with_extension(ext);
+        let tmp = stem.with_extension(format!("tmp.{ext}"));
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        let result = if ext == "png" {
+            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            draw_grid(&root, charts, rows, columns)
+        } else {
+            let root = SVGBackend::new(&tmp, size).into_drawing_area();
+            draw_grid(&root, charts, rows, columns)
+        };
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e.context(format!("drawing {}", path.display())));
+        }
+        std::fs::rename(&tmp, &path)
+            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+        written.push(path);
+    }
+    Ok(written)
+}
+
+fn draw_grid<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    charts: &[Chart],
+    rows: usize,
+    columns: usize,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("{e:?}");
+    root.fill(&WHITE).map_err(err)?;
+    let cells = root.split_evenly((rows, columns));
+    for (chart, area) in charts.iter().zip(&cells) {
+        draw_chart(area, chart).map_err(err)?;
+    }
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// The range of `values` with 5 % of room (a unit range around a single value).
+fn padded(values: impl Iterator<Item = f64>, from_zero: bool) -> std::ops::Range<f64> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !lo.is_finite() {
+        return 0.0..1.0;
+    }
+    if from_zero {
+        lo = lo.min(0.0);
+    }
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
+    (lo - if from_zero && lo == 0.0 { 0.0 } else { pad })..(hi + pad)
+}
+
+fn draw_chart<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let points = || chart.series.iter().flat_map(|s| s.points.iter());
+    let xs = padded(points().map(|p| p.0), false);
+    let ys = padded(points().map(|p| p.1), true);
+    let mut ctx = ChartBuilder::on(area)
+        .caption(&chart.title, ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(56)
+        .build_cartesian_2d(xs, ys)?;
+    ctx.configure_mesh()
+        .x_desc(&chart.x_label)
+        .y_desc(&chart.y_label)
+        .label_style(("sans-serif", 13))
+        .draw()?;
+    for (k, s) in chart.series.iter().enumerate() {
+        let color = PALETTE[k % PALETTE.len()];
+        let pts = s
+            .points
+            .iter()
+            .copied()
+            .filter(|p| p.0.is_finite() && p.1.is_finite());
+        let anno = if s.markers {
+            ctx.draw_series(pts.map(|p| Circle::new(p, 4, color.filled())))?
+        } else {
+            ctx.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
+        };
+        anno.label(&s.name)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], color.filled()));
+    }
+    if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
+        ctx.configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn charts_are_written_as_png_and_svg_with_text() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let chart = Chart {
+            title: "error".into(),
+            x_label: "frame".into(),
+            y_label: "mm".into(),
+            series: vec![
+                Series {
+                    name: "ours".into(),
+                    points: (0..10).map(|i| (i as f64, (i * i) as f64)).collect(),
+                    markers: false,
+                },
+                Series {
+                    name: "lbs".into(),
+                    points: vec![(1.0, 3.0), (4.0, f64::NAN)],
+                    markers: true,
+                },
+            ],
+        };
+        let stem = dir.path().join("sub/plot");
+        let paths = write_charts(&stem, &[chart.clone(), chart], 2, (300, 200)).expect("drawn");
+        assert_eq!(paths.len(), 2);
+        let png = std::fs::read(&paths[0]).expect("png");
+        assert_eq!(&png[1..4], b"PNG");
+        let svg = std::fs::read_to_string(&paths[1]).expect("svg");
+        assert!(
+            svg.contains("ours") && svg.contains("frame"),
+            "legend and labels"
+        );
+        let names: Vec<_> = std::fs::read_dir(dir.path().join("sub"))
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name())
+            .collect();
+        assert_eq!(names.len(), 2, "no temporary files left: {names:?}");
+        assert!(write_charts(&stem, &[], 1, (10, 10)).is_err());
+    }
+}
