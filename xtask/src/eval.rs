@@ -420,14 +420,31 @@ pub fn evaluate(
     seqs: &[TestSequence],
     bar: &ProgressBar,
 ) -> anyhow::Result<MethodReport> {
-    let base = AnimatorOptions::default();
-    let pp = assets.rig(network, method.options(base))?;
+    evaluate_with(
+        assets,
+        network,
+        method.options(AnimatorOptions::default()),
+        seqs,
+        bar,
+    )
+}
+
+/// Evaluate the runtime with `options` (its post-process, if any, gives the "after" numbers;
+/// the same options without it the "before" ones) on `seqs`.
+pub fn evaluate_with(
+    assets: &Assets,
+    network: &Arc<GarmentNetwork>,
+    options: AnimatorOptions,
+    seqs: &[TestSequence],
+    bar: &ProgressBar,
+) -> anyhow::Result<MethodReport> {
+    let pp = assets.rig(network, options)?;
     let raw = assets.rig(
         network,
-        method.options(AnimatorOptions {
+        AnimatorOptions {
             collision: None,
-            ..base
-        }),
+            ..options
+        },
     )?;
     let metrics = seqs
         .par_iter()

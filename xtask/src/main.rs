@@ -5,10 +5,12 @@ use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
 
+mod animate;
 mod bench;
 mod bench_runtime;
 mod body;
 mod dataset;
+mod demo;
 mod eval;
 mod experiment;
 mod garment;
@@ -17,6 +19,7 @@ mod machine;
 mod motions;
 mod plot;
 mod simulate;
+mod tradeoff;
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "sartor: learning-based garment animation")]
@@ -42,6 +45,12 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Build an experiment's training data from its simulations.
     Dataset(dataset::DatasetArgs),
+    /// Animate the shipped T-shirt model on a few bodies and clips: frames per second, glTF,
+    /// MCAP (Foxglove) and PNG files.
+    Demo(demo::DemoArgs),
+    /// Sweep the runtime's speed knobs (output rank, precision, post-process, fit-only, model
+    /// size, garment resolution): error against ms per frame, tradeoff.json and a Pareto plot.
+    Tradeoff(tradeoff::TradeoffArgs),
     /// Judge the exported model and the baselines on held-out ground truth: eval.json, plots.
     Eval(eval::EvalArgs),
 }
@@ -57,6 +66,8 @@ fn main() -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::simulate(&args),
         Command::Dataset(args) => dataset::dataset(&args),
         Command::Eval(args) => eval::eval(&args),
+        Command::Demo(args) => demo::demo(&args),
+        Command::Tradeoff(args) => tradeoff::tradeoff(&args),
     }
 }
 

@@ -1,0 +1,236 @@
+//! Animate an exported model on a body through a motion, and write what came out: animated glTF
+//! (body + garment), MCAP with `foxglove.SceneUpdate` (opens in Foxglove), OBJ sequences and PNG
+//! previews. Shared by `cargo xtask demo` and `cargo xtask export`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use nalgebra::Vector3;
+use sartor_body::{BodyModel, McapWriter, Motion, SceneMesh};
+use sartor_runtime::{
+    Camera, GarmentAnimator, GarmentRig, MeshSequence, Panel, RenderMesh, render_png, write_gltf,
+    write_obj_sequence,
+};
+
+/// Colours of the written meshes.
+pub const BODY_COLOR: [f32; 3] = [0.80, 0.70, 0.62];
+/// See [`BODY_COLOR`].
+pub const GARMENT_COLOR: [f32; 3] = [0.20, 0.42, 0.78];
+
+/// An output format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// One animated `.glb` (body and garment, one morph target per frame).
+    Gltf,
+    /// One `.mcap` with a `foxglove.SceneUpdate` per frame.
+    Mcap,
+    /// A PNG of a few frames side by side.
+    Png,
+    /// One OBJ per frame and mesh.
+    Obj,
+}
+
+/// One animated clip: garment and body vertices per frame, and how long the garment took.
+pub struct Animation {
+    /// Garment vertices per frame (after the post-process), metres.
+    pub garment: Vec<Vec<Vector3<f32>>>,
+    /// Posed body vertices per frame.
+    pub body: Vec<Vec<Vector3<f32>>>,
+    /// Wall time of `GarmentAnimator::frame` per frame, ms (the runtime's cost only; posing the
+    /// full body for the files is not counted).
+    pub frame_ms: Vec<f64>,
+}
+
+impl Animation {
+    /// Mean ms per frame.
+    pub fn ms_per_frame(&self) -> f64 {
+        self.frame_ms.iter().sum::<f64>() / self.frame_ms.len().max(1) as f64
+    }
+}
+
+/// `betas` cut or zero-padded to the network's size: the body the garment was dressed on.
+/// Returns the shape and the number of components dropped.
+pub fn model_betas(rig: &GarmentRig, betas: &[f64]) -> (Vec<f64>, usize) {
+    let n = rig.network().n_betas();
+    let dropped = betas.iter().skip(n).filter(|b| **b != 0.0).count();
+    let mut b: Vec<f64> = betas.iter().copied().take(n).collect();
+    b.resize(n, 0.0);
+    (b, dropped)
+}
+
+/// Animate `frames` frames (all if `None`) of `motion` on the body of shape `betas` (the model's
+/// components; see [`model_betas`]).
+pub fn animate(
+    rig: &Arc<GarmentRig>,
+    body: &BodyModel,
+    betas: &[f64],
+    motion: &Motion,
+    frames: Option<usize>,
+) -> anyhow::Result<Animation> {
+    anyhow::ensure!(
+        motion.joint_names() == body.skeleton().names(),
+        "motion {} is for another skeleton than body {}",
+        motion.name(),
+        body.name()
+    );
+    let poses = motion.frames();
+    let n = frames.map_or(poses.len(), |f| f.min(poses.len()));
+    anyhow::ensure!(n > 0, "motion {} has no frames", motion.name());
+    let b32: Vec<f32> = betas.iter().map(|&b| b as f32).collect();
+    let mut avatar = GarmentAnimator::new(rig.clone())?;
+    avatar.set_shape(&b32)?;
+    let mut full_betas = betas.to_vec();
+    full_betas.resize(body.n_betas(), 0.0);
+    let mut out = Animation {
+        garment: Vec::with_capacity(n),
+        body: Vec::with_capacity(n),
+        frame_ms: Vec::with_capacity(n),
+    };
+    for pose in &poses[..n] {
+        let start = Instant::now();
+        avatar.frame(pose)?;
+        out.frame_ms.push(1e3 * start.elapsed().as_secs_f64());
+        out.garment.push(avatar.vertices().to_vec());
+        out.body.push(
+            body.posed_vertices(&full_betas, pose)?
+                .iter()
+                .map(|p| p.cast::<f32>())
+                .collect(),
+        );
+    }
+    Ok(out)
+}
+
+/// Write `anim` in `formats` into `dir` as `<stem>.glb`, `<stem>.mcap`, `<stem>.png` and
+/// `<stem>_obj/`. Every file is written atomically. Returns the paths written.
+pub fn write_animation(
+    dir: &Path,
+    stem: &str,
+    anim: &Animation,
+    body_faces: &[[u32; 3]],
+    garment_faces: &[[u32; 3]],
+    fps: f64,
+    formats: &[Format],
+) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let garment = MeshSequence::new(
+        "garment".into(),
+        garment_faces.to_vec(),
+        anim.garment.clone(),
+        GARMENT_COLOR,
+    )?;
+    let body = MeshSequence::new(
+        "body".into(),
+        body_faces.to_vec(),
+        anim.body.clone(),
+        BODY_COLOR,
+    )?;
+    let mut written = Vec::new();
+    for format in formats {
+        match format {
+            Format::Gltf => {
+                let path = dir.join(format!("{stem}.glb"));
+                write_gltf(&path, &[body.clone(), garment.clone()], fps)?;
+                written.push(path);
+            }
+            Format::Mcap => {
+                let path = dir.join(format!("{stem}.mcap"));
+                write_mcap(&path, anim, body_faces, garment_faces, fps)?;
+                written.push(path);
+            }
+            Format::Png => {
+                let path = dir.join(format!("{stem}.png"));
+                write_png(&path, anim, body_faces, garment_faces, 4)?;
+                written.push(path);
+            }
+            Format::Obj => {
+                let sub = dir.join(format!("{stem}_obj"));
+                std::fs::create_dir_all(&sub)
+                    .with_context(|| format!("creating {}", sub.display()))?;
+                write_obj_sequence(&sub, &body)?;
+                write_obj_sequence(&sub, &garment)?;
+                written.push(sub);
+            }
+        }
+    }
+    Ok(written)
+}
+
+fn write_mcap(
+    path: &Path,
+    anim: &Animation,
+    body_faces: &[[u32; 3]],
+    garment_faces: &[[u32; 3]],
+    fps: f64,
+) -> anyhow::Result<()> {
+    let mut writer = McapWriter::new(path, "sartor.animation")?;
+    let channel = writer.add_scene_channel("/sartor/scene")?;
+    let as_arrays = |v: &[Vector3<f32>]| v.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>();
+    for (t, (garment, body)) in anim.garment.iter().zip(&anim.body).enumerate() {
+        let (g, b) = (as_arrays(garment), as_arrays(body));
+        let time_ns = (t as f64 * 1e9 / fps).round() as u64;
+        writer.write_scene(
+            channel,
+            t as u32,
+            time_ns,
+            &[
+                SceneMesh {
+                    id: "body",
+                    positions: &b,
+                    faces: body_faces,
+                    color_rgba: [BODY_COLOR[0], BODY_COLOR[1], BODY_COLOR[2], 1.0],
+                },
+                SceneMesh {
+                    id: "garment",
+                    positions: &g,
+                    faces: garment_faces,
+                    color_rgba: [GARMENT_COLOR[0], GARMENT_COLOR[1], GARMENT_COLOR[2], 1.0],
+                },
+            ],
+        )?;
+    }
+    writer.finish()?;
+    Ok(())
+}
+
+/// `panels` frames spread over the clip, side by side, one camera framing the first body.
+pub fn write_png(
+    path: &Path,
+    anim: &Animation,
+    body_faces: &[[u32; 3]],
+    garment_faces: &[[u32; 3]],
+    panels: usize,
+) -> anyhow::Result<()> {
+    let n = anim.garment.len();
+    let picks: Vec<usize> = (0..panels.min(n))
+        .map(|k| k * (n - 1) / (panels.min(n) - 1).max(1))
+        .collect();
+    let first = RenderMesh {
+        positions: &anim.body[picks[0]],
+        faces: body_faces,
+        color: BODY_COLOR,
+    };
+    let camera = Camera::framing(&[first], Vector3::new(0.35, 0.1, 1.0), true);
+    let panels: Vec<Panel<'_>> = picks
+        .iter()
+        .map(|&t| Panel {
+            meshes: vec![
+                RenderMesh {
+                    positions: &anim.body[t],
+                    faces: body_faces,
+                    color: BODY_COLOR,
+                },
+                RenderMesh {
+                    positions: &anim.garment[t],
+                    faces: garment_faces,
+                    color: GARMENT_COLOR,
+                },
+            ],
+            camera,
+        })
+        .collect();
+    render_png(path, &panels, 240, 400, [1.0, 1.0, 1.0])?;
+    Ok(())
+}

@@ -1,0 +1,237 @@
+//! `cargo xtask demo`: the shipped T-shirt model on a few bodies through a few clips, with
+//! frames per second and glTF / MCAP / PNG (/ OBJ) files. Needs only a clone and a toolchain.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use sartor_body::{
+    BodyModel, MotionSourceOptions, PhenotypeRequest, PhenotypeSpace, RetargetBody, UpAxis,
+    builtin_model_dir, load_motion,
+};
+use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions};
+use serde::Serialize;
+
+use crate::animate::{Format, animate, model_betas, write_animation};
+use crate::machine::{Machine, write_json};
+use crate::workspace_root;
+
+/// The bodies shown when neither `--phenotype` nor `--beta` is given.
+pub const DEFAULT_PHENOTYPES: [&str; 3] = [
+    "female, 1.60 m, light",
+    "male, 1.75 m, average",
+    "male, 1.90 m, heavy",
+];
+
+/// The clips shown when `--motion` is not given.
+pub const DEFAULT_MOTIONS: [&str; 3] = ["walk", "dance_disco", "jumping_jacks"];
+
+/// Arguments of `demo`.
+#[derive(clap::Args, Debug)]
+pub struct DemoArgs {
+    /// The exported model folder.
+    #[arg(long, default_value = "datasets/models/default")]
+    pub model: PathBuf,
+    /// A body, as a phenotype such as "female, 1.70 m, heavy" (repeatable).
+    #[arg(long)]
+    pub phenotype: Vec<String>,
+    /// A body, as a comma-separated shape vector (repeatable; missing components are 0).
+    #[arg(long = "beta", allow_hyphen_values = true)]
+    pub betas: Vec<String>,
+    /// A motion: a procedural clip name, `walk`, or a .bvh / .npz (AMASS) / .json file
+    /// (repeatable).
+    #[arg(long)]
+    pub motion: Vec<String>,
+    /// AMASS files: the file's up axis (`y` or `z`).
+    #[arg(long, default_value = "y")]
+    pub up_axis: String,
+    /// Frames per clip (at most the clip's length).
+    #[arg(long, default_value_t = 120)]
+    pub frames: usize,
+    /// Output formats.
+    #[arg(long, value_delimiter = ',', default_value = "gltf,mcap,png")]
+    pub formats: Vec<Format>,
+    /// Output folder.
+    #[arg(long, default_value = "demo-out")]
+    pub out: PathBuf,
+}
+
+#[derive(Serialize)]
+struct DemoEntry {
+    body: String,
+    betas: Vec<f64>,
+    motion: String,
+    frames: usize,
+    ms_per_frame: f64,
+    frames_per_second: f64,
+    files: Vec<String>,
+}
+
+#[derive(Serialize)]
+struct DemoReport {
+    model: String,
+    garment_vertices: usize,
+    machine: Machine,
+    note: &'static str,
+    runs: Vec<DemoEntry>,
+}
+
+fn resolve(path: &std::path::Path) -> PathBuf {
+    if path.is_relative() && !path.exists() {
+        workspace_root().join(path)
+    } else {
+        path.to_path_buf()
+    }
+}
+
+/// Run the demo.
+pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
+    let model_dir = resolve(&args.model);
+    let body_dir = builtin_model_dir();
+    let body = Arc::new(
+        BodyModel::load(&body_dir)
+            .with_context(|| format!("loading the body from {}", body_dir.display()))?,
+    );
+    let network =
+        GarmentNetwork::load_with(&model_dir, NetworkOptions::default()).with_context(|| {
+            format!(
+                "loading the garment model from {} (the shipped one is datasets/models/default; \
+             make one with `cargo xtask pipeline --config configs/default.json`)",
+                model_dir.display()
+            )
+        })?;
+    let binding = GarmentBinding::load(&model_dir)
+        .with_context(|| format!("loading the garment binding from {}", model_dir.display()))?;
+    let rig = Arc::new(GarmentRig::new(
+        Arc::new(network),
+        Arc::new(binding),
+        body.clone(),
+        AnimatorOptions::default(),
+    )?);
+
+    // Bodies.
+    let mut bodies: Vec<(String, Vec<f64>)> = Vec::new();
+    for text in &args.betas {
+        let betas = text
+            .split(',')
+            .map(|s| s.trim().parse::<f64>())
+            .collect::<Result<Vec<_>, _>>()
+            .with_context(|| format!("--beta {text:?}: not a comma-separated list of numbers"))?;
+        body.check_betas(&betas)?;
+        bodies.push((format!("beta {text}"), betas));
+    }
+    let phenotypes: Vec<&str> = if args.phenotype.is_empty() && args.betas.is_empty() {
+        DEFAULT_PHENOTYPES.to_vec()
+    } else {
+        args.phenotype.iter().map(String::as_str).collect()
+    };
+    if !phenotypes.is_empty() {
+        let space = PhenotypeSpace::load(&body_dir)?;
+        for text in phenotypes {
+            let request: PhenotypeRequest = text.parse()?;
+            let (_, betas) = space.betas_for(&body, &request)?;
+            bodies.push((text.to_owned(), betas));
+        }
+    }
+
+    // Motions.
+    let up_axis = match args.up_axis.as_str() {
+        "y" | "Y" => UpAxis::Y,
+        "z" | "Z" => UpAxis::Z,
+        other => anyhow::bail!("--up-axis must be y or z, not {other:?}"),
+    };
+    let options = MotionSourceOptions {
+        motions_dir: workspace_root().join("datasets/motions"),
+        body: Some(RetargetBody::load(&body_dir)?),
+        lenient: false,
+        up_axis,
+    };
+    let specs: Vec<&str> = if args.motion.is_empty() {
+        DEFAULT_MOTIONS.to_vec()
+    } else {
+        args.motion.iter().map(String::as_str).collect()
+    };
+    let motions = specs
+        .iter()
+        .map(|s| load_motion(s, &options).with_context(|| format!("motion {s:?}")))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let total = (bodies.len() * motions.len()) as u64;
+    let bar = indicatif::ProgressBar::new(total).with_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} clips {msg}")
+            .expect("static template"),
+    );
+    let mut runs = Vec::new();
+    for (b, (label, betas)) in bodies.iter().enumerate() {
+        let (betas, dropped) = model_betas(&rig, betas);
+        if dropped > 0 {
+            bar.println(format!(
+                "{label}: the model takes {} shape components; {dropped} more are set to 0 \
+                 (body and garment both)",
+                betas.len()
+            ));
+        }
+        for (spec, motion) in specs.iter().zip(&motions) {
+            bar.set_message(format!("{label} / {spec}"));
+            let anim = animate(&rig, &body, &betas, motion, Some(args.frames))?;
+            let clip: String = spec
+                .rsplit('/')
+                .next()
+                .unwrap_or(spec)
+                .chars()
+                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+                .collect();
+            let stem = format!("body{b}_{clip}");
+            let files = write_animation(
+                &args.out,
+                &stem,
+                &anim,
+                body.faces(),
+                rig.binding().faces(),
+                motion.fps(),
+                &args.formats,
+            )?;
+            let ms = anim.ms_per_frame();
+            bar.println(format!(
+                "{label:<24} {spec:<16} {:>4} frames  {ms:>7.3} ms/frame  {:>8.0} frames/s",
+                anim.garment.len(),
+                1e3 / ms
+            ));
+            runs.push(DemoEntry {
+                body: label.clone(),
+                betas: betas.clone(),
+                motion: (*spec).to_owned(),
+                frames: anim.garment.len(),
+                ms_per_frame: ms,
+                frames_per_second: 1e3 / ms,
+                files: files.iter().map(|p| p.display().to_string()).collect(),
+            });
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    let report = DemoReport {
+        model: model_dir.display().to_string(),
+        garment_vertices: rig.n_vertices(),
+        machine: Machine::current(),
+        note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
+               one thread; posing the full body for the files is not counted",
+        runs,
+    };
+    let path = args.out.join("demo.json");
+    write_json(&path, &report)?;
+    println!(
+        "wrote {} clips ({}) and {} to {}",
+        report.runs.len(),
+        args.formats
+            .iter()
+            .map(|f| format!("{f:?}").to_lowercase())
+            .collect::<Vec<_>>()
+            .join(", "),
+        path.display(),
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,439 @@
+//! `cargo xtask tradeoff --config C`: what each speed knob of the runtime costs in accuracy.
+//!
+//! For every exported model of the experiment (its own, plus any `--model` folders, e.g. trained
+//! with other hidden sizes, and the models of further `--config`s with other garment
+//! resolutions) the sweep crosses:
+//!
+//! - the output rank `k` (the runtime's `NetworkOptions::output_rank`: the first `k` PCA
+//!   components, or a rank-`k` truncated SVD of a dense output layer) — `--ranks`;
+//! - the weight precision: f32, f16, int8;
+//! - the collision post-process on and off;
+//! - the fit-only static try-on mode (no wrinkle GRU), per precision.
+//!
+//! Each point's error is the mean vertex error (mm) of `ours` on the experiment's held-out
+//! motions (on the nominal shape unless `--all-shapes`), exactly as `eval` computes it. Its cost
+//! is the median wall time of `GarmentAnimator::frame` on one thread over one held-out clip,
+//! measured sequentially after a warm-up. A point is on the Pareto front when no other point is
+//! both faster and more accurate. Writes `runs/<name>/tradeoff/tradeoff.json` and
+//! `pareto.{png,svg}`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use sartor_runtime::{
+    AnimatorOptions, FitMode, GarmentAnimator, GarmentRig, NetworkOptions, OutputKind, Precision,
+    WrinkleMode,
+};
+use serde::Serialize;
+
+use crate::dataset::SequenceFiles;
+use crate::eval::{Assets, Method, TestSequence, TestSets, evaluate, export_dir, load_truth};
+use crate::experiment::ExperimentArgs;
+use crate::machine::{Machine, write_json};
+use crate::plot::{Chart, Series, write_charts};
+
+/// Arguments of `tradeoff`.
+#[derive(clap::Args, Debug)]
+pub struct TradeoffArgs {
+    /// The experiment (its held-out motions are the test set).
+    #[command(flatten)]
+    pub experiment: ExperimentArgs,
+    /// Further exported models of the same garment (e.g. other hidden sizes); the experiment's
+    /// own export is always included.
+    #[arg(long, value_delimiter = ',')]
+    pub model: Vec<PathBuf>,
+    /// Further experiment configs (other garment resolutions), each with its own export and
+    /// held-out motions.
+    #[arg(long, value_delimiter = ',')]
+    pub extra_config: Vec<PathBuf>,
+    /// Output ranks swept (those below the model's own output width).
+    #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
+    pub ranks: Vec<usize>,
+    /// Evaluate on every training shape (default: the nominal shape only, as the paper did).
+    #[arg(long)]
+    pub all_shapes: bool,
+    /// Frames timed per point (the first held-out clip, looped).
+    #[arg(long, default_value_t = 120)]
+    pub timed_frames: usize,
+}
+
+/// One point of the sweep.
+#[derive(Clone, Debug, Serialize)]
+pub struct TradeoffPoint {
+    /// A short label.
+    pub label: String,
+    /// The model folder.
+    pub model: String,
+    /// Garment triangles.
+    pub garment_triangles: usize,
+    /// GRU hidden size (0 in fit-only mode).
+    pub gru_hidden: usize,
+    /// Output width used: `k` PCA components / SVD rank, or `3V` for a dense output (0 in
+    /// fit-only mode).
+    pub output_rank: usize,
+    /// `f32`, `f16` or `int8`.
+    pub precision: String,
+    /// Collision post-process on.
+    pub post_process: bool,
+    /// Fit-only static try-on (no wrinkle GRU).
+    pub fit_only: bool,
+    /// Mean vertex error on the test set, mm.
+    pub mean_vertex_error_mm: f64,
+    /// Share of vertices inside the body, %.
+    pub collision_percent: f64,
+    /// Median ms per frame, one thread.
+    pub ms_per_frame: f64,
+    /// No other point is both faster and more accurate.
+    pub pareto: bool,
+}
+
+#[derive(Serialize)]
+struct TradeoffReport {
+    configs: Vec<String>,
+    test_set: String,
+    sequences: usize,
+    frames: usize,
+    points: Vec<TradeoffPoint>,
+    wall_time_s: f64,
+    machine: Machine,
+}
+
+fn precision_name(p: Precision) -> &'static str {
+    match p {
+        Precision::F32 => "f32",
+        Precision::F16 => "f16",
+        Precision::Int8 => "int8",
+    }
+}
+
+/// Median ms of `GarmentAnimator::frame` over `frames` frames of `seq`'s poses (looped), after
+/// one warm-up pass over up to 10 frames.
+fn time_frames(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> anyhow::Result<f64> {
+    let n_betas = rig.network().n_betas();
+    let betas: Vec<f32> = seq
+        .truth
+        .betas
+        .iter()
+        .take(n_betas)
+        .map(|&b| b as f32)
+        .collect();
+    let mut a = GarmentAnimator::new(rig.clone())?;
+    a.set_shape(&betas)?;
+    a.reset_from(&seq.truth.previous_pose)?;
+    let poses = &seq.truth.poses;
+    anyhow::ensure!(!poses.is_empty(), "no poses to time");
+    for p in poses.iter().take(10) {
+        a.frame(p)?;
+    }
+    let mut times = Vec::with_capacity(frames);
+    for t in 0..frames.max(1) {
+        let start = Instant::now();
+        a.frame(&poses[t % poses.len()])?;
+        times.push(1e3 * start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(times[times.len() / 2])
+}
+
+/// Mark the points no other point dominates (faster or equal and strictly more accurate, or
+/// strictly faster and at least as accurate).
+pub fn mark_pareto(points: &mut [TradeoffPoint]) {
+    let key: Vec<(f64, f64)> = points
+        .iter()
+        .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
+        .collect();
+    for (i, p) in points.iter_mut().enumerate() {
+        let (t, e) = key[i];
+        p.pareto = !key
+            .iter()
+            .enumerate()
+            .any(|(j, &(tj, ej))| j != i && tj <= t && ej <= e && (tj < t || ej < e));
+    }
+}
+
+/// Run `tradeoff`.
+pub fn tradeoff(args: &TradeoffArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let mut experiments = vec![args.experiment.load()?];
+    for c in &args.extra_config {
+        experiments.push(
+            ExperimentArgs {
+                config: c.clone(),
+                runs_dir: args.experiment.runs_dir.clone(),
+            }
+            .load()?,
+        );
+    }
+    let mut points = Vec::new();
+    let (mut n_sequences, mut n_frames) = (0, 0);
+    for (i, e) in experiments.iter().enumerate() {
+        let mut models = vec![export_dir(e)];
+        if i == 0 {
+            models.extend(args.model.iter().cloned());
+        }
+        let TestSets { motions, .. } = crate::eval::test_sets(e, !args.all_shapes)?;
+        anyhow::ensure!(
+            !motions.is_empty(),
+            "{}: no held-out motion was simulated",
+            e.name
+        );
+        for model_dir in &models {
+            let assets = Assets::load(e, model_dir)?;
+            let files = SequenceFiles::new(
+                &e.sim_dir(),
+                assets.binding.garment().sha256.clone(),
+                assets.body.n_betas(),
+            );
+            let seqs = load_truth(e, &files, &motions)?;
+            n_sequences += seqs.len();
+            n_frames += seqs.iter().map(|s| s.truth.poses.len()).sum::<usize>();
+            points.extend(sweep_model(&assets, &seqs, args)?);
+        }
+    }
+    mark_pareto(&mut points);
+
+    let dir = experiments[0].run_dir().join("tradeoff");
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    plot(&dir, &points)?;
+    let report = TradeoffReport {
+        configs: experiments.iter().map(|e| e.name.clone()).collect(),
+        test_set: if args.all_shapes {
+            "held-out motions, all training shapes".into()
+        } else {
+            "held-out motions, nominal shape".into()
+        },
+        sequences: n_sequences,
+        frames: n_frames,
+        points,
+        wall_time_s: start.elapsed().as_secs_f64(),
+        machine: Machine::current(),
+    };
+    let path = dir.join("tradeoff.json");
+    write_json(&path, &report)?;
+    println!(
+        "{:<34} {:>9} {:>9}  pareto",
+        "variant", "error mm", "ms/frame"
+    );
+    for p in &report.points {
+        println!(
+            "{:<34} {:>9.2} {:>9.3}  {}",
+            p.label,
+            p.mean_vertex_error_mm,
+            p.ms_per_frame,
+            if p.pareto { "*" } else { "" }
+        );
+    }
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+fn sweep_model(
+    assets: &Assets,
+    seqs: &[TestSequence],
+    args: &TradeoffArgs,
+) -> anyhow::Result<Vec<TradeoffPoint>> {
+    let full = assets.network(NetworkOptions::default())?;
+    let sizes = full.header().sizes;
+    let own_width = match sizes.output {
+        OutputKind::Dense => 3 * sizes.n_vertices,
+        OutputKind::Pca(k) => k,
+    };
+    let mut ranks: Vec<Option<usize>> = vec![None];
+    ranks.extend(
+        args.ranks
+            .iter()
+            .filter(|&&r| r > 0 && r < own_width)
+            .map(|&r| Some(r)),
+    );
+    let triangles = assets.binding.faces().len();
+    let model = assets.model_dir.display().to_string();
+    let total = (ranks.len() + 1) * 3;
+    let bar = ProgressBar::new(total as u64).with_style(
+        ProgressStyle::with_template("{msg:>28} [{bar:30}] {pos}/{len} variants, ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let quiet = ProgressBar::hidden();
+    let mut points = Vec::new();
+    for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+        for fit_only in [false, true] {
+            let rank_list: &[Option<usize>] = if fit_only { &[None] } else { &ranks };
+            for &rank in rank_list {
+                let pname = precision_name(precision);
+                let width = rank.unwrap_or(own_width);
+                let label = if fit_only {
+                    format!("{triangles}t fit-only {pname}")
+                } else {
+                    format!("{triangles}t h{} k{width} {pname}", sizes.gru_hidden)
+                };
+                bar.set_message(label.clone());
+                let network = assets.network(NetworkOptions {
+                    precision,
+                    output_rank: rank,
+                })?;
+                let base = AnimatorOptions::default();
+                let options = |pp: bool| {
+                    let o = if fit_only {
+                        AnimatorOptions {
+                            fit: FitMode::Network,
+                            wrinkles: WrinkleMode::None,
+                            ..base
+                        }
+                    } else {
+                        Method::Ours.options(base)
+                    };
+                    AnimatorOptions {
+                        collision: if pp { o.collision } else { None },
+                        ..o
+                    }
+                };
+                // One evaluation gives the error with and without the post-process.
+                let report = if fit_only {
+                    evaluate_fit_only(assets, &network, seqs, &quiet)?
+                } else {
+                    evaluate(assets, &network, Method::Ours, seqs, &quiet)?
+                };
+                for pp in [true, false] {
+                    let rig = assets.rig(&network, options(pp))?;
+                    let ms = time_frames(&rig, &seqs[0], args.timed_frames)?;
+                    points.push(TradeoffPoint {
+                        label: format!("{label}{}", if pp { " pp" } else { "" }),
+                        model: model.clone(),
+                        garment_triangles: triangles,
+                        gru_hidden: if fit_only { 0 } else { sizes.gru_hidden },
+                        output_rank: if fit_only { 0 } else { width },
+                        precision: pname.into(),
+                        post_process: pp,
+                        fit_only,
+                        mean_vertex_error_mm: if pp {
+                            report.mean_vertex_error_mm
+                        } else {
+                            report.mean_vertex_error_mm_before_pp
+                        },
+                        collision_percent: if pp {
+                            report.collision_percent_after_pp
+                        } else {
+                            report.collision_percent_before_pp
+                        },
+                        ms_per_frame: ms,
+                        pareto: false,
+                    });
+                }
+                bar.inc(1);
+            }
+        }
+    }
+    bar.finish_and_clear();
+    Ok(points)
+}
+
+/// `evaluate` with the wrinkle GRU off (the network's fit only).
+fn evaluate_fit_only(
+    assets: &Assets,
+    network: &Arc<sartor_runtime::GarmentNetwork>,
+    seqs: &[TestSequence],
+    bar: &ProgressBar,
+) -> anyhow::Result<crate::eval::MethodReport> {
+    crate::eval::evaluate_with(
+        assets,
+        network,
+        AnimatorOptions {
+            fit: FitMode::Network,
+            wrinkles: WrinkleMode::None,
+            ..AnimatorOptions::default()
+        },
+        seqs,
+        bar,
+    )
+}
+
+fn plot(dir: &std::path::Path, points: &[TradeoffPoint]) -> anyhow::Result<()> {
+    let mut groups: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for p in points {
+        let name = format!(
+            "{}{}",
+            if p.fit_only {
+                "fit-only"
+            } else {
+                p.precision.as_str()
+            },
+            if p.post_process { " + pp" } else { "" }
+        );
+        let point = (p.ms_per_frame, p.mean_vertex_error_mm);
+        match groups.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, v)) => v.push(point),
+            None => groups.push((name, vec![point])),
+        }
+    }
+    let mut front: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.pareto)
+        .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut series: Vec<Series> = groups
+        .into_iter()
+        .map(|(name, points)| Series {
+            name,
+            points,
+            markers: true,
+        })
+        .collect();
+    series.push(Series {
+        name: "Pareto front".into(),
+        points: front,
+        markers: false,
+    });
+    write_charts(
+        &dir.join("pareto"),
+        &[Chart {
+            title: "Error against cost per frame (one thread)".into(),
+            x_label: "ms per frame".into(),
+            y_label: "mean vertex error (mm)".into(),
+            series,
+        }],
+        1,
+        (900, 600),
+    )?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(ms: f64, err: f64) -> TradeoffPoint {
+        TradeoffPoint {
+            label: String::new(),
+            model: String::new(),
+            garment_triangles: 0,
+            gru_hidden: 0,
+            output_rank: 0,
+            precision: "f32".into(),
+            post_process: false,
+            fit_only: false,
+            mean_vertex_error_mm: err,
+            collision_percent: 0.0,
+            ms_per_frame: ms,
+            pareto: false,
+        }
+    }
+
+    #[test]
+    fn pareto_front_keeps_exactly_the_undominated_points() {
+        let mut p = vec![
+            point(1.0, 10.0), // front: fastest
+            point(2.0, 5.0),  // front
+            point(3.0, 6.0),  // dominated by (2, 5)
+            point(4.0, 1.0),  // front: most accurate
+            point(2.0, 5.0),  // equal to a front point: neither dominates
+            point(1.0, 11.0), // dominated by (1, 10)
+        ];
+        mark_pareto(&mut p);
+        let flags: Vec<bool> = p.iter().map(|p| p.pareto).collect();
+        assert_eq!(flags, [true, true, false, true, true, false]);
+    }
+}
