@@ -1,0 +1,213 @@
+//! The training loop learns, checkpoints, resumes and refuses what it must.
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use sartor_model::burn::tensor::{Device, Tensor, TensorData};
+use sartor_model::{
+    FitRegressorConfig, ModelKind, ModelReport, Silent, StageConfig, TrainOptions, TrainingConfig,
+    WrinkleRegressorConfig, load_weights, save_weights, to_vec, train_model,
+};
+
+use crate::synthetic::dataset;
+
+pub fn config(fit: usize, wrinkle: usize, linear: usize) -> TrainingConfig {
+    TrainingConfig::new(
+        StageConfig::new(fit, 5).with_learning_rate(1e-2),
+        StageConfig::new(wrinkle, 4).with_learning_rate(5e-3),
+        StageConfig::new(linear, 32).with_learning_rate(1e-2),
+    )
+    .with_fit_hidden(16)
+    .with_gru_hidden(32)
+    .with_dropout(0.0)
+    .with_window_frames(8)
+    .with_seed(11)
+}
+
+pub fn train(
+    kind: ModelKind,
+    data: &sartor_dataset::TrainingData,
+    config: &TrainingConfig,
+    dir: &Path,
+    resume: bool,
+    stop: bool,
+) -> sartor_model::Result<ModelReport> {
+    let stop = AtomicBool::new(stop);
+    let options = TrainOptions {
+        dir: dir.to_path_buf(),
+        device: Device::flex().autodiff(),
+        resume,
+        stop: &stop,
+    };
+    train_model(kind, data, config, &options, &mut Silent)
+}
+
+fn assert_learned(report: &ModelReport, ratio: f64) {
+    let first = report.curve.first().expect("an epoch").train_loss;
+    let last = report.curve.last().expect("an epoch").train_loss;
+    eprintln!(
+        "{}: loss {first} → {last}, val {:?} mm",
+        report.model, report.best_val_error_mm
+    );
+    assert!(
+        last < ratio * first,
+        "{}: loss {first} → {last}, expected below {ratio} × the first",
+        report.model
+    );
+    assert!(report.best_val_error_mm.is_some_and(f64::is_finite));
+}
+
+#[test]
+fn fit_mlp_learns_the_shape_displacements() {
+    let data = dataset(0.0, false, None);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = train(
+        ModelKind::Fit,
+        &data,
+        &config(400, 0, 0),
+        dir.path(),
+        false,
+        false,
+    )
+    .expect("training");
+    assert_eq!(report.epochs, 400);
+    assert_learned(&report, 0.01);
+}
+
+#[test]
+fn linear_baseline_fits_a_memoryless_linear_target() {
+    let data = dataset(0.0, false, None);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = train(
+        ModelKind::Linear,
+        &data,
+        &config(0, 0, 150),
+        dir.path(),
+        false,
+        false,
+    )
+    .expect("training");
+    assert_learned(&report, 0.001);
+}
+
+#[test]
+fn wrinkle_gru_learns_a_target_with_memory() {
+    let data = dataset(0.8, true, None);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = train(
+        ModelKind::Wrinkle,
+        &data,
+        &config(0, 120, 0),
+        dir.path(),
+        false,
+        false,
+    )
+    .expect("training");
+    assert_learned(&report, 0.03);
+}
+
+#[test]
+fn wrinkle_gru_learns_through_a_pca_output() {
+    let data = dataset(0.8, true, Some(12));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = train(
+        ModelKind::Wrinkle,
+        &data,
+        &config(0, 120, 0).with_pca_components(Some(12)),
+        dir.path(),
+        false,
+        false,
+    )
+    .expect("training");
+    assert_learned(&report, 0.05);
+}
+
+#[test]
+fn a_resumed_run_takes_the_same_steps_as_an_uninterrupted_one() {
+    let data = dataset(0.8, true, None);
+    let c = config(0, 3, 0);
+    let whole = tempfile::tempdir().expect("tempdir");
+    let full = train(ModelKind::Wrinkle, &data, &c, whole.path(), false, false).expect("training");
+    let split = tempfile::tempdir().expect("tempdir");
+    // Stop after the first batch, then resume twice more (the second resume finds it done).
+    let first = train(ModelKind::Wrinkle, &data, &c, split.path(), false, true).expect("part");
+    assert!(first.interrupted);
+    assert_eq!(first.epochs, 0);
+    let rest = train(ModelKind::Wrinkle, &data, &c, split.path(), true, false).expect("rest");
+    assert!(!rest.interrupted);
+    assert_eq!(rest.epochs, 3);
+    let again = train(ModelKind::Wrinkle, &data, &c, split.path(), true, false).expect("done");
+    assert_eq!(again.curve, rest.curve);
+    for (a, b) in full.curve.iter().zip(&rest.curve) {
+        assert!(
+            (a.train_loss - b.train_loss).abs() <= 1e-6 * a.train_loss,
+            "{a:?} vs {b:?}"
+        );
+    }
+    assert_eq!(full.best_epoch, rest.best_epoch);
+}
+
+#[test]
+fn an_existing_run_is_not_overwritten_and_other_settings_are_refused() {
+    let data = dataset(0.0, false, None);
+    let dir = tempfile::tempdir().expect("tempdir");
+    train(
+        ModelKind::Fit,
+        &data,
+        &config(2, 0, 0),
+        dir.path(),
+        false,
+        false,
+    )
+    .expect("training");
+    let again = train(
+        ModelKind::Fit,
+        &data,
+        &config(2, 0, 0),
+        dir.path(),
+        false,
+        false,
+    );
+    assert!(
+        again.is_err(),
+        "a second run without resume must not overwrite the first"
+    );
+    let other = config(2, 0, 0).with_fit_hidden(7);
+    let err = train(ModelKind::Fit, &data, &other, dir.path(), true, false)
+        .expect_err("other settings must be refused");
+    assert!(err.to_string().contains("state.json"), "{err}");
+}
+
+#[test]
+fn saved_weights_load_back_to_identical_outputs() {
+    let device = Device::flex();
+    device.seed(1);
+    let config = WrinkleRegressorConfig::new(9, 15)
+        .with_hidden(12)
+        .with_dropout(0.0);
+    let model = config.init(&device);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("w.bpk");
+    save_weights(&model, &path).expect("save");
+    device.seed(2);
+    let other = config.init(&device);
+    let loaded = load_weights(other, &path).expect("load");
+    let x: Tensor<3> = Tensor::from_data(
+        TensorData::new(
+            (0..2 * 5 * 9).map(|i| (i as f32 * 0.1).sin()).collect(),
+            [2, 5, 9],
+        ),
+        &device,
+    );
+    let s = model.initial_state(2, &device);
+    let (a, _) = model.forward(x.clone(), s.clone());
+    let (b, _) = loaded.forward(x, s);
+    assert_eq!(to_vec(a), to_vec(b));
+    // A file for another architecture is an error naming it, not a panic.
+    let fit = FitRegressorConfig::new(2, 15).init(&device);
+    let err = load_weights(fit, &path).expect_err("mismatched weights");
+    assert!(err.to_string().contains("w.bpk"), "{err}");
+    std::fs::write(&path, b"not a burnpack").expect("write");
+    let err = load_weights(config.init(&device), &path).expect_err("garbage");
+    assert!(err.to_string().contains("w.bpk"), "{err}");
+}
