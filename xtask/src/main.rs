@@ -13,13 +13,17 @@ mod dataset;
 mod demo;
 mod eval;
 mod experiment;
+mod export;
 mod garment;
 mod import_body;
 mod machine;
 mod motions;
+mod pipeline;
 mod plot;
+mod ship;
 mod simulate;
 mod tradeoff;
+mod train;
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "sartor: learning-based garment animation")]
@@ -51,6 +55,19 @@ enum Command {
     /// Sweep the runtime's speed knobs (output rank, precision, post-process, fit-only, model
     /// size, garment resolution): error against ms per frame, tradeoff.json and a Pareto plot.
     Tradeoff(tradeoff::TradeoffArgs),
+    /// Copy an experiment's export and eval.json into datasets/models/<name>, with a stored
+    /// slice of held-out ground truth for the regression check.
+    Ship(ship::ShipArgs),
+    /// Recompute a shipped model's error on its stored slice; fail beyond 10 % of the record.
+    CheckModel(ship::CheckModelArgs),
+    /// Train the fit MLP, the wrinkle GRU and the linear baseline on an experiment's dataset
+    /// (checkpoints every epoch and on Ctrl-C; --resume continues): train.json, loss plots.
+    Train(train::TrainArgs),
+    /// Export a run's trained models for the runtime (model + binding, no burn), with a
+    /// preview animation (glTF, MCAP, OBJ).
+    Export(export::ExportArgs),
+    /// simulate → dataset → train → export → eval, end to end and resumable, with a summary.
+    Pipeline(pipeline::PipelineArgs),
     /// Judge the exported model and the baselines on held-out ground truth: eval.json, plots.
     Eval(eval::EvalArgs),
 }
@@ -68,6 +85,11 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => eval::eval(&args),
         Command::Demo(args) => demo::demo(&args),
         Command::Tradeoff(args) => tradeoff::tradeoff(&args),
+        Command::Ship(args) => ship::ship(&args),
+        Command::Train(args) => train::train(&args),
+        Command::Export(args) => export::export_run(&args),
+        Command::Pipeline(args) => pipeline::pipeline(&args),
+        Command::CheckModel(args) => ship::check_model(&args),
     }
 }
 

@@ -1,6 +1,6 @@
-//! `cargo xtask simulate` + `cargo xtask dataset` on configs/tiny.json: resume after a kill
-//! gives byte-identical files, the dataset loads, and no frame of a held-out clip or shape is
-//! in the training split.
+//! The tiny pipeline on configs/tiny.json: `simulate` + `dataset` (resume after a kill gives
+//! byte-identical files, the dataset loads, no frame of a held-out clip or shape is in the
+//! training split), then `train`, `export` and `eval` on it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -173,5 +173,84 @@ fn tiny_pipeline_resumes_byte_identically_and_keeps_splits_apart() {
             .sum::<f64>()
             / frames as f64;
         assert!((mean - data.stats().wrinkle_in.mean[c] as f64).abs() < 1e-4);
+    }
+
+    train_export_eval(straight.path(), &config);
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_slice(
+        &std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    )
+    .expect("json")
+}
+
+/// `train` (all three models, with the epochs the config asks for), a refused second run and an
+/// immediate `--resume`, `export --run` (a runtime model folder with a preview), `eval`.
+fn train_export_eval(runs: &Path, config: &serde_json::Value) {
+    run(&["train"], runs);
+    let train = runs.join("tiny/train");
+    let report = read_json(&train.join("train.json"));
+    for m in ["fit", "wrinkle", "linear"] {
+        let r = &report["models"][m];
+        assert_eq!(r["epochs"], config["training"][m]["epochs"], "{m}");
+        let err = r["best_val_error_mm"].as_f64().expect("a validation error");
+        assert!(err.is_finite() && err > 0.0, "{m}: {err}");
+        let curve = r["curve"].as_array().expect("curve");
+        let first = curve[0]["train_loss"].as_f64().expect("loss");
+        let last = curve[curve.len() - 1]["train_loss"].as_f64().expect("loss");
+        assert!(
+            last < first,
+            "{m}: the loss did not fall ({first} → {last})"
+        );
+    }
+    for ext in ["png", "svg"] {
+        assert!(train.join(format!("loss.{ext}")).is_file());
+    }
+    // A second run without --resume refuses to overwrite; with it, there is nothing left to do.
+    let again = xtask()
+        .args(["train", "--models", "fit", "--config"])
+        .arg(tiny())
+        .arg("--runs-dir")
+        .arg(runs)
+        .output()
+        .expect("xtask runs");
+    assert!(!again.status.success(), "train overwrote an existing run");
+    run(&["train", "--resume"], runs);
+
+    let out = xtask()
+        .args(["export", "--run"])
+        .arg(runs.join("tiny"))
+        .output()
+        .expect("xtask runs");
+    assert!(
+        out.status.success(),
+        "export failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let export = runs.join("tiny/export");
+    let model = sartor_runtime::GarmentModel::load(&export).expect("the export loads");
+    assert!(model.header().sizes.linear_baseline);
+    sartor_runtime::GarmentBinding::load(&export).expect("the binding loads");
+    assert!(export.join("preview/walk_normal.glb").is_file());
+    assert!(export.join("preview/walk_normal.mcap").is_file());
+
+    run(&["eval"], runs);
+    let eval = read_json(&runs.join("tiny/eval/eval.json"));
+    for (set, methods) in [
+        ("held_out_motions", ["ours", "lbs", "lr"]),
+        ("held_out_shapes", ["ours", "retarget", "lbs"]),
+    ] {
+        for m in methods {
+            let e = eval[set][m]["mean_vertex_error_mm"].as_f64();
+            assert!(
+                e.is_some_and(|e| e.is_finite() && e > 0.0),
+                "{set}/{m}: {e:?}"
+            );
+            assert!(
+                eval[set][m]["collision_percent_after_pp"].is_number(),
+                "{set}/{m}"
+            );
+        }
     }
 }

@@ -1,0 +1,200 @@
+//! `cargo xtask export --run runs/<exp> [--out DIR]`: the trained models of a run as one
+//! runtime model folder (default `runs/<exp>/export`): `model.safetensors` + `model.json`
+//! (`sartor_model::export_model`: fit MLP, wrinkle GRU, linear baseline, normalisation, input
+//! layout, garment and body identity) and `binding.safetensors` + `binding.json` (the dataset's
+//! `T̄_c` and `W_c`, the body region the garment can touch). Nothing burn-specific is written.
+//!
+//! It also animates the exported model on the template body through one clip and writes the
+//! result as an animated glTF, an MCAP (Foxglove) and OBJ sequences under `<out>/preview/`.
+//!
+//! The folder is assembled under a temporary name and renamed into place, so a failed export
+//! leaves the previous one untouched.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Context;
+use sartor_body::{BodyModel, MotionSourceOptions, RetargetBody, faces_near, load_motion};
+use sartor_model::burn::tensor::Device;
+use sartor_model::{AnyModel, ModelKind, export_model, load_trained};
+use sartor_runtime::{AnimatorOptions, AssetId, GarmentBinding, GarmentNetwork, GarmentRig};
+
+use crate::animate::{Format, animate, write_animation};
+use crate::experiment::Experiment;
+use crate::workspace_root;
+
+/// Default margin of the body region, mm: body triangles farther than this from the garment
+/// template never take part in the collision post-process.
+pub const DEFAULT_REGION_MARGIN_MM: f64 = 60.0;
+
+/// Arguments of `export`.
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    /// The run folder (`runs/<exp>`), holding `sim/config.json`, `dataset/` and `train/`.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Output folder (default `<run>/export`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Body region margin, mm (see [`DEFAULT_REGION_MARGIN_MM`]).
+    #[arg(long, default_value_t = DEFAULT_REGION_MARGIN_MM)]
+    pub region_margin_mm: f64,
+    /// Clip of the preview animation (`none` for no preview).
+    #[arg(long, default_value = "walk_normal")]
+    pub preview_motion: String,
+    /// Frames of the preview.
+    #[arg(long, default_value_t = 60)]
+    pub preview_frames: usize,
+}
+
+/// The experiment a run was made with (`sim/config.json`, as `simulate` saved it).
+pub fn run_experiment(run: &Path) -> anyhow::Result<Experiment> {
+    let path = run.join("sim/config.json");
+    let mut e = Experiment::load(&path)
+        .with_context(|| format!("{}: the run's experiment config", run.display()))?;
+    e.runs_root = run
+        .parent()
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+    anyhow::ensure!(
+        e.run_dir().file_name() == run.file_name(),
+        "{}: the run folder is not named after its experiment {:?}",
+        run.display(),
+        e.name
+    );
+    Ok(e)
+}
+
+/// Export a run (see the module docs).
+pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
+    let e = run_experiment(&args.run)?;
+    let out = args.out.clone().unwrap_or_else(|| args.run.join("export"));
+    let data_dir = e.dataset_dir();
+    let data = sartor_dataset::load_dataset(&data_dir)
+        .with_context(|| format!("loading the dataset from {}", data_dir.display()))?;
+    let body = BodyModel::load(&e.body)
+        .with_context(|| format!("loading the body model from {}", e.body.display()))?;
+    let cloth = sartor_dataset::read_binding(&data_dir, body.skeleton().n_joints())?;
+    let device = Device::flex();
+    let train = crate::train::train_dir(&e);
+    let load = |kind: ModelKind| {
+        let dir = train.join(kind.name());
+        load_trained(kind, &dir, &device).with_context(|| {
+            format!(
+                "loading the trained {} model from {} (run `cargo xtask train`)",
+                kind.name(),
+                dir.display()
+            )
+        })
+    };
+    let (AnyModel::Fit(fit), AnyModel::Wrinkle(wrinkle)) =
+        (load(ModelKind::Fit)?, load(ModelKind::Wrinkle)?)
+    else {
+        anyhow::bail!("load_trained returned another kind of model");
+    };
+    // The baseline is optional in the format; export it when it was trained.
+    let linear = match train.join("linear").join(sartor_model::BEST_FILE).exists() {
+        true => match load(ModelKind::Linear)? {
+            AnyModel::Linear(l) => Some(l),
+            _ => anyhow::bail!("load_trained returned another kind of model"),
+        },
+        false => None,
+    };
+    let model = export_model(&data, &fit, &wrinkle, linear.as_ref())?;
+
+    let source = data.source();
+    let template: Vec<_> = cloth.template.clone();
+    let rest = body.template().positions();
+    let region = faces_near(
+        rest,
+        body.faces(),
+        &template,
+        &cloth.faces,
+        args.region_margin_mm * 1e-3,
+    )?;
+    let binding = GarmentBinding::new(
+        AssetId {
+            id: source.garment_id.clone(),
+            sha256: source.garment_sha256.clone(),
+        },
+        AssetId {
+            id: source.body_id.clone(),
+            sha256: source.body_sha256.clone(),
+        },
+        template.iter().map(|p| p.cast::<f32>()).collect(),
+        cloth.faces.clone(),
+        cloth.skin_weights.clone(),
+        region,
+        body.faces().len(),
+    )?;
+    binding.check_model(model.header())?;
+    binding.check_body(&body)?;
+
+    let name = out
+        .file_name()
+        .map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned());
+    let tmp = out.with_file_name(format!(".{name}.tmp"));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+    }
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    model.save(&tmp)?;
+    binding.save(&tmp)?;
+
+    if args.preview_motion != "none" {
+        let network = Arc::new(GarmentNetwork::load(&tmp, Default::default())?);
+        let body = Arc::new(body);
+        let rig = Arc::new(GarmentRig::new(
+            network,
+            Arc::new(binding),
+            body.clone(),
+            AnimatorOptions::default(),
+        )?);
+        let options = MotionSourceOptions {
+            motions_dir: workspace_root().join("datasets/motions"),
+            body: Some(RetargetBody::load(&e.body)?),
+            lenient: false,
+            up_axis: sartor_body::UpAxis::Y,
+        };
+        let motion = load_motion(&args.preview_motion, &options)
+            .with_context(|| format!("preview motion {:?}", args.preview_motion))?;
+        let betas = vec![0.0; rig.network().n_betas()];
+        let anim = animate(&rig, &body, &betas, &motion, Some(args.preview_frames))?;
+        write_animation(
+            &tmp.join("preview"),
+            &args.preview_motion,
+            &anim,
+            body.faces(),
+            &cloth.faces,
+            motion.fps(),
+            &[Format::Gltf, Format::Mcap, Format::Obj],
+        )?;
+    }
+
+    let old = out.with_file_name(format!(".{name}.old"));
+    if out.exists() {
+        if old.exists() {
+            std::fs::remove_dir_all(&old)?;
+        }
+        std::fs::rename(&out, &old).with_context(|| format!("moving {} aside", out.display()))?;
+    }
+    std::fs::rename(&tmp, &out).with_context(|| format!("renaming into {}", out.display()))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
+    }
+    let sizes = &model.header().sizes;
+    println!(
+        "exported {} ({} vertices, fit {} / GRU {} units, {:?} output{}) to {}",
+        e.name,
+        sizes.n_vertices,
+        sizes.fit_hidden,
+        sizes.gru_hidden,
+        sizes.output,
+        if sizes.linear_baseline {
+            ", linear baseline"
+        } else {
+            ""
+        },
+        out.display()
+    );
+    Ok(())
+}
