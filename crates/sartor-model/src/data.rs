@@ -28,11 +28,13 @@ pub(crate) struct PcaTensors {
 }
 
 impl PcaTensors {
-    pub fn new(pca: &PcaBasis, device: &Device) -> Self {
+    /// The first `k` components of `pca` (all of them if `k` is larger).
+    pub fn new(pca: &PcaBasis, k: usize, device: &Device) -> Self {
         let n3 = pca.mean.len();
-        let k = pca.n_components();
+        let all = pca.n_components();
+        let basis = tensor(pca.basis.clone(), [n3, all], device);
         Self {
-            basis: tensor(pca.basis.clone(), [n3, k], device),
+            basis: basis.slice([0..n3, 0..k.min(all)]),
             mean: tensor(pca.mean.clone(), [1, n3], device),
         }
     }

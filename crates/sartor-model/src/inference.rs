@@ -186,6 +186,24 @@ pub struct Predictor<'a> {
 }
 
 impl<'a> Predictor<'a> {
+    /// Raw wrinkle inputs `[T, I]`, normalised, and `T`.
+    fn normalised_inputs(&self, inputs: &[f32]) -> (Vec<f32>, usize) {
+        let n_in = self.data.n_inputs();
+        let mut x = inputs.to_vec();
+        for row in x.chunks_exact_mut(n_in) {
+            self.data.stats().wrinkle_in.normalize(row);
+        }
+        (x, inputs.len() / n_in)
+    }
+
+    /// Normalised `Δ_L` rows `[T, 3V]` in metres.
+    fn wrinkle_metres(&self, mut y: Vec<f32>) -> Vec<f32> {
+        for row in y.chunks_exact_mut(self.data.n_outputs()) {
+            self.data.stats().wrinkle_out.denormalize(row);
+        }
+        y
+    }
+
     /// Predictions on `device` (a plain, non-autodiff device) with `data`'s statistics and PCA.
     pub fn new(data: &'a TrainingData, device: Device) -> Self {
         Self { data, device }
@@ -206,13 +224,8 @@ impl<'a> Predictor<'a> {
 
     /// `Δ_L` per frame in metres (`[T, 3V]`) for raw wrinkle inputs `[T, I]`, from a zero state.
     pub fn wrinkle(&self, wrinkle: &WrinkleRegressor, inputs: &[f32]) -> Vec<f32> {
-        let stats = self.data.stats();
+        let (x, t) = self.normalised_inputs(inputs);
         let n_in = self.data.n_inputs();
-        let t = inputs.len() / n_in;
-        let mut x = inputs.to_vec();
-        for row in x.chunks_exact_mut(n_in) {
-            stats.wrinkle_in.normalize(row);
-        }
         let model = wrinkle.valid();
         let state = model.initial_state(1, &self.device);
         let (y, _) = model.forward(tensor(x, [1, t, n_in], &self.device), state);
@@ -220,37 +233,18 @@ impl<'a> Predictor<'a> {
         let y: Tensor<2> = y.reshape([t, width]);
         let y = match self.data.pca() {
             Some(basis) if width != self.data.n_outputs() => {
-                let pca = PcaTensors::new(basis, &self.device);
-                let n3 = self.data.n_outputs();
-                PcaTensors {
-                    basis: pca.basis.slice([0..n3, 0..width]),
-                    mean: pca.mean,
-                }
-                .reconstruct(y)
+                PcaTensors::new(basis, width, &self.device).reconstruct(y)
             }
             _ => y,
         };
-        let mut y = to_vec(y);
-        for row in y.chunks_exact_mut(self.data.n_outputs()) {
-            stats.wrinkle_out.denormalize(row);
-        }
-        y
+        self.wrinkle_metres(to_vec(y))
     }
 
     /// The linear baseline's `Δ_L` per frame in metres (`[T, 3V]`) for raw inputs `[T, I]`.
     pub fn linear(&self, linear: &LinearRegressor, inputs: &[f32]) -> Vec<f32> {
-        let stats = self.data.stats();
+        let (x, t) = self.normalised_inputs(inputs);
         let n_in = self.data.n_inputs();
-        let t = inputs.len() / n_in;
-        let mut x = inputs.to_vec();
-        for row in x.chunks_exact_mut(n_in) {
-            stats.wrinkle_in.normalize(row);
-        }
         let y = linear.valid().forward(tensor(x, [t, n_in], &self.device));
-        let mut y = to_vec(y);
-        for row in y.chunks_exact_mut(self.data.n_outputs()) {
-            stats.wrinkle_out.denormalize(row);
-        }
-        y
+        self.wrinkle_metres(to_vec(y))
     }
 }

@@ -384,6 +384,26 @@ pub(crate) fn window_loss(
     (loss, last.detach())
 }
 
+/// One optimiser step of a frame-wise regressor on inputs `x` (`[N, n_in]`) and targets `y`
+/// (`[N, O]`), both normalised; returns the model and the batch's MSE.
+fn regression_step<M: Module>(
+    model: M,
+    forward: fn(&M, Tensor<2>) -> Tensor<2>,
+    x: Vec<f32>,
+    y: Vec<f32>,
+    n_in: usize,
+    device: &Device,
+    optim: &mut ModuleOptimizer,
+    lr: f64,
+) -> (M, f64) {
+    let n = x.len() / n_in;
+    let n_out = y.len() / n.max(1);
+    let x = tensor(x, [n, n_in], device);
+    let y = tensor(y, [n, n_out], device);
+    let loss = masked_mse(forward(&model, x), y, None, (n * n_out) as f64);
+    backward_step(model, loss, optim, lr)
+}
+
 fn backward_step<M: Module>(
     model: M,
     loss: Tensor<1>,
@@ -431,17 +451,17 @@ impl Task for FitTask<'_> {
         on_step: &mut dyn FnMut(f64, usize),
     ) -> FitRegressor {
         let (x, y) = gather_shapes(self.data, batch);
-        let n = batch.len();
-        let x = tensor(x, [n, self.data.n_betas()], &self.device);
-        let y = tensor(y, [n, self.data.n_outputs()], &self.device);
-        let loss = masked_mse(
-            model.forward(x),
+        let (model, value) = regression_step(
+            model,
+            FitRegressor::forward,
+            x,
             y,
-            None,
-            (n * self.data.n_outputs()) as f64,
+            self.data.n_betas(),
+            &self.device,
+            optim,
+            lr,
         );
-        let (model, value) = backward_step(model, loss, optim, lr);
-        on_step(value, n);
+        on_step(value, batch.len());
         model
     }
     fn validate(&self, model: &FitRegressor) -> Option<f64> {
@@ -503,17 +523,17 @@ impl Task for LinearTask<'_> {
     ) -> LinearRegressor {
         let frames: Vec<(usize, usize)> = batch.iter().map(|&i| self.frames[i]).collect();
         let (x, y) = gather_frames(self.data, &frames);
-        let n = frames.len();
-        let x = tensor(x, [n, self.data.n_inputs()], &self.device);
-        let y = tensor(y, [n, self.data.n_outputs()], &self.device);
-        let loss = masked_mse(
-            model.forward(x),
+        let (model, value) = regression_step(
+            model,
+            LinearRegressor::forward,
+            x,
             y,
-            None,
-            (n * self.data.n_outputs()) as f64,
+            self.data.n_inputs(),
+            &self.device,
+            optim,
+            lr,
         );
-        let (model, value) = backward_step(model, loss, optim, lr);
-        on_step(value, n);
+        on_step(value, frames.len());
         model
     }
     fn validate(&self, model: &LinearRegressor) -> Option<f64> {
@@ -788,14 +808,7 @@ pub fn train_model(
         ModelKind::Wrinkle => {
             let module = config.wrinkle_config(data)?;
             let pca = match (module.pca_components, data.pca()) {
-                (Some(k), Some(basis)) => {
-                    let full = PcaTensors::new(basis, &device);
-                    let n3 = data.n_outputs();
-                    Some(PcaTensors {
-                        basis: full.basis.slice([0..n3, 0..k]),
-                        mean: full.mean,
-                    })
-                }
+                (Some(k), Some(basis)) => Some(PcaTensors::new(basis, k, &device)),
                 _ => None,
             };
             let task = WrinkleTask {
