@@ -73,6 +73,7 @@ pub fn pipeline(args: &PipelineArgs) -> anyhow::Result<()> {
             shard: None,
             shard_count: None,
             jobs: args.jobs,
+            retry_failed: false,
         })
     })?;
     stage(2, "dataset", &|| {
@@ -124,7 +125,10 @@ pub fn pipeline(args: &PipelineArgs) -> anyhow::Result<()> {
     let mut summary: Vec<(String, Value)> = vec![
         ("simulated sequences".into(), get(&sim, "/jobs_done")),
         ("failed simulations".into(), get(&sim, "/jobs_failed")),
-        ("simulator ms per frame".into(), get(&sim, "/ms_per_frame")),
+        (
+            "simulator ms per frame".into(),
+            get(&sim, "/ms_per_frame_per_thread"),
+        ),
         ("dataset frames".into(), get(&data, "/frames")),
     ];
     for m in sartor_model::MODEL_NAMES {

@@ -47,6 +47,10 @@ pub struct SimulateArgs {
     /// Sequences simulated at once (default: all cores).
     #[arg(long)]
     pub jobs: Option<usize>,
+    /// Simulate again the jobs that failed before (by default they are skipped: a simulation
+    /// is deterministic, so the same inputs fail the same way; retry after changing settings).
+    #[arg(long)]
+    pub retry_failed: bool,
 }
 
 /// One simulation job.
@@ -188,6 +192,8 @@ struct SimulateReport {
     jobs_in_shard: usize,
     jobs_done: usize,
     jobs_skipped_existing: usize,
+    /// Jobs with a failure note from an earlier run, not retried (see `--retry-failed`).
+    jobs_skipped_failed: usize,
     jobs_failed: usize,
     failed: Vec<FailedJob>,
     frames_simulated: usize,
@@ -222,11 +228,36 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         .filter(|(k, _)| k % count == index)
         .map(|(_, j)| j)
         .collect();
+    let failed_before = |j: &Job| {
+        out.join(FAILED_DIR)
+            .join(format!("{}.json", j.stem))
+            .exists()
+    };
     let todo: Vec<&Job> = mine
         .iter()
         .filter(|j| !out.join(format!("{}.mcap", j.stem)).exists())
+        .filter(|j| args.retry_failed || !failed_before(j))
         .collect();
-    let skipped = mine.len() - todo.len();
+    let skipped_failed = mine
+        .iter()
+        .filter(|j| !out.join(format!("{}.mcap", j.stem)).exists() && failed_before(j))
+        .count()
+        * usize::from(!args.retry_failed);
+    let skipped = mine.len() - todo.len() - skipped_failed;
+    let name = if count == 1 {
+        "simulate.json".to_string()
+    } else {
+        format!("simulate-shard-{index}-of-{count}.json")
+    };
+    if todo.is_empty() && out.join(&name).exists() {
+        // Keep the report of the run that did the work.
+        println!(
+            "simulate: nothing to do ({skipped} done, {skipped_failed} failed before; \
+             --retry-failed simulates those again) → {}",
+            out.join(&name).display()
+        );
+        return Ok(());
+    }
     // Frames per job, for the ETA.
     let frames_of = |j: &Job| -> anyhow::Result<usize> {
         let n = if j.motion == REST_MOTION {
@@ -334,6 +365,7 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         jobs_in_shard: mine.len(),
         jobs_done: todo.len() - failed.len(),
         jobs_skipped_existing: skipped,
+        jobs_skipped_failed: skipped_failed,
         jobs_failed: failed.len(),
         failed,
         frames_simulated: frames,
@@ -342,11 +374,6 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         ms_per_frame_per_thread: per_frame_wall * threads.min(todo.len().max(1)) as f64,
         ms_per_frame_wall: per_frame_wall,
         machine: Machine::current(),
-    };
-    let name = if count == 1 {
-        "simulate.json".to_string()
-    } else {
-        format!("simulate-shard-{index}-of-{count}.json")
     };
     write_json(&out.join(&name), &report)?;
     println!(
