@@ -129,7 +129,10 @@ pub fn pipeline(args: &PipelineArgs) -> anyhow::Result<()> {
             "simulator ms per frame".into(),
             get(&sim, "/ms_per_frame_per_thread"),
         ),
-        ("dataset frames".into(), get(&data, "/frames")),
+        (
+            "dataset training frames".into(),
+            get(&data, "/frames_per_split/train"),
+        ),
     ];
     for m in sartor_model::MODEL_NAMES {
         summary.push((
