@@ -16,8 +16,8 @@ use std::sync::Arc;
 use anyhow::Context;
 use sartor_body::{BodyModel, MotionSourceOptions, RetargetBody, faces_near, load_motion};
 use sartor_model::burn::tensor::Device;
-use sartor_model::{AnyModel, ModelKind, export_model, load_trained};
-use sartor_runtime::{AnimatorOptions, AssetId, GarmentBinding, GarmentNetwork, GarmentRig};
+use sartor_model::{AnyModel, ModelKind, asset_ids, export_model, load_trained};
+use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig};
 
 use crate::animate::{Format, animate, write_animation};
 use crate::experiment::Experiment;
@@ -111,15 +111,10 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
         &cloth.faces,
         args.region_margin_mm * 1e-3,
     )?;
+    let (garment_id, body_id) = asset_ids(source);
     let binding = GarmentBinding::new(
-        AssetId {
-            id: source.garment_id.clone(),
-            sha256: source.garment_sha256.clone(),
-        },
-        AssetId {
-            id: source.body_id.clone(),
-            sha256: source.body_sha256.clone(),
-        },
+        garment_id,
+        body_id,
         template.iter().map(|p| p.cast::<f32>()).collect(),
         cloth.faces.clone(),
         cloth.skin_weights.clone(),
