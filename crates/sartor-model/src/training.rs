@@ -486,7 +486,6 @@ struct LinearTask<'a> {
     config: LinearRegressorConfig,
     batch_size: usize,
     seed: u64,
-    train: Vec<usize>,
     val: Vec<usize>,
     /// Every training frame `(sequence, frame)`; batches index into it.
     frames: Vec<(usize, usize)>,
@@ -674,10 +673,6 @@ impl Task for WrinkleTask<'_> {
     }
 }
 
-fn parameters<M: Module>(model: &M) -> usize {
-    model.num_params()
-}
-
 fn json_error(path: &Path, e: serde_json::Error) -> Error {
     Error::checkpoint(path, format!("malformed JSON: {e}"))
 }
@@ -781,20 +776,18 @@ pub fn train_model(
             let module = config.linear_config(data);
             let sequences = train(Split::Train);
             let frames = sequences
-                .iter()
-                .flat_map(|&s| (0..data.sequences()[s].n_frames).map(move |t| (s, t)))
+                .into_iter()
+                .flat_map(|s| (0..data.sequences()[s].n_frames).map(move |t| (s, t)))
                 .collect();
             let task = LinearTask {
                 data,
                 batch_size: stage.batch_size,
                 seed: config.seed,
-                train: sequences,
                 val: train(Split::HeldOutMotions),
                 frames,
                 device,
                 config: module.clone(),
             };
-            let _ = &task.train;
             run(
                 kind,
                 &task,
@@ -1001,7 +994,7 @@ fn run<T: Task>(
         model: name.into(),
         epochs: state.epochs_done,
         frames_per_epoch: task.frames_per_epoch(),
-        parameters: parameters(&model),
+        parameters: model.num_params(),
         wall_time_s: state.wall_time_s,
         frames_per_s: state.frames_seen as f64 / train_seconds,
         best_val_error_mm: state.best.map(|b| b.val_error_mm),
