@@ -283,19 +283,20 @@ fn post_process_pushes_vertices_out_of_the_body() {
             passes,
             ..CollisionOptions::default()
         };
-        // The random wrinkles (1 to 3 cm, noise from vertex to vertex) squeeze a few sleeve
-        // vertices between arm and torso, where there is no valid place for them: the BVH
-        // pushes every other one out. The candidate lists are chosen at rest, so they also miss
-        // vertices that the noise moves more than about a centimetre relative to the body (a
-        // trained model's wrinkles are smooth; `bench runtime` measures that case).
+        // The random wrinkles (1 to 3 cm, noise from vertex to vertex) squeeze sleeve vertices
+        // between arm and torso; a later pass keeps the plane of the earlier push, so the exact
+        // BVH leaves none inside or within the margin. The candidate lists are chosen at rest,
+        // so they also miss vertices that the noise moves more than about a centimetre relative
+        // to the body (a trained model's wrinkles are smooth; `bench runtime` measures that
+        // case).
         let factor = match query {
-            CollisionQuery::Bvh { .. } => 100,
+            CollisionQuery::Bvh { .. } => usize::MAX,
             CollisionQuery::BvhBand { .. } | CollisionQuery::GuardedCandidates { .. } => 20,
             CollisionQuery::Candidates { .. } => 5,
         };
         for clip_name in ["walk_normal", "jumping_jacks"] {
             let (inside_before, near_before, none) = inside_over(clip_name, options(0));
-            let (inside, near, pushed) = inside_over(clip_name, options(2));
+            let (inside, near, pushed) = inside_over(clip_name, options(4));
             eprintln!(
                 "{query:?} {clip_name}: inside {inside_before} before, {inside} after; \
                  within the margin {near_before} before, {near} after"
@@ -306,11 +307,11 @@ fn post_process_pushes_vertices_out_of_the_body() {
                 "{query:?}: the clip collides"
             );
             assert!(
-                inside * factor <= inside_before,
+                inside.saturating_mul(factor) <= inside_before,
                 "{query:?}: {inside} of {inside_before}"
             );
             assert!(
-                near * factor <= near_before,
+                near.saturating_mul(factor) <= near_before,
                 "{query:?}: {near} of {near_before}"
             );
         }
