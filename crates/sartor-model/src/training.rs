@@ -100,6 +100,24 @@ pub struct StageConfig {
     /// Adam's learning rate (1e-4 in the paper).
     #[config(default = 1e-4)]
     pub learning_rate: f64,
+    /// With a value, the rate decays from `learning_rate` at the first batch to this at the last
+    /// along a half cosine (per batch, so a resumed run continues the same curve); without one
+    /// it stays constant.
+    #[config(default = "None")]
+    pub final_learning_rate: Option<f64>,
+}
+
+impl StageConfig {
+    /// The learning rate after `done` of `total` batches of the whole run.
+    pub fn learning_rate_at(&self, done: usize, total: usize) -> f64 {
+        match self.final_learning_rate {
+            None => self.learning_rate,
+            Some(end) => {
+                let t = done as f64 / total.max(1) as f64;
+                end + 0.5 * (self.learning_rate - end) * (1.0 + (std::f64::consts::PI * t).cos())
+            }
+        }
+    }
 }
 
 /// The `training` section of an experiment config: every hyper-parameter of the three models.
@@ -182,15 +200,18 @@ impl TrainingConfig {
                     format!("{}.batch_size is 0", kind.name()),
                 ));
             }
-            if !(s.learning_rate.is_finite() && s.learning_rate > 0.0) {
-                return Err(Error::invalid(
-                    "training",
-                    format!(
-                        "{}.learning_rate {} is not positive",
-                        kind.name(),
-                        s.learning_rate
-                    ),
-                ));
+            for (field, rate) in [
+                ("learning_rate", Some(s.learning_rate)),
+                ("final_learning_rate", s.final_learning_rate),
+            ] {
+                if let Some(rate) = rate
+                    && !(rate.is_finite() && rate > 0.0)
+                {
+                    return Err(Error::invalid(
+                        "training",
+                        format!("{}.{field} {rate} is not positive", kind.name()),
+                    ));
+                }
             }
         }
         if self.fit_hidden == 0 || self.gru_hidden == 0 || self.window_frames == 0 {
@@ -719,10 +740,11 @@ fn fingerprint(
 ) -> String {
     let s = config.stage(kind);
     let text = format!(
-        "{}|{module_config}|{}|{}|{}|{}|{}|{:?}|{}|{}|{}|{}",
+        "{}|{module_config}|{}|{}|{:?}|{}|{}|{}|{:?}|{}|{}|{}|{}",
         kind.name(),
         s.batch_size,
         s.learning_rate,
+        s.final_learning_rate,
         config.window_frames,
         config.seed,
         data.n_outputs(),
@@ -919,20 +941,19 @@ fn run<T: Task>(
         for batch in &batches[state.batches_done.min(batches.len())..] {
             let mut diverged = None;
             let (mut loss_sum, mut loss_frames) = (0.0, 0.0);
-            model = task.train_batch(
-                model,
-                &mut optim,
-                stage.learning_rate,
-                batch,
-                &mut |loss, frames| {
-                    if !loss.is_finite() {
-                        diverged = Some(loss);
-                    }
-                    loss_sum += loss * frames as f64;
-                    loss_frames += frames as f64;
-                    progress.step(loss);
-                },
+            // Every epoch has the same number of batches (a shuffle of the same split).
+            let rate = stage.learning_rate_at(
+                epoch * batches.len() + state.batches_done,
+                stage.epochs * batches.len(),
             );
+            model = task.train_batch(model, &mut optim, rate, batch, &mut |loss, frames| {
+                if !loss.is_finite() {
+                    diverged = Some(loss);
+                }
+                loss_sum += loss * frames as f64;
+                loss_frames += frames as f64;
+                progress.step(loss);
+            });
             if let Some(loss) = diverged {
                 return Err(Error::Diverged {
                     model: name.into(),
@@ -1060,6 +1081,18 @@ pub fn load_trained(kind: ModelKind, dir: &Path, device: &Device) -> crate::Resu
 mod tests {
     use super::*;
     use crate::model::FusedGru;
+
+    #[test]
+    fn cosine_rate_runs_from_the_first_rate_to_the_final_one() {
+        let constant = StageConfig::new(10, 4).with_learning_rate(1e-3);
+        assert_eq!(constant.learning_rate_at(7, 40), 1e-3);
+        let decayed = constant.with_final_learning_rate(Some(1e-5));
+        assert_eq!(decayed.learning_rate_at(0, 40), 1e-3);
+        assert!((decayed.learning_rate_at(40, 40) - 1e-5).abs() < 1e-18);
+        assert!((decayed.learning_rate_at(20, 40) - 0.5 * (1e-3 + 1e-5)).abs() < 1e-15);
+        let rates: Vec<f64> = (0..=40).map(|b| decayed.learning_rate_at(b, 40)).collect();
+        assert!(rates.windows(2).all(|w| w[1] < w[0]), "{rates:?}");
+    }
 
     fn ramp(shape: [usize; 3], scale: f32, device: &Device) -> Tensor<3> {
         let n = shape.iter().product::<usize>();
