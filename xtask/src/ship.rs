@@ -3,7 +3,9 @@
 //! `ship` copies an experiment's export (model + binding) and its `eval.json` into a folder under
 //! `datasets/models/`, with a small slice of held-out ground truth (`regression-slice.safetensors`:
 //! the first frames of the first held-out clip on the nominal shape) and the model's error on it,
-//! recorded in the copied `eval.json` as `regression_slice`.
+//! recorded in the copied `eval.json` as `regression_slice`. The run's reports
+//! (`simulate.json`, `dataset.json`, `train.json`, `pipeline.json`) go with it where the run has
+//! them, so the folder says how the model was made.
 //!
 //! `check-model` recomputes that error with the runtime and fails when it is more than 10 % away
 //! from the recorded figure: the regression test of the shipped model.
@@ -235,6 +237,20 @@ pub fn ship(args: &ShipArgs) -> anyhow::Result<()> {
         let name = f.file_name().context("file name")?;
         std::fs::copy(&f, staging.join(name))
             .with_context(|| format!("copying {}", f.display()))?;
+    }
+    // The run's reports, where the run has them: how the model was made.
+    let run = e.run_dir();
+    for report in [
+        e.sim_dir().join("simulate.json"),
+        e.dataset_dir().join("dataset.json"),
+        run.join("train/train.json"),
+        run.join("pipeline.json"),
+    ] {
+        if report.exists() {
+            let name = report.file_name().context("file name")?;
+            std::fs::copy(&report, staging.join(name))
+                .with_context(|| format!("copying {}", report.display()))?;
+        }
     }
     write_slice(&staging.join(SLICE_FILE), &seq)?;
     let slice = RegressionSlice {
