@@ -10,7 +10,7 @@ use clap::{Args, Subcommand};
 use sartor_body::io::{read_file, write_atomic};
 use sartor_body::{BodyModel, Motion, MotionSourceOptions, Par, load_motion};
 use sartor_cloth::{
-    DriveConfig, Garment, GarmentConfig, Material, RelaxConfig, SequenceBenchmark,
+    DriveConfig, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig, SequenceBenchmark,
     benchmark_sequence, build_garment, relax_on_body,
 };
 use serde::Serialize;
@@ -70,6 +70,32 @@ pub struct SimBenchArgs {
     /// Where garments built for the benchmark are kept between runs.
     #[arg(long, default_value = "target/bench-garments")]
     pub garment_cache: PathBuf,
+    /// Linear solver of the implicit step: block-Jacobi CG (1,000 iterations at most, relative
+    /// tolerance 1e-5, as `configs/default.json`) or faer's sparse Cholesky.
+    #[arg(long, value_enum, default_value_t = Solver::Cg)]
+    pub solver: Solver,
+}
+
+/// The linear solvers `bench sim` can time.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Solver {
+    /// Block-Jacobi preconditioned conjugate gradients.
+    Cg,
+    /// Sparse Cholesky (symbolic analysis reused).
+    Cholesky,
+}
+
+impl Solver {
+    fn linear_solver(self) -> LinearSolver {
+        match self {
+            Self::Cg => LinearSolver::ConjugateGradient {
+                max_iterations: 1000,
+                relative_tolerance: 1e-5,
+            },
+            Self::Cholesky => LinearSolver::Cholesky,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -88,6 +114,7 @@ struct SizeEntry {
 
 #[derive(Serialize)]
 struct SimBenchReport {
+    solver: Solver,
     motion: String,
     motion_frames: std::ops::Range<usize>,
     blend_frames: usize,
@@ -114,11 +141,12 @@ fn bench_sim(args: &SimBenchArgs) -> anyhow::Result<()> {
     let body = sartor_body::load_builtin()?;
     let material = Material::gray_interlock();
     let motion = load_walk(args)?;
-    let config = DriveConfig {
+    let mut config = DriveConfig {
         blend_frames: args.blend_frames,
         rest_frames: args.rest_frames,
         ..DriveConfig::default()
     };
+    config.sim.linear_solver = args.solver.linear_solver();
     let mut sizes = Vec::new();
     for &n in &args.sizes {
         let (garment, source) = garment_of_size(n, &body, &material, args)?;
@@ -153,6 +181,7 @@ fn bench_sim(args: &SimBenchArgs) -> anyhow::Result<()> {
         });
     }
     let report = SimBenchReport {
+        solver: args.solver,
         motion: motion.name().to_string(),
         motion_frames: args.start_frame..args.start_frame + motion.n_frames(),
         blend_frames: args.blend_frames,
