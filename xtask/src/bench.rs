@@ -92,6 +92,7 @@ impl Solver {
             Self::Cg => LinearSolver::ConjugateGradient {
                 max_iterations: 1000,
                 relative_tolerance: 1e-5,
+                fallback_to_cholesky: true,
             },
             Self::Cholesky => LinearSolver::Cholesky,
         }

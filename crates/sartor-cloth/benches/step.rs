@@ -79,6 +79,7 @@ fn bench(c: &mut Criterion) {
             LinearSolver::ConjugateGradient {
                 max_iterations: 2000,
                 relative_tolerance: 1e-8,
+                fallback_to_cholesky: true,
             },
         ),
     ];

@@ -643,6 +643,7 @@ impl FrameStepper {
         t.self_contacts += totals.self_contacts;
         t.max_self_contacts = t.max_self_contacts.max(totals.max_self_contacts);
         t.projected_vertices += totals.projected_vertices;
+        t.cholesky_fallbacks += totals.cholesky_fallbacks;
         t.max_kinetic_energy_j = t.max_kinetic_energy_j.max(c.kinetic_energy_j);
         t.max_speed_m_per_s = t.max_speed_m_per_s.max(c.max_speed_m_per_s);
         t.max_penetration_m = t.max_penetration_m.max(c.max_penetration_m);
@@ -700,6 +701,7 @@ impl FrameStepper {
             totals.self_contacts += stats.self_contacts;
             totals.max_self_contacts = totals.max_self_contacts.max(stats.self_contacts);
             totals.projected_vertices += stats.projected_vertices;
+            totals.cholesky_fallbacks += stats.cholesky_fallbacks;
             last = Some(stats);
         }
         let t_check = Instant::now();

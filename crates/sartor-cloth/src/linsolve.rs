@@ -24,13 +24,22 @@ pub enum LinearSolver {
     /// Sparse Cholesky (faer, AMD ordering computed once).
     #[default]
     Cholesky,
-    /// Block-Jacobi preconditioned conjugate gradients, warm-started from the current velocity.
+    /// Block-Jacobi preconditioned conjugate gradients, warm-started from the current velocity
+    /// (from zero when that guess is worse than none).
     ConjugateGradient {
-        /// Iteration cap; reaching it is a step failure.
+        /// Iteration cap.
         max_iterations: usize,
         /// Stop when `|b − A x| ≤ tol · |b|`.
         relative_tolerance: f64,
+        /// A solve that stops short (the cap, or a breakdown) is redone by sparse Cholesky
+        /// within the same step (`StepStats::cholesky_fallbacks`); without it, the step fails.
+        #[serde(default = "yes")]
+        fallback_to_cholesky: bool,
     },
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// What one linear solve did.
@@ -360,10 +369,19 @@ impl LinearWorkspace {
         block_matvec(pattern, values, x, &mut self.product, par);
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
+        }
+        let b_norm = dot(b, b, &mut self.partial, par).sqrt();
+        // A guess worse than none (its residual above |b|, e.g. the previous velocity when the
+        // body has just changed direction) is dropped: CG then starts from zero, whose residual
+        // is `b` itself.
+        if dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() > b_norm {
+            x.iter_mut().for_each(|v| *v = Vector3::zeros());
+            self.residual.copy_from_slice(b);
+        }
+        for i in 0..n {
             self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
             self.direction[i] = self.preconditioned[i];
         }
-        let b_norm = dot(b, b, &mut self.partial, par).sqrt();
         let stats = |iterations, relative_residual| LinearSolveStats {
             iterations,
             relative_residual,
@@ -460,6 +478,17 @@ mod tests {
                 .fold(0.0, f64::max);
             assert!(err < 1e-9, "max difference {err}");
         }
+        // A guess far worse than none is dropped: CG takes as many iterations as from zero.
+        let mut from_zero = vec![Vector3::zeros(); n];
+        let zero = ws
+            .solve_cg(&pattern, &values, &b, &mut from_zero, 500, 1e-10, Par::Seq)
+            .expect("converges");
+        let mut from_bad = vec![Vector3::new(1e6, -1e6, 1e6); n];
+        let bad = ws
+            .solve_cg(&pattern, &values, &b, &mut from_bad, 500, 1e-10, Par::Seq)
+            .expect("converges from a bad guess");
+        assert_eq!(bad.iterations, zero.iterations);
+        assert_eq!(from_bad, from_zero);
         let mut x = vec![Vector3::zeros(); n];
         let err = ws
             .solve_cg(&pattern, &values, &b, &mut x, 2, 1e-12, Par::Seq)

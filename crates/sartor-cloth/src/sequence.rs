@@ -168,6 +168,9 @@ pub struct SolverTotals {
     pub max_self_contacts: usize,
     /// Vertices the projection fallback moved, summed over substeps.
     pub projected_vertices: usize,
+    /// Linear solves CG left short that sparse Cholesky redid.
+    #[serde(default)]
+    pub cholesky_fallbacks: usize,
     /// Largest kinetic energy after a frame, J.
     pub max_kinetic_energy_j: f64,
     /// Largest vertex speed after a frame, m/s.

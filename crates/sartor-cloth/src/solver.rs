@@ -165,6 +165,7 @@ impl SimConfig {
         if let LinearSolver::ConjugateGradient {
             max_iterations,
             relative_tolerance,
+            ..
         } = self.linear_solver
             && (max_iterations == 0 || !(relative_tolerance > 0.0 && relative_tolerance < 1.0))
         {
@@ -201,6 +202,8 @@ pub struct StepStats {
     pub self_contacts: usize,
     /// Vertices the guarantee step projected out of an obstacle.
     pub projected_vertices: usize,
+    /// Linear solves CG left short and sparse Cholesky redid.
+    pub cholesky_fallbacks: usize,
     /// Kinetic energy after the step, J.
     pub kinetic_energy_j: f64,
     /// Largest vertex speed after the step, m/s.
@@ -545,7 +548,8 @@ impl Simulator {
                 LinearSolver::ConjugateGradient {
                     max_iterations,
                     relative_tolerance,
-                } => self.ws.linear.solve_cg(
+                    fallback_to_cholesky,
+                } => match self.ws.linear.solve_cg(
                     &self.pattern,
                     &self.ws.system,
                     &self.ws.rhs,
@@ -553,7 +557,21 @@ impl Simulator {
                     max_iterations,
                     relative_tolerance,
                     par,
-                ),
+                ) {
+                    // CG stopped short on a badly conditioned system (stiff contacts in a fast
+                    // motion): the direct solve of the same system rescues the step.
+                    Err(StepFailure::SolverNotConverged { .. }) if fallback_to_cholesky => {
+                        stats.cholesky_fallbacks += 1;
+                        self.ws.linear.solve_cholesky(
+                            &self.pattern,
+                            &self.ws.system,
+                            &self.ws.rhs,
+                            &mut self.ws.update,
+                            par,
+                        )
+                    }
+                    other => other,
+                },
             }?;
             stats.solve_secs += linear.factor_secs + linear.solve_secs;
             stats.total_linear_iterations += linear.iterations;

@@ -58,6 +58,10 @@ pub enum BendingHessian {
     Exact,
 }
 
+/// A hinge whose smaller face has less than this fraction of the mean rest face area is
+/// [`BendingRest::crushed`].
+pub const CRUSHED_AREA_FRACTION: f64 = 0.01;
+
 /// Rest data of one hinge.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BendingRest {
@@ -118,19 +122,41 @@ impl BendingRest {
         ke * l * l / (8.0 * self.area_sum_m2)
     }
 
-    /// Energy `c (θ − θ̄)²`, J.
+    /// Whether a face of the hinge is crushed below [`CRUSHED_AREA_FRACTION`] of the mean rest
+    /// face area: its dihedral angle is then ill-defined and the angle's derivatives grow as
+    /// the inverse of the face's height (a face pressed to 1e-19 m² in a fast run made the
+    /// bending Hessian so large that the step's system lost positive definiteness to rounding).
+    /// Such a hinge is left out of the energy until the membrane reopens the face.
+    pub fn crushed(&self, x: &[Vector3<f64>; 4]) -> bool {
+        let e = x[1] - x[0];
+        let twice_min_area = e
+            .cross(&(x[2] - x[0]))
+            .norm()
+            .min(e.cross(&(x[3] - x[0])).norm());
+        // Twice a face's area against twice the mean rest face area (= the rest area sum).
+        twice_min_area < CRUSHED_AREA_FRACTION * self.area_sum_m2
+    }
+
+    /// Energy `c (θ − θ̄)²`, J (0 for a [`Self::crushed`] hinge).
     pub fn energy(&self, x: &[Vector3<f64>; 4], coefficient: f64) -> f64 {
+        if self.crushed(x) {
+            return 0.0;
+        }
         let d = dihedral_angle(x) - self.rest_angle_rad;
         coefficient * d * d
     }
 
-    /// Energy, gradient and Hessian for a frozen coefficient.
+    /// Energy, gradient and Hessian for a frozen coefficient (zero for a [`Self::crushed`]
+    /// hinge).
     pub fn derivatives(
         &self,
         x: &[Vector3<f64>; 4],
         coefficient: f64,
         hessian: BendingHessian,
     ) -> ElementDerivatives<4> {
+        if self.crushed(x) {
+            return ElementDerivatives::default();
+        }
         let Some(theta) = dihedral_angle_derivatives(x) else {
             return ElementDerivatives::default();
         };

@@ -246,6 +246,7 @@ fn a_frame_that_fails_is_redone_with_more_substeps() {
     config.sim.linear_solver = LinearSolver::ConjugateGradient {
         max_iterations: 12,
         relative_tolerance: 1e-4,
+        fallback_to_cholesky: false,
     };
     let seq = simulate(&betas(2.0), None, &config).expect("simulates after retries");
     let s = &seq.header.substeps;

@@ -214,6 +214,7 @@ fn newton_iterations_and_solvers_agree() {
             linear_solver: LinearSolver::ConjugateGradient {
                 max_iterations: 2000,
                 relative_tolerance: 1e-10,
+                fallback_to_cholesky: true,
             },
             ..SimConfig::default()
         },
@@ -230,6 +231,7 @@ fn parallel_runs_are_identical() {
             linear_solver: LinearSolver::ConjugateGradient {
                 max_iterations: 1000,
                 relative_tolerance: 1e-9,
+                fallback_to_cholesky: true,
             },
             parallelism: par,
             ..SimConfig::default()

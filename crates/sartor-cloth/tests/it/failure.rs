@@ -52,11 +52,42 @@ fn absurd_stiffness_is_reported_not_propagated() {
 }
 
 #[test]
-fn conjugate_gradient_cap_is_reported() {
+fn conjugate_gradient_cap_hands_the_solve_to_cholesky() {
+    let run = |linear_solver| {
+        let config = SimConfig {
+            linear_solver,
+            ..SimConfig::default()
+        };
+        let mut sim = simulator(
+            horizontal_sheet(0.2, 6, 0.0, Material::gray_interlock()),
+            config,
+        );
+        sim.pin(0, sim.positions()[0]).expect("valid pin");
+        let stats = sim.step(1.0 / 300.0, &[]).expect("the fallback solves it");
+        (stats, sim.positions().to_vec())
+    };
+    let (capped, x_capped) = run(LinearSolver::ConjugateGradient {
+        max_iterations: 2,
+        relative_tolerance: 1e-12,
+        fallback_to_cholesky: true,
+    });
+    assert_eq!(capped.cholesky_fallbacks, 1);
+    let (direct, x_direct) = run(LinearSolver::Cholesky);
+    assert_eq!(direct.cholesky_fallbacks, 0);
+    // The same system solved directly either way.
+    assert_eq!(x_capped, x_direct);
+    let (converged, _) = run(LinearSolver::ConjugateGradient {
+        max_iterations: 1000,
+        relative_tolerance: 1e-8,
+        fallback_to_cholesky: true,
+    });
+    assert_eq!(converged.cholesky_fallbacks, 0);
+    // Without the fallback the cap is a step failure, and the state is left as it was.
     let config = SimConfig {
         linear_solver: LinearSolver::ConjugateGradient {
             max_iterations: 2,
             relative_tolerance: 1e-12,
+            fallback_to_cholesky: false,
         },
         ..SimConfig::default()
     };

@@ -4,8 +4,8 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::Rng;
 use sartor_cloth::energy::{
-    BendingHessian, BendingRest, ElementDerivatives, MembraneRest, ObstacleContact, Penalty,
-    PenaltyProfile, Projection, SelfContact, dihedral_angle,
+    BendingHessian, BendingRest, CRUSHED_AREA_FRACTION, ElementDerivatives, MembraneRest,
+    ObstacleContact, Penalty, PenaltyProfile, Projection, SelfContact, dihedral_angle,
 };
 use sartor_cloth::{
     BendingModel, BendingTable, Collider, GRAY_INTERLOCK_BENDING, Material, Plane, Sphere,
@@ -251,6 +251,52 @@ fn bending_gradient_hessian_and_arcsim_gradient() {
     assert!(dihedral_angle(&x) > 0.0);
     let flat = [x[0], x[1], x[2], Vector3::new(0.5, -1.0, 0.0)];
     assert!(dihedral_angle(&flat).abs() < 1e-15);
+}
+
+#[test]
+fn a_crushed_hinge_drops_out_of_bending() {
+    // Face A (x0 x1 x2) flattened onto the shared edge: its height h, against a rest area sum
+    // of 1e-4 m² (twice the area of face A is l·h).
+    let hinge = BendingRest {
+        vertices: [0, 1, 2, 3],
+        rest_angle_rad: 0.0,
+        area_sum_m2: 1e-4,
+        edge_angle_rad: [0.0, 0.0],
+    };
+    let l = 0.01;
+    let x = |h: f64| {
+        [
+            Vector3::zeros(),
+            Vector3::new(l, 0.0, 0.0),
+            Vector3::new(0.004, h, 0.2 * h),
+            Vector3::new(0.005, -0.01, 0.003),
+        ]
+    };
+    let twice_area = |h: f64| l * h * (1.0f64 + 0.04).sqrt();
+    let limit = CRUSHED_AREA_FRACTION * hinge.area_sum_m2;
+    let (crushed, open) = (0.5 * limit / twice_area(1.0), 2.0 * limit / twice_area(1.0));
+    assert!(hinge.crushed(&x(crushed)) && !hinge.crushed(&x(open)));
+    let c = 1e-3;
+    for kind in [BendingHessian::GaussNewton, BendingHessian::ProjectedExact] {
+        let d = hinge.derivatives(&x(crushed), c, kind);
+        assert_eq!(d.energy_j, 0.0);
+        assert!(d.gradient.iter().all(|g| *g == Vector3::zeros()));
+        assert_eq!(max_abs_hessian(&d.hessian), 0.0);
+        assert_eq!(hinge.energy(&x(crushed), c), 0.0);
+        // Just above the limit the hinge bends as usual, with the derivatives checked.
+        let d = hinge.derivatives(&x(open), c, kind);
+        assert!(d.energy_j > 0.0 && max_abs_hessian(&d.hessian) > 0.0);
+    }
+    check(
+        &x(open),
+        1e-9,
+        |y| hinge.derivatives(y, c, BendingHessian::Exact),
+        "bending near the crushed limit",
+    );
+}
+
+fn max_abs_hessian(h: &[[Matrix3<f64>; 4]; 4]) -> f64 {
+    h.iter().flatten().map(|m| m.amax()).fold(0.0, f64::max)
 }
 
 #[test]
