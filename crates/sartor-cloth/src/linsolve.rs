@@ -33,13 +33,20 @@ pub enum LinearSolver {
         relative_tolerance: f64,
         /// A solve that stops short (the cap, or a breakdown) is redone by sparse Cholesky
         /// within the same step (`StepStats::cholesky_fallbacks`); without it, the step fails.
-        #[serde(default = "yes")]
+        /// (Left out of the serialised config when on, so that configs and their hashes from
+        /// before this option stay valid.)
+        #[serde(default = "yes", skip_serializing_if = "is_yes")]
         fallback_to_cholesky: bool,
     },
 }
 
 fn yes() -> bool {
     true
+}
+
+#[allow(clippy::trivially_copy_pass_by_ref)] // serde's skip_serializing_if passes a reference
+fn is_yes(b: &bool) -> bool {
+    *b
 }
 
 /// What one linear solve did.
@@ -450,6 +457,34 @@ mod tests {
             }
         }
         (pattern, values)
+    }
+
+    #[test]
+    fn the_cholesky_fallback_is_on_by_default_and_left_out_of_saved_configs() {
+        // Configs (and their hashes) written before the option read and write as before.
+        let old = r#"{"ConjugateGradient":{"max_iterations":1000,"relative_tolerance":1e-5}}"#;
+        let solver: LinearSolver = serde_json::from_str(old).expect("parses");
+        assert_eq!(
+            solver,
+            LinearSolver::ConjugateGradient {
+                max_iterations: 1000,
+                relative_tolerance: 1e-5,
+                fallback_to_cholesky: true,
+            }
+        );
+        let written = serde_json::to_string(&solver).expect("writes");
+        assert!(!written.contains("fallback"), "{written}");
+        let off = LinearSolver::ConjugateGradient {
+            max_iterations: 1000,
+            relative_tolerance: 1e-5,
+            fallback_to_cholesky: false,
+        };
+        let text = serde_json::to_string(&off).expect("writes");
+        assert!(text.contains("\"fallback_to_cholesky\":false"), "{text}");
+        assert_eq!(
+            serde_json::from_str::<LinearSolver>(&text).expect("parses"),
+            off
+        );
     }
 
     #[test]
