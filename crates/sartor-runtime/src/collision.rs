@@ -24,14 +24,13 @@
 //!   that sends a vertex to the exact BVH query whenever a body part none of its candidates
 //!   belongs to comes within the margin.
 //!
-//! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking (int8
-//! network, one thread, CPU time on a loaded 2-core machine; "inside" counts cloth vertex-frames
-//! left inside the body, of 533,640, 10,057 before the post-process). Post-process cost per
-//! frame and inside after: exact BVH 7.3 ms, 108 (vertices squeezed between two body parts, see
-//! [`CollisionOptions::passes`]); guarded candidates (2 cm, 8) 4.0 ms, 385; band (5 mm,
-//! refresh 16) 3.2 ms, 2,426; plain candidates 2.4 ms, 9,943. Posing and refitting the region
-//! alone costs 0.4 ms. The exact BVH stays the default; the others are there for levels of
-//! detail that trade contact accuracy for time.
+//! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking
+//! (`docs/reports/bench-runtime.json`: int8 network, one thread, CPU time, 2-core AMD EPYC;
+//! "inside" counts cloth vertex-frames left inside the body, of 533,640, 10,057 before the
+//! post-process). Post-process cost per frame and inside after: exact BVH 5.5 ms, 0; guarded
+//! candidates (2 cm, 8) 3.2 ms, 277; band (5 mm, refresh 16) 2.4 ms, 2,176; plain candidates
+//! 1.7 ms, 9,942. Posing and refitting the region alone costs 0.27 ms. The exact BVH stays the
+//! default; the others are there for levels of detail that trade contact accuracy for time.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
