@@ -138,6 +138,10 @@ pub struct TrainingConfig {
     /// Dropout of both networks (0.2 in the paper).
     #[config(default = 0.2)]
     pub dropout: f64,
+    /// Dropout of the wrinkle GRU's output alone, in place of `dropout` (the fit MLP, with
+    /// 17 training shapes, and the GRU, with hundreds of sequences, may want different ones).
+    #[config(default = "None")]
+    pub wrinkle_dropout: Option<f64>,
     /// Wrinkle output through the dataset's first `k` PCA components (`None`: dense).
     #[config(default = "None")]
     pub pca_components: Option<usize>,
@@ -171,7 +175,7 @@ impl TrainingConfig {
         Ok(
             WrinkleRegressorConfig::new(data.n_inputs(), data.n_outputs())
                 .with_hidden(self.gru_hidden)
-                .with_dropout(self.dropout)
+                .with_dropout(self.wrinkle_dropout.unwrap_or(self.dropout))
                 .with_pca_components(self.pca_components),
         )
     }
@@ -218,6 +222,14 @@ impl TrainingConfig {
             return Err(Error::invalid(
                 "training",
                 "fit_hidden, gru_hidden and window_frames must be positive",
+            ));
+        }
+        if let Some(p) = self.wrinkle_dropout
+            && !(0.0..1.0).contains(&p)
+        {
+            return Err(Error::invalid(
+                "training",
+                format!("wrinkle_dropout {p} is not in [0, 1)"),
             ));
         }
         if !(0.0..1.0).contains(&self.dropout) {
