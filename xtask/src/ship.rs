@@ -233,24 +233,19 @@ pub fn ship(args: &ShipArgs) -> anyhow::Result<()> {
             .with_context(|| format!("removing {}", staging.display()))?;
     }
     std::fs::create_dir_all(&staging).with_context(|| format!("creating {}", staging.display()))?;
-    for f in export_files(&from)? {
-        let name = f.file_name().context("file name")?;
-        std::fs::copy(&f, staging.join(name))
-            .with_context(|| format!("copying {}", f.display()))?;
-    }
-    // The run's reports, where the run has them: how the model was made.
+    // The export, and the run's reports where the run has them: how the model was made.
     let run = e.run_dir();
-    for report in [
+    let reports = [
         e.sim_dir().join("simulate.json"),
         e.dataset_dir().join("dataset.json"),
         run.join("train/train.json"),
         run.join("pipeline.json"),
-    ] {
-        if report.exists() {
-            let name = report.file_name().context("file name")?;
-            std::fs::copy(&report, staging.join(name))
-                .with_context(|| format!("copying {}", report.display()))?;
-        }
+    ];
+    let reports = reports.into_iter().filter(|r| r.exists());
+    for f in export_files(&from)?.into_iter().chain(reports) {
+        let name = f.file_name().context("file name")?;
+        std::fs::copy(&f, staging.join(name))
+            .with_context(|| format!("copying {}", f.display()))?;
     }
     write_slice(&staging.join(SLICE_FILE), &seq)?;
     let slice = RegressionSlice {

@@ -381,9 +381,11 @@ impl LinearWorkspace {
         // A guess worse than none (its residual above |b|, e.g. the previous velocity when the
         // body has just changed direction) is dropped: CG then starts from zero, whose residual
         // is `b` itself.
-        if dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() > b_norm {
+        let mut r_norm = dot(&self.residual, &self.residual, &mut self.partial, par).sqrt();
+        if r_norm > b_norm {
             x.iter_mut().for_each(|v| *v = Vector3::zeros());
             self.residual.copy_from_slice(b);
+            r_norm = b_norm;
         }
         for i in 0..n {
             self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
@@ -400,8 +402,7 @@ impl LinearWorkspace {
             return Ok(stats(0, 0.0));
         }
         let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
-        let mut relative =
-            dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() / b_norm;
+        let mut relative = r_norm / b_norm;
         let mut iterations = 0;
         while relative > relative_tolerance {
             if iterations == max_iterations || !relative.is_finite() {
