@@ -5,7 +5,7 @@ use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(text) = std::str::from_utf8(data) {
-        if let Ok(bvh) = sartor_body::Bvh::parse(text, Path::new("fuzz.bvh")) {
+        if let Ok(bvh) = sartor_motion::Bvh::parse(text, Path::new("fuzz.bvh")) {
             for f in 0..bvh.n_frames().min(64) {
                 let _ = bvh.world_rotations(f);
             }

@@ -4,6 +4,6 @@ use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = sartor_body::Motion::from_json_bytes(Path::new("fuzz.json"), data);
-    let _ = sartor_body::BodyModel::from_bytes(Path::new("fuzz"), data, Vec::new());
+    let _ = sartor_motion::Motion::from_json_bytes(Path::new("fuzz.json"), data);
+    let _ = sartor_core::BodyModel::from_bytes(Path::new("fuzz"), data, Vec::new());
 });

@@ -6,7 +6,7 @@ use std::path::Path;
 fuzz_target!(|data: &[u8]| {
     if let Ok(text) = std::str::from_utf8(data) {
         let path = Path::new("fuzz.obj");
-        if let Ok(obj) = sartor_body::ObjData::parse(text, path) {
+        if let Ok(obj) = sartor_core::ObjData::parse(text, path) {
             if let Ok(mesh) = obj.to_mesh(path) {
                 let topo = mesh.topology();
                 let _ = topo.check_manifold();

@@ -5,9 +5,9 @@ use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
     let path = Path::new("fuzz.npz");
-    if let Ok(npz) = sartor_body::npz::NpzFile::from_bytes(path, data.to_vec()) {
-        if let Ok(model) = sartor_body::smpl_from_npz(npz, None) {
-            let _ = model.posed_vertices(&[], &sartor_body::Pose::rest(model.skeleton().n_joints()));
+    if let Ok(npz) = sartor_motion::npz::NpzFile::from_bytes(path, data.to_vec()) {
+        if let Ok(model) = sartor_import::smpl_from_npz(npz, None) {
+            let _ = model.posed_vertices(&[], &sartor_core::Pose::rest(model.skeleton().n_joints()));
         }
     }
 });

@@ -8,7 +8,9 @@ use std::time::Instant;
 
 use anyhow::Context;
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, McapWriter, Motion, SceneMesh};
+use sartor_core::BodyModel;
+use sartor_mcap::{McapWriter, SceneMesh};
+use sartor_motion::Motion;
 use sartor_runtime::{
     Camera, GarmentAnimator, GarmentRig, MeshSequence, Panel, RenderMesh, render_png, write_gltf,
     write_obj_sequence,

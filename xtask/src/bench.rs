@@ -7,12 +7,13 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use sartor_body::io::{read_file, write_atomic};
-use sartor_body::{BodyModel, Motion, MotionSourceOptions, Par, load_motion};
 use sartor_cloth::{
     DriveConfig, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig, SequenceBenchmark,
     benchmark_sequence, build_garment, relax_on_body,
 };
+use sartor_core::io::{read_file, write_atomic};
+use sartor_core::{BodyModel, Par};
+use sartor_motion::{Motion, MotionSourceOptions, load_motion};
 use serde::Serialize;
 
 use crate::machine::{Machine, load_average};
@@ -139,7 +140,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
 fn bench_sim(args: &SimBenchArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let load_average_before = load_average();
-    let body = sartor_body::load_builtin()?;
+    let body = sartor_core::BodyModel::load(&crate::builtin_model_dir())?;
     let material = Material::gray_interlock();
     let motion = load_walk(args)?;
     let mut config = DriveConfig {

@@ -18,8 +18,9 @@ use anyhow::Context;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sartor_body::io::{read_file, sha256_hex, write_atomic};
-use sartor_body::{BodyModel, CMU_MB_JOINTS, MODEL_HEADER, Pose, RootFeature};
+use sartor_core::io::{read_file, sha256_hex, write_atomic};
+use sartor_core::{BodyModel, MODEL_HEADER, Pose, RootFeature};
+use sartor_motion::CMU_MB_JOINTS;
 use sartor_runtime::{
     AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, Feature,
     FeatureBlock, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
@@ -200,7 +201,7 @@ fn load_average() -> String {
 }
 
 /// The T-shirt of `triangles`: the committed template if present, else built from its recipe.
-fn tshirt(triangles: usize, body: &BodyModel) -> anyhow::Result<(sartor_body::TriMesh, String)> {
+fn tshirt(triangles: usize, body: &BodyModel) -> anyhow::Result<(sartor_core::TriMesh, String)> {
     let name = format!("tshirt-{triangles}");
     let dir = Path::new("datasets/garments").join(&name);
     if dir.join(sartor_cloth::GARMENT_HEADER).exists() {
@@ -450,7 +451,7 @@ fn scene(triangles: usize, body: &Arc<BodyModel>, body_id: &AssetId) -> anyhow::
     let (mesh, source) = tshirt(triangles, body)?;
     let garment_id = AssetId {
         id: format!("tshirt-{triangles}"),
-        sha256: sha256_hex(sartor_body::obj_text(mesh.positions(), mesh.faces()).as_bytes()),
+        sha256: sha256_hex(sartor_core::obj_text(mesh.positions(), mesh.faces()).as_bytes()),
     };
     let binding = GarmentBinding::from_body(
         garment_id.clone(),
@@ -763,13 +764,13 @@ fn reduced(scene: &Scene, poses: &[Pose], args: &BenchRuntimeArgs) -> anyhow::Re
 pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let load_average_start = load_average();
-    let body_dir = sartor_body::builtin_model_dir();
+    let body_dir = crate::builtin_model_dir();
     let body = Arc::new(BodyModel::load(&body_dir)?);
     let body_id = AssetId {
         id: body.name().to_string(),
         sha256: sha256_hex(&read_file(&body_dir.join(MODEL_HEADER))?),
     };
-    let motion = sartor_body::procedural::clip(&args.clip)?;
+    let motion = sartor_motion::procedural::clip(&args.clip)?;
     let poses = motion.frames().to_vec();
     let mut garments = Vec::new();
     let mut post = None;

@@ -4,10 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use sartor_body::{
-    BodyModel, MotionSourceOptions, Par, PhenotypeRequest, PhenotypeSpace, RetargetBody, UpAxis,
-    builtin_model_dir, load_motion, load_smpl_npz, skin_points, write_obj,
-};
+use sartor_core::{BodyModel, Par, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj};
+use sartor_import::load_smpl_npz;
+use sartor_motion::{MotionSourceOptions, RetargetBody, UpAxis, load_motion};
+
+use crate::builtin_model_dir;
 
 /// Arguments of `cargo xtask body`.
 #[derive(Args, Debug)]
@@ -96,7 +97,7 @@ pub fn body(args: &BodyArgs) -> anyhow::Result<()> {
             }
             m.frames().to_vec()
         }
-        None => vec![sartor_body::Pose::rest(model.skeleton().n_joints())],
+        None => vec![sartor_core::Pose::rest(model.skeleton().n_joints())],
     };
     let n = args.frames.map_or(poses.len(), |f| f.min(poses.len()));
     std::fs::create_dir_all(&args.out)

@@ -11,8 +11,8 @@ use std::time::Instant;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
-use sartor_body::BodyModel;
 use sartor_cloth::{ClothSequence, Garment, Phase};
+use sartor_core::BodyModel;
 use sartor_dataset::{
     DataSource, DatasetInputs, DatasetPlan, SequencePlan, ShapePlan, SimulatedMotion,
     SimulationSource, build_dataset,

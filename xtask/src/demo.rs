@@ -5,10 +5,10 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use sartor_body::{
-    BodyModel, MotionSourceOptions, PhenotypeRequest, PhenotypeSpace, RetargetBody, UpAxis,
-    builtin_model_dir, load_motion,
-};
+use sartor_core::{BodyModel, PhenotypeRequest, PhenotypeSpace};
+
+use crate::builtin_model_dir;
+use sartor_motion::{MotionSourceOptions, RetargetBody, UpAxis, load_motion};
 use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions};
 use serde::Serialize;
 

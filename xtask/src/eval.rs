@@ -39,7 +39,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{BodyModel, Pose};
+use sartor_core::{BodyModel, Pose};
 use sartor_dataset::{ShapePlan, SimulatedMotion, SimulationSource};
 use sartor_runtime::{
     AnimatorOptions, Camera, FitMode, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,

@@ -23,7 +23,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use sartor_body::io::{read_file, sha256_hex};
+use sartor_core::io::{read_file, sha256_hex};
 use sartor_dataset::{DatasetConfig, DatasetPlan, SequencePlan, ShapePlan, Split};
 use serde::{Deserialize, Serialize};
 

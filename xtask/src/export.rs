@@ -14,9 +14,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::Context;
-use sartor_body::{BodyModel, MotionSourceOptions, RetargetBody, faces_near, load_motion};
+use sartor_core::{BodyModel, faces_near};
 use sartor_model::burn::tensor::Device;
 use sartor_model::{AnyModel, ModelKind, asset_ids, export_model, load_trained};
+use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
 use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig};
 
 use crate::animate::{Format, animate, write_animation};
@@ -148,7 +149,7 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
             motions_dir: workspace_root().join("datasets/motions"),
             body: Some(RetargetBody::load(&e.body)?),
             lenient: false,
-            up_axis: sartor_body::UpAxis::Y,
+            up_axis: sartor_motion::UpAxis::Y,
         };
         let motion = load_motion(&args.preview_motion, &options)
             .with_context(|| format!("preview motion {:?}", args.preview_motion))?;

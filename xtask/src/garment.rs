@@ -7,12 +7,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use sartor_body::io::{read_file, sha256_hex, write_atomic};
-use sartor_body::{BodyModel, MODEL_HEADER, MeshProximity};
 use sartor_cloth::{
     GARMENT_REPORT, GarmentConfig, GarmentReport, Material, RelaxConfig, RelaxReport,
     build_garment, relax_on_body,
 };
+use sartor_core::io::{read_file, sha256_hex, write_atomic};
+use sartor_core::{BodyModel, MODEL_HEADER, MeshProximity};
 use serde::Serialize;
 
 use crate::machine::Machine;
@@ -74,7 +74,7 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         .body
         .clone()
         .or_else(|| config.body())
-        .unwrap_or_else(sartor_body::builtin_model_dir);
+        .unwrap_or_else(crate::builtin_model_dir);
     let t = Instant::now();
     let body = BodyModel::load(&body_dir)
         .with_context(|| format!("loading the body model from {}", body_dir.display()))?;

@@ -1,5 +1,5 @@
 //! `cargo xtask import-body`: convert the raw MakeHuman assets into the built-in body model
-//! (`datasets/body/makehuman/`, see [`sartor_body::import_makehuman`]).
+//! (`datasets/body/makehuman/`, see [`sartor_import::import_makehuman`]).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -29,7 +29,7 @@ pub struct ImportBodyArgs {
 /// Run the import and print its key figures.
 pub fn import_body(args: &ImportBodyArgs) -> anyhow::Result<()> {
     let start = Instant::now();
-    let mut options = sartor_body::ImportOptions::new(args.from.clone(), args.out.clone());
+    let mut options = sartor_import::ImportOptions::new(args.from.clone(), args.out.clone());
     if let Some(n) = args.samples {
         options.n_samples = n;
     }
@@ -39,7 +39,7 @@ pub fn import_body(args: &ImportBodyArgs) -> anyhow::Result<()> {
     if let Some(s) = args.seed {
         options.seed = s;
     }
-    let report = sartor_body::import_makehuman(&options)
+    let report = sartor_import::import_makehuman(&options)
         .with_context(|| format!("importing the MakeHuman body from {}", args.from.display()))?;
     let pca = &report.pca;
     println!(
@@ -47,7 +47,7 @@ pub fn import_body(args: &ImportBodyArgs) -> anyhow::Result<()> {
         args.out.display(),
         report.mesh.n_vertices,
         report.mesh.n_faces,
-        sartor_body::CMU_MB_JOINTS.len(),
+        sartor_motion::CMU_MB_JOINTS.len(),
         pca.explained_variance_ratio.len()
     );
     println!(
@@ -78,7 +78,7 @@ pub fn import_body(args: &ImportBodyArgs) -> anyhow::Result<()> {
     );
     println!(
         "report: {} ({:.1} s)",
-        args.out.join(sartor_body::IMPORT_REPORT_FILE).display(),
+        args.out.join(sartor_import::IMPORT_REPORT_FILE).display(),
         start.elapsed().as_secs_f64()
     );
     Ok(())

@@ -41,6 +41,6 @@ pub fn load_average() -> Option<[f64; 3]> {
 pub fn write_json(path: &std::path::Path, value: &impl Serialize) -> anyhow::Result<()> {
     let mut json = serde_json::to_string_pretty(value)?;
     json.push('\n');
-    sartor_body::io::write_atomic(path, json.as_bytes())?;
+    sartor_core::io::write_atomic(path, json.as_bytes())?;
     Ok(())
 }

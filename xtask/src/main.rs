@@ -98,6 +98,11 @@ pub(crate) fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// The built-in body model folder, `<workspace>/datasets/body/makehuman`.
+pub(crate) fn builtin_model_dir() -> PathBuf {
+    workspace_root().join("datasets/body/makehuman")
+}
+
 /// `path` relative to the workspace root when it lies inside it (so reports do not depend on
 /// where the checkout is), else as given.
 pub(crate) fn workspace_relative(path: &Path) -> String {

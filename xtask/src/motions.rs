@@ -1,5 +1,5 @@
 //! `cargo xtask import-motion`: convert MakeHuman's keyframed walk cycle into
-//! `datasets/motions/walk.json` (a 30 fps [`sartor_body::Motion`] on the built-in skeleton).
+//! `datasets/motions/walk.json` (a 30 fps [`sartor_motion::Motion`] on the built-in skeleton).
 
 use std::path::PathBuf;
 
@@ -18,9 +18,9 @@ pub struct ImportMotionArgs {
 
 /// Import the walk cycle and write it.
 pub fn import_motion(args: &ImportMotionArgs) -> anyhow::Result<()> {
-    let motion = sartor_body::import_walk_cycle(&args.from)
+    let motion = sartor_import::import_walk_cycle(&args.from)
         .with_context(|| format!("importing the walk cycle from {}", args.from.display()))?;
-    let path = args.out.join(format!("{}.json", sartor_body::WALK_NAME));
+    let path = args.out.join(format!("{}.json", sartor_motion::WALK_NAME));
     motion.save_json(&path)?;
     let last = &motion.frames()[motion.n_frames() - 1];
     println!(

@@ -15,7 +15,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, Pose, builtin_model_dir};
+use sartor_core::{BodyModel, Pose};
+
+use crate::builtin_model_dir;
 use sartor_dataset::SimulatedMotion;
 use sartor_runtime::{AnimatorOptions, NetworkOptions};
 use serde::{Deserialize, Serialize};
@@ -100,7 +102,7 @@ fn write_slice(path: &Path, seq: &TestSequence) -> anyhow::Result<()> {
     )?;
     let metadata = HashMap::from([("slice".to_owned(), serde_json::to_string(&header)?)]);
     let bytes = safetensors::serialize([("cloth", view)], Some(metadata))?;
-    sartor_body::io::write_atomic(path, &bytes)?;
+    sartor_core::io::write_atomic(path, &bytes)?;
     Ok(())
 }
 

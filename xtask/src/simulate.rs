@@ -25,8 +25,9 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use sartor_body::{BodyModel, Motion, MotionSourceOptions, RetargetBody, load_motion};
 use sartor_cloth::{DriveConfig, Garment, Material, simulate_sequence};
+use sartor_core::BodyModel;
+use sartor_motion::{Motion, MotionSourceOptions, RetargetBody, load_motion};
 use serde::Serialize;
 
 use crate::experiment::{Experiment, ExperimentArgs, REST_MOTION, sequence_stem};
@@ -155,7 +156,7 @@ impl SimInputs {
             motions_dir: crate::workspace_root().join("datasets/motions"),
             body: RetargetBody::load(&e.body).ok(),
             lenient: false,
-            up_axis: sartor_body::UpAxis::Y,
+            up_axis: sartor_motion::UpAxis::Y,
         };
         Ok(Self {
             body,

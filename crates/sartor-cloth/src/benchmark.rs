@@ -2,7 +2,8 @@
 
 use std::time::Instant;
 
-use sartor_body::{BodyModel, Motion};
+use sartor_core::BodyModel;
+use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
 
 use crate::Result;

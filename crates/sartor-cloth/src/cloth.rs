@@ -2,7 +2,7 @@
 //! every element (membrane triangles, bending hinges, lumped masses).
 
 use nalgebra::Vector3;
-use sartor_body::{MeshTopology, TriMesh};
+use sartor_core::{MeshTopology, TriMesh};
 
 use crate::energy::{BendingRest, MembraneRest, dihedral_angle};
 use crate::garment::Garment;

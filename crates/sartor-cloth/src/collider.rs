@@ -22,7 +22,7 @@ pub struct Contact {
 
 /// An obstacle. Implementations must be usable from several threads (queries run in parallel).
 ///
-/// [`crate::MeshCollider`] implements it for a deforming triangle mesh (a body) with sartor-body's
+/// [`crate::MeshCollider`] implements it for a deforming triangle mesh (a body) with sartor-core's
 /// BVH closest-point query, whose inside/outside sign comes from angle-weighted pseudo-normals,
 /// and the barycentric blend of the vertex velocities of the closest triangle.
 pub trait Collider: Sync {

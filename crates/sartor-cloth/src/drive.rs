@@ -8,7 +8,7 @@
 //!
 //! 1. **Blend** (N = [`DriveConfig::blend_frames`] frames): shape and pose go from the rest
 //!    state to (β, the motion's first pose), eased (cubic smoothstep, as
-//!    [`sartor_body::Motion::blended_from_rest`]).
+//!    [`sartor_motion::Motion::blended_from_rest`]).
 //! 2. **Rest** (M = [`DriveConfig::rest_frames`] frames): the first pose is held while the cloth
 //!    settles.
 //! 3. **Motion**: one frame per motion frame (its first frame is the held pose).
@@ -22,15 +22,15 @@
 //!
 //! # Body
 //!
-//! The posed body is computed once per frame with sartor-body's skinning and linearly
+//! The posed body is computed once per frame with sartor-core's skinning and linearly
 //! interpolated for every substep; the collider ([`MeshCollider::move_to`]) is refitted every
 //! substep, its velocities (for friction) are the interpolation's.
 //!
 //! Only the body region near the garment takes part ([`RegionConfig`]): the garment template is
 //! carried along with the body — shaped by the shape displacement of its closest body point and
-//! skinned with skin weights transferred from the body ([`sartor_body::transfer_skin_weights`])
+//! skinned with skin weights transferred from the body ([`sartor_core::transfer_skin_weights`])
 //! — through every frame, and body triangles with a vertex within [`RegionConfig::margin_m`] of
-//! it in any frame ([`sartor_body::faces_near`]) are kept. After every frame the cloth is
+//! it in any frame ([`sartor_core::faces_near`]) are kept. After every frame the cloth is
 //! checked against the excluded triangles: a vertex within the contact thickness of one means
 //! the region was too small, and the sequence restarts with a doubled margin.
 //!
@@ -52,11 +52,12 @@
 use std::time::Instant;
 
 use nalgebra::Vector3;
-use sartor_body::io::sha256_hex;
-use sartor_body::{
-    BodyModel, BoneTransform, MeshProximity, Motion, Par, Pose, faces_near, interpolate_pose,
-    skin_points, split_heading, transfer_skin_weights,
+use sartor_core::io::sha256_hex;
+use sartor_core::{
+    BodyModel, BoneTransform, MeshProximity, Par, Pose, faces_near, interpolate_pose, skin_points,
+    split_heading, transfer_skin_weights,
 };
+use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;
@@ -767,7 +768,7 @@ impl FrameStepper {
 }
 
 /// Check β and the motion against the body: β padded with zeros to the model's length, the
-/// motion resampled to [`sartor_body::FPS`].
+/// motion resampled to [`sartor_core::FPS`].
 fn prepare_inputs(
     body: &BodyModel,
     betas: &[f64],
@@ -790,8 +791,8 @@ fn prepare_inputs(
             ),
         ));
     }
-    let motion = if (motion.fps() - sartor_body::FPS).abs() > 1e-9 {
-        motion.resample(sartor_body::FPS)?
+    let motion = if (motion.fps() - sartor_core::FPS).abs() > 1e-9 {
+        motion.resample(sartor_core::FPS)?
     } else {
         motion.clone()
     };
@@ -928,7 +929,7 @@ fn run(
     progress: &mut dyn FnMut(usize, usize),
 ) -> std::result::Result<ClothSequence, (FrameError, usize, usize)> {
     let hard = |e: Error| (FrameError::Hard(e), 0, 0);
-    let fps = sartor_body::FPS;
+    let fps = sartor_core::FPS;
     let t_region = Instant::now();
     let region = if config.region.whole_body {
         Region::whole(body)

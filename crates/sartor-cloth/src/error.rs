@@ -73,10 +73,10 @@ pub enum SequenceFailure {
 /// one) and the fault.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A mesh fault reported by `sartor-body` (non-finite vertex, zero-area triangle,
+    /// A mesh fault reported by `sartor-core` (non-finite vertex, zero-area triangle,
     /// non-manifold edge or vertex, ...).
     #[error(transparent)]
-    Mesh(#[from] sartor_body::Error),
+    Mesh(#[from] sartor_core::Error),
     /// Reading or writing a file failed.
     #[error("{}: {source}", path.display())]
     Io {

@@ -13,7 +13,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use sartor_body::Par;
+use sartor_core::Par;
 use serde::{Deserialize, Serialize};
 
 use crate::error::StepFailure;

@@ -1,7 +1,7 @@
-//! A deforming triangle-mesh obstacle (a body), on sartor-body's closest-point query.
+//! A deforming triangle-mesh obstacle (a body), on sartor-core's closest-point query.
 
 use nalgebra::Vector3;
-use sartor_body::MeshProximity;
+use sartor_core::MeshProximity;
 
 use crate::collider::{Collider, Contact};
 use crate::{Error, Result};

@@ -2,7 +2,7 @@
 //! garment *at rest* on the body (β = 0, rest pose), not the shape it was cut in.
 
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, MeshProximity, Pose};
+use sartor_core::{BodyModel, MeshProximity, Pose};
 use serde::{Deserialize, Serialize};
 
 use crate::drive::{BodyPoser, DriveConfig, FrameError, FrameStepper, Region};
@@ -112,7 +112,7 @@ pub fn relax_on_body(
         &region,
         &body_rest,
         garment.positions(),
-        sartor_body::FPS,
+        sartor_core::FPS,
     )?;
     let mass_kg = stepper.sim.cloth().total_mass_kg();
     let mut frames = 0;

@@ -9,7 +9,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{MeshTopology, Par};
+use sartor_core::{MeshTopology, Par};
 
 use crate::energy::SelfContact;
 

@@ -19,8 +19,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use nalgebra::Vector3;
-use sartor_body::io::read_file;
-use sartor_body::{McapContents, McapWriter, Pose, SceneMesh, decode_scene, read_mcap};
+use sartor_core::Pose;
+use sartor_core::io::read_file;
+use sartor_mcap::{McapContents, McapWriter, SceneMesh, decode_scene, read_mcap};
 use serde::{Deserialize, Serialize};
 
 use crate::drive::DriveConfig;
@@ -95,7 +96,7 @@ pub struct GarmentId {
 pub struct BodyId {
     /// The model's name.
     pub name: String,
-    /// [`sartor_body::BodyModel::content_sha256`] of the model.
+    /// [`sartor_core::BodyModel::content_sha256`] of the model.
     pub sha256: String,
     /// Length of β.
     pub n_betas: usize,
@@ -109,7 +110,7 @@ pub struct BodyId {
 pub struct MotionId {
     /// The motion's name.
     pub name: String,
-    /// SHA-256 of the motion's JSON (as [`sartor_body::Motion::save_json`] writes it).
+    /// SHA-256 of the motion's JSON (as [`sartor_motion::Motion::save_json`] writes it).
     pub sha256: String,
     /// Frames of the motion.
     pub n_frames: usize,
@@ -447,7 +448,7 @@ impl ClothSequence {
     /// Write the MCAP file atomically (temporary name, then rename).
     pub fn write(&self, path: &Path) -> Result<()> {
         let bytes = self.to_bytes(path)?;
-        Ok(sartor_body::io::write_atomic(path, &bytes)?)
+        Ok(sartor_core::io::write_atomic(path, &bytes)?)
     }
 
     /// Read and validate a sequence file. Every error names the file.

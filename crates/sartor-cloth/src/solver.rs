@@ -53,7 +53,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use sartor_body::Par;
+use sartor_core::Par;
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;

@@ -152,7 +152,7 @@ pub fn gather_shapes(data: &TrainingData, shapes: &[usize]) -> (Vec<f32>, Vec<f3
 mod tests {
     use super::*;
     use crate::{InputLayout, MeanStd, NormStats, SequenceSample, ShapeSample, Split};
-    use sartor_body::{PoseFeatureSpec, RotationEncoding};
+    use sartor_core::{PoseFeatureSpec, RotationEncoding};
 
     fn ones(n: usize) -> MeanStd {
         MeanStd {

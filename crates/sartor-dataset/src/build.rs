@@ -14,8 +14,8 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use sartor_body::io::{read_file, sha256_hex};
-use sartor_body::{BodyModel, FPS, Pose, PoseFeatureSpec, RootFeature, RotationEncoding};
+use sartor_core::io::{read_file, sha256_hex};
+use sartor_core::{BodyModel, FPS, Pose, PoseFeatureSpec, RootFeature, RotationEncoding};
 
 use crate::extract::{ClothBinding, WrinkleExtractor, fit_delta, select_joints};
 use crate::smoothing::{Smoother, Smoothing};
@@ -255,7 +255,7 @@ fn magnitudes<'a>(fields: impl Iterator<Item = &'a [f32]>) -> MagnitudeMm {
 
 /// Inputs `[T, I]` of a motion: β then the pose features.
 fn motion_inputs(
-    features: &sartor_body::PoseFeatures,
+    features: &sartor_core::PoseFeatures,
     betas: &[f32],
     motion: &SimulatedMotion,
 ) -> Result<Vec<f32>> {
@@ -331,7 +331,7 @@ pub fn build_dataset(
                 source: e,
             })?;
         }
-        sartor_body::io::write_atomic(&stamp_path, inputs.config_sha256.as_bytes())?;
+        sartor_core::io::write_atomic(&stamp_path, inputs.config_sha256.as_bytes())?;
     }
     let _ = std::fs::remove_file(out_dir.join(crate::MANIFEST_FILE));
 
@@ -374,7 +374,7 @@ pub fn build_dataset(
             let path = out_dir.join(sequence_file(&id));
             let shape = &plan.shapes[q.shape];
             let sample = if path.exists() {
-                let file = sartor_body::io::TensorFile::open(&path)?;
+                let file = sartor_core::io::TensorFile::open(&path)?;
                 let (shape_dims, inputs) = file.f32("inputs", &[None, Some(n_in)])?;
                 let (_, delta) = file.f32("wrinkle_delta", &[Some(shape_dims[0]), Some(n3)])?;
                 SequenceSample {
@@ -558,7 +558,7 @@ pub fn build_dataset(
     report.wall_secs = start.elapsed().as_secs_f64();
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| Error::format(out_dir.join(REPORT_FILE), format!("cannot serialise: {e}")))?;
-    sartor_body::io::write_atomic(&out_dir.join(REPORT_FILE), &json)?;
+    sartor_core::io::write_atomic(&out_dir.join(REPORT_FILE), &json)?;
     // Last: the manifest marks the folder complete.
     write_manifest(out_dir, &manifest)?;
     Ok(report)

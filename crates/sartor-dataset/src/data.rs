@@ -9,7 +9,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use sartor_body::PoseFeatureSpec;
+use sartor_core::PoseFeatureSpec;
 
 use crate::{Error, Result};
 

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 /// one) and the fault.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A fault reported by `sartor-body` (mesh, skinning, tensor file, ...).
+    /// A fault reported by `sartor-core` (mesh, skinning, tensor file, ...).
     #[error(transparent)]
-    Body(#[from] sartor_body::Error),
+    Core(#[from] sartor_core::Error),
     /// Reading or writing a file failed.
     #[error("{}: {source}", path.display())]
     Io {

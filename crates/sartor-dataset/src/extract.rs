@@ -8,13 +8,13 @@
 //! Δ_L  = W⁻¹(S_c(β, θ), β, θ, W_c) − T̄_c − Δ_G
 //! ```
 //!
-//! `W⁻¹` is sartor-body's one inverse skinning ([`sartor_body::unskin_points`]); the transforms
+//! `W⁻¹` is sartor-core's one inverse skinning ([`sartor_core::unskin_points`]); the transforms
 //! are the body's for shape β and pose θ (root motion included), so the recovered displacement
 //! lives in the rest space of the template.
 
 use nalgebra::Vector3;
 
-use sartor_body::{BodyModel, Par, Pose, SkinWeights, transfer_skin_weights, unskin_points};
+use sartor_core::{BodyModel, Par, Pose, SkinWeights, transfer_skin_weights, unskin_points};
 
 use crate::smoothing::Smoother;
 use crate::{Error, Result};
@@ -194,7 +194,7 @@ impl<'a> WrinkleExtractor<'a> {
 /// `min_weight` of some garment vertex's cloth skin weight, plus all their ancestors (a joint's
 /// rotation moves everything below it). In skeleton order. For a T-shirt this is the spine,
 /// neck, shoulders and arms down to where the sleeves end, and the root (whose entry is its
-/// tilt relative to gravity; see [`sartor_body::PoseFeatures`]).
+/// tilt relative to gravity; see [`sartor_core::PoseFeatures`]).
 pub fn select_joints(body: &BodyModel, weights: &SkinWeights, min_weight: f32) -> Vec<String> {
     let skeleton = body.skeleton();
     let mut used = vec![false; skeleton.n_joints()];

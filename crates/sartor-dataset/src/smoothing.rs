@@ -22,7 +22,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use sartor_body::MeshTopology;
+use sartor_core::MeshTopology;
 
 use crate::{Error, Result};
 

@@ -19,8 +19,8 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use sartor_body::SkinWeights;
-use sartor_body::io::{
+use sartor_core::SkinWeights;
+use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
 };
 

@@ -47,7 +47,7 @@ pub enum Error {
     Runtime(#[from] sartor_runtime::Error),
     /// The body model.
     #[error(transparent)]
-    Body(#[from] sartor_body::Error),
+    Core(#[from] sartor_core::Error),
 }
 
 impl Error {

@@ -25,7 +25,7 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::store::ModuleRecord;
 use burn::tensor::{Bytes, Device, Tensor};
-use sartor_body::io::{read_file, sha256_hex, write_atomic};
+use sartor_core::io::{read_file, sha256_hex, write_atomic};
 use sartor_dataset::{
     Split, TrainingData, gather_frames, gather_shapes, sequence_batches, shuffled, window,
     window_count,

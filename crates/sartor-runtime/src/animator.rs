@@ -4,11 +4,11 @@
 //!
 //! One frame of one avatar:
 //!
-//! 1. the wrinkle input: β and the pose features of `sartor_body::PoseFeatures` (joint
+//! 1. the wrinkle input: β and the pose features of `sartor_core::PoseFeatures` (joint
 //!    rotations, root velocities from the previous pose), laid out as the model's header says;
 //! 2. `Δ_L = R_L(β, θ)`, one GRU step (skipped in fit-only mode: `Δ_L = 0`);
 //! 3. `T_c = T̄_c + Δ_G + Δ_L` with `Δ_G = R_G(β)` cached by `set_shape`;
-//! 4. `M_c = W(T_c, β, θ, W_c)` by `sartor_body::skin_points`, with the body's skinning
+//! 4. `M_c = W(T_c, β, θ, W_c)` by `sartor_core::skin_points`, with the body's skinning
 //!    transforms at `J(β)` (cached);
 //! 5. the collision post-process (optional, see `collision.rs`) against the body region, posed
 //!    from `T_b(β)` (cached).
@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{
+use sartor_core::{
     BodyModel, BoneTransform, FPS, Par, Pose, PoseFeatureSpec, PoseFeatures, RootFeature,
     RotationEncoding, skin_points,
 };
@@ -166,7 +166,7 @@ impl InputMap {
                     root: components
                         .iter()
                         .map(|c| RootFeature::from_name(c))
-                        .collect::<sartor_body::Result<_>>()?,
+                        .collect::<sartor_core::Result<_>>()?,
                 },
             };
             blocks.push((range, spec.bind(body.skeleton())?));
@@ -294,7 +294,7 @@ fn retarget_binding(
     template: &[Vector3<f32>],
 ) -> Result<Vec<([u32; 3], [f64; 3])>> {
     let mesh = body.template();
-    let proximity = sartor_body::MeshProximity::new(mesh.positions(), mesh.faces())?;
+    let proximity = sartor_core::MeshProximity::new(mesh.positions(), mesh.faces())?;
     Ok(template
         .iter()
         .map(|p| {
@@ -485,17 +485,18 @@ impl Avatar {
 /// use std::sync::Arc;
 /// use sartor_runtime::{GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig, LevelOfDetail};
 ///
-/// let dir = std::path::Path::new("runs/tshirt/export");
+/// let dir = std::path::Path::new("datasets/models/default");
+/// let body_dir = std::path::Path::new("datasets/body/makehuman");
 /// let lod = LevelOfDetail::full();
 /// let rig = Arc::new(GarmentRig::new(
 ///     Arc::new(GarmentNetwork::load_with(dir, lod.network)?),
 ///     Arc::new(GarmentBinding::load(dir)?),
-///     Arc::new(sartor_body::load_builtin()?),
+///     Arc::new(sartor_core::BodyModel::load(body_dir)?),
 ///     lod.animator,
 /// )?);
 /// let mut avatar = GarmentAnimator::new(rig.clone())?;
 /// avatar.set_shape(&[0.5, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])?;
-/// for pose in sartor_body::procedural::clip("walk_normal")?.frames() {
+/// for pose in sartor_motion::procedural::clip("walk_normal")?.frames() {
 ///     let garment = avatar.frame(pose)?; // V posed vertices, metres
 ///     let _ = garment;
 /// }

@@ -36,10 +36,10 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use nalgebra::Vector3;
-use sartor_body::io::{
+use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
 };
-use sartor_body::{BodyModel, SkinWeights, faces_near, transfer_skin_weights};
+use sartor_core::{BodyModel, SkinWeights, faces_near, transfer_skin_weights};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};

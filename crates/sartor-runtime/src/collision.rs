@@ -2,7 +2,7 @@
 //! closer to it than a margin (2 mm in the paper), is pushed along the normal of the closest
 //! body primitive until it lies at the margin: `p ← p + (margin − d) n`, with `d` the signed
 //! distance and `n` the angle-weighted pseudo-normal of the closest face, edge or vertex
-//! ([`sartor_body::MeshProximity`], the one closest-point query of the workspace).
+//! ([`sartor_core::MeshProximity`], the one closest-point query of the workspace).
 //!
 //! Only the body region the garment can touch is used ([`BodyRegion`]): its vertices are the
 //! only body vertices skinned per frame, and the query structure is built over its faces only.
@@ -34,7 +34,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{BodyModel, BoneTransform, MeshProximity, Par, SkinWeights, skin_points};
+use sartor_core::{BodyModel, BoneTransform, MeshProximity, Par, SkinWeights, skin_points};
 
 use crate::error::{Error, Result};
 
@@ -576,7 +576,7 @@ impl Collider {
         &self,
         q: &Vector3<f64>,
         state: &mut VertexState,
-    ) -> Option<sartor_body::ClosestPoint> {
+    ) -> Option<sartor_core::ClosestPoint> {
         let mut bound = self.radius_m;
         if state.last_face != u32::MAX
             && let Some(c) = self.proximity.closest_among(q, &[state.last_face])
@@ -592,7 +592,7 @@ impl Collider {
     }
 
     /// The closest point among cloth vertex `i`'s candidate faces.
-    fn closest_candidate(&self, q: &Vector3<f64>, i: usize) -> Option<sartor_body::ClosestPoint> {
+    fn closest_candidate(&self, q: &Vector3<f64>, i: usize) -> Option<sartor_core::ClosestPoint> {
         let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
         self.proximity.closest_among(q, &self.candidates[a..b])
     }
@@ -622,7 +622,7 @@ impl Collider {
         state: &mut VertexState,
         band_m: f64,
         refresh: bool,
-    ) -> Option<sartor_body::ClosestPoint> {
+    ) -> Option<sartor_core::ClosestPoint> {
         if refresh || state.last_face == u32::MAX {
             return self.closest_from(q, state);
         }
@@ -639,7 +639,7 @@ impl Collider {
     }
 
     /// The closest region point to `p` by the exact (tree) query: signed distance and face.
-    pub(crate) fn exact(&self, p: &Vector3<f32>) -> sartor_body::ClosestPoint {
+    pub(crate) fn exact(&self, p: &Vector3<f32>) -> sartor_core::ClosestPoint {
         self.proximity.closest(&p.cast::<f64>())
     }
 }

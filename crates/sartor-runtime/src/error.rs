@@ -9,7 +9,7 @@ pub enum Error {
     /// Reading a file or a tensor failed (I/O, not a safetensors file, missing tensor, wrong
     /// dtype or shape, non-finite value); the message names the file.
     #[error(transparent)]
-    Body(#[from] sartor_body::Error),
+    Core(#[from] sartor_core::Error),
     /// A model file is malformed (bad JSON, unknown field, size mismatch, hash mismatch, ...).
     #[error("{}: {message}", path.display())]
     Format {

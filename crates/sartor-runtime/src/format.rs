@@ -52,8 +52,8 @@
 //!
 //! `output` is `"dense"` or `{ "pca": k }`; `encoding` is `"rot6d"` (6 values per joint),
 //! `"quaternion"` (4) or `"axis_angle"` (3). The animator ([`crate::GarmentRig`]) computes each
-//! pose block with `sartor_body::PoseFeatures`, so joint names must be the body's and root
-//! components must be `sartor_body::RootFeature` names (`vel_x`, `vel_y`, `vel_z`,
+//! pose block with `sartor_core::PoseFeatures`, so joint names must be the body's and root
+//! components must be `sartor_core::RootFeature` names (`vel_x`, `vel_y`, `vel_z`,
 //! `yaw_rate`); the format itself accepts any names. The blocks of `wrinkle_inputs` tile
 //! `0..n_betas + n_pose_features` in order; exactly one is `"betas"` (of length `n_betas`).
 //! The fit MLP's input is β itself (`n_betas` values).
@@ -61,7 +61,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use sartor_body::io::{
+use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
 };
 use serde::{Deserialize, Serialize};
@@ -111,9 +111,9 @@ pub enum OutputKind {
     Pca(usize),
 }
 
-/// Rotation encoding of a joint-rotation feature block: sartor-body's, so the runtime computes
+/// Rotation encoding of a joint-rotation feature block: sartor-core's, so the runtime computes
 /// exactly the features the dataset trained on.
-pub use sartor_body::RotationEncoding;
+pub use sartor_core::RotationEncoding;
 
 /// What a block of the wrinkle input holds.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use sartor_body::BodyModel;
-use sartor_body::io::sha256_hex;
+use sartor_core::BodyModel;
+use sartor_core::io::sha256_hex;
 use serde::{Deserialize, Serialize};
 
 use super::frame::material_u_axes;
@@ -64,7 +64,7 @@ impl GarmentConfig {
 
     /// Read and validate a config file.
     pub fn load(path: &Path) -> Result<Self> {
-        Self::from_json(&sartor_body::io::read_file(path)?, path)
+        Self::from_json(&sartor_core::io::read_file(path)?, path)
     }
 
     /// The garment's name.

@@ -17,7 +17,7 @@
 //! bounding-box centre.
 
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, MeshProximity, TriMesh};
+use sartor_core::{BodyModel, MeshProximity, TriMesh};
 
 use crate::{Error, Result};
 

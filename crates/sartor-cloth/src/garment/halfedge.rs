@@ -559,7 +559,7 @@ impl Iterator for Outgoing<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sartor_body::MeshTopology;
+    use sartor_core::MeshTopology;
 
     fn grid(n: usize) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
         let mut p = Vec::new();

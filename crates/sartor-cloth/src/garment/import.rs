@@ -6,8 +6,8 @@
 use std::path::Path;
 
 use nalgebra::Vector2;
-use sartor_body::io::{read_file, sha256_hex};
-use sartor_body::{BodyModel, ObjData};
+use sartor_core::io::{read_file, sha256_hex};
+use sartor_core::{BodyModel, ObjData};
 
 use super::frame::material_u_axes;
 use super::template::{Garment, GarmentProvenance, SourceKind, check_garment_topology};

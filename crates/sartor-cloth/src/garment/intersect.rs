@@ -1,10 +1,10 @@
 //! Self-intersection checks: a box-overlap tree over triangles and an exact
 //! triangle–triangle crossing test. (Closest points and signed distances are
-//! `sartor_body::MeshProximity`, the project's one closest-point query.)
+//! `sartor_core::MeshProximity`, the project's one closest-point query.)
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::TriMesh;
+use sartor_core::TriMesh;
 
 #[derive(Clone, Copy, Debug)]
 struct Node {

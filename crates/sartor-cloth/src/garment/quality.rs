@@ -1,6 +1,6 @@
 //! Triangle-mesh quality figures: angles, edge-length spread, topology.
 
-use sartor_body::TriMesh;
+use sartor_core::TriMesh;
 use serde::{Deserialize, Serialize};
 
 /// Distribution of a length, mm.

@@ -12,7 +12,7 @@
 //!    its one-ring triangles, within its tangent plane; each boundary vertex moves towards the
 //!    midpoint of its two boundary neighbours along the boundary; corners stay;
 //! 5. projection back onto the input: interior vertices onto the closest point of the input
-//!    triangles (`sartor_body::MeshProximity`), boundary vertices onto their own input
+//!    triangles (`sartor_core::MeshProximity`), boundary vertices onto their own input
 //!    boundary loop. A move that would flip one of the vertex's triangles, or make the
 //!    smallest angle around the vertex smaller than both 30° and its current value, is
 //!    dropped.
@@ -31,7 +31,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{MeshProximity, TriMesh};
+use sartor_core::{MeshProximity, TriMesh};
 
 use super::halfedge::{EditMesh, NONE};
 use crate::{Error, Result};

@@ -1,7 +1,7 @@
 //! The figures of a garment template, written as `garment-report.json`.
 
 use rayon::prelude::*;
-use sartor_body::MeshProximity;
+use sartor_core::MeshProximity;
 use serde::{Deserialize, Serialize};
 
 use super::intersect::self_intersections;

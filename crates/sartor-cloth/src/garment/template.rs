@@ -19,10 +19,10 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use nalgebra::{Matrix2, Vector2, Vector3};
-use sartor_body::io::{
+use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
 };
-use sartor_body::{TriMesh, obj_text};
+use sartor_core::{TriMesh, obj_text};
 use serde::{Deserialize, Serialize};
 
 use crate::energy::dihedral_angle;
@@ -379,7 +379,7 @@ impl Garment {
     }
 
     /// Bending hinges `[x0, x1, x2, x3]`, one per interior edge in the order of
-    /// [`sartor_body::MeshTopology::edges`]: `x0 → x1` is the edge as directed in the first
+    /// [`sartor_core::MeshTopology::edges`]: `x0 → x1` is the edge as directed in the first
     /// face of the edge (which has `x2` opposite), `x3` is opposite in the other face (the
     /// convention of [`crate::energy::dihedral_angle`]).
     pub fn hinges(&self) -> &[[u32; 4]] {

@@ -27,7 +27,7 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_body::{BodyModel, MeshProximity, TriMesh};
+use sartor_core::{BodyModel, MeshProximity, TriMesh};
 use serde::{Deserialize, Serialize};
 
 use super::frame::{Arm, body_arms};
@@ -125,7 +125,7 @@ impl TshirtRecipe {
 
     /// Read and validate a recipe file.
     pub fn load(path: &Path) -> Result<Self> {
-        Self::from_json(&sartor_body::io::read_file(path)?, path)
+        Self::from_json(&sartor_core::io::read_file(path)?, path)
     }
 }
 
@@ -412,7 +412,7 @@ fn compact(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> (Vec<Vector3<f64>>
 fn clean_piece(positions: Vec<Vector3<f64>>, faces: Vec<[u32; 3]>) -> Result<TriMesh> {
     let (mut positions, mut faces) = (positions, faces);
     for _round in 0..100 {
-        let topology = sartor_body::MeshTopology::new(positions.len(), &faces);
+        let topology = sartor_core::MeshTopology::new(positions.len(), &faces);
         let (component, n) = topology.face_components();
         let mut size = vec![0usize; n];
         for &c in &component {
@@ -520,7 +520,7 @@ fn smooth_openings(cut: &TriMesh) -> Result<TriMesh> {
 }
 
 /// Uniform-Laplacian smoothing of a per-vertex vector field (one Jacobi step, weight ½).
-fn smooth_field(field: &mut [Vector3<f64>], topology: &sartor_body::MeshTopology) {
+fn smooth_field(field: &mut [Vector3<f64>], topology: &sartor_core::MeshTopology) {
     let old = field.to_vec();
     for (v, f) in field.iter_mut().enumerate() {
         let nb = topology.neighbours(v);

@@ -62,3 +62,13 @@ pub fn uv_sphere(
     }
     (p, f)
 }
+
+/// The built-in body model folder of the workspace (`datasets/body/makehuman`).
+pub fn builtin_model_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman")
+}
+
+/// The built-in body model.
+pub fn load_builtin() -> sartor_core::Result<sartor_core::BodyModel> {
+    sartor_core::BodyModel::load(&builtin_model_dir())
+}

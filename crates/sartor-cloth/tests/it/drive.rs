@@ -6,15 +6,16 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, MeshProximity, Motion};
 use sartor_cloth::{
     ClothSequence, DriveConfig, Error, Garment, LinearSolver, Material, Phase, RelaxConfig,
     SequenceFailure, StepFailure, contact_region, relax_on_body, simulate_sequence,
 };
+use sartor_core::{BodyModel, MeshProximity};
+use sartor_motion::Motion;
 
 fn body() -> &'static BodyModel {
     static BODY: OnceLock<BodyModel> = OnceLock::new();
-    BODY.get_or_init(|| sartor_body::load_builtin().expect("the built-in body"))
+    BODY.get_or_init(|| crate::common::load_builtin().expect("the built-in body"))
 }
 
 fn tshirt() -> Garment {
@@ -45,7 +46,7 @@ fn quick_config() -> DriveConfig {
 
 /// Eight frames from the middle of a fast clip (the arms swing through the sleeves).
 fn clip() -> Motion {
-    let m = sartor_body::procedural::clip("arm_circles_fast").expect("procedural clip");
+    let m = sartor_motion::procedural::clip("arm_circles_fast").expect("procedural clip");
     m.slice(40..48).expect("frames")
 }
 

@@ -158,7 +158,7 @@ fn bad_cloth_meshes_are_rejected_clearly() {
     let err = cloth_error(quad.clone(), vec![[0, 1, 2]]);
     assert!(err.contains("vertex 3"), "{err}");
     // Material frames: wrong count, or normal to the triangle.
-    let mesh = sartor_body::TriMesh::new(quad.clone(), vec![[0, 1, 2], [0, 2, 3]]).expect("valid");
+    let mesh = sartor_core::TriMesh::new(quad.clone(), vec![[0, 1, 2], [0, 2, 3]]).expect("valid");
     let err = Cloth::new(mesh.clone(), stvk(), Some(&[Vector3::x()])).expect_err("must fail");
     assert!(matches!(err, Error::Invalid { .. }), "{err}");
     let err = Cloth::new(mesh, stvk(), Some(&[Vector3::z(), Vector3::x()])).expect_err("must fail");

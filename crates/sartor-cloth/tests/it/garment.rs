@@ -3,12 +3,12 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
-use sartor_body::{MeshProximity, TriMesh};
 use sartor_cloth::{
     Garment, GarmentConfig, GarmentProvenance, GarmentReport, MeshQuality, ObjImportOptions,
     RemeshOptions, RestSource, SourceKind, TshirtRecipe, build_garment, build_tshirt,
     import_obj_garment, material_u_axes, remesh_isotropic, remesh_to_count,
 };
+use sartor_core::{MeshProximity, TriMesh};
 
 /// A fresh empty folder under the system's temporary folder.
 fn temp_dir(name: &str) -> PathBuf {
@@ -244,7 +244,7 @@ fn garment_files_round_trip_identically_and_deterministically() {
     assert_eq!(g.to_bytes().unwrap().0, first[0]);
     // Golden (size, hash) of the tensor file: the remesher and the format are deterministic.
     assert_eq!(
-        (first[0].len(), sartor_body::io::sha256_hex(&first[0])),
+        (first[0].len(), sartor_core::io::sha256_hex(&first[0])),
         (GOLDEN_TUBE_BYTES, GOLDEN_TUBE_SHA256.to_string()),
         "the tube garment changed: update the golden pair if that is intended"
     );
@@ -462,7 +462,7 @@ fn recipes_parse_and_reject_unknown_fields() {
 
 #[test]
 fn the_tiny_tshirt_fits_the_template_body() {
-    let body = sartor_body::load_builtin().expect("the built-in body (datasets/body/makehuman)");
+    let body = crate::common::load_builtin().expect("the built-in body (datasets/body/makehuman)");
     let recipe = TshirtRecipe::load(&configs_dir().join("tshirt-tiny.json")).unwrap();
     let surface = build_tshirt(&body, &recipe).unwrap();
     let mesh = &surface.mesh;
@@ -516,7 +516,7 @@ fn an_obj_config_builds_a_pattern_garment() {
     );
     let config = GarmentConfig::from_json(text.as_bytes(), &config_path).unwrap();
     assert_eq!(config.name(), "strip");
-    let body = sartor_body::load_builtin().expect("the built-in body (datasets/body/makehuman)");
+    let body = crate::common::load_builtin().expect("the built-in body (datasets/body/makehuman)");
     let build = build_garment(&config, &config_path, text.as_bytes(), &body, None).unwrap();
     assert_eq!(build.garment.rest_source(), RestSource::Pattern);
     assert!(build.tshirt.is_none());

@@ -3,12 +3,13 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nalgebra::Vector3;
-use sartor_body::{BodyModel, Par, Pose, procedural, skin_points};
+use sartor_core::{BodyModel, Par, Pose, skin_points};
 use sartor_dataset::{
     ClothBinding, DataSource, DatasetConfig, DatasetInputs, DatasetPlan, PcaSettings, Result,
     SequencePlan, ShapePlan, SimulatedMotion, SimulationSource, Smoother, Split, build_dataset,
     fit_delta, load_dataset, sequence_file,
 };
+use sartor_motion::procedural;
 
 use crate::common::{body, tiny_tshirt};
 

@@ -1,10 +1,11 @@
 //! Ground-truth extraction: the round trip through skinning, and the joint selection.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use sartor_body::{Par, Pose, procedural, skin_points};
+use sartor_core::{Par, Pose, skin_points};
 use sartor_dataset::{
     ClothBinding, Smoother, Smoothing, WrinkleExtractor, fit_delta, select_joints,
 };
+use sartor_motion::procedural;
 
 use crate::common::{body, tiny_tshirt};
 

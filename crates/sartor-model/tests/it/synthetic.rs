@@ -1,7 +1,7 @@
 //! A tiny synthetic dataset with known structure: `Δ_G` a smooth function of β, `Δ_L` a
 //! function of the current frame's inputs plus (optionally) the previous frame's.
 
-use sartor_body::{PoseFeatureSpec, RootFeature, RotationEncoding};
+use sartor_core::{PoseFeatureSpec, RootFeature, RotationEncoding};
 use sartor_dataset::{
     DataSource, InputLayout, PcaSettings, SequenceSample, ShapeSample, Split, TrainingData,
     compute_pca, compute_stats,

@@ -12,7 +12,7 @@
 use std::path::Path;
 
 use nalgebra::Vector3;
-use sartor_body::io::write_atomic;
+use sartor_core::io::write_atomic;
 use serde_json::{Value, json};
 
 use super::MeshSequence;

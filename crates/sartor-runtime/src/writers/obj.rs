@@ -1,9 +1,9 @@
-//! OBJ sequences: one file per frame, through sartor-body's OBJ writer.
+//! OBJ sequences: one file per frame, through sartor-core's OBJ writer.
 
 use std::path::{Path, PathBuf};
 
-use sartor_body::io::write_atomic;
-use sartor_body::obj_text;
+use sartor_core::io::write_atomic;
+use sartor_core::obj_text;
 
 use super::MeshSequence;
 use crate::error::Result;

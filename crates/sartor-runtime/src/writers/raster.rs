@@ -328,6 +328,6 @@ pub fn render_png(
     background: [f32; 3],
 ) -> Result<()> {
     let image = render(panels, panel_width, height, background)?;
-    sartor_body::io::write_atomic(path, &image.png_bytes()?)?;
+    sartor_core::io::write_atomic(path, &image.png_bytes()?)?;
     Ok(())
 }

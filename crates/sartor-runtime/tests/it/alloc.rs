@@ -132,7 +132,7 @@ fn frames_allocate_nothing() {
         let mut out = vec![nalgebra::Vector3::zeros(); avatar.vertices().len()];
         // Warm up (lazily initialised statics such as the instruction-set choice).
         avatar.frame(&poses[0]).expect("frame");
-        let trios: Vec<Vec<sartor_body::Pose>> = poses.iter().map(|p| vec![p.clone(); 3]).collect();
+        let trios: Vec<Vec<sartor_core::Pose>> = poses.iter().map(|p| vec![p.clone(); 3]).collect();
         crowd.frame(&trios[0]).expect("frame");
         let n = allocations_during(|| {
             for (pose, trio) in poses.iter().zip(&trios).skip(1) {

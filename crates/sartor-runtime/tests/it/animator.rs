@@ -3,7 +3,7 @@
 //! post-process leaves no vertex inside, precisions and reduced ranks stay close to f32.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use sartor_body::{
+use sartor_core::{
     BoneTransform, Par, PoseFeatureSpec, RootFeature, RotationEncoding, skin_points,
 };
 use sartor_runtime::{
@@ -215,7 +215,7 @@ fn extreme_shapes_and_near_half_turns_stay_finite() {
     for scale in [5.0f32, -5.0] {
         let mut avatar = GarmentAnimator::new(rig.clone()).expect("avatar");
         avatar.set_shape(&[scale; 10]).expect("finite");
-        let mut pose = sartor_body::Pose::rest(n_joints);
+        let mut pose = sartor_core::Pose::rest(n_joints);
         for (j, q) in pose.local_rotations.iter_mut().enumerate() {
             let axis = Vector3::new((j as f64).sin(), 1.0, (j as f64 * 0.3).cos());
             *q = UnitQuaternion::from_axis_angle(
@@ -519,6 +519,6 @@ fn reset_from_sets_the_previous_pose_and_zeroes_the_state() {
     a.reset_from(&poses[4]).expect("valid");
     assert_ne!(a.frame(&poses[5]).expect("frame"), &still[..]);
     // A pose of another skeleton is an error.
-    let bad = sartor_body::Pose::rest(3);
+    let bad = sartor_core::Pose::rest(3);
     assert!(a.reset_from(&bad).is_err());
 }

@@ -2,7 +2,7 @@
 //! checks against the model and the body.
 
 use nalgebra::Vector3;
-use sartor_body::SkinWeights;
+use sartor_core::SkinWeights;
 use sartor_runtime::{BINDING_JSON, BINDING_TENSORS, GarmentBinding, OutputKind};
 
 use crate::scene::{binding, body, body_id, garment_id, header};

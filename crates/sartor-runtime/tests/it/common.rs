@@ -206,3 +206,13 @@ pub fn rel_err(a: &[f32], b: &[f64]) -> f64 {
 pub fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
 }
+
+/// The built-in body model folder of the workspace (`datasets/body/makehuman`).
+pub fn builtin_model_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman")
+}
+
+/// The built-in body model.
+pub fn load_builtin() -> sartor_core::Result<sartor_core::BodyModel> {
+    sartor_core::BodyModel::load(&builtin_model_dir())
+}

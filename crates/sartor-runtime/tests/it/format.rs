@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use sartor_body::io::{OwnedTensor, serialize_tensors, sha256_hex};
+use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use sartor_runtime::{
     GarmentModel, GarmentNetwork, MODEL_JSON, MODEL_TENSORS, ModelHeader, OutputKind, Precision,
 };

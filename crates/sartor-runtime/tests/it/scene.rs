@@ -5,7 +5,8 @@
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
-use sartor_body::{BodyModel, CMU_MB_JOINTS, Pose, RootFeature, TriMesh};
+use sartor_core::{BodyModel, Pose, RootFeature, TriMesh};
+use sartor_motion::CMU_MB_JOINTS;
 use sartor_runtime::{
     AnimatorOptions, AssetId, Feature, FeatureBlock, GarmentBinding, GarmentModel, GarmentNetwork,
     GarmentRig, ModelHeader, ModelSizes, NetworkOptions, OutputKind, RotationEncoding,
@@ -28,14 +29,14 @@ pub fn feature_joints() -> Vec<String> {
 
 pub fn body() -> Arc<BodyModel> {
     static BODY: OnceLock<Arc<BodyModel>> = OnceLock::new();
-    BODY.get_or_init(|| Arc::new(sartor_body::load_builtin().expect("built-in body")))
+    BODY.get_or_init(|| Arc::new(crate::common::load_builtin().expect("built-in body")))
         .clone()
 }
 
 pub fn garment_mesh() -> TriMesh {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../datasets/garments/tshirt-tiny/garment.obj");
-    sartor_body::read_obj(&path).expect("tiny T-shirt")
+    sartor_core::read_obj(&path).expect("tiny T-shirt")
 }
 
 pub fn garment_id() -> AssetId {
@@ -132,7 +133,7 @@ pub fn rig(
 
 /// `n` frames of a procedural clip, every `step`-th frame (a fast test motion).
 pub fn clip(name: &str, n: usize, step: usize) -> Vec<Pose> {
-    let motion = sartor_body::procedural::clip(name).expect("clip");
+    let motion = sartor_motion::procedural::clip(name).expect("clip");
     motion
         .frames()
         .iter()

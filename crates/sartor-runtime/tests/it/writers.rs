@@ -54,7 +54,7 @@ fn obj_sequence_reads_back() {
     let paths = write_obj_sequence(dir.path(), &seq).expect("write");
     assert_eq!(paths.len(), 3);
     assert!(paths[2].ends_with("square_00002.obj"));
-    let mesh = sartor_body::read_obj(&paths[2]).expect("read back");
+    let mesh = sartor_core::read_obj(&paths[2]).expect("read back");
     assert_eq!(mesh.faces(), seq.faces());
     assert!((mesh.positions()[2].y - 1.2).abs() < 1e-6);
 }

@@ -1,0 +1,4 @@
+//! sartor-core's integration tests (one binary).
+
+mod common;
+mod model;

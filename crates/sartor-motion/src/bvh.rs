@@ -1,0 +1,731 @@
+//! BVH motion capture: a strict parser and retargeting onto the built-in skeleton.
+//!
+//! # Format
+//!
+//! `HIERARCHY` (one `ROOT`, nested `JOINT`s and `End Site`s, each with an `OFFSET` and — except
+//! end sites — `CHANNELS n` followed by `n` of `Xposition Yposition Zposition Xrotation Yrotation
+//! Zrotation` in any order), then `MOTION`, `Frames: N`, `Frame Time: dt` and `N` lines of
+//! numbers, one value per channel. Rotations are in degrees and compose in the order listed:
+//! `CHANNELS 3 Zrotation Xrotation Yrotation` is `R = Rz · Rx · Ry`. A joint's transform is
+//! `T(offset + position channels) · R`, relative to its parent; rest frames are world-aligned.
+//! Every fault is reported with the file and the 1-based line. Position channels are read on any
+//! joint, but only the root's reach the retargeted motion (the rig's bone lengths are fixed).
+//!
+//! # Axes and units (CMU files)
+//!
+//! CMU BVH files are Y-up; in their rest T-pose the left limbs lie on +X, so the subject faces
+//! +Z — the same axes as ours (+X the body's left, +Y up, +Z forward). The retargeter checks this
+//! on the rest offsets: when the left hip (or arm) lies on −X it turns the data 180° about +Y, and
+//! it rejects files whose head is not above the hips along +Y. The files' length unit varies
+//! (CMU's converted files use neither inches nor metres), so it is never guessed: root
+//! translations are scaled by `our hip height / BVH hip height`, both measured from the root joint
+//! down to the feet (`LeftFoot`/`RightFoot`) in the T-pose, a unit-free ratio. Translations are
+//! taken relative to the first frame (the motion starts at the origin; the first frame is taken
+//! to stand at rest height).
+//!
+//! # Names
+//!
+//! CMU bone names equal the rig's ([`crate::CMU_MB_JOINTS`]) except `LeftHandIndex1` /
+//! `RightHandIndex1`, which are the rig's `LeftHandFinger1` / `RightHandFinger1`
+//! ([`cmu_to_rig_name`]). BVH joints the rig lacks are an error listing them, unless
+//! [`BvhRetargetOptions::lenient`] drops them (the report lists what was dropped; their rotations
+//! still move their children). Rig joints the file lacks keep their T-pose relation to their
+//! parent. The rest-pose difference (T-pose vs our A-pose) is handled by world-orientation
+//! retargeting, see [`crate::motion_sources`].
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Unit, UnitQuaternion, Vector3};
+
+use sartor_core::io::read_file;
+
+use crate::retarget::{RetargetBody, hip_height};
+use crate::{Error, Motion, Result};
+
+/// One channel of a BVH joint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BvhChannel {
+    /// Translation along X.
+    Xposition,
+    /// Translation along Y.
+    Yposition,
+    /// Translation along Z.
+    Zposition,
+    /// Rotation about X, degrees.
+    Xrotation,
+    /// Rotation about Y, degrees.
+    Yrotation,
+    /// Rotation about Z, degrees.
+    Zrotation,
+}
+
+impl BvhChannel {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "Xposition" => Self::Xposition,
+            "Yposition" => Self::Yposition,
+            "Zposition" => Self::Zposition,
+            "Xrotation" => Self::Xrotation,
+            "Yrotation" => Self::Yrotation,
+            "Zrotation" => Self::Zrotation,
+            _ => return None,
+        })
+    }
+
+    /// The axis (0 = X, 1 = Y, 2 = Z) and whether it is a rotation.
+    fn axis(self) -> (usize, bool) {
+        match self {
+            Self::Xposition => (0, false),
+            Self::Yposition => (1, false),
+            Self::Zposition => (2, false),
+            Self::Xrotation => (0, true),
+            Self::Yrotation => (1, true),
+            Self::Zrotation => (2, true),
+        }
+    }
+}
+
+/// One joint of a BVH hierarchy.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BvhJoint {
+    /// Name as written in the file.
+    pub name: String,
+    /// Index of the parent joint (`None` for the root).
+    pub parent: Option<usize>,
+    /// Rest offset from the parent, in the file's units.
+    pub offset: Vector3<f64>,
+    /// Channels in file order.
+    pub channels: Vec<BvhChannel>,
+    /// Offset of the `End Site` below this joint, if it has one.
+    pub end_site: Option<Vector3<f64>>,
+}
+
+/// A parsed BVH file: hierarchy and frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bvh {
+    path: PathBuf,
+    joints: Vec<BvhJoint>,
+    /// Index of each joint's first value in a frame.
+    first_channel: Vec<usize>,
+    n_channels: usize,
+    frame_time_secs: f64,
+    /// `n_frames × n_channels`, row-major.
+    values: Vec<f64>,
+}
+
+/// A whitespace-separated word and its 1-based line.
+#[derive(Clone, Copy, Debug)]
+struct Token<'a> {
+    text: &'a str,
+    line: usize,
+}
+
+struct Parser<'a> {
+    path: &'a Path,
+    tokens: Vec<Token<'a>>,
+    pos: usize,
+    last_line: usize,
+}
+
+impl<'a> Parser<'a> {
+    fn err(&self, line: usize, message: impl Into<String>) -> Error {
+        Error::parse(self.path, line, message)
+    }
+
+    fn next(&mut self, what: &str) -> Result<Token<'a>> {
+        let t = self.tokens.get(self.pos).copied().ok_or_else(|| {
+            self.err(
+                self.last_line,
+                format!("unexpected end of file: expected {what}"),
+            )
+        })?;
+        self.pos += 1;
+        Ok(t)
+    }
+
+    fn expect(&mut self, word: &str) -> Result<Token<'a>> {
+        let t = self.next(&format!("{word:?}"))?;
+        if t.text != word {
+            return Err(self.err(t.line, format!("expected {word:?}, found {:?}", t.text)));
+        }
+        Ok(t)
+    }
+
+    fn number(&mut self, what: &str) -> Result<f64> {
+        let t = self.next(what)?;
+        parse_number(t.text).ok_or_else(|| {
+            self.err(
+                t.line,
+                format!("{what}: {:?} is not a finite number", t.text),
+            )
+        })
+    }
+
+    fn vector(&mut self, what: &str) -> Result<Vector3<f64>> {
+        Ok(Vector3::new(
+            self.number(what)?,
+            self.number(what)?,
+            self.number(what)?,
+        ))
+    }
+
+    /// Parse the body of a `ROOT`/`JOINT` block after its name; push it and its children.
+    fn joint(
+        &mut self,
+        name: Token<'a>,
+        parent: Option<usize>,
+        joints: &mut Vec<BvhJoint>,
+    ) -> Result<()> {
+        if let Some(prev) = joints.iter().find(|j| j.name == name.text) {
+            return Err(self.err(
+                name.line,
+                format!("joint name {:?} appears twice", prev.name),
+            ));
+        }
+        self.expect("{")?;
+        self.expect("OFFSET")?;
+        let offset = self.vector("OFFSET")?;
+        let kw = self.expect("CHANNELS")?;
+        let count_tok = self.next("channel count")?;
+        let count: usize = count_tok.text.parse().map_err(|_| {
+            self.err(
+                count_tok.line,
+                format!("channel count {:?} is not a whole number", count_tok.text),
+            )
+        })?;
+        if count > 6 {
+            return Err(self.err(
+                count_tok.line,
+                format!("{count} channels: at most 6 are allowed"),
+            ));
+        }
+        let mut channels = Vec::with_capacity(count);
+        for _ in 0..count {
+            let t = self.next("channel name")?;
+            let c = BvhChannel::parse(t.text).ok_or_else(|| {
+                if matches!(t.text, "JOINT" | "End" | "}" | "ROOT" | "MOTION") {
+                    self.err(
+                        t.line,
+                        format!(
+                            "CHANNELS on line {} declares {count} channels but lists {}",
+                            kw.line,
+                            channels.len()
+                        ),
+                    )
+                } else {
+                    self.err(t.line, format!("unknown channel name {:?}", t.text))
+                }
+            })?;
+            if channels.contains(&c) {
+                return Err(self.err(t.line, format!("channel {:?} listed twice", t.text)));
+            }
+            channels.push(c);
+        }
+        let index = joints.len();
+        joints.push(BvhJoint {
+            name: name.text.to_string(),
+            parent,
+            offset,
+            channels,
+            end_site: None,
+        });
+        loop {
+            let t = self.next("JOINT, End Site or }")?;
+            match t.text {
+                "}" => return Ok(()),
+                "JOINT" => {
+                    let child = self.next("joint name")?;
+                    self.joint(child, Some(index), joints)?;
+                }
+                "End" => {
+                    self.expect("Site")?;
+                    if joints[index].end_site.is_some() {
+                        return Err(self.err(t.line, "a second End Site in one joint"));
+                    }
+                    self.expect("{")?;
+                    self.expect("OFFSET")?;
+                    let end = self.vector("End Site OFFSET")?;
+                    self.expect("}")?;
+                    joints[index].end_site = Some(end);
+                }
+                "CHANNELS" => {
+                    return Err(self.err(
+                        t.line,
+                        format!(
+                            "extra CHANNELS in joint {:?}: the channel count on line {} is \
+                             too small",
+                            name.text, kw.line
+                        ),
+                    ));
+                }
+                other => {
+                    return Err(self.err(
+                        t.line,
+                        format!("expected JOINT, End Site or }}, found {other:?}"),
+                    ));
+                }
+            }
+        }
+    }
+}
+
+/// Parse a finite float (BVH files use plain decimal notation).
+fn parse_number(s: &str) -> Option<f64> {
+    s.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+impl Bvh {
+    /// Parse BVH text; `path` names the file in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let tokens: Vec<Token> = text
+            .lines()
+            .enumerate()
+            .flat_map(|(i, l)| {
+                l.split_whitespace().map(move |w| Token {
+                    text: w,
+                    line: i + 1,
+                })
+            })
+            .collect();
+        let last_line = text.lines().count().max(1);
+        let mut p = Parser {
+            path,
+            tokens,
+            pos: 0,
+            last_line,
+        };
+        p.expect("HIERARCHY")?;
+        p.expect("ROOT")?;
+        let root = p.next("root joint name")?;
+        let mut joints = Vec::new();
+        p.joint(root, None, &mut joints)?;
+        let motion = p.next("MOTION")?;
+        if motion.text != "MOTION" {
+            let msg = if motion.text == "ROOT" {
+                "a second ROOT: only one hierarchy is supported".to_string()
+            } else {
+                format!("expected \"MOTION\", found {:?}", motion.text)
+            };
+            return Err(p.err(motion.line, msg));
+        }
+        p.expect("Frames:")?;
+        let n_tok = p.next("frame count")?;
+        let n_frames: usize = n_tok.text.parse().map_err(|_| {
+            p.err(
+                n_tok.line,
+                format!("frame count {:?} is not a whole number", n_tok.text),
+            )
+        })?;
+        p.expect("Frame")?;
+        p.expect("Time:")?;
+        let dt_line = p.tokens.get(p.pos).map_or(p.last_line, |t| t.line);
+        let frame_time_secs = p.number("frame time")?;
+        if frame_time_secs <= 0.0 {
+            return Err(p.err(
+                dt_line,
+                format!("frame time {frame_time_secs} is not positive"),
+            ));
+        }
+        let mut first_channel = Vec::with_capacity(joints.len());
+        let mut n_channels = 0;
+        for j in &joints {
+            first_channel.push(n_channels);
+            n_channels += j.channels.len();
+        }
+        // Frame values: one line per frame.
+        let rest = &p.tokens[p.pos..];
+        let mut values = Vec::with_capacity(n_frames * n_channels);
+        let mut frames_read = 0;
+        let mut i = 0;
+        while i < rest.len() {
+            let line = rest[i].line;
+            let mut k = i;
+            while k < rest.len() && rest[k].line == line {
+                k += 1;
+            }
+            if frames_read == n_frames {
+                return Err(p.err(
+                    line,
+                    format!("more frame lines than the {n_frames} declared by \"Frames:\""),
+                ));
+            }
+            if k - i != n_channels {
+                return Err(p.err(
+                    line,
+                    format!(
+                        "frame {} has {} values, the hierarchy has {n_channels} channels",
+                        frames_read,
+                        k - i
+                    ),
+                ));
+            }
+            for t in &rest[i..k] {
+                let x = parse_number(t.text).ok_or_else(|| {
+                    p.err(
+                        line,
+                        format!("frame {frames_read}: {:?} is not a finite number", t.text),
+                    )
+                })?;
+                values.push(x);
+            }
+            frames_read += 1;
+            i = k;
+        }
+        if frames_read != n_frames {
+            return Err(p.err(
+                p.last_line,
+                format!(
+                    "file ends after {frames_read} frames, \"Frames:\" on line {} declares \
+                     {n_frames}",
+                    n_tok.line
+                ),
+            ));
+        }
+        if n_frames == 0 {
+            return Err(p.err(n_tok.line, "no frames"));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            joints,
+            first_channel,
+            n_channels,
+            frame_time_secs,
+            values,
+        })
+    }
+
+    /// Read and parse a `.bvh` file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let bytes = read_file(path)?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| Error::format(path, format!("not UTF-8 text: {e}")))?;
+        Self::parse(&text, path)
+    }
+
+    /// The file this was read from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Joints, parents before children.
+    pub fn joints(&self) -> &[BvhJoint] {
+        &self.joints
+    }
+
+    /// Seconds per frame.
+    pub fn frame_time_secs(&self) -> f64 {
+        self.frame_time_secs
+    }
+
+    /// Number of frames.
+    pub fn n_frames(&self) -> usize {
+        self.values.len() / self.n_channels.max(1)
+    }
+
+    /// Values of frame `i` (all channels, file order).
+    pub fn frame(&self, i: usize) -> &[f64] {
+        &self.values[i * self.n_channels..(i + 1) * self.n_channels]
+    }
+
+    /// Local translation (offset + position channels) and rotation of joint `j` in frame `i`.
+    pub fn local_transform(&self, i: usize, j: usize) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let joint = &self.joints[j];
+        let values = &self.frame(i)[self.first_channel[j]..];
+        let mut t = joint.offset;
+        let mut r = UnitQuaternion::identity();
+        for (c, v) in joint.channels.iter().zip(values) {
+            let (axis, is_rotation) = c.axis();
+            if is_rotation {
+                let mut a = Vector3::zeros();
+                a[axis] = 1.0;
+                r *= UnitQuaternion::from_axis_angle(&Unit::new_unchecked(a), v.to_radians());
+            } else {
+                t[axis] += v;
+            }
+        }
+        (t, r)
+    }
+
+    /// World rotation of every joint in frame `i`.
+    pub fn world_rotations(&self, i: usize) -> Vec<UnitQuaternion<f64>> {
+        let mut q: Vec<UnitQuaternion<f64>> = Vec::with_capacity(self.joints.len());
+        for (j, joint) in self.joints.iter().enumerate() {
+            let (_, r) = self.local_transform(i, j);
+            q.push(match joint.parent {
+                None => r,
+                Some(p) => q[p] * r,
+            });
+        }
+        q
+    }
+
+    /// World position of the root joint in frame `i` (offset + position channels).
+    pub fn root_position(&self, i: usize) -> Vector3<f64> {
+        self.local_transform(i, 0).0
+    }
+
+    /// Rest (all channels zero) world positions of the joints, from the offsets.
+    pub fn rest_positions(&self) -> Vec<Vector3<f64>> {
+        let mut p: Vec<Vector3<f64>> = Vec::with_capacity(self.joints.len());
+        for joint in &self.joints {
+            let x = match joint.parent {
+                None => joint.offset,
+                Some(q) => p[q] + joint.offset,
+            };
+            p.push(x);
+        }
+        p
+    }
+}
+
+/// The rig's name for a CMU BVH bone name.
+pub fn cmu_to_rig_name(name: &str) -> &str {
+    match name {
+        "LeftHandIndex1" => "LeftHandFinger1",
+        "RightHandIndex1" => "RightHandFinger1",
+        other => other,
+    }
+}
+
+/// Options of [`retarget_bvh`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BvhRetargetOptions {
+    /// Drop BVH joints the rig does not have (listed in the report) instead of failing.
+    pub lenient: bool,
+}
+
+/// What [`retarget_bvh`] did besides producing the motion.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BvhRetargetReport {
+    /// BVH joints the rig lacks, dropped in lenient mode (file order).
+    pub dropped_joints: Vec<String>,
+    /// Rig joints the file does not drive (they keep their T-pose relation to their parent).
+    pub undriven_joints: Vec<String>,
+    /// Factor from the file's length unit to metres (our hip height / the file's).
+    pub translation_scale: f64,
+    /// Whether the file's subject faced −Z and was turned 180° about +Y.
+    pub turned_around: bool,
+    /// The file's frame rate.
+    pub source_fps: f64,
+}
+
+/// Retarget a BVH onto `body`, at the file's frame rate (see the module docs for the rules).
+pub fn retarget_bvh_native_rate(
+    bvh: &Bvh,
+    body: &RetargetBody,
+    options: &BvhRetargetOptions,
+) -> Result<(Motion, BvhRetargetReport)> {
+    let path = bvh.path();
+    let skeleton = body.skeleton();
+    // Map BVH joints onto rig joints.
+    let mut rig_of_bvh = Vec::with_capacity(bvh.joints.len());
+    let mut unknown = Vec::new();
+    for j in &bvh.joints {
+        let idx = skeleton.index_of(cmu_to_rig_name(&j.name));
+        if idx.is_none() {
+            unknown.push(j.name.clone());
+        }
+        rig_of_bvh.push(idx);
+    }
+    if !unknown.is_empty() && !options.lenient {
+        return Err(Error::format(
+            path,
+            format!(
+                "joints not in the rig: {} (retarget leniently to drop them)",
+                unknown.join(", ")
+            ),
+        ));
+    }
+    let mut bvh_of_rig: Vec<Option<usize>> = vec![None; skeleton.n_joints()];
+    for (b, r) in rig_of_bvh.iter().enumerate() {
+        if let Some(r) = r {
+            if let Some(prev) = bvh_of_rig[*r] {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "joints {:?} and {:?} both map onto rig joint {:?}",
+                        bvh.joints[prev].name,
+                        bvh.joints[b].name,
+                        skeleton.names()[*r]
+                    ),
+                ));
+            }
+            bvh_of_rig[*r] = Some(b);
+        }
+    }
+    if bvh_of_rig[0] != Some(0) {
+        return Err(Error::format(
+            path,
+            format!(
+                "the file's root {:?} must be the rig's root {:?}",
+                bvh.joints[0].name,
+                skeleton.names()[0]
+            ),
+        ));
+    }
+    let undriven_joints = bvh_of_rig
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.is_none())
+        .map(|(r, _)| skeleton.names()[r].clone())
+        .collect();
+
+    // Axes: Y up; left on +X, else turn around.
+    let rest = bvh.rest_positions();
+    let bvh_names: Vec<String> = bvh
+        .joints
+        .iter()
+        .map(|j| cmu_to_rig_name(&j.name).to_string())
+        .collect();
+    let find = |n: &str| bvh_names.iter().position(|x| x == n);
+    if let Some(head) = find("Head") {
+        let up = rest[head] - rest[0];
+        if up.y <= up.x.abs().max(up.z.abs()) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "the rest head lies at {up:?} from the root: expected a Y-up file (head \
+                     above the hips along +Y)"
+                ),
+            ));
+        }
+    }
+    let turned_around = [("LeftUpLeg", "RightUpLeg"), ("LeftArm", "RightArm")]
+        .iter()
+        .find_map(|(l, r)| Some(rest[find(l)?].x < rest[find(r)?].x))
+        .unwrap_or(false);
+    let turn = if turned_around {
+        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
+    } else {
+        UnitQuaternion::identity()
+    };
+
+    // Units: hip heights.
+    let bvh_hip = hip_height(&bvh_names, &rest);
+    let our_hip = body.hip_height_m();
+    if !(bvh_hip > 0.0 && our_hip > 0.0) {
+        return Err(Error::format(
+            path,
+            format!(
+                "cannot scale translations: rest hip height {bvh_hip} in the file, {our_hip} m \
+                 in the body"
+            ),
+        ));
+    }
+    let scale = our_hip / bvh_hip;
+
+    let first = bvh.root_position(0);
+    let mut frames = Vec::with_capacity(bvh.n_frames());
+    let mut source = vec![None; skeleton.n_joints()];
+    for i in 0..bvh.n_frames() {
+        let q = bvh.world_rotations(i);
+        for (r, b) in bvh_of_rig.iter().enumerate() {
+            source[r] = b.map(|b| turn * q[b] * turn.inverse());
+        }
+        let d = turn * (bvh.root_position(i) - first) * scale;
+        frames.push(body.pose_from_source(&source, d));
+    }
+    let name = path
+        .file_stem()
+        .map_or_else(|| "bvh".to_string(), |s| s.to_string_lossy().into_owned());
+    let source_fps = snapped_rate(bvh.frame_time_secs);
+    let motion = Motion::new(name, source_fps, skeleton.names().to_vec(), frames)
+        .map_err(|e| e.in_file(path))?;
+    let dropped_joints = if options.lenient { unknown } else { Vec::new() };
+    Ok((
+        motion,
+        BvhRetargetReport {
+            dropped_joints,
+            undriven_joints,
+            translation_scale: scale,
+            turned_around,
+            source_fps,
+        },
+    ))
+}
+
+/// Frames per second for a frame time. Files write the frame time with few digits (CMU's
+/// `0.0083333`), so a rate within 0.01 % of a whole number is taken as that number.
+fn snapped_rate(frame_time_secs: f64) -> f64 {
+    let fps = 1.0 / frame_time_secs;
+    let whole = fps.round();
+    if whole >= 1.0 && (fps - whole).abs() <= 1e-4 * whole {
+        whole
+    } else {
+        fps
+    }
+}
+
+/// Retarget a BVH onto `body` and resample to [`sartor_core::FPS`].
+pub fn retarget_bvh(
+    bvh: &Bvh,
+    body: &RetargetBody,
+    options: &BvhRetargetOptions,
+) -> Result<(Motion, BvhRetargetReport)> {
+    let (m, report) = retarget_bvh_native_rate(bvh, body, options)?;
+    let m = m
+        .resample(sartor_core::FPS)
+        .map_err(|e| e.in_file(bvh.path()))?;
+    Ok((m, report))
+}
+
+/// Read a `.bvh` file, retarget it onto `body` and resample to [`sartor_core::FPS`].
+pub fn load_bvh_motion(
+    path: &Path,
+    body: &RetargetBody,
+    options: &BvhRetargetOptions,
+) -> Result<(Motion, BvhRetargetReport)> {
+    retarget_bvh(&Bvh::load(path)?, body, options)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TINY: &str = "HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+  JOINT LeftUpLeg
+  {
+    OFFSET 1 -1 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 -4 0
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.0083333
+0 10 0 0 0 0 0 0 0
+1 10 2 0 90 0 30 0 0
+";
+
+    #[test]
+    fn parses_a_tiny_file() {
+        let b = Bvh::parse(TINY, Path::new("tiny.bvh")).expect("parse");
+        assert_eq!(b.joints().len(), 2);
+        assert_eq!(b.n_frames(), 2);
+        assert_eq!(b.joints()[1].end_site, Some(Vector3::new(0.0, -4.0, 0.0)));
+        assert_eq!(b.root_position(1), Vector3::new(1.0, 10.0, 2.0));
+        let q = b.world_rotations(1);
+        // Root: Zrot 0, Yrot 90, Xrot 0.
+        let want = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 90f64.to_radians());
+        assert!(q[0].angle_to(&want) < 1e-12);
+        let z30 = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 30f64.to_radians());
+        assert!(q[1].angle_to(&(want * z30)) < 1e-12);
+    }
+
+    #[test]
+    fn errors_name_file_and_line() {
+        let bad = TINY.replace("Yrotation\n", "Wrotation\n");
+        let e = Bvh::parse(&bad, Path::new("t.bvh")).expect_err("unknown channel");
+        assert!(e.to_string().starts_with("t.bvh:9:"), "{e}");
+        let e = Bvh::parse(&TINY.replace("Frames: 2", "Frames: 3"), Path::new("t.bvh"))
+            .expect_err("missing frame");
+        assert!(e.to_string().starts_with("t.bvh:20:"), "{e}");
+    }
+}

@@ -1,0 +1,101 @@
+//! [`load_motion`]: a motion from a command-line or config spec — a file (BVH, AMASS `.npz`,
+//! saved JSON), the imported walk cycle, or a procedural clip — resampled to [`FPS`].
+
+use std::path::{Path, PathBuf};
+
+use sartor_core::FPS;
+
+use crate::amass::{AmassOptions, UpAxis, load_amass};
+use crate::bvh::{BvhRetargetOptions, load_bvh_motion};
+use crate::retarget::RetargetBody;
+use crate::{Error, Motion, Result};
+
+/// What [`load_motion`] needs besides the name.
+#[derive(Clone, Debug, Default)]
+pub struct MotionSourceOptions {
+    /// Folder of imported motions (holding `walk.json`), e.g. `datasets/motions`.
+    pub motions_dir: PathBuf,
+    /// The body BVH and AMASS files are retargeted onto; required for those two.
+    pub body: Option<RetargetBody>,
+    /// BVH: drop joints the rig does not have instead of failing.
+    pub lenient: bool,
+    /// AMASS: the file's up axis.
+    pub up_axis: UpAxis,
+}
+
+/// Name of the imported walk cycle, as [`load_motion`] understands it.
+pub const WALK_NAME: &str = "walk";
+
+/// Load a motion from a command-line spec, resampled to [`FPS`]:
+///
+/// - a path ending in `.bvh` (CMU-style BVH, retargeted onto `options.body`);
+/// - a path ending in `.npz` (AMASS-style, retargeted onto `options.body`);
+/// - a path ending in `.json` (a saved [`Motion`]);
+/// - `walk`: `<motions_dir>/walk.json`, the imported MakeHuman walk cycle;
+/// - any name in [`crate::procedural::clip_names`].
+pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> {
+    let lower = spec.to_ascii_lowercase();
+    let need_body = |kind: &str| {
+        options.body.as_ref().ok_or_else(|| {
+            Error::invalid(
+                "motion source",
+                format!("{spec}: a {kind} file needs a body to retarget onto"),
+            )
+        })
+    };
+    let motion = if lower.ends_with(".bvh") {
+        let body = need_body("BVH")?;
+        let opts = BvhRetargetOptions {
+            lenient: options.lenient,
+        };
+        load_bvh_motion(Path::new(spec), body, &opts)?.0
+    } else if lower.ends_with(".npz") {
+        let body = need_body("AMASS")?;
+        let opts = AmassOptions {
+            up_axis: options.up_axis,
+            ..AmassOptions::default()
+        };
+        load_amass(Path::new(spec), body, &opts)?
+    } else if lower.ends_with(".json") {
+        Motion::load_json(Path::new(spec))?
+    } else if spec == WALK_NAME {
+        Motion::load_json(&options.motions_dir.join(format!("{WALK_NAME}.json")))?
+    } else {
+        match crate::procedural::clip(spec) {
+            Ok(m) => m,
+            Err(_) => {
+                return Err(Error::invalid(
+                    "motion source",
+                    format!(
+                        "{spec:?} is not a .bvh/.npz/.json path, not {WALK_NAME:?} and not a \
+                         procedural clip (known clips: {})",
+                        crate::procedural::clip_names().join(", ")
+                    ),
+                ));
+            }
+        }
+    };
+    if (motion.fps() - FPS).abs() > 1e-9 {
+        motion.resample(FPS)
+    } else {
+        Ok(motion)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_spec_lists_clips() {
+        let err =
+            load_motion("no-such-clip", &MotionSourceOptions::default()).expect_err("unknown name");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("no-such-clip") && msg.contains("walk_normal"),
+            "{msg}"
+        );
+        let err = load_motion("x.bvh", &MotionSourceOptions::default()).expect_err("no body");
+        assert!(err.to_string().contains("needs a body"));
+    }
+}

@@ -1,0 +1,3 @@
+//! sartor-motion's integration tests (one binary).
+
+mod motion_sources;
