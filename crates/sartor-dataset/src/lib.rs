@@ -11,6 +11,8 @@
 //! - Ground truth ([`ClothBinding`], [`Smoother`] (ρ), [`fit_delta`], [`WrinkleExtractor`],
 //!   [`select_joints`]), statistics and PCA ([`compute_stats`], [`compute_pca`]).
 //! - Files ([`load_dataset`], [`Manifest`], `write_*`): safetensors + a manifest with hashes.
+//! - The simulation folder of a run ([`SimFolder`], [`sequence_stem`], [`failed_stems`]): the
+//!   simulator's sequence files read back as ground truth.
 //! - Batching ([`sequence_batches`], [`window`], [`frame_batches`], [`gather_frames`],
 //!   [`gather_shapes`]): deterministic under a seed, normalised.
 
@@ -21,6 +23,7 @@ mod build;
 mod data;
 mod error;
 mod extract;
+mod simfolder;
 mod smoothing;
 mod stats;
 mod store;
@@ -39,6 +42,9 @@ pub use data::{
 };
 pub use error::{Error, Result};
 pub use extract::{CLOTH_WEIGHT_CUTOFF, ClothBinding, WrinkleExtractor, fit_delta, select_joints};
+pub use simfolder::{
+    FAILED_DIR, REST_MOTION, SimFolder, failed_stems, sequence_stem, simulated_plan,
+};
 pub use smoothing::{Smoother, Smoothing};
 pub use stats::{MIN_STD, PcaSettings, compute_pca, compute_stats};
 pub use store::{

@@ -291,6 +291,20 @@ pub enum UpAxis {
     Z,
 }
 
+impl std::str::FromStr for UpAxis {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "y" | "Y" => Ok(Self::Y),
+            "z" | "Z" => Ok(Self::Z),
+            other => Err(Error::invalid(
+                "up axis",
+                format!("{other:?} is not y or z"),
+            )),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

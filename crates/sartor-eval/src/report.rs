@@ -1,6 +1,9 @@
-//! The machine a report was made on (reports that carry timings say where they were taken).
+//! What every report carries: the machine it was made on (reports with timings say where they
+//! were taken), and atomic JSON writing.
 
 use serde::Serialize;
+
+use crate::{Error, Result};
 
 /// Cores and CPU model.
 #[derive(Clone, Debug, Serialize)]
@@ -38,9 +41,17 @@ pub fn load_average() -> Option<[f64; 3]> {
 }
 
 /// Write `value` as pretty JSON (with a final newline) atomically.
-pub fn write_json(path: &std::path::Path, value: &impl Serialize) -> anyhow::Result<()> {
-    let mut json = serde_json::to_string_pretty(value)?;
+pub fn write_json(path: &std::path::Path, value: &impl Serialize) -> Result<()> {
+    let mut json = serde_json::to_string_pretty(value).map_err(|e| Error::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
     json.push('\n');
     sartor_core::io::write_atomic(path, json.as_bytes())?;
     Ok(())
+}
+
+/// Read a JSON file (`None` when it is missing or not JSON): for summaries of optional reports.
+pub fn read_json(path: &std::path::Path) -> Option<serde_json::Value> {
+    serde_json::from_slice(&std::fs::read(path).ok()?).ok()
 }

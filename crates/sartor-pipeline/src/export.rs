@@ -1,4 +1,5 @@
-//! `cargo xtask export --run runs/<exp> [--out DIR]`: the trained models of a run as one
+//! The `export` stage ([`export_run`], `sartor export --run runs/<exp> [--out DIR]`): the
+//! trained models of a run as one
 //! runtime model folder (default `runs/<exp>/export`): `model.safetensors` + `model.json`
 //! (`sartor_model::export_model`: fit MLP, wrinkle GRU, linear baseline, normalisation, input
 //! layout, garment and body identity) and `binding.safetensors` + `binding.json` (the dataset's
@@ -13,50 +14,55 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::Context;
 use sartor_core::{BodyModel, faces_near};
 use sartor_model::burn::tensor::Device;
 use sartor_model::{AnyModel, ModelKind, asset_ids, export_model, load_trained};
 use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
 use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig};
 
-use crate::animate::{Format, animate, write_animation};
+use crate::error::{Context, ensure};
 use crate::experiment::Experiment;
-use crate::workspace_root;
+use crate::preview::{Format, animate, write_animation};
+use crate::{DataDir, Error, Result};
 
 /// Default margin of the body region, mm: body triangles farther than this from the garment
 /// template never take part in the collision post-process.
 pub const DEFAULT_REGION_MARGIN_MM: f64 = 60.0;
 
-/// Arguments of `export`.
-#[derive(clap::Args, Debug)]
-pub struct ExportArgs {
-    /// The run folder (`runs/<exp>`), holding `sim/config.json`, `dataset/` and `train/`.
-    #[arg(long)]
-    pub run: PathBuf,
+/// How [`export_run`] exports.
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
     /// Output folder (default `<run>/export`).
-    #[arg(long)]
     pub out: Option<PathBuf>,
     /// Body region margin, mm (see [`DEFAULT_REGION_MARGIN_MM`]).
-    #[arg(long, default_value_t = DEFAULT_REGION_MARGIN_MM)]
     pub region_margin_mm: f64,
     /// Clip of the preview animation (`none` for no preview).
-    #[arg(long, default_value = "walk_normal")]
     pub preview_motion: String,
     /// Frames of the preview.
-    #[arg(long, default_value_t = 60)]
     pub preview_frames: usize,
 }
 
-/// The experiment a run was made with (`sim/config.json`, as `simulate` saved it).
-pub fn run_experiment(run: &Path) -> anyhow::Result<Experiment> {
+impl Default for ExportOptions {
+    fn default() -> Self {
+        Self {
+            out: None,
+            region_margin_mm: DEFAULT_REGION_MARGIN_MM,
+            preview_motion: "walk_normal".into(),
+            preview_frames: 60,
+        }
+    }
+}
+
+/// The experiment a run was made with (`sim/config.json`, as `simulate` saved it; its paths are
+/// already absolute, `data` resolves any that are not).
+pub fn run_experiment(run: &Path, data: &DataDir) -> Result<Experiment> {
     let path = run.join("sim/config.json");
-    let mut e = Experiment::load(&path)
-        .with_context(|| format!("{}: the run's experiment config", run.display()))?;
-    e.runs_root = run
+    let runs_root = run
         .parent()
         .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
-    anyhow::ensure!(
+    let e = Experiment::load(&path, data, &runs_root)
+        .with_context(|| format!("{}: the run's experiment config", run.display()))?;
+    ensure!(
         e.run_dir().file_name() == run.file_name(),
         "{}: the run folder is not named after its experiment {:?}",
         run.display(),
@@ -65,10 +71,21 @@ pub fn run_experiment(run: &Path) -> anyhow::Result<Experiment> {
     Ok(e)
 }
 
-/// Export a run (see the module docs).
-pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
-    let e = run_experiment(&args.run)?;
-    let out = args.out.clone().unwrap_or_else(|| args.run.join("export"));
+/// What [`export_run`] wrote.
+#[derive(Clone, Debug)]
+pub struct ExportSummary {
+    /// The experiment.
+    pub experiment: String,
+    /// The export folder.
+    pub out: PathBuf,
+    /// The model's sizes.
+    pub sizes: sartor_runtime::ModelSizes,
+}
+
+/// Export the run in folder `run` (see the module docs).
+pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result<ExportSummary> {
+    let e = run_experiment(run, folders)?;
+    let out = args.out.clone().unwrap_or_else(|| run.join("export"));
     let data_dir = e.dataset_dir();
     let data = sartor_dataset::load_dataset(&data_dir)
         .with_context(|| format!("loading the dataset from {}", data_dir.display()))?;
@@ -76,12 +93,12 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
         .with_context(|| format!("loading the body model from {}", e.body.display()))?;
     let cloth = sartor_dataset::read_binding(&data_dir, body.skeleton().n_joints())?;
     let device = Device::flex();
-    let train = crate::train::train_dir(&e);
+    let train = e.train_dir();
     let load = |kind: ModelKind| {
         let dir = train.join(kind.name());
         load_trained(kind, &dir, &device).with_context(|| {
             format!(
-                "loading the trained {} model from {} (run `cargo xtask train`)",
+                "loading the trained {} model from {} (run the train stage)",
                 kind.name(),
                 dir.display()
             )
@@ -90,13 +107,19 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
     let (AnyModel::Fit(fit), AnyModel::Wrinkle(wrinkle)) =
         (load(ModelKind::Fit)?, load(ModelKind::Wrinkle)?)
     else {
-        anyhow::bail!("load_trained returned another kind of model");
+        return Err(Error::Invalid(
+            "load_trained returned another kind of model".into(),
+        ));
     };
     // The baseline is optional in the format; export it when it was trained.
     let linear = match train.join("linear").join(sartor_model::BEST_FILE).exists() {
         true => match load(ModelKind::Linear)? {
             AnyModel::Linear(l) => Some(l),
-            _ => anyhow::bail!("load_trained returned another kind of model"),
+            _ => {
+                return Err(Error::Invalid(
+                    "load_trained returned another kind of model".into(),
+                ));
+            }
         },
         false => None,
     };
@@ -146,7 +169,7 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
             AnimatorOptions::default(),
         )?);
         let options = MotionSourceOptions {
-            motions_dir: workspace_root().join("datasets/motions"),
+            motions_dir: folders.motions_dir(),
             body: Some(RetargetBody::load(&e.body)?),
             lenient: false,
             up_axis: sartor_motion::UpAxis::Y,
@@ -169,7 +192,7 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
     let old = out.with_file_name(format!(".{name}.old"));
     if out.exists() {
         if old.exists() {
-            std::fs::remove_dir_all(&old)?;
+            std::fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
         }
         std::fs::rename(&out, &old).with_context(|| format!("moving {} aside", out.display()))?;
     }
@@ -177,20 +200,9 @@ pub fn export_run(args: &ExportArgs) -> anyhow::Result<()> {
     if old.exists() {
         std::fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
     }
-    let sizes = &model.header().sizes;
-    println!(
-        "exported {} ({} vertices, fit {} / GRU {} units, {:?} output{}) to {}",
-        e.name,
-        sizes.n_vertices,
-        sizes.fit_hidden,
-        sizes.gru_hidden,
-        sizes.output,
-        if sizes.linear_baseline {
-            ", linear baseline"
-        } else {
-            ""
-        },
-        out.display()
-    );
-    Ok(())
+    Ok(ExportSummary {
+        experiment: e.name.clone(),
+        out,
+        sizes: model.header().sizes,
+    })
 }

@@ -1,4 +1,4 @@
-//! `cargo xtask tradeoff --config C`: what each speed knob of the runtime costs in accuracy.
+//! `tradeoff`: what each speed knob of the runtime costs in accuracy.
 //!
 //! For every exported model of the experiment (its own, plus any `--model` folders, e.g. trained
 //! with other hidden sizes, and the models of further `--config`s with other garment
@@ -17,46 +17,28 @@
 //! both faster and more accurate. Writes `runs/<name>/tradeoff/tradeoff.json` and
 //! `pareto.{png,svg}`.
 
-use std::path::PathBuf;
+use std::path::Path;
 use std::sync::Arc;
-use std::time::Instant;
 
-use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
 use sartor_runtime::{
     AnimatorOptions, FitMode, GarmentAnimator, GarmentRig, NetworkOptions, OutputKind, Precision,
     WrinkleMode,
 };
 use serde::Serialize;
 
-use crate::dataset::SequenceFiles;
-use crate::eval::{Assets, Method, TestSequence, TestSets, evaluate, export_dir, load_truth};
-use crate::experiment::ExperimentArgs;
-use crate::machine::{Machine, write_json};
+use crate::eval::{Assets, Method, MethodReport, TestSequence, evaluate, evaluate_with};
 use crate::plot::{Chart, Series, write_charts};
+use crate::progress::NoProgress;
+use crate::report::Machine;
+use crate::timing::{median, time_frames};
+use crate::{Progress, Result};
 
-/// Arguments of `tradeoff`.
-#[derive(clap::Args, Debug)]
-pub struct TradeoffArgs {
-    /// The experiment (its held-out motions are the test set).
-    #[command(flatten)]
-    pub experiment: ExperimentArgs,
-    /// Further exported models of the same garment (e.g. other hidden sizes); the experiment's
-    /// own export is always included.
-    #[arg(long, value_delimiter = ',')]
-    pub model: Vec<PathBuf>,
-    /// Further experiment configs (other garment resolutions), each with its own export and
-    /// held-out motions.
-    #[arg(long, value_delimiter = ',')]
-    pub extra_config: Vec<PathBuf>,
+/// What the sweep crosses besides precision, post-process and fit-only.
+#[derive(Clone, Debug)]
+pub struct TradeoffOptions {
     /// Output ranks swept (those below the model's own output width).
-    #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
     pub ranks: Vec<usize>,
-    /// Evaluate on every training shape (default: the nominal shape only, as the paper did).
-    #[arg(long)]
-    pub all_shapes: bool,
-    /// Frames timed per point (the first held-out clip, looped).
-    #[arg(long, default_value_t = 120)]
+    /// Frames timed per point (the first test sequence, looped).
     pub timed_frames: usize,
 }
 
@@ -90,15 +72,23 @@ pub struct TradeoffPoint {
     pub pareto: bool,
 }
 
-#[derive(Serialize)]
-struct TradeoffReport {
-    configs: Vec<String>,
-    test_set: String,
-    sequences: usize,
-    frames: usize,
-    points: Vec<TradeoffPoint>,
-    wall_time_s: f64,
-    machine: Machine,
+/// `tradeoff.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct TradeoffReport {
+    /// The experiments whose models were swept.
+    pub configs: Vec<String>,
+    /// What the error is measured on.
+    pub test_set: String,
+    /// Test sequences, over all models.
+    pub sequences: usize,
+    /// Test frames, over all models.
+    pub frames: usize,
+    /// Every point of the sweep.
+    pub points: Vec<TradeoffPoint>,
+    /// Wall time, seconds.
+    pub wall_time_s: f64,
+    /// Where it ran.
+    pub machine: Machine,
 }
 
 fn precision_name(p: Precision) -> &'static str {
@@ -110,8 +100,8 @@ fn precision_name(p: Precision) -> &'static str {
 }
 
 /// Median ms of `GarmentAnimator::frame` over `frames` frames of `seq`'s poses (looped), after
-/// one warm-up pass over up to 10 frames.
-fn time_frames(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> anyhow::Result<f64> {
+/// a warm-up of up to 10 frames.
+fn time_sequence(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> Result<f64> {
     let n_betas = rig.network().n_betas();
     let betas: Vec<f32> = seq
         .truth
@@ -124,18 +114,10 @@ fn time_frames(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> anyh
     a.set_shape(&betas)?;
     a.reset_from(&seq.truth.previous_pose)?;
     let poses = &seq.truth.poses;
-    anyhow::ensure!(!poses.is_empty(), "no poses to time");
-    for p in poses.iter().take(10) {
-        a.frame(p)?;
-    }
-    let mut times = Vec::with_capacity(frames);
-    for t in 0..frames.max(1) {
-        let start = Instant::now();
-        a.frame(&poses[t % poses.len()])?;
-        times.push(1e3 * start.elapsed().as_secs_f64());
-    }
-    times.sort_by(f64::total_cmp);
-    Ok(times[times.len() / 2])
+    let warmup = poses.len().min(10);
+    Ok(median(
+        &time_frames(&mut a, poses, warmup, frames.max(1))?.wall_ms,
+    ))
 }
 
 /// Mark the points no other point dominates (faster or equal and strictly more accurate, or
@@ -154,87 +136,15 @@ pub fn mark_pareto(points: &mut [TradeoffPoint]) {
     }
 }
 
-/// Run `tradeoff`.
-pub fn tradeoff(args: &TradeoffArgs) -> anyhow::Result<()> {
-    let start = Instant::now();
-    let mut experiments = vec![args.experiment.load()?];
-    for c in &args.extra_config {
-        experiments.push(
-            ExperimentArgs {
-                config: c.clone(),
-                runs_dir: args.experiment.runs_dir.clone(),
-            }
-            .load()?,
-        );
-    }
-    let mut points = Vec::new();
-    let (mut n_sequences, mut n_frames) = (0, 0);
-    for (i, e) in experiments.iter().enumerate() {
-        let mut models = vec![export_dir(e)];
-        if i == 0 {
-            models.extend(args.model.iter().cloned());
-        }
-        let TestSets { motions, .. } = crate::eval::test_sets(e, !args.all_shapes)?;
-        anyhow::ensure!(
-            !motions.is_empty(),
-            "{}: no held-out motion was simulated",
-            e.name
-        );
-        for model_dir in &models {
-            let assets = Assets::load(e, model_dir)?;
-            let files = SequenceFiles::new(
-                &e.sim_dir(),
-                assets.binding.garment().sha256.clone(),
-                assets.body.n_betas(),
-            );
-            let seqs = load_truth(e, &files, &motions)?;
-            n_sequences += seqs.len();
-            n_frames += seqs.iter().map(|s| s.truth.poses.len()).sum::<usize>();
-            points.extend(sweep_model(&assets, &seqs, args)?);
-        }
-    }
-    mark_pareto(&mut points);
-
-    let dir = experiments[0].run_dir().join("tradeoff");
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    plot(&dir, &points)?;
-    let report = TradeoffReport {
-        configs: experiments.iter().map(|e| e.name.clone()).collect(),
-        test_set: if args.all_shapes {
-            "held-out motions, all training shapes".into()
-        } else {
-            "held-out motions, nominal shape".into()
-        },
-        sequences: n_sequences,
-        frames: n_frames,
-        points,
-        wall_time_s: start.elapsed().as_secs_f64(),
-        machine: Machine::current(),
-    };
-    let path = dir.join("tradeoff.json");
-    write_json(&path, &report)?;
-    println!(
-        "{:<34} {:>9} {:>9}  pareto",
-        "variant", "error mm", "ms/frame"
-    );
-    for p in &report.points {
-        println!(
-            "{:<34} {:>9.2} {:>9.3}  {}",
-            p.label,
-            p.mean_vertex_error_mm,
-            p.ms_per_frame,
-            if p.pareto { "*" } else { "" }
-        );
-    }
-    println!("wrote {}", path.display());
-    Ok(())
-}
-
-fn sweep_model(
+/// Sweep one exported model (its assets and its test sequences): every output rank of
+/// `options` below the model's own, f32 / f16 / int8, post-process on and off, and fit-only.
+pub fn sweep_model(
     assets: &Assets,
     seqs: &[TestSequence],
-    args: &TradeoffArgs,
-) -> anyhow::Result<Vec<TradeoffPoint>> {
+    args: &TradeoffOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<TradeoffPoint>> {
+    crate::error::ensure!(!seqs.is_empty(), "no test sequences to sweep on");
     let full = assets.network(NetworkOptions::default())?;
     let sizes = full.header().sizes;
     let own_width = match sizes.output {
@@ -251,12 +161,8 @@ fn sweep_model(
     let triangles = assets.binding.faces().len();
     let model = assets.model_dir.display().to_string();
     let total = (ranks.len() + 1) * 3;
-    let bar = ProgressBar::new(total as u64).with_style(
-        ProgressStyle::with_template("{msg:>28} [{bar:30}] {pos}/{len} variants, ETA {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    let quiet = ProgressBar::hidden();
+    progress.start("tradeoff", total as u64, "variants");
+    let quiet = NoProgress;
     let mut points = Vec::new();
     for precision in [Precision::F32, Precision::F16, Precision::Int8] {
         for fit_only in [false, true] {
@@ -269,7 +175,7 @@ fn sweep_model(
                 } else {
                     format!("{triangles}t h{} k{width} {pname}", sizes.gru_hidden)
                 };
-                bar.set_message(label.clone());
+                progress.message(&label);
                 let network = assets.network(NetworkOptions {
                     precision,
                     output_rank: rank,
@@ -298,7 +204,7 @@ fn sweep_model(
                 };
                 for pp in [true, false] {
                     let rig = assets.rig(&network, options(pp))?;
-                    let ms = time_frames(&rig, &seqs[0], args.timed_frames)?;
+                    let ms = time_sequence(&rig, &seqs[0], args.timed_frames)?;
                     points.push(TradeoffPoint {
                         label: format!("{label}{}", if pp { " pp" } else { "" }),
                         model: model.clone(),
@@ -322,11 +228,11 @@ fn sweep_model(
                         pareto: false,
                     });
                 }
-                bar.inc(1);
+                progress.inc(1);
             }
         }
     }
-    bar.finish_and_clear();
+    progress.finish();
     Ok(points)
 }
 
@@ -335,9 +241,9 @@ fn evaluate_fit_only(
     assets: &Assets,
     network: &Arc<sartor_runtime::GarmentNetwork>,
     seqs: &[TestSequence],
-    bar: &ProgressBar,
-) -> anyhow::Result<crate::eval::MethodReport> {
-    crate::eval::evaluate_with(
+    progress: &dyn Progress,
+) -> Result<MethodReport> {
+    evaluate_with(
         assets,
         network,
         AnimatorOptions {
@@ -346,11 +252,13 @@ fn evaluate_fit_only(
             ..AnimatorOptions::default()
         },
         seqs,
-        bar,
+        progress,
     )
 }
 
-fn plot(dir: &std::path::Path, points: &[TradeoffPoint]) -> anyhow::Result<()> {
+/// `pareto.{png,svg}` in `dir`: error against ms per frame, one series per precision and
+/// post-process setting.
+pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
     let mut groups: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for p in points {
         let name = format!(

@@ -1,4 +1,4 @@
-//! `cargo xtask demo`: the shipped T-shirt model on a few bodies through a few clips, with
+//! `sartor demo` (`cargo xtask demo`): the shipped T-shirt model on a few bodies through a few clips, with
 //! frames per second and glTF / MCAP / PNG (/ OBJ) files. Needs only a clone and a toolchain.
 
 use std::path::PathBuf;
@@ -6,15 +6,13 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use sartor_core::{BodyModel, PhenotypeRequest, PhenotypeSpace};
-
-use crate::builtin_model_dir;
-use sartor_motion::{MotionSourceOptions, RetargetBody, UpAxis, load_motion};
+use sartor_eval::{Machine, write_json};
+use sartor_motion::{UpAxis, load_motion};
+use sartor_pipeline::{DataDir, Format, animate, model_betas, write_animation};
 use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions};
 use serde::Serialize;
 
-use crate::animate::{Format, animate, model_betas, write_animation};
-use crate::machine::{Machine, write_json};
-use crate::workspace_root;
+use crate::motion_options;
 
 /// The bodies shown when neither `--phenotype` nor `--beta` is given.
 pub const DEFAULT_PHENOTYPES: [&str; 3] = [
@@ -29,9 +27,9 @@ pub const DEFAULT_MOTIONS: [&str; 3] = ["walk", "dance_disco", "jumping_jacks"];
 /// Arguments of `demo`.
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
-    /// The exported model folder.
-    #[arg(long, default_value = "datasets/models/default")]
-    pub model: PathBuf,
+    /// The exported model folder (default: the shipped `datasets/models/default`).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     /// A body, as a phenotype such as "female, 1.70 m, heavy" (repeatable).
     #[arg(long)]
     pub phenotype: Vec<String>,
@@ -44,7 +42,7 @@ pub struct DemoArgs {
     pub motion: Vec<String>,
     /// AMASS files: the file's up axis (`y` or `z`).
     #[arg(long, default_value = "y")]
-    pub up_axis: String,
+    pub up_axis: UpAxis,
     /// Frames per clip (at most the clip's length).
     #[arg(long, default_value_t = 120)]
     pub frames: usize,
@@ -76,18 +74,13 @@ struct DemoReport {
     runs: Vec<DemoEntry>,
 }
 
-fn resolve(path: &std::path::Path) -> PathBuf {
-    if path.is_relative() && !path.exists() {
-        workspace_root().join(path)
-    } else {
-        path.to_path_buf()
-    }
-}
-
 /// Run the demo.
-pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
-    let model_dir = resolve(&args.model);
-    let body_dir = builtin_model_dir();
+pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
+    let model_dir = args
+        .model
+        .clone()
+        .unwrap_or_else(|| data.default_model_dir());
+    let body_dir = data.body_dir();
     let body = Arc::new(
         BodyModel::load(&body_dir)
             .with_context(|| format!("loading the body from {}", body_dir.display()))?,
@@ -96,7 +89,7 @@ pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
         GarmentNetwork::load_with(&model_dir, NetworkOptions::default()).with_context(|| {
             format!(
                 "loading the garment model from {} (the shipped one is datasets/models/default; \
-             make one with `cargo xtask pipeline --config configs/default.json`)",
+             make one with `sartor pipeline --config configs/default.json`)",
                 model_dir.display()
             )
         })?;
@@ -135,17 +128,7 @@ pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
     }
 
     // Motions.
-    let up_axis = match args.up_axis.as_str() {
-        "y" | "Y" => UpAxis::Y,
-        "z" | "Z" => UpAxis::Z,
-        other => anyhow::bail!("--up-axis must be y or z, not {other:?}"),
-    };
-    let options = MotionSourceOptions {
-        motions_dir: workspace_root().join("datasets/motions"),
-        body: Some(RetargetBody::load(&body_dir)?),
-        lenient: false,
-        up_axis,
-    };
+    let options = motion_options(data, args.up_axis)?;
     let specs: Vec<&str> = if args.motion.is_empty() {
         DEFAULT_MOTIONS.to_vec()
     } else {
@@ -227,7 +210,7 @@ pub fn demo(args: &DemoArgs) -> anyhow::Result<()> {
         report.runs.len(),
         args.formats
             .iter()
-            .map(|f| format!("{f:?}").to_lowercase())
+            .map(|f| f.name())
             .collect::<Vec<_>>()
             .join(", "),
         path.display(),

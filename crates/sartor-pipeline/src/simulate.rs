@@ -1,6 +1,6 @@
-//! `cargo xtask simulate --config C [--shard I/N] [--jobs J]`: simulate every (shape, motion)
-//! pair of an experiment, plus each shape's rest-pose simulation (for Δ_G), into
-//! `runs/<name>/sim/<shape>__<motion>.mcap`.
+//! The `simulate` stage ([`simulate`], `sartor simulate --config C [--shard I/N] [--jobs J]`):
+//! every (shape, motion) pair of an experiment, plus each shape's rest-pose simulation (for
+//! Δ_G), into `runs/<name>/sim/<shape>__<motion>.mcap`.
 //!
 //! - Parallel over sequences (each sequence runs on one thread, so its result does not depend
 //!   on the thread count), with a progress bar (sequences, frames, ETA).
@@ -17,41 +17,43 @@
 //! - Writes `simulate.json` (or `simulate-shard-I-of-N.json`): jobs done, skipped and failed,
 //!   frames, wall time, ms per frame.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use anyhow::{Context, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use sartor_cloth::{DriveConfig, Garment, Material, simulate_sequence};
 use sartor_core::BodyModel;
+use sartor_dataset::{FAILED_DIR, REST_MOTION, sequence_stem};
+use sartor_eval::{Machine, Progress, write_json};
 use sartor_motion::{Motion, MotionSourceOptions, RetargetBody, load_motion};
 use serde::Serialize;
 
-use crate::experiment::{Experiment, ExperimentArgs, REST_MOTION, sequence_stem};
-use crate::machine::{Machine, write_json};
+use crate::error::{Context, bail};
+use crate::experiment::Experiment;
+use crate::{DataDir, Error, Result};
 
-/// Arguments of `simulate`.
-#[derive(clap::Args, Debug)]
-pub struct SimulateArgs {
-    /// The experiment.
-    #[command(flatten)]
-    pub experiment: ExperimentArgs,
-    /// This machine's shard: `I/N` (0-based I).
-    #[arg(long)]
-    pub shard: Option<String>,
-    /// The number of shards when the index comes from the environment.
-    #[arg(long)]
-    pub shard_count: Option<usize>,
+/// How [`simulate`] runs.
+#[derive(Clone, Debug)]
+pub struct SimulateOptions {
+    /// This machine's shard `(I, N)`: every N-th job starting at I (see [`resolve_shard`]).
+    pub shard: (usize, usize),
     /// Sequences simulated at once (default: all cores).
-    #[arg(long)]
     pub jobs: Option<usize>,
     /// Simulate again the jobs that failed before (by default they are skipped: a simulation
     /// is deterministic, so the same inputs fail the same way; retry after changing settings).
-    #[arg(long)]
     pub retry_failed: bool,
+}
+
+impl Default for SimulateOptions {
+    fn default() -> Self {
+        Self {
+            shard: (0, 1),
+            jobs: None,
+            retry_failed: false,
+        }
+    }
 }
 
 /// One simulation job.
@@ -92,11 +94,11 @@ pub fn resolve_shard(
     shard: Option<&str>,
     shard_count: Option<usize>,
     env: &dyn Fn(&str) -> Option<String>,
-) -> anyhow::Result<(usize, usize)> {
-    let parse = |what: &str, v: &str| -> anyhow::Result<usize> {
+) -> Result<(usize, usize)> {
+    let parse = |what: &str, v: &str| -> Result<usize> {
         v.trim()
             .parse()
-            .with_context(|| format!("{what} {v:?} is not a non-negative integer"))
+            .map_err(|_| Error::Invalid(format!("{what} {v:?} is not a non-negative integer")))
     };
     let (index, count) = if let Some(s) = shard {
         let (i, n) = s
@@ -138,8 +140,9 @@ pub struct SimInputs {
 }
 
 impl SimInputs {
-    /// Load the experiment's body, garment, material and settings.
-    pub fn load(e: &Experiment) -> anyhow::Result<Self> {
+    /// Load the experiment's body, garment, material and settings (imported motions from
+    /// `data`).
+    pub fn load(e: &Experiment, data: &DataDir) -> Result<Self> {
         let body = BodyModel::load(&e.body)
             .with_context(|| format!("loading the body model from {}", e.body.display()))?;
         let garment = Garment::load(&e.garment)
@@ -150,10 +153,9 @@ impl SimInputs {
             Material::from_json_file(Path::new(&e.material))
                 .with_context(|| format!("loading the material {}", e.material))?
         };
-        let drive: DriveConfig = serde_json::from_value(e.simulation.clone())
-            .context("the config's \"simulation\" section")?;
+        let drive = e.simulation.clone();
         let motions = MotionSourceOptions {
-            motions_dir: crate::workspace_root().join("datasets/motions"),
+            motions_dir: data.motions_dir(),
             body: RetargetBody::load(&e.body).ok(),
             lenient: false,
             up_axis: sartor_motion::UpAxis::Y,
@@ -168,7 +170,7 @@ impl SimInputs {
     }
 
     /// The motion of a job, cut to the experiment's `max_frames`.
-    pub fn motion(&self, e: &Experiment, name: &str) -> anyhow::Result<Motion> {
+    pub fn motion(&self, e: &Experiment, name: &str) -> Result<Motion> {
         let m = load_motion(name, &self.motions).with_context(|| format!("motion {name:?}"))?;
         Ok(match e.motions.max_frames {
             Some(n) if n < m.n_frames() => m.slice(0..n)?,
@@ -177,53 +179,93 @@ impl SimInputs {
     }
 }
 
-#[derive(Serialize)]
-struct FailedJob {
-    stem: String,
-    reason: String,
+/// A sequence that could not be simulated, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct FailedJob {
+    /// Its file stem.
+    pub stem: String,
+    /// The simulator's error.
+    pub reason: String,
 }
 
-#[derive(Serialize)]
-struct SimulateReport {
-    config: String,
-    config_sha256: String,
-    simulation_sha256: String,
-    shard_index: usize,
-    shard_count: usize,
-    jobs_in_shard: usize,
-    jobs_done: usize,
-    jobs_skipped_existing: usize,
-    /// Jobs with a failure note from an earlier run, not retried (see `--retry-failed`).
-    jobs_skipped_failed: usize,
-    jobs_failed: usize,
-    failed: Vec<FailedJob>,
-    frames_simulated: usize,
-    wall_time_s: f64,
-    threads: usize,
+/// `simulate.json` (or `simulate-shard-I-of-N.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct SimulateReport {
+    /// The config file.
+    pub config: String,
+    /// Hash of the whole config.
+    pub config_sha256: String,
+    /// Hash of the simulation section.
+    pub simulation_sha256: String,
+    /// This shard.
+    pub shard_index: usize,
+    /// Shards in all.
+    pub shard_count: usize,
+    /// Jobs of this shard.
+    pub jobs_in_shard: usize,
+    /// Jobs simulated now.
+    pub jobs_done: usize,
+    /// Jobs whose file was already there.
+    pub jobs_skipped_existing: usize,
+    /// Jobs with a failure note from an earlier run, not retried (see `retry_failed`).
+    pub jobs_skipped_failed: usize,
+    /// Jobs that failed now.
+    pub jobs_failed: usize,
+    /// Those failures.
+    pub failed: Vec<FailedJob>,
+    /// Frames simulated now.
+    pub frames_simulated: usize,
+    /// Wall time, seconds.
+    pub wall_time_s: f64,
+    /// Threads used.
+    pub threads: usize,
     /// Wall time per simulated frame times the threads used: the cost of a frame on one core.
-    ms_per_frame_per_thread: f64,
+    pub ms_per_frame_per_thread: f64,
     /// Wall time per simulated frame (throughput of the whole run).
-    ms_per_frame_wall: f64,
-    machine: Machine,
+    pub ms_per_frame_wall: f64,
+    /// Where it ran.
+    pub machine: Machine,
 }
 
-/// Failure notes go here, inside the sim folder.
-pub const FAILED_DIR: &str = "failed";
+/// What [`simulate`] did.
+#[derive(Clone, Debug)]
+pub enum SimulateOutcome {
+    /// Jobs ran; the report was written to the path.
+    Ran(Box<SimulateReport>, PathBuf),
+    /// Nothing was left to do: `done` jobs finished, `failed_before` failed in an earlier run;
+    /// the report of the run that did the work is kept at the path.
+    NothingToDo {
+        /// Jobs already simulated.
+        done: usize,
+        /// Jobs that failed in an earlier run and were not retried.
+        failed_before: usize,
+        /// The kept report.
+        report: PathBuf,
+    },
+}
 
-/// Run `simulate`.
-pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
+/// Simulate this shard's jobs of `e` (see the module docs). `config` names the config file in
+/// the report.
+pub fn simulate(
+    e: &Experiment,
+    data: &DataDir,
+    options: &SimulateOptions,
+    config: &str,
+    progress: &dyn Progress,
+) -> Result<SimulateOutcome> {
     let start = Instant::now();
-    let e = args.experiment.load()?;
-    let (index, count) = resolve_shard(args.shard.as_deref(), args.shard_count, &|k| {
-        std::env::var(k).ok()
-    })?;
-    let inputs = SimInputs::load(&e)?;
+    let args = options;
+    let (index, count) = options.shard;
+    if count == 0 || index >= count {
+        bail!("shard {index}/{count}: need 0 ≤ I < N");
+    }
+    let inputs = SimInputs::load(e, data)?;
     let out = e.sim_dir();
     std::fs::create_dir_all(out.join(FAILED_DIR))
         .with_context(|| format!("creating {}", out.display()))?;
-    write_json(&out.join("config.json"), &e)?;
+    write_json(&out.join("config.json"), e)?;
     let plan = e.plan();
-    let mine: Vec<Job> = jobs(&e)
+    let mine: Vec<Job> = jobs(e)
         .into_iter()
         .enumerate()
         .filter(|(k, _)| k % count == index)
@@ -252,34 +294,28 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
     };
     if todo.is_empty() && out.join(&name).exists() {
         // Keep the report of the run that did the work.
-        println!(
-            "simulate: nothing to do ({skipped} done, {skipped_failed} failed before; \
-             --retry-failed simulates those again) → {}",
-            out.join(&name).display()
-        );
-        return Ok(());
+        return Ok(SimulateOutcome::NothingToDo {
+            done: skipped,
+            failed_before: skipped_failed,
+            report: out.join(&name),
+        });
     }
     // Frames per job, for the ETA.
-    let frames_of = |j: &Job| -> anyhow::Result<usize> {
+    let frames_of = |j: &Job| -> Result<usize> {
         let n = if j.motion == REST_MOTION {
             0
         } else {
-            inputs.motion(&e, &j.motion)?.n_frames()
+            inputs.motion(e, &j.motion)?.n_frames()
         };
         Ok(inputs.drive.blend_frames + inputs.drive.rest_frames + n)
     };
     let total_frames: usize = todo
         .iter()
         .map(|j| frames_of(j))
-        .collect::<anyhow::Result<Vec<_>>>()?
+        .collect::<Result<Vec<_>>>()?
         .iter()
         .sum();
-    let bar = ProgressBar::new(total_frames as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} simulate [{elapsed_precise}] {wide_bar} {pos}/{len} frames ({per_sec}, ETA {eta}) {msg}",
-        )?,
-    );
+    progress.start("simulate", total_frames as u64, "frames");
     let sequences_done = AtomicUsize::new(0);
     let failed = Mutex::new(Vec::new());
     let frames_done = AtomicUsize::new(0);
@@ -288,21 +324,22 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
-        .build()?;
-    bar.set_message(format!("0/{} sequences", todo.len()));
-    let result: anyhow::Result<()> = pool.install(|| {
-        todo.par_iter().try_for_each(|job| -> anyhow::Result<()> {
+        .build()
+        .map_err(|err| Error::Invalid(format!("starting {threads} threads: {err}")))?;
+    progress.message(&format!("0/{} sequences", todo.len()));
+    let result: Result<()> = pool.install(|| {
+        todo.par_iter().try_for_each(|job| -> Result<()> {
             let shape = &plan.shapes[job.shape];
             let mut betas = shape.betas.clone();
             betas.resize(inputs.body.n_betas(), 0.0);
             let motion = if job.motion == REST_MOTION {
                 None
             } else {
-                Some(inputs.motion(&e, &job.motion)?)
+                Some(inputs.motion(e, &job.motion)?)
             };
             let mut last = 0usize;
             let mut on_frame = |done: usize, _total: usize| {
-                bar.inc((done - last) as u64);
+                progress.inc((done - last) as u64);
                 frames_done.fetch_add(done - last, Ordering::Relaxed);
                 last = done;
             };
@@ -333,23 +370,23 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
                         &out.join(FAILED_DIR).join(format!("{}.json", job.stem)),
                         &note,
                     )?;
-                    bar.println(format!("failed: {} — {}", job.stem, note.reason));
+                    progress.println(&format!("failed: {} — {}", job.stem, note.reason));
                     failed
                         .lock()
-                        .map_err(|_| anyhow::anyhow!("poisoned lock"))?
+                        .map_err(|_| Error::Invalid("a simulation thread panicked".into()))?
                         .push(note);
                 }
             }
             let n = sequences_done.fetch_add(1, Ordering::Relaxed) + 1;
-            bar.set_message(format!("{n}/{} sequences", todo.len()));
+            progress.message(&format!("{n}/{} sequences", todo.len()));
             Ok(())
         })
     });
-    bar.finish();
+    progress.finish();
     result?;
     let failed = failed
         .into_inner()
-        .map_err(|_| anyhow::anyhow!("poisoned lock"))?;
+        .map_err(|_| Error::Invalid("a simulation thread panicked".into()))?;
     let wall = start.elapsed().as_secs_f64();
     let frames = frames_done.load(Ordering::Relaxed);
     let per_frame_wall = if frames > 0 {
@@ -358,8 +395,8 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         0.0
     };
     let report = SimulateReport {
-        config: crate::workspace_relative(&args.experiment.config),
-        config_sha256: Experiment::section_sha256(&e)?,
+        config: config.to_string(),
+        config_sha256: Experiment::section_sha256(e)?,
         simulation_sha256: Experiment::section_sha256(&inputs.drive)?,
         shard_index: index,
         shard_count: count,
@@ -376,18 +413,9 @@ pub fn simulate(args: &SimulateArgs) -> anyhow::Result<()> {
         ms_per_frame_wall: per_frame_wall,
         machine: Machine::current(),
     };
-    write_json(&out.join(&name), &report)?;
-    println!(
-        "simulate: {} done, {} already there, {} failed; {} frames in {:.1} s ({:.1} ms/frame/thread) → {}",
-        report.jobs_done,
-        skipped,
-        report.jobs_failed,
-        frames,
-        wall,
-        report.ms_per_frame_per_thread,
-        out.join(&name).display()
-    );
-    Ok(())
+    let path = out.join(&name);
+    write_json(&path, &report)?;
+    Ok(SimulateOutcome::Ran(Box::new(report), path))
 }
 
 #[cfg(test)]
@@ -417,8 +445,10 @@ mod tests {
 
     #[test]
     fn every_shape_gets_a_rest_job_and_file_names_are_unique() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/default.json");
-        let e = Experiment::load(&path).expect("valid");
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let data = DataDir::new(&root).expect("data folder");
+        let e = Experiment::load(&root.join("configs/default.json"), &data, Path::new("runs"))
+            .expect("valid");
         let all = jobs(&e);
         let n_shapes = e.shapes.train.len() + e.shapes.held_out.len();
         assert_eq!(

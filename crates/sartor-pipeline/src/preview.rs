@@ -1,12 +1,11 @@
 //! Animate an exported model on a body through a motion, and write what came out: animated glTF
 //! (body + garment), MCAP with `foxglove.SceneUpdate` (opens in Foxglove), OBJ sequences and PNG
-//! previews. Shared by `cargo xtask demo` and `cargo xtask export`.
+//! previews. Shared by `sartor demo` and the export stage.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
 use nalgebra::Vector3;
 use sartor_core::BodyModel;
 use sartor_mcap::{McapWriter, SceneMesh};
@@ -16,13 +15,16 @@ use sartor_runtime::{
     write_obj_sequence,
 };
 
+use crate::Result;
+use crate::error::{Context, ensure};
+
 /// Colours of the written meshes.
 pub const BODY_COLOR: [f32; 3] = [0.80, 0.70, 0.62];
 /// See [`BODY_COLOR`].
 pub const GARMENT_COLOR: [f32; 3] = [0.20, 0.42, 0.78];
 
 /// An output format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
     /// One animated `.glb` (body and garment, one morph target per frame).
     Gltf,
@@ -32,6 +34,31 @@ pub enum Format {
     Png,
     /// One OBJ per frame and mesh.
     Obj,
+}
+
+impl std::str::FromStr for Format {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "gltf" | "glb" => Ok(Self::Gltf),
+            "mcap" => Ok(Self::Mcap),
+            "png" => Ok(Self::Png),
+            "obj" => Ok(Self::Obj),
+            other => Err(format!("unknown format {other:?} (gltf, mcap, png, obj)")),
+        }
+    }
+}
+
+impl Format {
+    /// The format's name, as [`std::str::FromStr`] reads it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Gltf => "gltf",
+            Self::Mcap => "mcap",
+            Self::Png => "png",
+            Self::Obj => "obj",
+        }
+    }
 }
 
 /// One animated clip: garment and body vertices per frame, and how long the garment took.
@@ -70,8 +97,8 @@ pub fn animate(
     betas: &[f64],
     motion: &Motion,
     frames: Option<usize>,
-) -> anyhow::Result<Animation> {
-    anyhow::ensure!(
+) -> Result<Animation> {
+    ensure!(
         motion.joint_names() == body.skeleton().names(),
         "motion {} is for another skeleton than body {}",
         motion.name(),
@@ -79,7 +106,7 @@ pub fn animate(
     );
     let poses = motion.frames();
     let n = frames.map_or(poses.len(), |f| f.min(poses.len()));
-    anyhow::ensure!(n > 0, "motion {} has no frames", motion.name());
+    ensure!(n > 0, "motion {} has no frames", motion.name());
     let b32: Vec<f32> = betas.iter().map(|&b| b as f32).collect();
     let mut avatar = GarmentAnimator::new(rig.clone())?;
     avatar.set_shape(&b32)?;
@@ -115,7 +142,7 @@ pub fn write_animation(
     garment_faces: &[[u32; 3]],
     fps: f64,
     formats: &[Format],
-) -> anyhow::Result<Vec<PathBuf>> {
+) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let garment = MeshSequence::new(
         "garment".into(),
@@ -166,7 +193,7 @@ fn write_mcap(
     body_faces: &[[u32; 3]],
     garment_faces: &[[u32; 3]],
     fps: f64,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let mut writer = McapWriter::new(path, "sartor.animation")?;
     let channel = writer.add_scene_channel("/sartor/scene")?;
     let as_arrays = |v: &[Vector3<f32>]| v.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>();
@@ -204,7 +231,7 @@ pub fn write_png(
     body_faces: &[[u32; 3]],
     garment_faces: &[[u32; 3]],
     panels: usize,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let n = anim.garment.len();
     let picks: Vec<usize> = (0..panels.min(n))
         .map(|k| k * (n - 1) / (panels.min(n) - 1).max(1))

@@ -1,4 +1,4 @@
-//! `cargo xtask bench runtime`: the paper's Table 1 side by side. For T-shirts of 4,210 / 8,710
+//! `bench runtime`: the paper's Table 1 side by side. For T-shirts of 4,210 / 8,710
 //! / 17,710 / 26,066 triangles, a model at the paper's sizes (fit MLP 20, GRU 1500, dense
 //! output) with random weights, animated over a procedural clip on the built-in body: ms per
 //! frame without and with the collision post-process, on one thread and on all, in f32, f16
@@ -10,15 +10,14 @@
 //! 5 mm, smooth) rather than per-vertex noise: that matters for the post-process, not for the
 //! network's speed (the stored matrix is dense `3V × H`).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sartor_core::io::{read_file, sha256_hex, write_atomic};
+use sartor_core::io::{read_file, sha256_hex};
 use sartor_core::{BodyModel, MODEL_HEADER, Pose, RootFeature};
 use sartor_motion::CMU_MB_JOINTS;
 use sartor_runtime::{
@@ -29,32 +28,27 @@ use sartor_runtime::{
 };
 use serde::Serialize;
 
-use crate::machine::Machine;
+use crate::bench_sim::{GarmentDirs, garment_of_size};
+use crate::error::Context;
+use crate::report::{Machine, load_average};
+use crate::timing::{mean, median, time_frames};
+use crate::{Progress, Result};
 
-/// Arguments of `bench runtime`.
-#[derive(clap::Args, Debug)]
-pub struct BenchRuntimeArgs {
-    /// Output file.
-    #[arg(long, default_value = "bench-runtime.json")]
-    pub out: PathBuf,
-    /// Garment sizes (triangles) to run; each needs `configs/garments/tshirt-<n>.json` or
-    /// `datasets/garments/tshirt-<n>`.
-    #[arg(long, value_delimiter = ',', default_values_t = [4210usize, 8710, 17710, 26066])]
+/// What `bench runtime` times.
+#[derive(Clone, Debug)]
+pub struct RuntimeBenchOptions {
+    /// Garment sizes (triangles) to run; each needs `<recipes>/tshirt-<n>.json` or a committed
+    /// `<garments>/tshirt-<n>`.
     pub triangles: Vec<usize>,
     /// Procedural clip to animate.
-    #[arg(long, default_value = "walk_normal")]
     pub clip: String,
     /// Frames run before timing (GRU state and caches warm up).
-    #[arg(long, default_value_t = 20)]
     pub warmup: usize,
     /// Frames timed per configuration.
-    #[arg(long, default_value_t = 120)]
     pub frames: usize,
     /// GRU hidden size of the paper-size model.
-    #[arg(long, default_value_t = 1500)]
     pub gru_hidden: usize,
     /// Garment size (triangles) of the post-process comparison and the reduced models.
-    #[arg(long, default_value_t = 8710)]
     pub reference_triangles: usize,
 }
 
@@ -175,14 +169,15 @@ struct Reduced {
     load_s: f64,
 }
 
+/// `bench-runtime.json`.
 #[derive(Serialize)]
-struct Report {
+pub struct RuntimeBenchReport {
     command: String,
     machine: Machine,
     instruction_set: &'static str,
     threads_all: usize,
-    load_average_start: String,
-    load_average_end: String,
+    load_average_start: Option<[f64; 3]>,
+    load_average_end: Option<[f64; 3]>,
     clip: String,
     warmup_frames: usize,
     timed_frames: usize,
@@ -192,28 +187,6 @@ struct Report {
     reduced: Vec<Reduced>,
     notes: Vec<&'static str>,
     wall_time_s: f64,
-}
-
-fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
-
-/// The T-shirt of `triangles`: the committed template if present, else built from its recipe.
-fn tshirt(triangles: usize, body: &BodyModel) -> anyhow::Result<(sartor_core::TriMesh, String)> {
-    let name = format!("tshirt-{triangles}");
-    let dir = Path::new("datasets/garments").join(&name);
-    if dir.join(sartor_cloth::GARMENT_HEADER).exists() {
-        let g = sartor_cloth::Garment::load(&dir)?;
-        return Ok((g.mesh().clone(), dir.display().to_string()));
-    }
-    let path = Path::new("configs/garments").join(format!("{name}.json"));
-    let bytes = read_file(&path)?;
-    let config = sartor_cloth::GarmentConfig::from_json(&bytes, &path)?;
-    let build = sartor_cloth::build_garment(&config, &path, &bytes, body, None)
-        .with_context(|| format!("building {}", path.display()))?;
-    Ok((build.garment.mesh().clone(), path.display().to_string()))
 }
 
 fn uniform(rng: &mut ChaCha8Rng, n: usize, amp: f32) -> Vec<f32> {
@@ -277,7 +250,7 @@ fn model(
     gru_hidden: usize,
     output: OutputKind,
     seed: u64,
-) -> anyhow::Result<GarmentModel> {
+) -> Result<GarmentModel> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let v = positions.len();
     let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
@@ -372,71 +345,6 @@ fn model(
     Ok(GarmentModel::new(header, weights)?)
 }
 
-/// CPU time of the calling thread, nanoseconds (Linux `schedstat`; `None` elsewhere). Unlike
-/// wall time it does not count the time other processes hold the core, so single-thread
-/// figures stay comparable on a loaded machine.
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
-/// Timings of `frames` frames after `warmup`, cycling through `poses`.
-struct Timing {
-    /// Wall time per frame, ms.
-    wall_ms: Vec<f64>,
-    /// Mean CPU time of the calling thread per frame, ms (meaningful for one thread only).
-    cpu_ms: Option<f64>,
-}
-
-fn time_frames(
-    avatar: &mut GarmentAnimator,
-    poses: &[Pose],
-    warmup: usize,
-    frames: usize,
-) -> anyhow::Result<Timing> {
-    avatar.reset();
-    let mut wall_ms = Vec::with_capacity(frames);
-    let mut cpu_start = None;
-    for t in 0..warmup + frames {
-        if t == warmup {
-            cpu_start = thread_cpu_ns();
-        }
-        let pose = &poses[t % poses.len()];
-        let start = Instant::now();
-        std::hint::black_box(avatar.frame(pose)?);
-        if t >= warmup {
-            wall_ms.push(start.elapsed().as_secs_f64() * 1e3);
-        }
-    }
-    let cpu_ms = match (cpu_start, thread_cpu_ns()) {
-        (Some(a), Some(b)) => Some((b - a) as f64 / 1e6 / frames.max(1) as f64),
-        _ => None,
-    };
-    Ok(Timing { wall_ms, cpu_ms })
-}
-
-fn median(times: &[f64]) -> f64 {
-    let mut s = times.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
-fn mean(times: &[f64]) -> f64 {
-    times.iter().sum::<f64>() / times.len().max(1) as f64
-}
-
 /// The assets of one garment.
 struct Scene {
     body: Arc<BodyModel>,
@@ -447,8 +355,18 @@ struct Scene {
     source: String,
 }
 
-fn scene(triangles: usize, body: &Arc<BodyModel>, body_id: &AssetId) -> anyhow::Result<Scene> {
-    let (mesh, source) = tshirt(triangles, body)?;
+fn scene(
+    triangles: usize,
+    body: &Arc<BodyModel>,
+    body_id: &AssetId,
+    dirs: &GarmentDirs,
+    progress: &dyn Progress,
+) -> Result<Scene> {
+    // The template as built (unrelaxed) unless a committed one exists: the timing does not
+    // depend on the drape.
+    let material = sartor_cloth::Material::gray_interlock();
+    let (garment, source) = garment_of_size(triangles, body, &material, dirs, true, progress)?;
+    let mesh = garment.mesh();
     let garment_id = AssetId {
         id: format!("tshirt-{triangles}"),
         sha256: sha256_hex(sartor_core::obj_text(mesh.positions(), mesh.faces()).as_bytes()),
@@ -476,7 +394,7 @@ fn avatar(
     scene: &Scene,
     network: &Arc<GarmentNetwork>,
     options: AnimatorOptions,
-) -> anyhow::Result<GarmentAnimator> {
+) -> Result<GarmentAnimator> {
     let rig = GarmentRig::new(
         network.clone(),
         scene.binding.clone(),
@@ -503,9 +421,10 @@ fn runs(
     scene: &Scene,
     network: &Arc<GarmentNetwork>,
     poses: &[Pose],
-    args: &BenchRuntimeArgs,
+    args: &RuntimeBenchOptions,
     paper: Option<(f64, f64)>,
-) -> anyhow::Result<Vec<Run>> {
+    progress: &dyn Progress,
+) -> Result<Vec<Run>> {
     let threads_all = rayon::current_num_threads();
     let mut out = Vec::new();
     for (par, threads) in [
@@ -523,13 +442,13 @@ fn runs(
         let (ms, ms_pp) = (median(&t.wall_ms), median(&t_pp.wall_ms));
         let single = threads == 1;
         let (cpu, cpu_pp) = (t.cpu_ms.filter(|_| single), t_pp.cpu_ms.filter(|_| single));
-        println!(
+        progress.println(&format!(
             "  {:>4} {threads} thread(s): {ms:7.3} ms/frame, {ms_pp:7.3} with post-process \
              (CPU {:.3} / {:.3})",
             network.precision().name(),
             cpu.unwrap_or(f64::NAN),
             cpu_pp.unwrap_or(f64::NAN)
-        );
+        ));
         out.push(Run {
             precision: network.precision().name(),
             threads,
@@ -553,8 +472,9 @@ fn post_process(
     scene: &Scene,
     network: &Arc<GarmentNetwork>,
     poses: &[Pose],
-    args: &BenchRuntimeArgs,
-) -> anyhow::Result<PostProcess> {
+    args: &RuntimeBenchOptions,
+    progress: &dyn Progress,
+) -> Result<PostProcess> {
     let par = Parallelism::Sequential;
     let mut plain = avatar(scene, network, options(par, None))?;
     let base = time_frames(&mut plain, poses, args.warmup, args.frames)?
@@ -663,11 +583,11 @@ fn post_process(
             inside += c.inside;
             near += c.within_margin;
         }
-        println!(
+        progress.println(&format!(
             "  post-process {name}: {ms:.3} ms/frame ({:.3} ms pp), inside after {inside}, \
              within margin {near}, differing from the BVH {differing}",
             ms - base
-        );
+        ));
         results.push(QueryResult {
             query: name,
             cpu_ms_per_frame_pp: ms,
@@ -691,7 +611,12 @@ fn post_process(
 }
 
 /// Reduced models at one garment size, int8, one thread.
-fn reduced(scene: &Scene, poses: &[Pose], args: &BenchRuntimeArgs) -> anyhow::Result<Vec<Reduced>> {
+fn reduced(
+    scene: &Scene,
+    poses: &[Pose],
+    args: &RuntimeBenchOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<Reduced>> {
     let mut out = Vec::new();
     let variants = [
         ("gru256-pca64", 256, OutputKind::Pca(64), None),
@@ -732,12 +657,12 @@ fn reduced(scene: &Scene, poses: &[Pose], args: &BenchRuntimeArgs) -> anyhow::Re
         let t_pp = time_frames(&mut pp, poses, args.warmup, args.frames)?;
         let (ms, ms_pp) = (median(&t.wall_ms), median(&t_pp.wall_ms));
         let (cpu, cpu_pp) = (t.cpu_ms, t_pp.cpu_ms);
-        println!(
+        progress.println(&format!(
             "  reduced {name} int8: {ms:.3} ms/frame, {ms_pp:.3} with post-process (CPU {:.3} / \
              {:.3}; load {load_s:.2} s)",
             cpu.unwrap_or(f64::NAN),
             cpu_pp.unwrap_or(f64::NAN)
-        );
+        ));
         out.push(Reduced {
             name: name.into(),
             triangles: scene.binding.faces().len(),
@@ -760,12 +685,16 @@ fn reduced(scene: &Scene, poses: &[Pose], args: &BenchRuntimeArgs) -> anyhow::Re
     Ok(out)
 }
 
-/// Run the benchmark and write the report.
-pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
+/// Run the benchmark on the body in `body_dir` (see the module docs).
+pub fn bench_runtime(
+    args: &RuntimeBenchOptions,
+    body_dir: &Path,
+    dirs: &GarmentDirs,
+    progress: &dyn Progress,
+) -> Result<RuntimeBenchReport> {
     let start = Instant::now();
     let load_average_start = load_average();
-    let body_dir = crate::builtin_model_dir();
-    let body = Arc::new(BodyModel::load(&body_dir)?);
+    let body = Arc::new(BodyModel::load(body_dir)?);
     let body_id = AssetId {
         id: body.name().to_string(),
         sha256: sha256_hex(&read_file(&body_dir.join(MODEL_HEADER))?),
@@ -778,7 +707,7 @@ pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
     let mut model_sizes = None;
     for &triangles in &args.triangles {
         let t = Instant::now();
-        let scene = scene(triangles, &body, &body_id)?;
+        let scene = scene(triangles, &body, &body_id, dirs, progress)?;
         let m = model(
             &scene.garment_id,
             &scene.body_id,
@@ -788,12 +717,12 @@ pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
             7,
         )?;
         model_sizes = Some(m.header().sizes);
-        println!(
+        progress.println(&format!(
             "tshirt-{triangles}: {} vertices, {} region faces (set up in {:.1} s)",
             scene.positions.len(),
             scene.binding.region_faces().len(),
             t.elapsed().as_secs_f64()
-        );
+        ));
         let paper = PAPER.iter().find(|p| p.0 == triangles).map(|p| (p.1, p.2));
         let mut memory = Vec::new();
         let mut runs_all = Vec::new();
@@ -804,13 +733,13 @@ pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
                 fit_mb: network.fit_weight_bytes() as f64 / 1e6,
                 wrinkle_mb: network.wrinkle_weight_bytes() as f64 / 1e6,
             });
-            runs_all.extend(runs(&scene, &network, &poses, args, paper)?);
+            runs_all.extend(runs(&scene, &network, &poses, args, paper, progress)?);
             if triangles == args.reference_triangles && precision == Precision::Int8 {
-                post = Some(post_process(&scene, &network, &poses, args)?);
+                post = Some(post_process(&scene, &network, &poses, args, progress)?);
             }
         }
         if triangles == args.reference_triangles {
-            reduced_models = reduced(&scene, &poses, args)?;
+            reduced_models = reduced(&scene, &poses, args, progress)?;
         }
         let region = sartor_runtime::BodyRegion::new(&body, scene.binding.region_faces())?;
         garments.push(GarmentResult {
@@ -828,7 +757,7 @@ pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
             runs: runs_all,
         });
     }
-    let report = Report {
+    let report = RuntimeBenchReport {
         command: std::env::args().collect::<Vec<_>>().join(" "),
         machine: Machine::current(),
         instruction_set: instruction_set(),
@@ -853,9 +782,5 @@ pub fn bench_runtime(args: &BenchRuntimeArgs) -> anyhow::Result<()> {
         ],
         wall_time_s: start.elapsed().as_secs_f64(),
     };
-    let mut json = serde_json::to_string_pretty(&report)?;
-    json.push('\n');
-    write_atomic(&args.out, json.as_bytes())?;
-    println!("wrote {}", args.out.display());
-    Ok(())
+    Ok(report)
 }

@@ -1,5 +1,6 @@
-//! `cargo xtask eval --config C`: judge the exported model against the simulator's held-out
-//! ground truth, next to the baselines, and write `runs/<name>/eval/eval.json` with plots.
+//! Judge an exported model against the simulator's held-out ground truth, next to the
+//! baselines ([`evaluate_run`], behind `sartor eval`): `eval.json`, error plots and a rendered
+//! comparison.
 //!
 //! # Methods (all through `sartor_runtime`, each with and without the collision post-process)
 //!
@@ -35,39 +36,24 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{BodyModel, Pose};
-use sartor_dataset::{ShapePlan, SimulatedMotion, SimulationSource};
+use sartor_dataset::{
+    DatasetPlan, REST_MOTION, ShapePlan, SimFolder, SimulatedMotion, SimulationSource, Split,
+    failed_stems, sequence_stem,
+};
 use sartor_runtime::{
     AnimatorOptions, Camera, FitMode, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,
     NetworkOptions, Panel, RenderMesh, WrinkleMode, render_png,
 };
 use serde::Serialize;
 
-use crate::dataset::{SequenceFiles, failed_stems};
-use crate::experiment::{Experiment, ExperimentArgs, sequence_stem};
-use crate::machine::{Machine, write_json};
+use crate::error::{Context, ensure};
 use crate::plot::{Chart, Series, write_charts};
-
-/// Arguments of `eval`.
-#[derive(clap::Args, Debug)]
-pub struct EvalArgs {
-    /// The experiment.
-    #[command(flatten)]
-    pub experiment: ExperimentArgs,
-    /// The exported model folder (default: `runs/<name>/export`).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
-    /// Held-out motions on the nominal shape only (the training shape closest to β = 0).
-    #[arg(long)]
-    pub nominal_only: bool,
-    /// Frames shown in the rendered comparison.
-    #[arg(long, default_value_t = 4)]
-    pub render_frames: usize,
-}
+use crate::report::{Machine, write_json};
+use crate::timing::mean;
+use crate::{Progress, Result};
 
 /// A method: how the runtime shapes and wrinkles the garment.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -120,13 +106,13 @@ pub struct Assets {
 }
 
 impl Assets {
-    /// Load the body of `e` and the binding of the model in `model_dir`.
-    pub fn load(e: &Experiment, model_dir: &Path) -> anyhow::Result<Self> {
-        let body = BodyModel::load(&e.body)
-            .with_context(|| format!("loading the body model from {}", e.body.display()))?;
+    /// Load the body model in `body_dir` and the binding of the model in `model_dir`.
+    pub fn load(body_dir: &Path, model_dir: &Path) -> Result<Self> {
+        let body = BodyModel::load(body_dir)
+            .with_context(|| format!("loading the body model from {}", body_dir.display()))?;
         let binding = GarmentBinding::load(model_dir).with_context(|| {
             format!(
-                "loading the garment binding from {} (run `cargo xtask export` first)",
+                "loading the garment binding from {} (run `sartor export` first)",
                 model_dir.display()
             )
         })?;
@@ -142,7 +128,7 @@ impl Assets {
         &self,
         network: &Arc<GarmentNetwork>,
         options: AnimatorOptions,
-    ) -> anyhow::Result<Arc<GarmentRig>> {
+    ) -> Result<Arc<GarmentRig>> {
         Ok(Arc::new(GarmentRig::new(
             network.clone(),
             self.binding.clone(),
@@ -152,7 +138,7 @@ impl Assets {
     }
 
     /// The network loaded with `options`.
-    pub fn network(&self, options: NetworkOptions) -> anyhow::Result<Arc<GarmentNetwork>> {
+    pub fn network(&self, options: NetworkOptions) -> Result<Arc<GarmentNetwork>> {
         Ok(Arc::new(
             GarmentNetwork::load_with(&self.model_dir, options).with_context(|| {
                 format!(
@@ -206,10 +192,10 @@ pub fn run_sequence(
     raw: &Arc<GarmentRig>,
     seq: &TestSequence,
     keep: &[usize],
-) -> anyhow::Result<(SequenceMetrics, Vec<Vec<Vector3<f32>>>)> {
+) -> Result<(SequenceMetrics, Vec<Vec<Vector3<f32>>>)> {
     let betas: Vec<f32> = seq.truth.betas.iter().map(|&b| b as f32).collect();
     let n_betas = pp.network().n_betas();
-    anyhow::ensure!(
+    ensure!(
         betas.len() >= n_betas,
         "{}: β has {} components, the model takes {n_betas}",
         sequence_stem(&seq.shape, &seq.motion),
@@ -225,7 +211,7 @@ pub fn run_sequence(
     let mut m = SequenceMetrics::default();
     let mut kept = Vec::new();
     for (t, (pose, truth)) in seq.truth.poses.iter().zip(&seq.truth.cloth).enumerate() {
-        anyhow::ensure!(
+        ensure!(
             truth.len() == n,
             "{}: the ground truth has {} vertices, the model's garment {n}",
             sequence_stem(&seq.shape, &seq.motion),
@@ -284,13 +270,10 @@ pub struct SequenceReport {
     pub collision_percent_after_pp: f64,
 }
 
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 { f64::NAN } else { s / n as f64 }
-}
-
 fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport {
-    let all = |f: fn(&SequenceMetrics) -> &Vec<f64>| mean(metrics.iter().flat_map(f).copied());
+    let all = |f: fn(&SequenceMetrics) -> &Vec<f64>| {
+        mean(&metrics.iter().flat_map(f).copied().collect::<Vec<_>>())
+    };
     let vf: usize = metrics.iter().map(|m| m.vertex_frames).sum();
     let pct = |x: usize| 100.0 * x as f64 / vf.max(1) as f64;
     MethodReport {
@@ -311,7 +294,7 @@ fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport
                 shape: s.shape.clone(),
                 motion: s.motion.clone(),
                 shape_distance: s.shape_distance,
-                mean_vertex_error_mm: 1e3 * mean(m.per_frame_m.iter().copied()),
+                mean_vertex_error_mm: 1e3 * mean(&m.per_frame_m),
                 per_frame_error_mm: m.per_frame_m.iter().map(|e| 1e3 * e).collect(),
                 collision_percent_after_pp: 100.0 * m.inside_after as f64
                     / m.vertex_frames.max(1) as f64,
@@ -320,7 +303,7 @@ fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport
     }
 }
 
-/// The test sequences of an experiment, without those whose simulation failed.
+/// The test sequences of a plan, without those whose simulation failed.
 pub struct TestSets {
     /// Held-out motions on training shapes.
     pub motions: Vec<(ShapePlan, String)>,
@@ -330,14 +313,15 @@ pub struct TestSets {
     pub skipped: Vec<String>,
 }
 
-/// The two test sets of an experiment: held-out motions and held-out shapes.
-pub fn test_sets(e: &Experiment, nominal_only: bool) -> anyhow::Result<TestSets> {
-    let plan = e.plan();
-    let failed = failed_stems(&e.sim_dir())?;
+/// The two test sets of a plan whose simulations are in `sim_dir`: held-out motions (on the
+/// nominal shape only, the training shape closest to β = 0, with `nominal_only`) and held-out
+/// shapes.
+pub fn test_sets(plan: &DatasetPlan, sim_dir: &Path, nominal_only: bool) -> Result<TestSets> {
+    let failed = failed_stems(sim_dir)?;
     let train: Vec<&ShapePlan> = plan
         .shapes
         .iter()
-        .filter(|s| s.split == sartor_dataset::Split::Train)
+        .filter(|s| s.split == Split::Train)
         .collect();
     let norm = |b: &[f64]| b.iter().map(|x| x * x).sum::<f64>();
     let nominal = train
@@ -351,16 +335,16 @@ pub fn test_sets(e: &Experiment, nominal_only: bool) -> anyhow::Result<TestSets>
         let shape = &plan.shapes[q.shape];
         let stem = sequence_stem(&shape.id, &q.motion);
         let set = match q.split {
-            sartor_dataset::Split::HeldOutMotions => {
+            Split::HeldOutMotions => {
                 if nominal_only && Some(&shape.id) != nominal.as_ref() {
                     continue;
                 }
                 &mut motions
             }
-            sartor_dataset::Split::HeldOutShapes => &mut shapes,
+            Split::HeldOutShapes => &mut shapes,
             _ => continue,
         };
-        if failed.contains(&stem) || failed.contains(&sequence_stem(&shape.id, "rest")) {
+        if failed.contains(&stem) || failed.contains(&sequence_stem(&shape.id, REST_MOTION)) {
             skipped.push(stem);
         } else {
             set.push((shape.clone(), q.motion.clone()));
@@ -373,12 +357,12 @@ pub fn test_sets(e: &Experiment, nominal_only: bool) -> anyhow::Result<TestSets>
     })
 }
 
-/// Distance of `betas` to the nearest training shape of `e` (components beyond a shape's list
-/// are 0).
-pub fn shape_distance(e: &Experiment, betas: &[f64]) -> f64 {
-    e.shapes
-        .train
+/// Distance of `betas` to the nearest training shape of `plan` (components beyond a shape's
+/// list are 0).
+pub fn shape_distance(plan: &DatasetPlan, betas: &[f64]) -> f64 {
+    plan.shapes
         .iter()
+        .filter(|s| s.split == Split::Train)
         .map(|s| {
             let n = betas.len().max(s.betas.len());
             (0..n)
@@ -393,19 +377,19 @@ pub fn shape_distance(e: &Experiment, betas: &[f64]) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// Load the ground truth of `set`.
+/// Load the ground truth of `set` (sequences of `plan`).
 pub fn load_truth(
-    e: &Experiment,
-    files: &SequenceFiles,
+    plan: &DatasetPlan,
+    files: &SimFolder,
     set: &[(ShapePlan, String)],
-) -> anyhow::Result<Vec<TestSequence>> {
+) -> Result<Vec<TestSequence>> {
     set.par_iter()
         .map(|(shape, motion)| {
             let truth = files.motion(shape, motion)?;
             Ok(TestSequence {
                 shape: shape.id.clone(),
                 motion: motion.clone(),
-                shape_distance: shape_distance(e, &shape.betas),
+                shape_distance: shape_distance(plan, &shape.betas),
                 truth,
             })
         })
@@ -418,14 +402,14 @@ pub fn evaluate(
     network: &Arc<GarmentNetwork>,
     method: Method,
     seqs: &[TestSequence],
-    bar: &ProgressBar,
-) -> anyhow::Result<MethodReport> {
+    progress: &dyn Progress,
+) -> Result<MethodReport> {
     evaluate_with(
         assets,
         network,
         method.options(AnimatorOptions::default()),
         seqs,
-        bar,
+        progress,
     )
 }
 
@@ -436,8 +420,8 @@ pub fn evaluate_with(
     network: &Arc<GarmentNetwork>,
     options: AnimatorOptions,
     seqs: &[TestSequence],
-    bar: &ProgressBar,
-) -> anyhow::Result<MethodReport> {
+    progress: &dyn Progress,
+) -> Result<MethodReport> {
     let pp = assets.rig(network, options)?;
     let raw = assets.rig(
         network,
@@ -450,61 +434,83 @@ pub fn evaluate_with(
         .par_iter()
         .map(|s| {
             let r = run_sequence(&pp, &raw, s, &[]).map(|(m, _)| m);
-            bar.inc(s.truth.poses.len() as u64);
+            progress.inc(s.truth.poses.len() as u64);
             r
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>>>()?;
     Ok(summarise(seqs, &metrics))
 }
 
-#[derive(Serialize)]
-struct EvalReport {
-    config: String,
-    model: String,
-    nominal_only: bool,
-    held_out_motions: serde_json::Map<String, serde_json::Value>,
-    held_out_shapes: serde_json::Map<String, serde_json::Value>,
-    ground_truth_collision_percent: f64,
-    skipped_failed_simulations: Vec<String>,
-    notes: Vec<String>,
-    wall_time_s: f64,
-    machine: Machine,
+/// `eval.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// The experiment config (as the caller names it).
+    pub config: String,
+    /// The exported model folder.
+    pub model: String,
+    /// Held-out motions on the nominal shape only.
+    pub nominal_only: bool,
+    /// Per method on the held-out motions.
+    pub held_out_motions: serde_json::Map<String, serde_json::Value>,
+    /// Per method on the held-out shapes.
+    pub held_out_shapes: serde_json::Map<String, serde_json::Value>,
+    /// Share of the simulated (ground-truth) cloth vertices inside the body, %.
+    pub ground_truth_collision_percent: f64,
+    /// Test sequences left out because their simulation failed.
+    pub skipped_failed_simulations: Vec<String>,
+    /// What was not evaluated and why.
+    pub notes: Vec<String>,
+    /// Wall time, seconds.
+    pub wall_time_s: f64,
+    /// Where it ran.
+    pub machine: Machine,
 }
 
-/// The folder of an experiment's evaluation.
-pub fn eval_dir(e: &Experiment) -> PathBuf {
-    e.run_dir().join("eval")
+/// What [`evaluate_run`] evaluates.
+#[derive(Clone, Debug)]
+pub struct EvalRun<'a> {
+    /// The experiment's plan (shapes with their splits, sequences).
+    pub plan: &'a DatasetPlan,
+    /// Its simulation folder.
+    pub sim_dir: &'a Path,
+    /// The body model folder.
+    pub body_dir: &'a Path,
+    /// The exported model folder.
+    pub model_dir: &'a Path,
+    /// Held-out motions on the nominal shape only.
+    pub nominal_only: bool,
+    /// Frames shown in the rendered comparison.
+    pub render_frames: usize,
+    /// Where `eval.json`, the plots and `compare.png` go.
+    pub out_dir: &'a Path,
+    /// The config's name for the report.
+    pub config: String,
 }
 
-/// The default exported model folder of an experiment.
-pub fn export_dir(e: &Experiment) -> PathBuf {
-    e.run_dir().join("export")
-}
-
-/// Run `eval`.
-pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
+/// Evaluate an exported model on a run's held-out sets (see the module docs); write
+/// `eval.json`, `error_per_frame.{png,svg}`, `error_vs_shape.{png,svg}` and `compare.png` into
+/// `run.out_dir`, and return the report.
+pub fn evaluate_run(run: &EvalRun<'_>, progress: &dyn Progress) -> Result<EvalReport> {
     let start = Instant::now();
-    let e = args.experiment.load()?;
-    let model_dir = args.model.clone().unwrap_or_else(|| export_dir(&e));
-    let assets = Assets::load(&e, &model_dir)?;
+    let assets = Assets::load(run.body_dir, run.model_dir)?;
     let network = assets.network(NetworkOptions::default())?;
     let TestSets {
         motions: motion_set,
         shapes: shape_set,
         skipped,
-    } = test_sets(&e, args.nominal_only)?;
-    anyhow::ensure!(
+    } = test_sets(run.plan, run.sim_dir, run.nominal_only)?;
+    ensure!(
         !motion_set.is_empty() || !shape_set.is_empty(),
         "{}: nothing to evaluate (no held-out sequence was simulated)",
-        e.name
+        run.config
     );
-    let files = SequenceFiles::new(
-        &e.sim_dir(),
+    let files = SimFolder::new(
+        run.sim_dir,
         assets.binding.garment().sha256.clone(),
         assets.body.n_betas(),
     );
-    let motions = load_truth(&e, &files, &motion_set)?;
-    let shapes = load_truth(&e, &files, &shape_set)?;
+    let motions = load_truth(run.plan, &files, &motion_set)?;
+    let shapes = load_truth(run.plan, &files, &shape_set)?;
 
     let mut notes = Vec::new();
     let mut motion_methods = vec![Method::Ours, Method::Lbs];
@@ -516,11 +522,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
     let shape_methods = [Method::Ours, Method::Retarget, Method::Lbs];
     let frames = |s: &[TestSequence]| s.iter().map(|q| q.truth.poses.len()).sum::<usize>();
     let total = motion_methods.len() * frames(&motions) + shape_methods.len() * frames(&shapes);
-    let bar = ProgressBar::new(total as u64).with_style(
-        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, ETA {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
+    progress.start("eval", total as u64, "frames");
     let mut reports = Vec::new();
     for (set, methods, seqs) in [
         ("held_out_motions", &motion_methods[..], &motions),
@@ -531,28 +533,28 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
             notes.push(format!("{set}: no sequences"));
         } else {
             for &m in methods {
-                bar.set_message(m.name());
-                let r = evaluate(&assets, &network, m, seqs, &bar)?;
+                progress.message(m.name());
+                let r = evaluate(&assets, &network, m, seqs, progress)?;
                 map.insert(m.name().to_owned(), serde_json::to_value(&r)?);
             }
         }
         reports.push(map);
     }
-    bar.finish_and_clear();
+    progress.finish();
     let shapes_map = reports.pop().unwrap_or_default();
     let motions_map = reports.pop().unwrap_or_default();
 
     // The simulator's own contacts, by the same count (its vertices against the same region).
     let gt_inside = ground_truth_collisions(&assets, &network, &motions, &shapes)?;
 
-    let dir = eval_dir(&e);
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    plot_errors(&dir, &motions_map, &shapes_map)?;
-    render_comparison(&dir, &assets, &network, &motions, args.render_frames)?;
+    let dir = run.out_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    plot_errors(dir, &motions_map, &shapes_map)?;
+    render_comparison(dir, &assets, &network, &motions, run.render_frames)?;
     let report = EvalReport {
-        config: args.experiment.config.display().to_string(),
-        model: model_dir.display().to_string(),
-        nominal_only: args.nominal_only,
+        config: run.config.clone(),
+        model: run.model_dir.display().to_string(),
+        nominal_only: run.nominal_only,
         held_out_motions: motions_map,
         held_out_shapes: shapes_map,
         ground_truth_collision_percent: gt_inside,
@@ -561,24 +563,24 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         wall_time_s: start.elapsed().as_secs_f64(),
         machine: Machine::current(),
     };
-    let path = dir.join("eval.json");
-    write_json(&path, &report)?;
-    print_summary(&report);
-    println!("wrote {}", path.display());
-    Ok(())
+    write_json(&dir.join(EVAL_FILE), &report)?;
+    Ok(report)
 }
+
+/// File name of the evaluation report.
+pub const EVAL_FILE: &str = "eval.json";
 
 fn ground_truth_collisions(
     assets: &Assets,
     network: &Arc<GarmentNetwork>,
     motions: &[TestSequence],
     shapes: &[TestSequence],
-) -> anyhow::Result<f64> {
+) -> Result<f64> {
     let rig = assets.rig(network, Method::Lbs.options(AnimatorOptions::default()))?;
     let counts = motions
         .par_iter()
         .chain(shapes.par_iter())
-        .map(|s| -> anyhow::Result<(usize, usize)> {
+        .map(|s| -> Result<(usize, usize)> {
             let betas: Vec<f32> = s.truth.betas.iter().map(|&b| b as f32).collect();
             let mut a = GarmentAnimator::new(rig.clone())?;
             a.set_shape(&betas[..rig.network().n_betas()])?;
@@ -592,29 +594,31 @@ fn ground_truth_collisions(
             }
             Ok((inside, total))
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>>>()?;
     let (inside, total) = counts.iter().fold((0, 0), |(i, t), &(a, b)| (i + a, t + b));
     Ok(100.0 * inside as f64 / total.max(1) as f64)
 }
 
-fn print_summary(r: &EvalReport) {
-    for (set, map) in [
-        ("held-out motions", &r.held_out_motions),
-        ("held-out shapes", &r.held_out_shapes),
-    ] {
-        for (name, v) in map {
-            println!(
-                "{set:>16} {name:>8}: {:7.2} mm ({:7.2} before pp), inside {:5.2} % → {:5.2} %",
-                v["mean_vertex_error_mm"].as_f64().unwrap_or(f64::NAN),
-                v["mean_vertex_error_mm_before_pp"]
-                    .as_f64()
-                    .unwrap_or(f64::NAN),
-                v["collision_percent_before_pp"]
-                    .as_f64()
-                    .unwrap_or(f64::NAN),
-                v["collision_percent_after_pp"].as_f64().unwrap_or(f64::NAN),
-            );
+impl EvalReport {
+    /// One line per set and method: error after (before) the post-process, collisions.
+    pub fn summary_lines(&self) -> Vec<String> {
+        let mut lines = Vec::new();
+        for (set, map) in [
+            ("held-out motions", &self.held_out_motions),
+            ("held-out shapes", &self.held_out_shapes),
+        ] {
+            for (name, v) in map {
+                let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+                lines.push(format!(
+                    "{set:>16} {name:>8}: {:7.2} mm ({:7.2} before pp), inside {:5.2} % → {:5.2} %",
+                    f("mean_vertex_error_mm"),
+                    f("mean_vertex_error_mm_before_pp"),
+                    f("collision_percent_before_pp"),
+                    f("collision_percent_after_pp"),
+                ));
+            }
         }
+        lines
     }
 }
 
@@ -624,7 +628,7 @@ fn plot_errors(
     dir: &Path,
     motions: &serde_json::Map<String, serde_json::Value>,
     shapes: &serde_json::Map<String, serde_json::Value>,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let seqs = |v: &serde_json::Value| -> Vec<SequenceReport> {
         serde_json::from_value::<Vec<SeqIn>>(v["sequences"].clone())
             .unwrap_or_default()
@@ -651,7 +655,12 @@ fn plot_errors(
                 .collect();
             let len = curves.iter().map(Vec::len).min().unwrap_or(0);
             let points = (0..len)
-                .map(|t| (t as f64, mean(curves.iter().map(|c| c[t]))))
+                .map(|t| {
+                    (
+                        t as f64,
+                        mean(&curves.iter().map(|c| c[t]).collect::<Vec<_>>()),
+                    )
+                })
                 .collect();
             series.push(Series {
                 name: name.clone(),
@@ -730,7 +739,7 @@ fn render_comparison(
     network: &Arc<GarmentNetwork>,
     motions: &[TestSequence],
     n_frames: usize,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let Some(seq) = motions.first() else {
         return Ok(());
     };
@@ -758,7 +767,7 @@ fn render_comparison(
     let bodies: Vec<Vec<Vector3<f32>>> = keep
         .iter()
         .map(|&t| posed_body(body, &seq.truth.betas, &seq.truth.poses[t]))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     let truths: Vec<Vec<Vector3<f32>>> = keep
         .iter()
         .map(|&t| seq.truth.cloth[t].iter().map(|p| p.cast::<f32>()).collect())
@@ -803,7 +812,7 @@ fn render_comparison(
     Ok(())
 }
 
-fn posed_body(body: &BodyModel, betas: &[f64], pose: &Pose) -> anyhow::Result<Vec<Vector3<f32>>> {
+fn posed_body(body: &BodyModel, betas: &[f64], pose: &Pose) -> Result<Vec<Vector3<f32>>> {
     let mut b = betas.to_vec();
     b.resize(body.n_betas(), 0.0);
     Ok(body

@@ -1,6 +1,9 @@
 //! The experiment config (`configs/*.json`): one file names the body, garment, material, shapes,
 //! motions and splits, and holds the simulation, dataset, training and evaluation sections.
-//! Every command that reads it saves the config it used next to its outputs.
+//! Every section is typed and the whole file is checked when it is loaded, before any stage
+//! runs: a malformed value or an unknown key is an error naming the file, the line and the key
+//! (a typo in `training` must not surface after hours of simulation). Every command that reads
+//! it saves the config it used next to its outputs.
 //!
 //! ```json
 //! {
@@ -16,16 +19,26 @@
 //! }
 //! ```
 //!
-//! Paths are relative to the workspace root (where `cargo xtask` runs). Outputs go to
-//! `runs/<name>/` (`sim/`, `dataset/`, training run, `eval/`).
+//! - `simulation`: [`DriveConfig`] (sartor-cloth's driver and simulator settings);
+//! - `dataset`: [`DatasetConfig`];
+//! - `training`: [`TrainingConfig`] (sartor-model; optional, but `train` needs it);
+//! - `evaluation`: [`EvaluationConfig`] (the defaults of `eval` and `tradeoff`).
+//!
+//! Paths are relative to the data folder ([`DataDir`]: the repository, or the data shipped with
+//! the `sartor` binary). Outputs go to `<runs>/<name>/` (`sim/`, `dataset/`, `train/`,
+//! `export/`, `eval/`).
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+use sartor_cloth::DriveConfig;
 use sartor_core::io::{read_file, sha256_hex};
-use sartor_dataset::{DatasetConfig, DatasetPlan, SequencePlan, ShapePlan, Split};
+use sartor_dataset::{DatasetConfig, DatasetPlan, REST_MOTION, SequencePlan, ShapePlan, Split};
+use sartor_model::TrainingConfig;
 use serde::{Deserialize, Serialize};
+
+use crate::error::bail;
+use crate::{DataDir, Error, Result};
 
 /// A named shape.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -85,41 +98,45 @@ pub struct Experiment {
     pub motions: Motions,
     /// The simulation section (sartor-cloth's driver settings).
     #[serde(default)]
-    pub simulation: serde_json::Value,
+    pub simulation: DriveConfig,
     /// The dataset section.
     #[serde(default)]
     pub dataset: DatasetConfig,
-    /// The training section (sartor-model).
+    /// The training section (sartor-model); `train` needs it.
     #[serde(default)]
-    pub training: serde_json::Value,
+    pub training: Option<TrainingConfig>,
     /// The evaluation section.
     #[serde(default)]
-    pub evaluation: serde_json::Value,
-    /// Where runs go (not part of the file: `--runs-dir`, default `<workspace>/runs`).
+    pub evaluation: EvaluationConfig,
+    /// Where runs go (not part of the file: set by whoever loads it).
     #[serde(skip)]
     pub runs_root: PathBuf,
 }
 
-/// The `--config` / `--runs-dir` pair every experiment command takes.
-#[derive(clap::Args, Clone, Debug)]
-pub struct ExperimentArgs {
-    /// The experiment config (e.g. configs/default.json).
-    #[arg(long)]
-    pub config: PathBuf,
-    /// Folder of the runs (outputs go to <runs-dir>/<name>).
-    #[arg(long)]
-    pub runs_dir: Option<PathBuf>,
+/// The `evaluation` section: what `eval` and `tradeoff` do unless told otherwise.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvaluationConfig {
+    /// Held-out motions on the nominal shape only (the training shape closest to β = 0, as the
+    /// paper did); default false: on every training shape.
+    pub nominal_only: bool,
+    /// Frames shown in eval's rendered comparison (`compare.png`); default 4.
+    pub render_frames: usize,
+    /// Output ranks the trade-off sweeps (those below a model's own width); default
+    /// 4, 8, 16, 32, 64.
+    pub tradeoff_ranks: Vec<usize>,
+    /// Frames timed per trade-off point; default 120.
+    pub tradeoff_timed_frames: usize,
 }
 
-impl ExperimentArgs {
-    /// Load the config and set where its outputs go.
-    pub fn load(&self) -> anyhow::Result<Experiment> {
-        let mut e = Experiment::load(&self.config)?;
-        e.runs_root = self
-            .runs_dir
-            .clone()
-            .unwrap_or_else(|| crate::workspace_root().join("runs"));
-        Ok(e)
+impl Default for EvaluationConfig {
+    fn default() -> Self {
+        Self {
+            nominal_only: false,
+            render_frames: 4,
+            tradeoff_ranks: vec![4, 8, 16, 32, 64],
+            tradeoff_timed_frames: 120,
+        }
     }
 }
 
@@ -131,9 +148,6 @@ fn default_material() -> String {
     "gray_interlock".into()
 }
 
-/// The rest-pose simulation of a shape (for Δ_G) is stored under this motion name.
-pub const REST_MOTION: &str = "rest";
-
 fn valid_id(id: &str) -> bool {
     !id.is_empty()
         && id
@@ -143,29 +157,59 @@ fn valid_id(id: &str) -> bool {
 }
 
 impl Experiment {
-    /// Read and check a config file.
-    pub fn load(path: &Path) -> anyhow::Result<Self> {
+    /// Read and check a config file (every section, unknown keys included; see the module
+    /// docs). Relative asset paths are resolved against `data`; outputs go to
+    /// `<runs_root>/<name>`.
+    pub fn load(path: &Path, data: &DataDir, runs_root: &Path) -> Result<Self> {
         let bytes = read_file(path)?;
-        let mut e: Experiment = serde_json::from_slice(&bytes)
-            .with_context(|| format!("{}: not a valid experiment config", path.display()))?;
-        e.validate()
-            .with_context(|| format!("{}: invalid experiment config", path.display()))?;
-        // Relative paths are relative to the workspace root, wherever cargo runs from.
-        let root = crate::workspace_root();
+        let mut e = Self::parse(path, &bytes)?;
         for p in [&mut e.body, &mut e.garment] {
-            if p.is_relative() {
-                *p = root.join(&*p);
-            }
+            *p = data.resolve(p);
         }
-        if e.material != "gray_interlock" && Path::new(&e.material).is_relative() {
-            e.material = root.join(&e.material).display().to_string();
+        if e.material != "gray_interlock" {
+            e.material = data.resolve(Path::new(&e.material)).display().to_string();
         }
-        e.runs_root = root.join("runs");
+        e.runs_root = runs_root.to_path_buf();
         Ok(e)
     }
 
-    /// Check names, duplicates and that held-out motions are disjoint from training ones.
-    pub fn validate(&self) -> anyhow::Result<()> {
+    /// Parse and check config bytes read from `path` (named in errors).
+    pub fn parse(path: &Path, bytes: &[u8]) -> Result<Self> {
+        let config_error = |line: usize, message: String| Error::Config {
+            path: path.to_path_buf(),
+            line,
+            message,
+        };
+        let mut unknown = Vec::new();
+        let mut de = serde_json::Deserializer::from_slice(bytes);
+        let e: Experiment = serde_ignored::deserialize(&mut de, |key| {
+            // `?` stands for an `Option`'s value in serde_ignored's paths: not a key.
+            let parts: Vec<String> = key
+                .to_string()
+                .split('.')
+                .filter(|p| *p != "?")
+                .map(String::from)
+                .collect();
+            unknown.push(parts.join("."));
+        })
+        .map_err(|err| config_error(err.line(), err.to_string()))?;
+        de.end()
+            .map_err(|err| config_error(err.line(), err.to_string()))?;
+        if let Some(key) = unknown.first() {
+            let text = String::from_utf8_lossy(bytes);
+            return Err(config_error(
+                line_of_key(&text, key),
+                format!("unknown key `{key}`"),
+            ));
+        }
+        e.validate()
+            .map_err(|err| config_error(0, format!("invalid experiment config: {err}")))?;
+        Ok(e)
+    }
+
+    /// Check names, duplicates, that held-out motions are disjoint from training ones, and the
+    /// sections' own invariants.
+    pub fn validate(&self) -> Result<()> {
         if !valid_id(&self.name) {
             bail!("name {:?}: use letters, digits, '-' and '_'", self.name);
         }
@@ -208,6 +252,12 @@ impl Experiment {
         if self.motions.max_frames == Some(0) {
             bail!("motions.max_frames must be at least 1");
         }
+        if let Some(training) = &self.training {
+            training.validate()?;
+        }
+        if self.evaluation.tradeoff_timed_frames == 0 {
+            bail!("evaluation.tradeoff_timed_frames must be at least 1");
+        }
         Ok(())
     }
 
@@ -224,6 +274,31 @@ impl Experiment {
     /// Folder of the dataset.
     pub fn dataset_dir(&self) -> PathBuf {
         self.run_dir().join("dataset")
+    }
+
+    /// Folder of the training runs.
+    pub fn train_dir(&self) -> PathBuf {
+        self.run_dir().join("train")
+    }
+
+    /// The exported model folder.
+    pub fn export_dir(&self) -> PathBuf {
+        self.run_dir().join("export")
+    }
+
+    /// Folder of the evaluation.
+    pub fn eval_dir(&self) -> PathBuf {
+        self.run_dir().join("eval")
+    }
+
+    /// The training section, which `train` needs.
+    pub fn training(&self) -> Result<&TrainingConfig> {
+        self.training.as_ref().ok_or_else(|| {
+            Error::Invalid(format!(
+                "experiment {}: the config has no \"training\" section",
+                self.name
+            ))
+        })
     }
 
     /// The plan: every shape with its split; every training shape × (training + held-out
@@ -275,26 +350,88 @@ impl Experiment {
     }
 
     /// SHA-256 of a section serialised canonically (sorted keys).
-    pub fn section_sha256(value: &impl Serialize) -> anyhow::Result<String> {
+    pub fn section_sha256(value: &impl Serialize) -> Result<String> {
         let v = serde_json::to_value(value)?;
         Ok(sha256_hex(serde_json::to_string(&v)?.as_bytes()))
     }
 }
 
-/// The file stem of a simulated sequence: `<shape>__<motion>`.
-pub fn sequence_stem(shape_id: &str, motion: &str) -> String {
-    format!("{shape_id}__{motion}")
+/// The 1-based line of `key` (a dotted path such as `training.wrinkle.learning_rte`) in a JSON
+/// text: each component is looked up as `"component"` after the previous one.
+fn line_of_key(text: &str, key: &str) -> usize {
+    let mut at = 0;
+    for part in key.split('.') {
+        let needle = format!("\"{part}\"");
+        match text[at..].find(&needle) {
+            Some(i) => at += i,
+            None => break,
+        }
+    }
+    text[..at].matches('\n').count() + 1
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn root() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+    }
+
+    fn config_path(name: &str) -> PathBuf {
+        root().join("configs").join(format!("{name}.json"))
+    }
+
     fn config(name: &str) -> Experiment {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../configs")
-            .join(format!("{name}.json"));
-        Experiment::load(&path).expect("the committed config is valid")
+        let data = DataDir::new(&root()).expect("the workspace is a data folder");
+        Experiment::load(&config_path(name), &data, Path::new("runs"))
+            .expect("the committed config is valid")
+    }
+
+    /// The tiny config with `edit` applied to its JSON text.
+    fn edited(edit: impl Fn(&mut serde_json::Value)) -> Result<Experiment> {
+        let path = config_path("tiny");
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).expect("read")).expect("json");
+        edit(&mut v);
+        let text = serde_json::to_string_pretty(&v).expect("json");
+        Experiment::parse(Path::new("configs/edited.json"), text.as_bytes())
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_with_file_line_and_key() {
+        // A typo in a burn `Config` section (which serde alone would ignore).
+        let e = edited(|v| v["training"]["wrinkle"]["learning_rte"] = 0.1.into())
+            .expect_err("typo in training");
+        let msg = e.to_string();
+        assert!(msg.contains("configs/edited.json:"), "{msg}");
+        assert!(msg.contains("training.wrinkle.learning_rte"), "{msg}");
+        match e {
+            Error::Config { line, .. } => assert!(line > 1, "line {line}"),
+            other => panic!("not a config error: {other}"),
+        }
+        // A typo in the simulation section, in the top level, in evaluation.
+        for (section, key) in [("simulation", "substeps"), ("evaluation", "nominal")] {
+            let e = edited(|v| v[section][key] = 1.into()).expect_err("unknown key");
+            assert!(e.to_string().contains(key), "{e}");
+            assert!(matches!(e, Error::Config { line, .. } if line > 1), "{e}");
+        }
+        let e = edited(|v| v["trainig"] = serde_json::json!({})).expect_err("top-level typo");
+        assert!(e.to_string().contains("trainig"), "{e}");
+        // A bad value in the training section is caught at load, not at the train stage.
+        let e =
+            edited(|v| v["training"]["wrinkle"]["batch_size"] = 0.into()).expect_err("zero batch");
+        assert!(e.to_string().contains("batch"), "{e}");
+        // The untouched config parses.
+        edited(|_| {}).expect("tiny parses");
+    }
+
+    #[test]
+    fn line_of_key_follows_the_path() {
+        let text = "{\n  \"a\": {\n    \"x\": 1\n  },\n  \"b\": {\n    \"x\": 2\n  }\n}\n";
+        assert_eq!(line_of_key(text, "a.x"), 3);
+        assert_eq!(line_of_key(text, "b.x"), 6);
+        assert_eq!(line_of_key(text, "b"), 5);
     }
 
     #[test]

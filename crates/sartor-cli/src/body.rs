@@ -1,4 +1,4 @@
-//! `cargo xtask body`: write the posed body as one OBJ per frame, to look at what the model does.
+//! `sartor body` (`cargo xtask body`): write the posed body as one OBJ per frame, to look at what the model does.
 
 use std::path::PathBuf;
 
@@ -6,11 +6,12 @@ use anyhow::{Context, bail};
 use clap::Args;
 use sartor_core::{BodyModel, Par, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj};
 use sartor_import::load_smpl_npz;
-use sartor_motion::{MotionSourceOptions, RetargetBody, UpAxis, load_motion};
+use sartor_motion::{UpAxis, load_motion};
+use sartor_pipeline::DataDir;
 
-use crate::builtin_model_dir;
+use crate::motion_options;
 
-/// Arguments of `cargo xtask body`.
+/// Arguments of `body`.
 #[derive(Args, Debug)]
 pub struct BodyArgs {
     /// Shape vector, comma-separated (missing components are 0), e.g. `--beta 1.5,-0.5`.
@@ -29,7 +30,7 @@ pub struct BodyArgs {
     motion: String,
     /// AMASS files: the up axis of the file (`y` or `z`).
     #[arg(long, default_value = "y")]
-    up_axis: String,
+    up_axis: UpAxis,
     /// Write at most this many frames.
     #[arg(long)]
     frames: Option<usize>,
@@ -41,8 +42,9 @@ pub struct BodyArgs {
     out: PathBuf,
 }
 
-pub fn body(args: &BodyArgs) -> anyhow::Result<()> {
-    let model_dir = builtin_model_dir();
+/// Write the posed body (see the module docs).
+pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
+    let model_dir = data.body_dir();
     let model = match &args.smpl {
         Some(path) => load_smpl_npz(path, None)?,
         None => BodyModel::load(&model_dir)?,
@@ -61,24 +63,14 @@ pub fn body(args: &BodyArgs) -> anyhow::Result<()> {
         None => args.beta.clone(),
     };
     model.check_betas(&betas)?;
-    let up_axis = match args.up_axis.as_str() {
-        "y" | "Y" => UpAxis::Y,
-        "z" | "Z" => UpAxis::Z,
-        other => bail!("--up-axis must be y or z, not {other:?}"),
-    };
     let motion = if args.motion == "rest" {
         None
     } else {
-        let options = MotionSourceOptions {
-            motions_dir: builtin_model_dir().join("../../motions"),
-            body: if args.smpl.is_none() {
-                Some(RetargetBody::load(&model_dir)?)
-            } else {
-                None
-            },
-            lenient: false,
-            up_axis,
-        };
+        let mut options = motion_options(data, args.up_axis)?;
+        if args.smpl.is_some() {
+            // Mocap is retargeted onto the built-in rig only.
+            options.body = None;
+        }
         Some(
             load_motion(&args.motion, &options)
                 .with_context(|| format!("motion {:?}", args.motion))?,

@@ -1,9 +1,9 @@
-//! `cargo xtask garment --config configs/garments/<name>.json [--out datasets/garments/<name>]`:
+//! `sartor garment --config configs/garments/<name>.json [--out datasets/garments/<name>]`:
 //! build a garment template (procedural T-shirt or user OBJ) on the template body, relax it on
 //! the body with the simulator (unless `--no-relax`), save it (`garment.safetensors`,
 //! `garment.json`, `garment.obj`) and write `garment-report.json`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -11,11 +11,12 @@ use sartor_cloth::{
     GARMENT_REPORT, GarmentConfig, GarmentReport, Material, RelaxConfig, RelaxReport,
     build_garment, relax_on_body,
 };
-use sartor_core::io::{read_file, sha256_hex, write_atomic};
+use sartor_core::io::{read_file, sha256_hex};
 use sartor_core::{BodyModel, MODEL_HEADER, MeshProximity};
 use serde::Serialize;
 
-use crate::machine::Machine;
+use sartor_eval::{Machine, write_json};
+use sartor_pipeline::DataDir;
 
 /// Arguments of `garment`.
 #[derive(clap::Args, Debug)]
@@ -23,7 +24,7 @@ pub struct GarmentArgs {
     /// The garment config (a T-shirt recipe or an OBJ import).
     #[arg(long)]
     pub config: PathBuf,
-    /// Output folder (default: datasets/garments/<name>).
+    /// Output folder (default: `datasets/garments/<name>` in the data folder).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Body model folder (default: the config's `body`, else the built-in body).
@@ -62,19 +63,19 @@ struct ReportFile<'a> {
 }
 
 /// Build, save and report one garment.
-pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
+pub fn garment(args: &GarmentArgs, data: &DataDir) -> anyhow::Result<()> {
     let start = Instant::now();
     let config_bytes = read_file(&args.config)?;
     let config = GarmentConfig::from_json(&config_bytes, &args.config)?;
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| Path::new("datasets/garments").join(config.name()));
+        .unwrap_or_else(|| data.garments_dir().join(config.name()));
     let body_dir = args
         .body
         .clone()
-        .or_else(|| config.body())
-        .unwrap_or_else(crate::builtin_model_dir);
+        .or_else(|| config.body().map(|b| data.resolve(&b)))
+        .unwrap_or_else(|| data.body_dir());
     let t = Instant::now();
     let body = BodyModel::load(&body_dir)
         .with_context(|| format!("loading the body model from {}", body_dir.display()))?;
@@ -122,7 +123,7 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         tshirt: build.tshirt.as_ref(),
         config_path: args.config.display().to_string(),
         config_sha256: sha256_hex(&config_bytes),
-        body_dir: crate::workspace_relative(&body_dir),
+        body_dir: data.relative(&body_dir),
         relaxed_on_body: relaxation.is_some(),
         relaxation: relaxation.clone(),
         wall_time_s: start.elapsed().as_secs_f64(),
@@ -135,9 +136,7 @@ pub fn garment(args: &GarmentArgs) -> anyhow::Result<()> {
         },
         machine: Machine::current(),
     };
-    let mut json = serde_json::to_string_pretty(&file)?;
-    json.push('\n');
-    write_atomic(&out.join(GARMENT_REPORT), json.as_bytes())?;
+    write_json(&out.join(GARMENT_REPORT), &file)?;
 
     let m = &report.mesh;
     println!(

@@ -1,13 +1,15 @@
 //! Charts for the reports (plotters): a grid of line / scatter charts written as PNG and SVG,
-//! atomically. Text is drawn with the embedded DejaVu Sans (xtask/assets), so plotting needs no
+//! atomically. Text is drawn with the embedded DejaVu Sans (`assets/` of this crate), so plotting needs no
 //! system fonts.
 
 use std::path::{Path, PathBuf};
 use std::sync::Once;
 
-use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
 use plotters::prelude::*;
+
+use crate::error::{Context, ensure};
+use crate::{Error, Result};
 
 /// One series of a chart.
 #[derive(Clone, Debug)]
@@ -62,8 +64,8 @@ pub fn write_charts(
     charts: &[Chart],
     columns: usize,
     cell: (u32, u32),
-) -> anyhow::Result<Vec<PathBuf>> {
-    anyhow::ensure!(
+) -> Result<Vec<PathBuf>> {
+    ensure!(
         !charts.is_empty(),
         "no charts to draw into {}",
         stem.display()
@@ -86,9 +88,9 @@ pub fn write_charts(
             let root = SVGBackend::new(&tmp, size).into_drawing_area();
             draw_grid(&root, charts, rows, columns)
         };
-        if let Err(e) = result {
+        if let Err(message) = result {
             let _ = std::fs::remove_file(&tmp);
-            return Err(e.context(format!("drawing {}", path.display())));
+            return Err(Error::Write { path, message });
         }
         std::fs::rename(&tmp, &path)
             .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
@@ -102,11 +104,11 @@ fn draw_grid<DB: DrawingBackend>(
     charts: &[Chart],
     rows: usize,
     columns: usize,
-) -> anyhow::Result<()>
+) -> std::result::Result<(), String>
 where
     DB::ErrorType: 'static,
 {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("{e:?}");
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| format!("{e:?}");
     root.fill(&WHITE).map_err(err)?;
     let cells = root.split_evenly((rows, columns));
     for (chart, area) in charts.iter().zip(&cells) {

@@ -1,0 +1,173 @@
+//! `bench`: the benchmarks that write JSON reports (`bench sim` → `bench-sim.json`,
+//! `bench runtime` → `bench-runtime.json`; see sartor-eval).
+
+use std::path::{Path, PathBuf};
+
+use clap::{Args, Subcommand};
+use sartor_core::BodyModel;
+use sartor_eval::{
+    GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime, bench_sim, write_json,
+};
+use sartor_motion::{MotionSourceOptions, load_motion};
+
+use crate::Env;
+use crate::progress::Bar;
+
+/// Arguments of `bench`.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// What to benchmark.
+    #[command(subcommand)]
+    pub target: BenchTarget,
+}
+
+/// The benchmarks.
+#[derive(Subcommand, Debug)]
+pub enum BenchTarget {
+    /// Milliseconds per frame of the cloth simulator on a walk, per garment size.
+    Sim(SimBenchArgs),
+    /// Milliseconds per frame of the runtime against the paper's Table 1, per garment size.
+    Runtime(RuntimeBenchArgs),
+}
+
+/// The linear solvers `bench sim` can time.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum SolverArg {
+    /// Block-Jacobi preconditioned conjugate gradients (1,000 iterations at most, relative
+    /// tolerance 1e-5, as `configs/default.json`).
+    Cg,
+    /// faer's sparse Cholesky (symbolic analysis reused).
+    Cholesky,
+}
+
+/// Arguments of `bench sim`.
+#[derive(Args, Debug)]
+pub struct SimBenchArgs {
+    /// Output JSON.
+    #[arg(long, default_value = "bench-sim.json")]
+    pub out: PathBuf,
+    /// Garment sizes (triangles): `datasets/garments/tshirt-<n>` if present, else built from
+    /// `configs/garments/tshirt-<n>.json`, relaxed, and kept in `--garment-cache`.
+    #[arg(long, value_delimiter = ',', default_value = "4210,8710,17710,26066")]
+    pub sizes: Vec<usize>,
+    /// Motion frames timed (at least 30 for the figure).
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+    /// The motion (`walk`: the imported MakeHuman walk; or any `load_motion` spec).
+    #[arg(long, default_value = "walk")]
+    pub motion: String,
+    /// First motion frame used.
+    #[arg(long, default_value_t = 0)]
+    pub start_frame: usize,
+    /// Blend frames before the motion (simulated, not timed).
+    #[arg(long, default_value_t = 10)]
+    pub blend_frames: usize,
+    /// Rest frames before the motion (simulated, not timed).
+    #[arg(long, default_value_t = 5)]
+    pub rest_frames: usize,
+    /// Skip the run on all threads (rayon).
+    #[arg(long)]
+    pub single_thread_only: bool,
+    /// Do not relax garments built for the benchmark (faster; the cloth then starts off its
+    /// equilibrium).
+    #[arg(long)]
+    pub no_relax: bool,
+    /// Where garments built for the benchmark are kept between runs.
+    #[arg(long, default_value = "target/bench-garments")]
+    pub garment_cache: PathBuf,
+    /// Linear solver of the implicit step.
+    #[arg(long, value_enum, default_value_t = SolverArg::Cg)]
+    pub solver: SolverArg,
+}
+
+/// Arguments of `bench runtime`.
+#[derive(Args, Debug)]
+pub struct RuntimeBenchArgs {
+    /// Output file.
+    #[arg(long, default_value = "bench-runtime.json")]
+    pub out: PathBuf,
+    /// Garment sizes (triangles) to run; each needs `configs/garments/tshirt-<n>.json` or
+    /// `datasets/garments/tshirt-<n>`.
+    #[arg(long, value_delimiter = ',', default_values_t = [4210usize, 8710, 17710, 26066])]
+    pub triangles: Vec<usize>,
+    /// Procedural clip to animate.
+    #[arg(long, default_value = "walk_normal")]
+    pub clip: String,
+    /// Frames run before timing (GRU state and caches warm up).
+    #[arg(long, default_value_t = 20)]
+    pub warmup: usize,
+    /// Frames timed per configuration.
+    #[arg(long, default_value_t = 120)]
+    pub frames: usize,
+    /// GRU hidden size of the paper-size model.
+    #[arg(long, default_value_t = 1500)]
+    pub gru_hidden: usize,
+    /// Garment size (triangles) of the post-process comparison and the reduced models.
+    #[arg(long, default_value_t = 8710)]
+    pub reference_triangles: usize,
+    /// Where garments built for the benchmark are kept between runs.
+    #[arg(long, default_value = "target/bench-garments")]
+    pub garment_cache: PathBuf,
+}
+
+fn garment_dirs(env: &Env, cache: &Path) -> GarmentDirs {
+    GarmentDirs {
+        garments: env.data.garments_dir(),
+        recipes: env.data.recipes_dir(),
+        cache: env.data.resolve(cache),
+    }
+}
+
+/// Run a benchmark.
+pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
+    let progress = Bar::new();
+    let (out, report) = match &args.target {
+        BenchTarget::Sim(a) => {
+            let options = MotionSourceOptions {
+                motions_dir: env.data.motions_dir(),
+                ..MotionSourceOptions::default()
+            };
+            let motion = load_motion(&a.motion, &options)?;
+            let end = a.start_frame + a.frames;
+            anyhow::ensure!(
+                end <= motion.n_frames(),
+                "{} has {} frames, {end} asked for",
+                a.motion,
+                motion.n_frames()
+            );
+            let options = SimBenchOptions {
+                sizes: a.sizes.clone(),
+                motion: motion.slice(a.start_frame..end)?,
+                motion_frames: a.start_frame..end,
+                blend_frames: a.blend_frames,
+                rest_frames: a.rest_frames,
+                single_thread_only: a.single_thread_only,
+                no_relax: a.no_relax,
+                solver: match a.solver {
+                    SolverArg::Cg => Solver::Cg,
+                    SolverArg::Cholesky => Solver::Cholesky,
+                },
+            };
+            let body = BodyModel::load(&env.data.body_dir())?;
+            let dirs = garment_dirs(env, &a.garment_cache);
+            let report = bench_sim(&options, &body, &dirs, &progress)?;
+            (a.out.clone(), serde_json::to_value(&report)?)
+        }
+        BenchTarget::Runtime(a) => {
+            let options = RuntimeBenchOptions {
+                triangles: a.triangles.clone(),
+                clip: a.clip.clone(),
+                warmup: a.warmup,
+                frames: a.frames,
+                gru_hidden: a.gru_hidden,
+                reference_triangles: a.reference_triangles,
+            };
+            let dirs = garment_dirs(env, &a.garment_cache);
+            let report = bench_runtime(&options, &env.data.body_dir(), &dirs, &progress)?;
+            (a.out.clone(), serde_json::to_value(&report)?)
+        }
+    };
+    write_json(&out, &report)?;
+    println!("wrote {}", out.display());
+    Ok(())
+}

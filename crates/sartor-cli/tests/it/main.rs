@@ -1,0 +1,3 @@
+//! sartor-cli's integration tests (one binary).
+
+mod relocated;
