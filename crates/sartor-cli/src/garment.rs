@@ -12,7 +12,7 @@ use sartor_cloth::{
     build_garment, relax_on_body,
 };
 use sartor_core::io::{read_file, sha256_hex};
-use sartor_core::{BodyModel, MODEL_HEADER, MeshProximity};
+use sartor_core::{BodyModel, MeshProximity};
 use serde::Serialize;
 
 use sartor_eval::{Machine, write_json};
@@ -79,18 +79,11 @@ pub fn garment(args: &GarmentArgs, data: &DataDir) -> anyhow::Result<()> {
     let t = Instant::now();
     let body = BodyModel::load(&body_dir)
         .with_context(|| format!("loading the body model from {}", body_dir.display()))?;
-    let body_header_sha256 = sha256_hex(&read_file(&body_dir.join(MODEL_HEADER))?);
     let load_body_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let build = build_garment(
-        &config,
-        &args.config,
-        &config_bytes,
-        &body,
-        Some(body_header_sha256),
-    )
-    .with_context(|| format!("building the garment of {}", args.config.display()))?;
+    let build = build_garment(&config, &args.config, &config_bytes, &body)
+        .with_context(|| format!("building the garment of {}", args.config.display()))?;
     let build_s = t.elapsed().as_secs_f64();
 
     let t = Instant::now();

@@ -1010,14 +1010,12 @@ fn run(
         units: "m".into(),
         axes: "+Y up, +Z forward, +X body's left".into(),
         garment: GarmentId {
-            name: garment.name().to_string(),
-            sha256: garment.content_sha256().map_err(hard)?,
+            asset: garment.asset_id().map_err(hard)?,
             n_vertices: garment.positions().len(),
             n_faces: garment.faces().len(),
         },
         body: BodyId {
-            name: body.name().to_string(),
-            sha256: body.content_sha256().map_err(|e| hard(e.into()))?,
+            asset: body.asset_id().map_err(|e| hard(e.into()))?,
             n_betas: body.n_betas(),
             joint_names: body.skeleton().names().to_vec(),
         },

@@ -80,10 +80,8 @@ pub enum Phase {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GarmentId {
-    /// The garment's name.
-    pub name: String,
-    /// SHA-256 of its tensor file ([`crate::Garment::content_sha256`]).
-    pub sha256: String,
+    /// The garment's identity ([`crate::Garment::asset_id`]).
+    pub asset: sartor_core::asset::AssetId,
     /// Vertices.
     pub n_vertices: usize,
     /// Triangles.
@@ -94,10 +92,8 @@ pub struct GarmentId {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BodyId {
-    /// The model's name.
-    pub name: String,
-    /// [`sartor_core::BodyModel::content_sha256`] of the model.
-    pub sha256: String,
+    /// The model's identity ([`sartor_core::BodyModel::asset_id`]).
+    pub asset: sartor_core::asset::AssetId,
     /// Length of β.
     pub n_betas: usize,
     /// Joint names, in the order of the poses' rotations.

@@ -38,6 +38,7 @@
 //! # Ok::<(), sartor_core::Error>(())
 //! ```
 
+pub mod asset;
 mod binding;
 mod error;
 mod features;

@@ -6,7 +6,8 @@ use std::path::Path;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::io::{OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic};
+use crate::asset::AssetFiles;
+use crate::io::{OwnedTensor, read_file, serialize_tensors, sha256_hex};
 use crate::skeleton::{Pose, Skeleton};
 use crate::skinning::{BoneTransform, Par, SkinWeights, skin_points};
 use crate::{Error, Result, TriMesh};
@@ -63,7 +64,15 @@ struct Header {
     tensors_sha256: String,
 }
 
-const FORMAT: &str = "sartor-body";
+crate::asset_header!(Header);
+
+/// The body model's file pair.
+const FILES: AssetFiles = AssetFiles {
+    header: MODEL_HEADER,
+    tensors: MODEL_TENSORS,
+    format: "sartor-body",
+    version: 1,
+};
 const AXES: &str = "+Y up, +Z forward, +X body's left";
 
 impl BodyModel {
@@ -295,6 +304,14 @@ impl BodyModel {
         Ok(sha256_hex(&self.tensor_bytes()?))
     }
 
+    /// The body's identity: its name and [`Self::content_sha256`].
+    pub fn asset_id(&self) -> Result<crate::asset::AssetId> {
+        Ok(crate::asset::AssetId {
+            id: self.name.clone(),
+            sha256: self.content_sha256()?,
+        })
+    }
+
     /// The bytes of `model.safetensors` (deterministic).
     fn tensor_bytes(&self) -> Result<Vec<u8>> {
         let (v, j, nb) = (self.n_vertices(), self.skeleton.n_joints(), self.n_betas);
@@ -350,8 +367,8 @@ impl BodyModel {
         let (v, nb) = (self.n_vertices(), self.n_betas);
         let bytes = self.tensor_bytes()?;
         let header = Header {
-            format: FORMAT.into(),
-            version: 1,
+            format: FILES.format.into(),
+            version: FILES.version,
             name: self.name.clone(),
             units: "m".into(),
             axes: AXES.into(),
@@ -363,11 +380,7 @@ impl BodyModel {
             provenance: self.provenance.clone(),
             tensors_sha256: sha256_hex(&bytes),
         };
-        let mut json = serde_json::to_string_pretty(&header)
-            .map_err(|e| Error::invalid("body model", format!("header: {e}")))?;
-        json.push('\n');
-        write_atomic(&dir.join(MODEL_TENSORS), &bytes)?;
-        write_atomic(&dir.join(MODEL_HEADER), json.as_bytes())
+        FILES.write(dir, &header, &bytes)
     }
 
     /// Load a model saved by [`Self::save`] from `dir`, checking the header, the tensors' hash,
@@ -381,32 +394,14 @@ impl BodyModel {
     /// Parse a model from the bytes of its two files, read from folder `dir` (used in error
     /// messages only).
     pub fn from_bytes(dir: &Path, header_bytes: &[u8], bytes: Vec<u8>) -> Result<Self> {
-        let header_path = dir.join(MODEL_HEADER);
-        let header: Header = serde_json::from_slice(header_bytes)
-            .map_err(|e| Error::parse(&header_path, e.line(), e.to_string()))?;
-        if header.format != FORMAT || header.version != 1 {
-            return Err(Error::format(
-                &header_path,
-                format!(
-                    "format {:?} version {} is not {FORMAT} version 1",
-                    header.format, header.version
-                ),
-            ));
-        }
+        let (header, file): (Header, _) = FILES.parse(dir, header_bytes, bytes)?;
+        let (header_path, tensor_path) = (dir.join(MODEL_HEADER), dir.join(MODEL_TENSORS));
         if header.units != "m" {
             return Err(Error::format(
                 &header_path,
                 format!("units {:?}, expected \"m\"", header.units),
             ));
         }
-        let tensor_path = dir.join(MODEL_TENSORS);
-        if sha256_hex(&bytes) != header.tensors_sha256 {
-            return Err(Error::format(
-                &tensor_path,
-                format!("content hash does not match {}", header_path.display()),
-            ));
-        }
-        let file = TensorFile::from_bytes(&tensor_path, bytes)?;
         let in_file = |e: Error| e.in_file(&tensor_path);
         let (v, f, nb) = (header.n_vertices, header.n_faces, header.n_betas);
         let j = header.joint_names.len();

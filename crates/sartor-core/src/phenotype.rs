@@ -32,7 +32,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::io::{OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic};
+use crate::asset::AssetFiles;
+use crate::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use crate::{BodyModel, Error, Result};
 
 /// File name of the phenotype space's tensors inside a model folder.
@@ -40,7 +41,13 @@ pub const PHENOTYPE_TENSORS: &str = "phenotype.safetensors";
 /// File name of the phenotype space's JSON header inside a model folder.
 pub const PHENOTYPE_HEADER: &str = "phenotype.json";
 
-const FORMAT: &str = "sartor-phenotype";
+/// The phenotype space's file pair.
+const FILES: AssetFiles = AssetFiles {
+    header: PHENOTYPE_HEADER,
+    tensors: PHENOTYPE_TENSORS,
+    format: "sartor-phenotype",
+    version: 1,
+};
 
 /// MakeHuman's age rule (`apps/human.py`, `getAgeYears`): slider 0 is 1 year, 0.5 is 25 years,
 /// 1 is 90 years, linear in between.
@@ -601,6 +608,8 @@ struct Header {
     tensors_sha256: String,
 }
 
+crate::asset_header!(Header);
+
 /// MakeHuman's macro sliders mapped exactly onto a body model's shape space (see the module
 /// docs): `β(φ) = Σ_t w_t(φ) · p_t + c`, with MakeHuman's weighting rule `w_t` and the stored
 /// projections `p_t` of every macro target and offset `c`. Saved next to the model as
@@ -774,8 +783,8 @@ impl PhenotypeSpace {
         );
         let bytes = serialize_tensors(&tensors, None)?;
         let header = Header {
-            format: FORMAT.into(),
-            version: 1,
+            format: FILES.format.into(),
+            version: FILES.version,
             n_betas: self.n_betas,
             variables: self.rule.variables.clone(),
             race_weights: self.rule.race_weights.clone(),
@@ -783,37 +792,14 @@ impl PhenotypeSpace {
             sampling: self.sampling.clone(),
             tensors_sha256: sha256_hex(&bytes),
         };
-        let mut json = serde_json::to_string_pretty(&header)
-            .map_err(|e| Error::invalid("phenotype space", format!("header: {e}")))?;
-        json.push('\n');
-        write_atomic(&dir.join(PHENOTYPE_TENSORS), &bytes)?;
-        write_atomic(&dir.join(PHENOTYPE_HEADER), json.as_bytes())
+        FILES.write(dir, &header, &bytes)
     }
 
     /// Load a space saved by [`Self::save`] from `dir` (e.g. the built-in `datasets/body/makehuman`),
     /// checking the header, the tensors' hash, the rule and every shape.
     pub fn load(dir: &Path) -> Result<Self> {
+        let (header, file): (Header, _) = FILES.read(dir)?;
         let header_path = dir.join(PHENOTYPE_HEADER);
-        let header: Header = serde_json::from_slice(&read_file(&header_path)?)
-            .map_err(|e| Error::parse(&header_path, e.line(), e.to_string()))?;
-        if header.format != FORMAT || header.version != 1 {
-            return Err(Error::format(
-                &header_path,
-                format!(
-                    "format {:?} version {} is not {FORMAT} version 1",
-                    header.format, header.version
-                ),
-            ));
-        }
-        let tensor_path = dir.join(PHENOTYPE_TENSORS);
-        let bytes = read_file(&tensor_path)?;
-        if sha256_hex(&bytes) != header.tensors_sha256 {
-            return Err(Error::format(
-                &tensor_path,
-                format!("content hash does not match {}", header_path.display()),
-            ));
-        }
-        let file = TensorFile::from_bytes(&tensor_path, bytes)?;
         let (t, nb) = (header.targets.len(), header.n_betas);
         let (_, target_betas) = file.f32("target_betas", &[Some(t), Some(nb)])?;
         let (_, offset) = file.f32("offset", &[Some(nb)])?;

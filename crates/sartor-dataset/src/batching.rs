@@ -195,10 +195,14 @@ mod tests {
         };
         TrainingData::new(
             crate::DataSource {
-                garment_id: "g".into(),
-                garment_sha256: "0".repeat(64),
-                body_id: "b".into(),
-                body_sha256: "1".repeat(64),
+                garment: sartor_core::asset::AssetId {
+                    id: "g".into(),
+                    sha256: "0".repeat(64),
+                },
+                body: sartor_core::asset::AssetId {
+                    id: "b".into(),
+                    sha256: "1".repeat(64),
+                },
             },
             1,
             layout,

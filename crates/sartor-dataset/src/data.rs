@@ -163,14 +163,10 @@ impl PcaBasis {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DataSource {
-    /// Garment name, e.g. `tshirt-4210`.
-    pub garment_id: String,
-    /// SHA-256 of the garment's files.
-    pub garment_sha256: String,
-    /// Body model name, e.g. `makehuman`.
-    pub body_id: String,
-    /// SHA-256 of the body model's files.
-    pub body_sha256: String,
+    /// The garment, e.g. `tshirt-4210`.
+    pub garment: sartor_core::asset::AssetId,
+    /// The body model, e.g. `makehuman-cmu_mb`.
+    pub body: sartor_core::asset::AssetId,
 }
 
 /// Everything a training run needs, validated.

@@ -54,10 +54,10 @@ impl SimFolder {
         };
         let seq = ClothSequence::read(&path).map_err(|e| bad(e.to_string()))?;
         let h = &seq.header;
-        if h.garment.sha256 != self.garment_sha256 {
+        if h.garment.asset.sha256 != self.garment_sha256 {
             return Err(bad(format!(
                 "simulated with garment {} ({}), the experiment's garment has hash {}",
-                h.garment.name, h.garment.sha256, self.garment_sha256
+                h.garment.asset.id, h.garment.asset.sha256, self.garment_sha256
             )));
         }
         let mut betas = shape.betas.clone();

@@ -217,7 +217,7 @@ pub fn garment_of_size(
     let bytes = read_file(&config_path)?;
     let config = GarmentConfig::from_json(&bytes, &config_path)?;
     progress.println(&format!("building {name} from {}", config_path.display()));
-    let garment = build_garment(&config, &config_path, &bytes, body, None)?.garment;
+    let garment = build_garment(&config, &config_path, &bytes, body)?.garment;
     let garment = if no_relax {
         garment
     } else {

@@ -4,10 +4,10 @@
 use burn::module::Module;
 use burn::nn::Linear;
 use burn::tensor::{Device, Tensor};
-use sartor_dataset::{DataSource, MeanStd, TrainingData};
+use sartor_dataset::{MeanStd, TrainingData};
 use sartor_runtime::{
-    AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, ModelHeader,
-    ModelSizes, ModelWeights, OutputKind, PcaWeights,
+    DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, ModelHeader, ModelSizes,
+    ModelWeights, OutputKind, PcaWeights,
 };
 
 use crate::data::{PcaTensors, tensor, to_vec};
@@ -49,21 +49,6 @@ fn mean_std(m: &MeanStd) -> sartor_runtime::MeanStd {
         mean: m.mean.clone(),
         std: m.std.clone(),
     }
-}
-
-/// The garment's and the body's identity (name and content hash) as the runtime's asset ids:
-/// what an exported model and its binding both carry.
-pub fn asset_ids(source: &DataSource) -> (AssetId, AssetId) {
-    (
-        AssetId {
-            id: source.garment_id.clone(),
-            sha256: source.garment_sha256.clone(),
-        },
-        AssetId {
-            id: source.body_id.clone(),
-            sha256: source.body_sha256.clone(),
-        },
-    )
 }
 
 /// The wrinkle input layout as the runtime's feature blocks: β, then the joint rotations,
@@ -162,7 +147,7 @@ pub fn export_model(
         output,
         linear_baseline: linear.is_some(),
     };
-    let (garment, body) = asset_ids(data.source());
+    let (garment, body) = (data.source().garment.clone(), data.source().body.clone());
     let header = ModelHeader::new(garment, body, sizes, feature_blocks(data));
     let stats = data.stats();
     let weights = ModelWeights {

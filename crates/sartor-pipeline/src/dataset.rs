@@ -49,10 +49,8 @@ pub fn dataset(
         ));
     }
     let source = DataSource {
-        garment_id: garment.name().to_string(),
-        garment_sha256: garment_sha256.clone(),
-        body_id: body.name().to_string(),
-        body_sha256: body.content_sha256()?,
+        garment: garment.asset_id()?,
+        body: body.asset_id()?,
     };
     let config_sha256 = Experiment::section_sha256(&serde_json::json!({
         "dataset": &e.dataset,

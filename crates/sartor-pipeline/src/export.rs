@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use sartor_core::{BodyModel, faces_near};
 use sartor_model::burn::tensor::Device;
-use sartor_model::{AnyModel, ModelKind, asset_ids, export_model, load_trained};
+use sartor_model::{AnyModel, ModelKind, export_model, load_trained};
 use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
 use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig};
 
@@ -135,7 +135,7 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
         &cloth.faces,
         args.region_margin_mm * 1e-3,
     )?;
-    let (garment_id, body_id) = asset_ids(source);
+    let (garment_id, body_id) = (source.garment.clone(), source.body.clone());
     let binding = GarmentBinding::new(
         garment_id,
         body_id,

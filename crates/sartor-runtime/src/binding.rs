@@ -36,14 +36,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use nalgebra::Vector3;
-use sartor_core::io::{
-    OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
-};
+use sartor_core::asset::AssetFiles;
+use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use sartor_core::{BodyModel, SkinWeights, faces_near, transfer_skin_weights};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::format::{AssetId, ModelHeader, is_sha256};
+use crate::format::{AssetId, ModelHeader};
 
 /// The `format` string of `binding.json`.
 pub const BINDING_FORMAT: &str = "sartor-garment-binding";
@@ -53,6 +52,14 @@ pub const BINDING_VERSION: u32 = 1;
 pub const BINDING_JSON: &str = "binding.json";
 /// File name of the binding's tensors inside a model folder.
 pub const BINDING_TENSORS: &str = "binding.safetensors";
+
+/// The binding's file pair.
+const FILES: AssetFiles = AssetFiles {
+    header: BINDING_JSON,
+    tensors: BINDING_TENSORS,
+    format: BINDING_FORMAT,
+    version: BINDING_VERSION,
+};
 
 /// The contents of `binding.json`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -79,6 +86,8 @@ pub struct BindingHeader {
     /// SHA-256 of `binding.safetensors`.
     pub tensors_sha256: String,
 }
+
+sartor_core::asset_header!(BindingHeader);
 
 /// A garment bound to a body: template `T̄_c`, triangles, cloth skin weights `W_c` and the body
 /// region the garment can touch. Validated on construction: finite template, face indices in
@@ -347,11 +356,7 @@ impl GarmentBinding {
     /// as written.
     pub fn save(&self, dir: &Path) -> Result<BindingHeader> {
         let (header, bytes) = self.to_parts()?;
-        let mut json = serde_json::to_string_pretty(&header)
-            .map_err(|e| Error::format(dir.join(BINDING_JSON), e.to_string()))?;
-        json.push('\n');
-        write_atomic(&dir.join(BINDING_TENSORS), &bytes)?;
-        write_atomic(&dir.join(BINDING_JSON), json.as_bytes())?;
+        FILES.write(dir, &header, &bytes)?;
         Ok(header)
     }
 
@@ -359,38 +364,11 @@ impl GarmentBinding {
     /// tensors' hash, the exact set of tensors, dtypes and shapes against the header, and every
     /// invariant of [`GarmentBinding::new`]. Errors name the file and the fault.
     pub fn load(dir: &Path) -> Result<Self> {
-        let json_path = dir.join(BINDING_JSON);
-        let header: BindingHeader = serde_json::from_slice(&read_file(&json_path)?)
-            .map_err(|e| Error::format(&json_path, format!("bad binding header: {e}")))?;
+        let (header, file): (BindingHeader, _) = FILES.read(dir)?;
+        let (json_path, path) = (dir.join(BINDING_JSON), dir.join(BINDING_TENSORS));
         let bad_json = |m: String| Error::format(&json_path, m);
-        if header.format != BINDING_FORMAT || header.version != BINDING_VERSION {
-            return Err(bad_json(format!(
-                "format {:?} version {} is not {BINDING_FORMAT:?} version {BINDING_VERSION}",
-                header.format, header.version
-            )));
-        }
         header.garment.check("garment").map_err(bad_json)?;
         header.body.check("body").map_err(bad_json)?;
-        if !is_sha256(&header.tensors_sha256) {
-            return Err(bad_json(
-                "tensors_sha256 is not 64 lower-case hex digits".into(),
-            ));
-        }
-
-        let path = dir.join(BINDING_TENSORS);
-        let bytes = read_file(&path)?;
-        let hash = sha256_hex(&bytes);
-        if hash != header.tensors_sha256 {
-            return Err(Error::format(
-                &path,
-                format!(
-                    "SHA-256 {hash} does not match tensors_sha256 {} in {}",
-                    header.tensors_sha256,
-                    json_path.display()
-                ),
-            ));
-        }
-        let file = TensorFile::from_bytes(&path, bytes)?;
         let expected: BTreeSet<&str> = [
             "template",
             "faces",

@@ -61,9 +61,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use sartor_core::io::{
-    OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
-};
+use sartor_core::asset::AssetFiles;
+use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -77,29 +76,17 @@ pub const MODEL_JSON: &str = "model.json";
 /// File name of the tensors inside a model folder.
 pub const MODEL_TENSORS: &str = "model.safetensors";
 
-/// An asset the model was trained for, identified by name and content hash.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AssetId {
-    /// Name, e.g. `tshirt`.
-    pub id: String,
-    /// Lower-case hex SHA-256 of the asset's files.
-    pub sha256: String,
-}
+/// The model's file pair.
+const FILES: AssetFiles = AssetFiles {
+    header: MODEL_JSON,
+    tensors: MODEL_TENSORS,
+    format: MODEL_FORMAT,
+    version: MODEL_VERSION,
+};
 
-impl AssetId {
-    /// Check that the name is not empty and the hash is 64 lower-case hex digits; the message
-    /// names `field`.
-    pub(crate) fn check(&self, field: &str) -> std::result::Result<(), String> {
-        if self.id.is_empty() {
-            return Err(format!("{field}.id is empty"));
-        }
-        if !is_sha256(&self.sha256) {
-            return Err(format!("{field}.sha256 is not 64 lower-case hex digits"));
-        }
-        Ok(())
-    }
-}
+/// An asset the model was trained for, identified by name and content hash: sartor-core's
+/// one asset identity.
+pub use sartor_core::asset::AssetId;
 
 /// The wrinkle regressor's output.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -250,11 +237,7 @@ pub struct ModelHeader {
     pub tensors_sha256: String,
 }
 
-pub(crate) fn is_sha256(s: &str) -> bool {
-    s.len() == 64
-        && s.bytes()
-            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
-}
+sartor_core::asset_header!(ModelHeader);
 
 fn unique(what: &str, names: &[String]) -> std::result::Result<(), String> {
     let mut seen = BTreeSet::new();
@@ -630,10 +613,7 @@ impl GarmentModel {
         let bytes = self.tensor_bytes()?;
         let mut header = self.header.clone();
         header.tensors_sha256 = sha256_hex(&bytes);
-        let json = serde_json::to_string_pretty(&header)
-            .map_err(|e| Error::format(dir.join(MODEL_JSON), e.to_string()))?;
-        write_atomic(&dir.join(MODEL_TENSORS), &bytes)?;
-        write_atomic(&dir.join(MODEL_JSON), json.as_bytes())?;
+        FILES.write(dir, &header, &bytes)?;
         Ok(header)
     }
 
@@ -641,33 +621,9 @@ impl GarmentModel {
     /// layout, the tensors' hash, the exact set of tensor names, every dtype and shape,
     /// finiteness and positive standard deviations. Errors name the file and the fault.
     pub fn load(dir: &Path) -> Result<Self> {
-        let json_path = dir.join(MODEL_JSON);
-        let text = String::from_utf8(read_file(&json_path)?)
-            .map_err(|e| Error::format(&json_path, format!("not UTF-8: {e}")))?;
-        let header: ModelHeader = serde_json::from_str(&text)
-            .map_err(|e| Error::format(&json_path, format!("bad model header: {e}")))?;
+        let (header, file): (ModelHeader, _) = FILES.read(dir)?;
+        let (json_path, path) = (dir.join(MODEL_JSON), dir.join(MODEL_TENSORS));
         header.validate().map_err(|e| e.in_file(&json_path))?;
-        if !is_sha256(&header.tensors_sha256) {
-            return Err(Error::format(
-                &json_path,
-                "tensors_sha256 is not 64 lower-case hex digits",
-            ));
-        }
-
-        let path = dir.join(MODEL_TENSORS);
-        let bytes = read_file(&path)?;
-        let hash = sha256_hex(&bytes);
-        let file = TensorFile::from_bytes(&path, bytes)?;
-        if hash != header.tensors_sha256 {
-            return Err(Error::format(
-                &path,
-                format!(
-                    "SHA-256 {hash} does not match tensors_sha256 {} in {}",
-                    header.tensors_sha256,
-                    json_path.display()
-                ),
-            ));
-        }
         let shapes = header.sizes.tensor_shapes();
         for name in file.names() {
             if !shapes.contains_key(name.as_str()) {

@@ -95,14 +95,12 @@ pub struct GarmentBuild {
 }
 
 /// Make the garment of `config` on `body`. `config_path` and `config_bytes` are the config
-/// file and its bytes (their hash goes into the provenance); `body_header_sha256` is the hash
-/// of the body's `model.json`, if known.
+/// file and its bytes (their hash goes into the provenance, with the body's identity).
 pub fn build_garment(
     config: &GarmentConfig,
     config_path: &Path,
     config_bytes: &[u8],
     body: &BodyModel,
-    body_header_sha256: Option<String>,
 ) -> Result<GarmentBuild> {
     match config {
         GarmentConfig::Tshirt(recipe) => {
@@ -112,8 +110,7 @@ pub fn build_garment(
                 kind: SourceKind::Recipe,
                 path: config_path.display().to_string(),
                 sha256: sha256_hex(config_bytes),
-                body: Some(body.name().to_string()),
-                body_header_sha256,
+                body: Some(body.asset_id()?),
             };
             Ok(GarmentBuild {
                 garment: Garment::from_surface(&recipe.name, &surface.mesh, &axes, provenance)?,
@@ -125,11 +122,8 @@ pub fn build_garment(
                 name: c.name.clone(),
                 pattern_scale_m: c.pattern_scale_m,
             };
-            let garment = import_obj_garment(Path::new(&c.obj), &options, Some(body))?;
-            let mut provenance = garment.provenance().clone();
-            provenance.body_header_sha256 = body_header_sha256;
             Ok(GarmentBuild {
-                garment: garment.with_provenance(provenance),
+                garment: import_obj_garment(Path::new(&c.obj), &options, Some(body))?,
                 tshirt: None,
             })
         }

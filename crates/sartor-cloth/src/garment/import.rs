@@ -53,8 +53,7 @@ pub fn import_obj_garment(
         kind: SourceKind::Obj,
         path: path.display().to_string(),
         sha256: sha256_hex(&bytes),
-        body: body.map(|b| b.name().to_string()),
-        body_header_sha256: None,
+        body: body.map(BodyModel::asset_id).transpose()?,
     };
     match options.pattern_scale_m {
         None => {

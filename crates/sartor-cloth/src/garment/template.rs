@@ -19,9 +19,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use nalgebra::{Matrix2, Vector2, Vector3};
-use sartor_core::io::{
-    OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
-};
+use sartor_core::asset::{AssetFiles, AssetId};
+use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex, write_atomic};
 use sartor_core::{TriMesh, obj_text};
 use serde::{Deserialize, Serialize};
 
@@ -37,7 +36,13 @@ pub const GARMENT_OBJ: &str = "garment.obj";
 /// File name of the quality report written next to a saved garment.
 pub const GARMENT_REPORT: &str = "garment-report.json";
 
-const FORMAT: &str = "sartor-garment";
+/// The garment's file pair.
+const FILES: AssetFiles = AssetFiles {
+    header: GARMENT_HEADER,
+    tensors: GARMENT_TENSORS,
+    format: "sartor-garment",
+    version: 1,
+};
 const AXES: &str = "+Y up, +Z forward, +X body's left";
 
 /// The material-frame convention, stored in every header.
@@ -79,11 +84,9 @@ pub struct GarmentProvenance {
     pub path: String,
     /// SHA-256 of the input file's bytes (lower-case hex).
     pub sha256: String,
-    /// Name of the body model the garment was made on, if any.
-    pub body: Option<String>,
-    /// SHA-256 of that body model's header file (`model.json`, which holds the hash of its
-    /// tensors), if known.
-    pub body_header_sha256: Option<String>,
+    /// The body model the garment was made on, if any (its name and content hash, the same
+    /// identity simulations and exported models record).
+    pub body: Option<AssetId>,
 }
 
 /// A garment template ready for the simulator: the template mesh `T̄_c` (positions on the
@@ -133,6 +136,8 @@ struct Header {
     provenance: GarmentProvenance,
     tensors_sha256: String,
 }
+
+sartor_core::asset_header!(Header);
 
 impl Garment {
     /// A garment whose rest state is its template surface, with the material u direction of
@@ -403,6 +408,14 @@ impl Garment {
         Ok(sha256_hex(&self.tensors()?))
     }
 
+    /// The garment's identity: its name and [`Self::content_sha256`].
+    pub fn asset_id(&self) -> Result<AssetId> {
+        Ok(AssetId {
+            id: self.name.clone(),
+            sha256: self.content_sha256()?,
+        })
+    }
+
     fn tensors(&self) -> Result<Vec<u8>> {
         let (n_v, n_f, n_h) = (
             self.mesh.n_vertices(),
@@ -463,8 +476,8 @@ impl Garment {
     pub fn to_bytes(&self) -> Result<(Vec<u8>, Vec<u8>, Vec<u8>)> {
         let tensors = self.tensors()?;
         let header = Header {
-            format: FORMAT.into(),
-            version: 1,
+            format: FILES.format.into(),
+            version: FILES.version,
             name: self.name.clone(),
             units: "m".into(),
             axes: AXES.into(),
@@ -476,15 +489,13 @@ impl Garment {
             provenance: self.provenance.clone(),
             tensors_sha256: sha256_hex(&tensors),
         };
-        let mut json = serde_json::to_string_pretty(&header)
-            .map_err(|e| Error::invalid("garment", format!("header: {e}")))?;
-        json.push('\n');
+        let json = FILES.header_json(Path::new(""), &header)?;
         let obj = format!(
             "# sartor garment {:?}: template positions (m)\n{}",
             self.name,
             obj_text(self.mesh.positions(), self.mesh.faces())
         );
-        Ok((tensors, json.into_bytes(), obj.into_bytes()))
+        Ok((tensors, json, obj.into_bytes()))
     }
 
     /// Save into `dir` as `garment.safetensors`, `garment.json` and `garment.obj`, each
@@ -502,34 +513,22 @@ impl Garment {
     /// shape and every invariant, and that the stored frames and areas are the ones the
     /// positions and rest metric imply.
     pub fn load(dir: &Path) -> Result<Self> {
-        let header = read_file(&dir.join(GARMENT_HEADER))?;
-        let tensors = read_file(&dir.join(GARMENT_TENSORS))?;
+        let header = sartor_core::io::read_file(&dir.join(GARMENT_HEADER))?;
+        let tensors = sartor_core::io::read_file(&dir.join(GARMENT_TENSORS))?;
         Self::from_bytes(dir, &header, tensors)
     }
 
     /// Parse a garment from the bytes of its header and tensor files, read from folder `dir`
     /// (used in error messages only).
     pub fn from_bytes(dir: &Path, header_bytes: &[u8], tensor_bytes: Vec<u8>) -> Result<Self> {
-        let header_path = dir.join(GARMENT_HEADER);
-        let tensor_path = dir.join(GARMENT_TENSORS);
-        let header: Header = serde_json::from_slice(header_bytes)
-            .map_err(|e| Error::format(&header_path, format!("line {}: {e}", e.line())))?;
-        if header.format != FORMAT || header.version != 1 || header.units != "m" {
+        let (header, file): (Header, _) = FILES.parse(dir, header_bytes, tensor_bytes)?;
+        let (header_path, tensor_path) = (dir.join(GARMENT_HEADER), dir.join(GARMENT_TENSORS));
+        if header.units != "m" {
             return Err(Error::format(
                 &header_path,
-                format!(
-                    "format {:?} version {} units {:?} is not {FORMAT} version 1 in m",
-                    header.format, header.version, header.units
-                ),
+                format!("units {:?}, expected \"m\"", header.units),
             ));
         }
-        if sha256_hex(&tensor_bytes) != header.tensors_sha256 {
-            return Err(Error::format(
-                &tensor_path,
-                format!("content hash does not match {}", header_path.display()),
-            ));
-        }
-        let file = TensorFile::from_bytes(&tensor_path, tensor_bytes)?;
         let (n_v, n_f, n_h) = (header.n_vertices, header.n_faces, header.n_hinges);
         let in_file = |e: Error| match e {
             Error::Invalid { what, message } => {

@@ -134,7 +134,7 @@ fn a_tshirt_follows_a_fast_clip_without_penetration() {
         "the cloth touches the body"
     );
     // The stored identities: the garment's is the hash in its garment.json.
-    assert_eq!(h.body.sha256, body().content_sha256().expect("hash"));
+    assert_eq!(h.body.asset.sha256, body().content_sha256().expect("hash"));
     let garment_json: serde_json::Value = serde_json::from_slice(
         &std::fs::read(
             Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -143,8 +143,8 @@ fn a_tshirt_follows_a_fast_clip_without_penetration() {
         .expect("garment.json"),
     )
     .expect("json");
-    assert_eq!(garment_json["tensors_sha256"], h.garment.sha256.as_str());
-    assert_eq!(h.garment.sha256, tshirt().content_sha256().expect("hash"));
+    assert_eq!(garment_json["tensors_sha256"], h.garment.asset.sha256.as_str());
+    assert_eq!(h.garment.asset.sha256, tshirt().content_sha256().expect("hash"));
 }
 
 #[test]

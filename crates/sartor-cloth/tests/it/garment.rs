@@ -177,7 +177,6 @@ fn provenance() -> GarmentProvenance {
         path: "tests".into(),
         sha256: "0".repeat(64),
         body: None,
-        body_header_sha256: None,
     }
 }
 
@@ -517,7 +516,7 @@ fn an_obj_config_builds_a_pattern_garment() {
     let config = GarmentConfig::from_json(text.as_bytes(), &config_path).unwrap();
     assert_eq!(config.name(), "strip");
     let body = crate::common::load_builtin().expect("the built-in body (datasets/body/makehuman)");
-    let build = build_garment(&config, &config_path, text.as_bytes(), &body, None).unwrap();
+    let build = build_garment(&config, &config_path, text.as_bytes(), &body).unwrap();
     assert_eq!(build.garment.rest_source(), RestSource::Pattern);
     assert!(build.tshirt.is_none());
     // Unknown fields are errors that name the file.

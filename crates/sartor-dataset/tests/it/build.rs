@@ -144,10 +144,14 @@ fn setup() -> (Synthetic, DatasetConfig) {
 
 fn source() -> DataSource {
     DataSource {
-        garment_id: "tshirt-tiny".into(),
-        garment_sha256: "a".repeat(64),
-        body_id: "makehuman".into(),
-        body_sha256: "b".repeat(64),
+        garment: sartor_core::asset::AssetId {
+            id: "tshirt-tiny".into(),
+            sha256: "a".repeat(64),
+        },
+        body: sartor_core::asset::AssetId {
+            id: "makehuman".into(),
+            sha256: "b".repeat(64),
+        },
     }
 }
 

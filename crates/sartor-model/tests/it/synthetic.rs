@@ -110,10 +110,14 @@ pub fn dataset(memory: f32, nonlinear: bool, pca: Option<usize>) -> TrainingData
     });
     TrainingData::new(
         DataSource {
-            garment_id: "synthetic".into(),
-            garment_sha256: "a".repeat(64),
-            body_id: "makehuman".into(),
-            body_sha256: "b".repeat(64),
+            garment: sartor_runtime::AssetId {
+                id: "synthetic".into(),
+                sha256: "a".repeat(64),
+            },
+            body: sartor_runtime::AssetId {
+                id: "makehuman".into(),
+                sha256: "b".repeat(64),
+            },
         },
         N_VERTICES,
         layout,
