@@ -48,6 +48,7 @@ mod model;
 mod obj;
 mod phenotype;
 mod proximity;
+pub mod rsvd;
 mod skeleton;
 mod skinning;
 

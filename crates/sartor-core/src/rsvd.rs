@@ -146,7 +146,11 @@ mod tests {
         let b = DMatrix::<f64>::from_fn(cols, cols, |_, _| rng.next_unit());
         let (u, v) = (a.qr().q(), b.qr().q());
         let k = rows.min(cols);
-        let s = DMatrix::<f64>::from_fn(k, k, |i, j| if i == j { 0.7f64.powi(i as i32) } else { 0.0 });
+        let s = DMatrix::<f64>::from_fn(
+            k,
+            k,
+            |i, j| if i == j { 0.7f64.powi(i as i32) } else { 0.0 },
+        );
         u.columns(0, k) * s * v.columns(0, k).transpose()
     }
 
@@ -156,10 +160,15 @@ mod tests {
         let exact = a.clone().svd(false, false).singular_values;
         let got = randomized_svd(&a, 8, 1).expect("svd");
         for (k, s) in got.singular_values.iter().enumerate() {
-            assert!((s - exact[k]).abs() < 1e-9 * exact[0], "σ{k}: {s} vs {}", exact[k]);
+            assert!(
+                (s - exact[k]).abs() < 1e-9 * exact[0],
+                "σ{k}: {s} vs {}",
+                exact[k]
+            );
         }
         // The rank-8 reconstruction is as good as the optimal one.
-        let approx = &got.u * DMatrix::from_diagonal(&got.singular_values.clone().into()) * &got.v_t;
+        let approx =
+            &got.u * DMatrix::from_diagonal(&got.singular_values.clone().into()) * &got.v_t;
         let err = (&a - approx).norm();
         let optimal: f64 = exact.iter().skip(8).map(|s| s * s).sum::<f64>().sqrt();
         assert!(err <= optimal * (1.0 + 1e-6), "{err} vs optimal {optimal}");
@@ -171,7 +180,10 @@ mod tests {
     #[test]
     fn is_deterministic_and_rejects_bad_ranks() {
         let a = decaying(20, 30);
-        assert_eq!(randomized_svd(&a, 3, 5).unwrap(), randomized_svd(&a, 3, 5).unwrap());
+        assert_eq!(
+            randomized_svd(&a, 3, 5).unwrap(),
+            randomized_svd(&a, 3, 5).unwrap()
+        );
         assert!(randomized_svd(&a, 0, 5).is_err());
         assert!(randomized_svd(&a, 21, 5).is_err());
     }

@@ -1,9 +1,7 @@
 //! Normalisation statistics and the PCA basis of `Δ_L`, both from the training split only.
 
-use nalgebra::{DMatrix, SymmetricEigen};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr_free::standard_normal;
+use nalgebra::DMatrix;
+use sartor_core::rsvd::{LinearOperator, randomized_svd};
 
 use crate::{Error, MeanStd, NormStats, PcaBasis, Result, SequenceSample, ShapeSample};
 
@@ -129,10 +127,8 @@ pub struct PcaSettings {
     pub seed: u64,
 }
 
-/// The top `k` principal components of the normalised `Δ_L` over `sequences`, by a randomized
-/// SVD (Halko, Martinsson & Tropp 2011: Gaussian range finder with `k + 20` columns, two power
-/// iterations with re-orthonormalisation, then an exact eigen-decomposition of the small
-/// projected Gram matrix). The explained-variance ratios are relative to the total variance of
+/// The top `k` principal components of the normalised `Δ_L` over `sequences`, by sartor-core's
+/// randomized SVD ([`sartor_core::rsvd`]) of the centred frames. The explained-variance ratios are relative to the total variance of
 /// the subset, so they show how much of `Δ_L` the basis keeps.
 pub fn compute_pca(
     sequences: &[&SequenceSample],
@@ -184,40 +180,14 @@ pub fn compute_pca(
             "the wrinkle displacements have no variance",
         ));
     }
-    let l = (k + 20).min(n).min(d);
-    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    let omega = DMatrix::<f32>::from_fn(d, l, |_, _| standard_normal(&mut rng));
-    let mut y = &x * omega; // n × l
-    orthonormalize_columns(&mut y);
-    for _ in 0..2 {
-        let z = x.tr_mul(&y); // d × l
-        y = &x * z;
-        orthonormalize_columns(&mut y);
-    }
-    let b = y.tr_mul(&x); // l × d
-    let gram = (&b * b.transpose()).map(|v| v as f64); // l × l
-    let eig = SymmetricEigen::new(gram);
-    let mut order: Vec<usize> = (0..l).collect();
-    order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
-    let mut basis = vec![0.0f32; d * k];
-    let mut ratios = Vec::with_capacity(k);
-    for (c, &i) in order.iter().take(k).enumerate() {
-        let s2 = eig.eigenvalues[i].max(0.0);
-        let s = s2.sqrt();
-        ratios.push(s2 / total_variance);
-        if s <= 0.0 {
-            continue;
-        }
-        // Right singular vector: Bᵀ u / s.
-        let u = eig.eigenvectors.column(i);
-        for r in 0..d {
-            let mut acc = 0.0f64;
-            for a in 0..l {
-                acc += b[(a, r)] as f64 * u[a];
-            }
-            basis[r * k + c] = (acc / s) as f32;
-        }
-    }
+    let svd = randomized_svd(&Centred(x), k, settings.seed)?;
+    let ratios = svd
+        .singular_values
+        .iter()
+        .map(|s| s * s / total_variance)
+        .collect();
+    // The components are the right singular vectors: column `c` of the basis is row `c` of Vᵀ.
+    let basis = (0..d * k).map(|i| svd.v_t[(i % k, i / k)] as f32).collect();
     Ok(PcaBasis {
         mean,
         basis,
@@ -225,42 +195,36 @@ pub fn compute_pca(
     })
 }
 
-/// Modified Gram–Schmidt, twice (numerically orthonormal); zero columns stay zero.
-fn orthonormalize_columns(y: &mut DMatrix<f32>) {
-    for _ in 0..2 {
-        for c in 0..y.ncols() {
-            for p in 0..c {
-                let dot: f64 = y
-                    .column(c)
-                    .iter()
-                    .zip(y.column(p).iter())
-                    .map(|(a, b)| *a as f64 * *b as f64)
-                    .sum();
-                let prev = y.column(p).clone_owned();
-                y.column_mut(c).axpy(-(dot as f32), &prev, 1.0);
-            }
-            let norm = y.column(c).norm();
-            if norm > 1e-20 {
-                y.column_mut(c).scale_mut(1.0 / norm);
-            }
-        }
+/// The centred frames `X` (`n × d`, f32) as the SVD's operator.
+struct Centred(DMatrix<f32>);
+
+impl LinearOperator for Centred {
+    fn rows(&self) -> usize {
+        self.0.nrows()
     }
-}
-
-/// A tiny standard-normal sampler (Box–Muller) so no distribution crate is needed.
-mod rand_distr_free {
-    use rand::Rng;
-
-    pub fn standard_normal<R: Rng>(rng: &mut R) -> f32 {
-        let u1: f64 = rng.random::<f64>().max(f64::MIN_POSITIVE);
-        let u2: f64 = rng.random::<f64>();
-        ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
+    fn cols(&self) -> usize {
+        self.0.ncols()
+    }
+    fn apply(&self, x: &DMatrix<f64>) -> sartor_core::Result<DMatrix<f64>> {
+        Ok((&self.0 * x.map(|v| v as f32)).map(f64::from))
+    }
+    fn apply_transpose(&self, y: &DMatrix<f64>) -> sartor_core::Result<DMatrix<f64>> {
+        Ok(self.0.tr_mul(&y.map(|v| v as f32)).map(f64::from))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Box–Muller: a standard-normal sample without a distribution crate.
+    fn standard_normal<R: Rng>(rng: &mut R) -> f32 {
+        let u1: f64 = rng.random::<f64>().max(f64::MIN_POSITIVE);
+        let u2: f64 = rng.random::<f64>();
+        ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
+    }
     use crate::Split;
 
     fn sequence(values: Vec<f32>, d: usize) -> SequenceSample {

@@ -2,23 +2,20 @@
 //! `W ≈ A·B` with `A = U_r Σ_r` (`rows × r`) and `B = V_rᵀ` (`r × cols`), so the `3V × H`
 //! product becomes `3V × r` + `r × H` multiply–adds.
 //!
-//! Randomised subspace iteration (Halko, Martinsson & Tropp 2011, Algorithms 4.4 and 5.1):
-//! `Y = W Ω` for a seeded random `Ω` with `r + 10` columns, two power iterations with
-//! re-orthonormalisation (`Q = qr(W qr(Wᵀ Q))`), then the exact SVD of the small `Qᵀ W`. The
-//! large products run on the crate's own batched kernels (every column of `Ω` is an "avatar"
-//! sharing one pass over the weights); the small QR and SVD use nalgebra in f64. For a matrix
-//! whose spectrum decays (a trained output layer) the result is within a few per cent of the
-//! optimal rank-`r` error; the unit test checks it against a full SVD.
+//! The factorisation is sartor-core's one randomized SVD ([`sartor_core::rsvd`]); its large
+//! products run on this crate's own batched kernels (every column of the random block is an
+//! "avatar" sharing one pass over the weights). For a matrix whose spectrum decays (a trained
+//! output layer) the result is within a few per cent of the optimal rank-`r` error; the unit
+//! test checks it against a full SVD.
 
 use nalgebra::DMatrix;
+use sartor_core::rsvd::{LinearOperator, randomized_svd};
 
 use crate::error::{Error, Result};
 use crate::kernels::{Matrix, Parallelism, Precision};
 
-/// Extra columns of the random test matrix beyond the rank asked for.
-const OVERSAMPLE: usize = 10;
-/// Power iterations (each one pass over `Wᵀ` and one over `W`).
-const POWER_ITERATIONS: usize = 2;
+/// Seed of the random test matrix (fixed: the same weights give the same factors).
+const SEED: u64 = 0x5a17_0e5e_ed00_0001;
 
 /// A rank-`r` factorisation `W ≈ left · right`.
 #[derive(Clone, Debug, PartialEq)]
@@ -33,33 +30,40 @@ pub struct LowRank {
     pub singular_values: Vec<f64>,
 }
 
-/// SplitMix64: a seeded, dependency-free source of uniform numbers in `[-1, 1)`.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_unit(&mut self) -> f32 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^= z >> 31;
-        ((z >> 40) as f32 / (1u64 << 23) as f32) - 1.0
-    }
+/// `W` and `Wᵀ` on the batched f32 kernels: the SVD's operator.
+struct Kernels {
+    forward: Matrix,
+    backward: Matrix,
 }
 
-/// Orthonormal columns spanning the `[n, l]` row-major `y` (thin Householder QR), returned
-/// transposed: `[l, n]` row-major, i.e. one basis vector per row (the layout the batched
-/// kernels take as inputs).
-fn orthonormal_t(y: &[f32], n: usize, l: usize) -> Vec<f32> {
-    let m = DMatrix::<f64>::from_row_slice(n, l, &y.iter().map(|&v| v as f64).collect::<Vec<_>>());
-    let q = m.qr().q();
-    let mut out = vec![0.0f32; l * n];
-    for c in 0..l {
-        for r in 0..n {
-            out[c * n + r] = q[(r, c)] as f32;
-        }
+/// `matrix · x` for a block `x` of column vectors, on the batched kernels.
+fn product(matrix: &Matrix, x: &DMatrix<f64>) -> sartor_core::Result<DMatrix<f64>> {
+    let (batch, n_out) = (x.ncols(), matrix.rows());
+    // One input vector per row: the kernels' "avatar" layout.
+    // (nalgebra stores columns contiguously, so `x`'s storage is exactly that.)
+    let xs: Vec<f32> = x.iter().map(|&v| v as f32).collect();
+    let mut ys = vec![0.0f32; n_out * batch];
+    matrix
+        .matmul_t(&xs, batch, None, &mut ys, Parallelism::Rayon)
+        .map_err(|e| sartor_core::Error::invalid("low-rank product", e.to_string()))?;
+    Ok(DMatrix::from_fn(n_out, batch, |r, c| {
+        ys[r * batch + c] as f64
+    }))
+}
+
+impl LinearOperator for Kernels {
+    fn rows(&self) -> usize {
+        self.forward.rows()
     }
-    out
+    fn cols(&self) -> usize {
+        self.forward.cols()
+    }
+    fn apply(&self, x: &DMatrix<f64>) -> sartor_core::Result<DMatrix<f64>> {
+        product(&self.forward, x)
+    }
+    fn apply_transpose(&self, y: &DMatrix<f64>) -> sartor_core::Result<DMatrix<f64>> {
+        product(&self.backward, y)
+    }
 }
 
 /// The best rank-`rank` approximation of the row-major `rows × cols` matrix `w` (see the module
@@ -73,8 +77,6 @@ pub fn truncated_svd(w: &[f32], rows: usize, cols: usize, rank: usize) -> Result
             format!("{rank} is not in 1..={full} for a {rows} × {cols} matrix"),
         ));
     }
-    let par = Parallelism::Rayon;
-    let l = (rank + OVERSAMPLE).min(full);
     let forward = Matrix::from_f32(rows, cols, w.to_vec(), Precision::F32)?;
     let mut wt = vec![0.0f32; w.len()];
     for r in 0..rows {
@@ -83,72 +85,38 @@ pub fn truncated_svd(w: &[f32], rows: usize, cols: usize, rank: usize) -> Result
         }
     }
     let backward = Matrix::from_f32(cols, rows, wt, Precision::F32)?;
-
-    let mut rng = SplitMix(0x5a17_0e5e_ed00_0001);
-    let omega_t: Vec<f32> = (0..l * cols).map(|_| rng.next_unit()).collect();
-    let mut y = vec![0.0f32; rows * l];
-    let mut z = vec![0.0f32; cols * l];
-    forward.matmul_t(&omega_t, l, None, &mut y, par)?;
-    let mut q_t = orthonormal_t(&y, rows, l);
-    for _ in 0..POWER_ITERATIONS {
-        backward.matmul_t(&q_t, l, None, &mut z, par)?;
-        let p_t = orthonormal_t(&z, cols, l);
-        forward.matmul_t(&p_t, l, None, &mut y, par)?;
-        q_t = orthonormal_t(&y, rows, l);
-    }
-    // Z = Wᵀ Q is `[cols, l]`; the small matrix is B = Qᵀ W = Zᵀ (`l × cols`).
-    backward.matmul_t(&q_t, l, None, &mut z, par)?;
-    let b = DMatrix::<f64>::from_fn(l, cols, |i, j| z[j * l + i] as f64);
-    let svd = b.svd(true, true);
-    let (u, vt) = match (svd.u, svd.v_t) {
-        (Some(u), Some(vt)) => (u, vt),
-        _ => {
-            return Err(Error::invalid(
-                "output rank",
-                "the small SVD did not converge",
-            ));
-        }
-    };
-    let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
-    order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
-    order.truncate(rank);
-
-    // left = Q · U_b[:, order] · Σ, right = V_bᵀ[order, :].
-    let mut left = vec![0.0f32; rows * rank];
-    for (k, &o) in order.iter().enumerate() {
-        let s = svd.singular_values[o];
-        for r in 0..rows {
-            let mut acc = 0.0f64;
-            for c in 0..l {
-                acc += q_t[c * rows + r] as f64 * u[(c, o)];
-            }
-            left[r * rank + k] = (acc * s) as f32;
-        }
-    }
-    let mut right = vec![0.0f32; rank * cols];
-    for (k, &o) in order.iter().enumerate() {
-        for j in 0..cols {
-            right[k * cols + j] = vt[(o, j)] as f32;
-        }
-    }
-    let singular_values = order.iter().map(|&o| svd.singular_values[o]).collect();
-    if left.iter().chain(&right).any(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            "output rank",
-            "the truncated SVD produced a non-finite value",
-        ));
-    }
+    let svd = randomized_svd(&Kernels { forward, backward }, rank, SEED)?;
+    let left = (0..rows * rank)
+        .map(|i| (svd.u[(i / rank, i % rank)] * svd.singular_values[i % rank]) as f32)
+        .collect();
+    let right = (0..rank * cols)
+        .map(|i| svd.v_t[(i / cols, i % cols)] as f32)
+        .collect();
     Ok(LowRank {
         rank,
         left,
         right,
-        singular_values,
+        singular_values: svd.singular_values,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A seeded uniform source in `[-1, 1)` for the test matrix.
+    struct SplitMix(u64);
+
+    impl SplitMix {
+        fn next_unit(&mut self) -> f32 {
+            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^= z >> 31;
+            ((z >> 40) as f32 / (1u64 << 23) as f32) - 1.0
+        }
+    }
 
     /// A `rows × cols` matrix with singular values `0.7^k` (plus a little noise).
     fn decaying(rows: usize, cols: usize) -> Vec<f32> {

@@ -143,8 +143,14 @@ fn a_tshirt_follows_a_fast_clip_without_penetration() {
         .expect("garment.json"),
     )
     .expect("json");
-    assert_eq!(garment_json["tensors_sha256"], h.garment.asset.sha256.as_str());
-    assert_eq!(h.garment.asset.sha256, tshirt().content_sha256().expect("hash"));
+    assert_eq!(
+        garment_json["tensors_sha256"],
+        h.garment.asset.sha256.as_str()
+    );
+    assert_eq!(
+        h.garment.asset.sha256,
+        tshirt().content_sha256().expect("hash")
+    );
 }
 
 #[test]
