@@ -1,6 +1,5 @@
 //! The crate's one error type.
 
-use std::fmt::Display;
 use std::path::PathBuf;
 
 /// Everything that can go wrong while evaluating. Errors of the crates below are wrapped as
@@ -60,63 +59,6 @@ pub enum Error {
 /// `Result` with [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
-impl Error {
-    /// An I/O error on `path`.
-    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Self::Io {
-            path: path.into(),
-            source,
-        }
-    }
-}
+crate::context_error!();
 
-/// Adds what was being done to an error, as [`Error::Context`] (a missing value becomes
-/// [`Error::Invalid`] with the context as its message).
-pub trait Context<T> {
-    /// Wrap the error with `context`.
-    fn context(self, context: impl Display) -> Result<T>;
-    /// Wrap the error with a context computed only on failure.
-    fn with_context<C: Display>(self, context: impl FnOnce() -> C) -> Result<T>;
-}
-
-impl<T, E: Into<Error>> Context<T> for std::result::Result<T, E> {
-    fn context(self, context: impl Display) -> Result<T> {
-        self.map_err(|e| Error::Context {
-            context: context.to_string(),
-            source: Box::new(e.into()),
-        })
-    }
-    fn with_context<C: Display>(self, context: impl FnOnce() -> C) -> Result<T> {
-        self.map_err(|e| Error::Context {
-            context: context().to_string(),
-            source: Box::new(e.into()),
-        })
-    }
-}
-
-impl<T> Context<T> for Option<T> {
-    fn context(self, context: impl Display) -> Result<T> {
-        self.ok_or_else(|| Error::Invalid(context.to_string()))
-    }
-    fn with_context<C: Display>(self, context: impl FnOnce() -> C) -> Result<T> {
-        self.ok_or_else(|| Error::Invalid(context().to_string()))
-    }
-}
-
-/// Return [`Error::Invalid`] with a formatted message unless `cond` holds.
-macro_rules! ensure {
-    ($cond:expr, $($arg:tt)+) => {
-        if !$cond {
-            return Err($crate::Error::Invalid(format!($($arg)+)));
-        }
-    };
-}
-
-/// Return [`Error::Invalid`] with a formatted message.
-macro_rules! bail {
-    ($($arg:tt)+) => {
-        return Err($crate::Error::Invalid(format!($($arg)+)))
-    };
-}
-
-pub(crate) use {bail, ensure};
+pub(crate) use crate::{bail, ensure};

@@ -21,6 +21,7 @@
 
 mod bench_runtime;
 mod bench_sim;
+mod context;
 mod error;
 mod eval;
 mod plot;
