@@ -268,4 +268,21 @@ impl TensorFile {
                 .collect(),
         ))
     }
+
+    /// A non-negative i32 tensor (indices, offsets) as u32.
+    pub fn u32(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<u32>)> {
+        let (s, values) = self.i32(name, shape)?;
+        let values = values
+            .into_iter()
+            .map(|x| {
+                u32::try_from(x).map_err(|_| {
+                    Error::format(
+                        &self.path,
+                        format!("tensor {name:?} has a negative value {x}"),
+                    )
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok((s, values))
+    }
 }

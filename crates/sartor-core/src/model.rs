@@ -321,7 +321,6 @@ impl BodyModel {
                 .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
                 .collect::<Vec<_>>()
         };
-        let (offsets, joints, weights) = self.skin_weights.csr();
         let mut tensors = BTreeMap::new();
         tensors.insert(
             "v_template".to_string(),
@@ -346,18 +345,7 @@ impl BodyModel {
             "j_shapedirs".to_string(),
             OwnedTensor::f32(&[j, 3, nb], f32s(&self.joint_shape_basis)),
         );
-        tensors.insert(
-            "skin_offsets".to_string(),
-            OwnedTensor::i32(&[v + 1], offsets.iter().map(|&o| o as i32)),
-        );
-        tensors.insert(
-            "skin_joints".to_string(),
-            OwnedTensor::i32(&[joints.len()], joints.iter().map(|&o| o as i32)),
-        );
-        tensors.insert(
-            "skin_weights".to_string(),
-            OwnedTensor::f32(&[weights.len()], weights.iter().copied()),
-        );
+        self.skin_weights.insert_tensors(&mut tensors, "skin_");
         serialize_tensors(&tensors, None)
     }
 
@@ -413,40 +401,13 @@ impl BodyModel {
                 .collect::<Vec<_>>()
         };
         let (_, vt) = file.f32("v_template", &[Some(v), Some(3)])?;
-        let (_, faces) = file.i32("faces", &[Some(f), Some(3)])?;
-        let faces = faces
-            .chunks_exact(3)
-            .map(|c| {
-                let idx = |i: i32| {
-                    u32::try_from(i).map_err(|_| {
-                        Error::format(&tensor_path, format!("negative face index {i}"))
-                    })
-                };
-                Ok([idx(c[0])?, idx(c[1])?, idx(c[2])?])
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let (_, faces) = file.u32("faces", &[Some(f), Some(3)])?;
+        let faces = faces.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let template = TriMesh::new(points(vt), faces).map_err(in_file)?;
         let (_, shapedirs) = file.f32("shapedirs", &[Some(v), Some(3), Some(nb)])?;
         let (_, jt) = file.f32("j_template", &[Some(j), Some(3)])?;
         let (_, jdirs) = file.f32("j_shapedirs", &[Some(j), Some(3), Some(nb)])?;
-        let (_, offsets) = file.i32("skin_offsets", &[Some(v + 1)])?;
-        let (_, sj) = file.i32("skin_joints", &[None])?;
-        let (_, sw) = file.f32("skin_weights", &[Some(sj.len())])?;
-        let to_u32 = |xs: Vec<i32>, what: &str| {
-            xs.into_iter()
-                .map(|x| {
-                    u32::try_from(x)
-                        .map_err(|_| Error::format(&tensor_path, format!("negative {what} {x}")))
-                })
-                .collect::<Result<Vec<_>>>()
-        };
-        let weights = SkinWeights::new(
-            to_u32(offsets, "offset")?,
-            to_u32(sj, "joint index")?,
-            sw,
-            j,
-        )
-        .map_err(in_file)?;
+        let weights = SkinWeights::from_tensors(&file, "skin_", v, j)?;
         Self::new(
             header.name,
             template,

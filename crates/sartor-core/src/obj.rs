@@ -19,6 +19,12 @@ pub struct ObjData {
     pub faces: Vec<[u32; 3]>,
     /// For each triangle, its texture-coordinate indices, when every face has them.
     pub face_texcoords: Option<Vec<[u32; 3]>>,
+    /// The faces as written (vertex indices of each polygon), before triangulation.
+    pub polygons: Vec<Vec<u32>>,
+    /// For each polygon, its group: an index into [`Self::groups`].
+    pub polygon_groups: Vec<usize>,
+    /// Group names (`g` statements) in order of first use; `""` for faces before any `g`.
+    pub groups: Vec<String>,
 }
 
 impl ObjData {
@@ -27,6 +33,8 @@ impl ObjData {
         let mut data = ObjData::default();
         let mut face_tc: Vec<[u32; 3]> = Vec::new();
         let mut faces_without_tc = 0usize;
+        let mut group: Option<usize> = None;
+        let mut group_name = String::new();
         for (line_no, raw) in text.lines().enumerate() {
             let line_no = line_no + 1;
             let line = raw.split('#').next().unwrap_or("").trim();
@@ -91,6 +99,23 @@ impl ObjData {
                             corners.len()
                         )));
                     }
+                    let g = match group {
+                        Some(g) => g,
+                        None => {
+                            let g = data
+                                .groups
+                                .iter()
+                                .position(|n| *n == group_name)
+                                .unwrap_or_else(|| {
+                                    data.groups.push(group_name.clone());
+                                    data.groups.len() - 1
+                                });
+                            group = Some(g);
+                            g
+                        }
+                    };
+                    data.polygons.push(corners.iter().map(|c| c.0).collect());
+                    data.polygon_groups.push(g);
                     let all_tc = corners.iter().all(|c| c.1.is_some());
                     for k in 1..corners.len() - 1 {
                         let (a, b, c) = (corners[0], corners[k], corners[k + 1]);
@@ -102,7 +127,11 @@ impl ObjData {
                         }
                     }
                 }
-                "vn" | "vp" | "o" | "g" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
+                "g" => {
+                    group_name = fields.collect::<Vec<_>>().join(" ");
+                    group = None;
+                }
+                "vn" | "vp" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
                 other => return Err(err(format!("unknown statement {other:?}"))),
             }
         }
@@ -118,6 +147,23 @@ impl ObjData {
         let text = std::str::from_utf8(&bytes)
             .map_err(|e| Error::format(path, format!("not UTF-8 text: {e}")))?;
         Self::parse(text, path)
+    }
+
+    /// The polygons of group `name`, as written (errors name `path` when there is no such
+    /// group).
+    pub fn group_polygons(&self, name: &str, path: &Path) -> Result<Vec<Vec<u32>>> {
+        let g = self
+            .groups
+            .iter()
+            .position(|n| n == name)
+            .ok_or_else(|| Error::format(path, format!("no group {name:?}")))?;
+        Ok(self
+            .polygons
+            .iter()
+            .zip(&self.polygon_groups)
+            .filter(|(_, pg)| **pg == g)
+            .map(|(p, _)| p.clone())
+            .collect())
     }
 
     /// The triangle mesh of the positions and faces (validated; errors name `path`).

@@ -4,10 +4,13 @@
 //! `j`'s posed-from-rest transform from forward kinematics. Inverse skinning applies the inverse
 //! of that blended (affine, generally non-rigid) transform.
 
+use std::collections::BTreeMap;
+
 use nalgebra::{Matrix3, RealField, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::io::{OwnedTensor, TensorFile};
 use crate::{Error, Result};
 
 /// Whether a kernel runs on the calling thread or on rayon's pool. Results are identical.
@@ -189,6 +192,39 @@ impl SkinWeights {
     /// CSR arrays `(offsets, joints, weights)`.
     pub fn csr(&self) -> (&[u32], &[u32], &[f32]) {
         (&self.offsets, &self.joints, &self.weights)
+    }
+
+    /// Store the weights in `tensors` as CSR: `{prefix}offsets` (i32 `[P + 1]`),
+    /// `{prefix}joints` (i32 `[nnz]`) and `{prefix}weights` (f32 `[nnz]`). Every sartor file
+    /// that carries skin weights (body model, dataset binding, runtime binding) uses this layout.
+    pub fn insert_tensors(&self, tensors: &mut BTreeMap<String, OwnedTensor>, prefix: &str) {
+        let i32s = |xs: &[u32]| xs.iter().map(|&x| x as i32).collect::<Vec<_>>();
+        tensors.insert(
+            format!("{prefix}offsets"),
+            OwnedTensor::i32(&[self.offsets.len()], i32s(&self.offsets)),
+        );
+        tensors.insert(
+            format!("{prefix}joints"),
+            OwnedTensor::i32(&[self.joints.len()], i32s(&self.joints)),
+        );
+        tensors.insert(
+            format!("{prefix}weights"),
+            OwnedTensor::f32(&[self.weights.len()], self.weights.iter().copied()),
+        );
+    }
+
+    /// Read weights stored by [`Self::insert_tensors`]: `n_points` rows over `n_joints` joints,
+    /// validated as [`Self::new`] does; errors name the file.
+    pub fn from_tensors(
+        file: &TensorFile,
+        prefix: &str,
+        n_points: usize,
+        n_joints: usize,
+    ) -> Result<Self> {
+        let (_, offsets) = file.u32(&format!("{prefix}offsets"), &[Some(n_points + 1)])?;
+        let (_, joints) = file.u32(&format!("{prefix}joints"), &[None])?;
+        let (_, weights) = file.f32(&format!("{prefix}weights"), &[Some(joints.len())])?;
+        Self::new(offsets, joints, weights, n_joints).map_err(|e| e.in_file(file.path()))
     }
 
     /// Dense `n_points × n_joints` row-major copy.

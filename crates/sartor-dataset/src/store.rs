@@ -123,20 +123,9 @@ fn points(values: &[f32]) -> Vec<Vector3<f64>> {
         .collect()
 }
 
-fn to_u32(path: &Path, name: &str, values: Vec<i32>) -> Result<Vec<u32>> {
-    values
-        .into_iter()
-        .map(|v| {
-            u32::try_from(v)
-                .map_err(|_| Error::format(path, format!("tensor {name:?} has a negative index")))
-        })
-        .collect()
-}
-
 /// Write `binding.safetensors`; returns its SHA-256.
 pub fn write_binding(dir: &Path, binding: &ClothBinding) -> Result<String> {
     let v = binding.n_vertices();
-    let (offsets, joints, weights) = binding.skin_weights.csr();
     let mut t = BTreeMap::new();
     t.insert(
         "relaxed".into(),
@@ -153,18 +142,7 @@ pub fn write_binding(dir: &Path, binding: &ClothBinding) -> Result<String> {
             binding.faces.iter().flatten().map(|&i| i as i32),
         ),
     );
-    t.insert(
-        "skin_offsets".into(),
-        OwnedTensor::i32(&[offsets.len()], offsets.iter().map(|&i| i as i32)),
-    );
-    t.insert(
-        "skin_joints".into(),
-        OwnedTensor::i32(&[joints.len()], joints.iter().map(|&i| i as i32)),
-    );
-    t.insert(
-        "skin_weights".into(),
-        OwnedTensor::f32(&[weights.len()], weights.iter().copied()),
-    );
+    binding.skin_weights.insert_tensors(&mut t, "skin_");
     write_tensors(dir, BINDING_FILE, t)
 }
 
@@ -175,24 +153,14 @@ pub fn read_binding(dir: &Path, n_joints: usize) -> Result<ClothBinding> {
     let (shape, relaxed) = file.f32("relaxed", &[None, Some(3)])?;
     let v = shape[0];
     let (_, template) = file.f32("template", &[Some(v), Some(3)])?;
-    let (_, faces) = file.i32("faces", &[None, Some(3)])?;
-    let faces = to_u32(&path, "faces", faces)?;
+    let (_, faces) = file.u32("faces", &[None, Some(3)])?;
     if let Some(bad) = faces.iter().find(|&&i| i as usize >= v) {
         return Err(Error::format(
             &path,
             format!("face index {bad} is past {v} vertices"),
         ));
     }
-    let (_, offsets) = file.i32("skin_offsets", &[Some(v + 1)])?;
-    let (_, joints) = file.i32("skin_joints", &[None])?;
-    let (_, weights) = file.f32("skin_weights", &[Some(joints.len())])?;
-    let skin_weights = SkinWeights::new(
-        to_u32(&path, "skin_offsets", offsets)?,
-        to_u32(&path, "skin_joints", joints)?,
-        weights,
-        n_joints,
-    )
-    .map_err(|e| Error::format(&path, e.to_string()))?;
+    let skin_weights = SkinWeights::from_tensors(&file, "skin_", v, n_joints)?;
     Ok(ClothBinding {
         relaxed: points(&relaxed),
         template: points(&template),

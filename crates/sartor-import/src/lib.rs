@@ -12,6 +12,7 @@
 //!   correctives ignored).
 
 mod makehuman;
+mod rig;
 mod smpl;
 mod walkcycle;
 

@@ -64,6 +64,7 @@
 //! - `location` keys of bones other than the root and the IK helpers, and `scale` keys, are
 //!   ignored (they are all zero / one in the file).
 
+use crate::rig::{RigBone, read_rig};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -96,89 +97,6 @@ fn blender_to_ours() -> Matrix3<f64> {
 /// (columns: the bone's X, Y (= `dir`) and Z axes in armature space).
 fn vec_roll_to_mat3(dir: &Vector3<f64>, roll: f64) -> Matrix3<f64> {
     crate::makehuman::blender::vec_roll_to_mat3(&dir.normalize(), roll)
-}
-
-/// A bone of a MakeHuman rig file, in Blender armature space (metres, Z up, −Y forward).
-#[derive(Clone, Debug, PartialEq)]
-pub struct RigBone {
-    /// Bone name.
-    pub name: String,
-    /// Parent bone name (`None` for roots).
-    pub parent: Option<String>,
-    /// Rest head.
-    pub head: Vector3<f64>,
-    /// Rest tail.
-    pub tail: Vector3<f64>,
-    /// Roll, radians.
-    pub roll: f64,
-}
-
-impl RigBone {
-    /// Rest axes (columns X, Y, Z) in armature space.
-    pub fn rest_axes(&self) -> Matrix3<f64> {
-        vec_roll_to_mat3(&(self.tail - self.head), self.roll)
-    }
-}
-
-/// Read a MakeHuman rig file (`rig.*.json`): bones with heads and tails at their
-/// `default_position`s, sorted by name.
-pub fn read_rig(path: &Path) -> Result<BTreeMap<String, RigBone>> {
-    let bytes = read_file(path)?;
-    let json: Value =
-        serde_json::from_slice(&bytes).map_err(|e| Error::parse(path, e.line(), e.to_string()))?;
-    let obj = json
-        .as_object()
-        .ok_or_else(|| Error::format(path, "expected an object of bones"))?;
-    let mut bones = BTreeMap::new();
-    for (name, b) in obj {
-        let fault = |m: &str| Error::format(path, format!("bone {name:?}: {m}"));
-        let point = |key: &str| -> Result<Vector3<f64>> {
-            let p = b
-                .get(key)
-                .and_then(|h| h.get("default_position"))
-                .and_then(Value::as_array)
-                .ok_or_else(|| fault(&format!("missing {key}.default_position")))?;
-            let c: Vec<f64> = p.iter().filter_map(Value::as_f64).collect();
-            if c.len() != 3 || !c.iter().all(|x| x.is_finite()) {
-                return Err(fault(&format!("{key}.default_position is not 3 numbers")));
-            }
-            Ok(Vector3::new(c[0], c[1], c[2]))
-        };
-        let head = point("head")?;
-        let tail = point("tail")?;
-        if (tail - head).norm() < 1e-9 {
-            return Err(fault("zero-length bone"));
-        }
-        let roll = b
-            .get("roll")
-            .and_then(Value::as_f64)
-            .ok_or_else(|| fault("missing roll"))?;
-        let parent = match b.get("parent").and_then(Value::as_str) {
-            None | Some("") => None,
-            Some(p) => Some(p.to_string()),
-        };
-        bones.insert(
-            name.clone(),
-            RigBone {
-                name: name.clone(),
-                parent,
-                head,
-                tail,
-                roll,
-            },
-        );
-    }
-    for b in bones.values() {
-        if let Some(p) = &b.parent
-            && !bones.contains_key(p)
-        {
-            return Err(Error::format(
-                path,
-                format!("bone {:?}: unknown parent {p:?}", b.name),
-            ));
-        }
-    }
-    Ok(bones)
 }
 
 /// Rest joint positions of the `cmu_mb` skeleton (in [`CMU_MB_JOINTS`] order, our axes,

@@ -303,7 +303,6 @@ impl GarmentBinding {
 
     /// The JSON header (with an empty hash) and the safetensors bytes (deterministic).
     fn to_parts(&self) -> Result<(BindingHeader, Vec<u8>)> {
-        let (offsets, joints, weights) = self.skin_weights.csr();
         let i32s = |xs: &[u32]| xs.iter().map(|&x| x as i32).collect::<Vec<_>>();
         let mut t = BTreeMap::new();
         t.insert(
@@ -320,18 +319,7 @@ impl GarmentBinding {
                 self.faces.iter().flatten().map(|&i| i as i32),
             ),
         );
-        t.insert(
-            "skin.offsets".to_string(),
-            OwnedTensor::i32(&[offsets.len()], i32s(offsets)),
-        );
-        t.insert(
-            "skin.joints".to_string(),
-            OwnedTensor::i32(&[joints.len()], i32s(joints)),
-        );
-        t.insert(
-            "skin.weights".to_string(),
-            OwnedTensor::f32(&[weights.len()], weights.iter().copied()),
-        );
+        self.skin_weights.insert_tensors(&mut t, "skin.");
         t.insert(
             "region.faces".to_string(),
             OwnedTensor::i32(&[self.region_faces.len()], i32s(&self.region_faces)),
@@ -384,31 +372,11 @@ impl GarmentBinding {
             }
         }
         let (v, f, r) = (header.n_vertices, header.n_faces, header.region_faces);
-        let to_u32 = |xs: Vec<i32>, what: &str| -> Result<Vec<u32>> {
-            xs.into_iter()
-                .map(|x| {
-                    u32::try_from(x)
-                        .map_err(|_| Error::format(&path, format!("{what}: negative value {x}")))
-                })
-                .collect()
-        };
         let (_, template) = file.f32("template", &[Some(v), Some(3)])?;
-        let (_, faces) = file.i32("faces", &[Some(f), Some(3)])?;
-        let (_, offsets) = file.i32("skin.offsets", &[Some(v + 1)])?;
-        let (_, joints) = file.i32("skin.joints", &[None])?;
-        let (_, weights) = file.f32("skin.weights", &[Some(joints.len())])?;
-        let (_, region) = file.i32("region.faces", &[Some(r)])?;
-        let faces = to_u32(faces, "faces")?
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let skin_weights = SkinWeights::new(
-            to_u32(offsets, "skin.offsets")?,
-            to_u32(joints, "skin.joints")?,
-            weights,
-            header.body_joints,
-        )
-        .map_err(|e| e.in_file(&path))?;
+        let (_, faces) = file.u32("faces", &[Some(f), Some(3)])?;
+        let faces = faces.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let skin_weights = SkinWeights::from_tensors(&file, "skin.", v, header.body_joints)?;
+        let (_, region) = file.u32("region.faces", &[Some(r)])?;
         let template = template
             .chunks_exact(3)
             .map(|c| Vector3::new(c[0], c[1], c[2]))
@@ -419,7 +387,7 @@ impl GarmentBinding {
             template,
             faces,
             skin_weights,
-            to_u32(region, "region.faces")?,
+            region,
             header.body_faces,
         )
         .map_err(|e| e.in_file(&path))

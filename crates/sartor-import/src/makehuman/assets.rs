@@ -12,7 +12,7 @@ use serde::de::DeserializeOwned;
 
 use crate::{Error, Result};
 use sartor_core::io::read_file;
-use sartor_core::{MacroPart, MacroTarget, MacroVariable};
+use sartor_core::{MacroPart, MacroTarget, MacroVariable, ObjData};
 
 /// The base mesh's polygons of one group plus all positions, in the file's units (dm).
 pub(crate) struct BaseMesh {
@@ -21,71 +21,12 @@ pub(crate) struct BaseMesh {
     pub polygons: Vec<Vec<u32>>,
 }
 
-/// Read `base.obj`: every `v` line and the faces that follow `g <group>`.
+/// Read `base.obj` (sartor-core's OBJ reader): every vertex and the polygons of `group`.
 pub(crate) fn read_base_obj(path: &Path, group: &str) -> Result<BaseMesh> {
-    let bytes = read_file(path)?;
-    let text =
-        std::str::from_utf8(&bytes).map_err(|e| Error::format(path, format!("not UTF-8: {e}")))?;
-    let mut positions_dm = Vec::new();
-    let mut polygons = Vec::new();
-    let mut in_group = false;
-    let mut saw_group = false;
-    for (i, raw) in text.lines().enumerate() {
-        let line_no = i + 1;
-        let line = raw.split('#').next().unwrap_or("").trim();
-        let mut fields = line.split_whitespace();
-        let err = |m: String| Error::parse(path, line_no, m);
-        match fields.next() {
-            Some("v") => {
-                let mut c = [0.0; 3];
-                for x in &mut c {
-                    let s = fields
-                        .next()
-                        .ok_or_else(|| err("v: missing coordinate".into()))?;
-                    *x = s
-                        .parse::<f64>()
-                        .ok()
-                        .filter(|x| x.is_finite())
-                        .ok_or_else(|| err(format!("v: {s:?} is not a finite number")))?;
-                }
-                positions_dm.push(Vector3::from(c));
-            }
-            Some("g") => {
-                in_group = fields.next() == Some(group);
-                saw_group |= in_group;
-            }
-            Some("f") if in_group => {
-                let poly = fields
-                    .map(|f| {
-                        let s = f.split('/').next().unwrap_or("");
-                        s.parse::<u32>()
-                            .ok()
-                            .filter(|&k| k >= 1)
-                            .map(|k| k - 1)
-                            .ok_or_else(|| err(format!("f: bad vertex index {f:?}")))
-                    })
-                    .collect::<Result<Vec<_>>>()?;
-                if poly.len() < 3 {
-                    return Err(err(format!("f: {} vertices", poly.len())));
-                }
-                polygons.push(poly);
-            }
-            _ => {}
-        }
-    }
-    if !saw_group {
-        return Err(Error::format(path, format!("no group {group:?}")));
-    }
-    let n = positions_dm.len();
-    if let Some(bad) = polygons.iter().flatten().find(|&&k| k as usize >= n) {
-        return Err(Error::format(
-            path,
-            format!("face refers to vertex {bad}, the file has {n}"),
-        ));
-    }
+    let data = ObjData::read(path)?;
     Ok(BaseMesh {
-        positions_dm,
-        polygons,
+        polygons: data.group_polygons(group, path)?,
+        positions_dm: data.positions,
     })
 }
 
@@ -347,31 +288,6 @@ pub(crate) fn list_macro_targets(
     found.sort_by(|a, b| a.0.name.cmp(&b.0.name));
     let (targets, paths) = found.into_iter().unzip();
     Ok((targets, paths, skipped))
-}
-
-/// Where a bone end sits.
-#[derive(Clone, Debug, Deserialize)]
-pub(crate) struct RigEnd {
-    pub strategy: String,
-    pub cube_name: Option<String>,
-    pub vertex_indices: Option<Vec<u32>>,
-    /// Blender axes (Z up, −Y forward), metres, for MPFB's default body.
-    pub default_position: [f64; 3],
-}
-
-/// One bone of `rig.*.json` (fields the importer does not use are ignored).
-#[derive(Clone, Debug, Deserialize)]
-pub(crate) struct RigBone {
-    pub head: RigEnd,
-    pub tail: RigEnd,
-    pub parent: String,
-    /// Blender edit-bone roll, radians.
-    pub roll: f64,
-}
-
-/// Read a rig file: bone name → bone.
-pub(crate) fn read_rig(path: &Path) -> Result<BTreeMap<String, RigBone>> {
-    read_json(path)
 }
 
 #[derive(Deserialize)]

@@ -9,7 +9,7 @@ use rand_chacha::rand_core::{RngCore, SeedableRng};
 use serde::Serialize;
 
 use super::IMPORT_REPORT_FILE;
-use super::assets::{self, RACES, RigBone, Target};
+use super::assets::{self, RACES, Target};
 use super::blender::{BONE_FRAMES_FILE, BoneFrames, model_from_blender};
 use super::pca::{TargetRows, pca, weight_covariance};
 use sartor_core::io::{read_file, sha256_hex, write_atomic};
@@ -20,6 +20,7 @@ use sartor_core::{
 };
 use sartor_motion::{CMU_MB_JOINTS, TPOSE_FILE, cmu_mb_skeleton};
 
+use crate::rig::{RigAnchor, RigBone, read_rig};
 use crate::{Error, Result};
 
 /// Decimetres (MakeHuman) to metres.
@@ -302,7 +303,7 @@ fn rig_lists(
             CMU_MB_JOINTS.len()
         )));
     }
-    let list = |bone: &str, end: &assets::RigEnd| -> Result<Vec<u32>> {
+    let list = |bone: &str, end: &RigAnchor| -> Result<Vec<u32>> {
         let v = match end.strategy.as_str() {
             "CUBE" => {
                 let cube = end.cube_name.as_deref().unwrap_or("");
@@ -332,17 +333,16 @@ fn rig_lists(
             .get(name)
             .ok_or_else(|| bad(format!("no bone {name}")))?;
         let want_parent = parent.unwrap_or("");
-        if bone.parent != want_parent {
+        if bone.parent.as_deref().unwrap_or("") != want_parent {
             return Err(bad(format!(
                 "bone {name} has parent {:?}, the cmu_mb skeleton says {want_parent:?}",
                 bone.parent
             )));
         }
-        out.heads.push(list(name, &bone.head)?);
-        out.tails.push(list(name, &bone.tail)?);
+        out.heads.push(list(name, &bone.head_anchor)?);
+        out.tails.push(list(name, &bone.tail_anchor)?);
         out.rolls.push(bone.roll);
-        out.default_heads_blender_m
-            .push(Vector3::from(bone.head.default_position));
+        out.default_heads_blender_m.push(bone.head);
     }
     Ok(out)
 }
@@ -539,7 +539,7 @@ pub fn import_makehuman(options: &ImportOptions) -> Result<ImportReport> {
 
     // --- Rig: joint (bone head) and tail vertex lists.
     let rig_path = from.join("rigs/rig.cmu_mb.json");
-    let rig = assets::read_rig(&rig_path)?;
+    let rig = read_rig(&rig_path)?;
     let lists = rig_lists(&rig_path, &rig, &groups, n_all)?;
     let skeleton = cmu_mb_skeleton();
     let n_joints = skeleton.n_joints();

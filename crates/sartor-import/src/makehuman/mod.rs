@@ -26,6 +26,7 @@ pub(crate) mod blender;
 mod import;
 mod pca;
 
+pub(crate) use blender::vec_roll_to_mat3;
 pub use blender::{BONE_FRAMES_FILE, BoneFrames, blender_euler_xyz};
 pub use import::{
     HeldOutReport, ImportOptions, ImportReport, JointReport, MeshReport, PcaReport, SAMPLE_RANGES,
