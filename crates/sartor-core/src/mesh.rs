@@ -46,6 +46,40 @@ impl TriMesh {
         Ok(Self { positions, faces })
     }
 
+    /// A closed, outward-oriented UV sphere of radius `radius_m` around `center` with `rings`
+    /// rings of latitude (≥ 2) and `2 · rings` segments of longitude: an analytic body stand-in
+    /// for contact and distance tests whose answers are known.
+    pub fn uv_sphere(center: Vector3<f64>, radius_m: f64, rings: usize) -> Result<Self> {
+        if rings < 2 || !radius_m.is_finite() || radius_m <= 0.0 {
+            return Err(Error::invalid(
+                "sphere",
+                format!("{rings} rings of radius {radius_m} m"),
+            ));
+        }
+        let n = rings;
+        let mut p = vec![center + Vector3::new(0.0, radius_m, 0.0)];
+        for i in 1..n {
+            let th = std::f64::consts::PI * i as f64 / n as f64;
+            for k in 0..2 * n {
+                let ph = std::f64::consts::PI * k as f64 / n as f64;
+                let dir = Vector3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
+                p.push(center + dir * radius_m);
+            }
+        }
+        p.push(center - Vector3::new(0.0, radius_m, 0.0));
+        let ring = |i: usize, k: usize| (1 + (i - 1) * 2 * n + k % (2 * n)) as u32;
+        let mut f = Vec::new();
+        for k in 0..2 * n {
+            f.push([0, ring(1, k + 1), ring(1, k)]);
+            for i in 1..n - 1 {
+                f.push([ring(i, k), ring(i, k + 1), ring(i + 1, k)]);
+                f.push([ring(i, k + 1), ring(i + 1, k + 1), ring(i + 1, k)]);
+            }
+            f.push([(p.len() - 1) as u32, ring(n - 1, k), ring(n - 1, k + 1)]);
+        }
+        Self::new(p, f)
+    }
+
     /// Vertex positions.
     pub fn positions(&self) -> &[Vector3<f64>] {
         &self.positions

@@ -326,10 +326,7 @@ pub fn build_dataset(
     if !same_config {
         let seq_dir = out_dir.join(crate::SEQUENCES_DIR);
         if seq_dir.exists() {
-            std::fs::remove_dir_all(&seq_dir).map_err(|e| Error::Io {
-                path: seq_dir.clone(),
-                source: e,
-            })?;
+            std::fs::remove_dir_all(&seq_dir).map_err(|e| Error::io(&seq_dir, e))?;
         }
         sartor_core::io::write_atomic(&stamp_path, inputs.config_sha256.as_bytes())?;
     }

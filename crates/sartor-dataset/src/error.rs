@@ -2,55 +2,32 @@
 
 use std::path::PathBuf;
 
-/// Everything that can go wrong in `sartor-dataset`. Each variant names the file (when there is
-/// one) and the fault.
+/// Everything that can go wrong in `sartor-dataset`. File, format and invariant faults are
+/// sartor-core's: they name the file, or the value, and the fault.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A fault reported by `sartor-core` (mesh, skinning, tensor file, ...).
+    /// A fault of a file or a value: I/O, a malformed file (bad JSON, wrong tensor shape, hash
+    /// mismatch), or an in-memory value that breaks an invariant (sizes, finiteness, splits).
     #[error(transparent)]
     Core(#[from] sartor_core::Error),
-    /// Reading or writing a file failed.
-    #[error("{}: {source}", path.display())]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The underlying I/O error.
-        source: std::io::Error,
-    },
-    /// A file is malformed (bad JSON, wrong tensor shape, hash mismatch, ...).
-    #[error("{}: {message}", path.display())]
-    Format {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        message: String,
-    },
-    /// An in-memory value breaks an invariant (sizes, finiteness, splits, ...).
-    #[error("invalid {what}: {message}")]
-    Invalid {
-        /// What kind of value.
-        what: &'static str,
-        /// What is wrong.
-        message: String,
-    },
 }
 
 /// `Result` with [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
+    /// A value of kind `what` breaks an invariant.
     pub(crate) fn invalid(what: &'static str, message: impl Into<String>) -> Self {
-        Self::Invalid {
-            what,
-            message: message.into(),
-        }
+        Self::Core(sartor_core::Error::invalid(what, message))
     }
 
-    #[allow(dead_code)]
+    /// File `path` is malformed.
     pub(crate) fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        Self::Format {
-            path: path.into(),
-            message: message.into(),
-        }
+        Self::Core(sartor_core::Error::format(path, message))
+    }
+
+    /// An I/O error on `path`.
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Core(sartor_core::Error::io(path, source))
     }
 }

@@ -48,10 +48,7 @@ impl SimFolder {
         let path = self
             .dir
             .join(format!("{}.mcap", sequence_stem(&shape.id, motion)));
-        let bad = |m: String| Error::Format {
-            path: path.clone(),
-            message: m,
-        };
+        let bad = |m: String| Error::format(&path, m);
         let seq = ClothSequence::read(&path).map_err(|e| bad(e.to_string()))?;
         let h = &seq.header;
         if h.garment.asset.sha256 != self.garment_sha256 {
@@ -93,10 +90,9 @@ fn to_f64(p: &[[f32; 3]]) -> Vec<Vector3<f64>> {
 impl SimulationSource for SimFolder {
     fn rest(&self, shape: &ShapePlan) -> Result<Vec<Vector3<f64>>> {
         let seq = self.read(shape, REST_MOTION)?;
-        let last = seq.last_frame().ok_or_else(|| Error::Invalid {
-            what: "rest sequence",
-            message: format!("{}: no frames", shape.id),
-        })?;
+        let last = seq
+            .last_frame()
+            .ok_or_else(|| Error::invalid("rest sequence", format!("{}: no frames", shape.id)))?;
         Ok(to_f64(&last.positions))
     }
 
@@ -106,9 +102,9 @@ impl SimulationSource for SimFolder {
             .frames
             .iter()
             .position(|f| f.phase == Phase::Motion)
-            .ok_or_else(|| Error::Invalid {
-                what: "sequence",
-                message: format!("{}: no motion frames", sequence_stem(&shape.id, motion)),
+            .ok_or_else(|| {
+                let stem = sequence_stem(&shape.id, motion);
+                Error::invalid("sequence", format!("{stem}: no motion frames"))
             })?;
         let previous_pose = seq.frames[first.saturating_sub(1)].pose.clone();
         let frames: Vec<_> = seq.frames[first..]
@@ -130,12 +126,7 @@ pub fn failed_stems(sim_dir: &Path) -> Result<BTreeSet<String>> {
     let mut out = BTreeSet::new();
     if let Ok(entries) = std::fs::read_dir(&dir) {
         for entry in entries {
-            let path = entry
-                .map_err(|e| Error::Io {
-                    path: dir.clone(),
-                    source: e,
-                })?
-                .path();
+            let path = entry.map_err(|e| Error::io(&dir, e))?.path();
             if path.extension().is_some_and(|e| e == "json")
                 && let Some(stem) = path.file_stem()
             {

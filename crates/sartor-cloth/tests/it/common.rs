@@ -38,29 +38,8 @@ pub fn uv_sphere(
     radius_m: f64,
     n: usize,
 ) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
-    let mut p = vec![center + Vector3::new(0.0, radius_m, 0.0)];
-    for i in 1..n {
-        let th = std::f64::consts::PI * i as f64 / n as f64;
-        for k in 0..2 * n {
-            let ph = std::f64::consts::PI * k as f64 / n as f64;
-            p.push(
-                center
-                    + Vector3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()) * radius_m,
-            );
-        }
-    }
-    p.push(center - Vector3::new(0.0, radius_m, 0.0));
-    let ring = |i: usize, k: usize| (1 + (i - 1) * 2 * n + k % (2 * n)) as u32;
-    let mut f = Vec::new();
-    for k in 0..2 * n {
-        f.push([0, ring(1, k + 1), ring(1, k)]);
-        for i in 1..n - 1 {
-            f.push([ring(i, k), ring(i, k + 1), ring(i + 1, k)]);
-            f.push([ring(i, k + 1), ring(i + 1, k + 1), ring(i + 1, k)]);
-        }
-        f.push([(p.len() - 1) as u32, ring(n - 1, k), ring(n - 1, k + 1)]);
-    }
-    (p, f)
+    let mesh = sartor_core::TriMesh::uv_sphere(center, radius_m, n).expect("valid sphere");
+    (mesh.positions().to_vec(), mesh.faces().to_vec())
 }
 
 /// The built-in body model folder of the workspace (`datasets/body/makehuman`).

@@ -11,30 +11,7 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
 
 /// A UV sphere of radius 0.3 m centred 1 m up (a stand-in body), `n` rings.
 pub fn sphere(n: usize) -> TriMesh {
-    let mut p = vec![Vector3::new(0.0, 1.3, 0.0)];
-    for i in 1..n {
-        let th = std::f64::consts::PI * i as f64 / n as f64;
-        for k in 0..2 * n {
-            let ph = std::f64::consts::PI * k as f64 / n as f64;
-            p.push(Vector3::new(
-                0.3 * th.sin() * ph.cos(),
-                1.0 + 0.3 * th.cos(),
-                0.3 * th.sin() * ph.sin(),
-            ));
-        }
-    }
-    p.push(Vector3::new(0.0, 0.7, 0.0));
-    let ring = |i: usize, k: usize| (1 + (i - 1) * 2 * n + k % (2 * n)) as u32;
-    let mut f = Vec::new();
-    for k in 0..2 * n {
-        f.push([0, ring(1, k + 1), ring(1, k)]);
-        for i in 1..n - 1 {
-            f.push([ring(i, k), ring(i, k + 1), ring(i + 1, k)]);
-            f.push([ring(i, k + 1), ring(i + 1, k + 1), ring(i + 1, k)]);
-        }
-        f.push([(p.len() - 1) as u32, ring(n - 1, k), ring(n - 1, k + 1)]);
-    }
-    TriMesh::new(p, f).expect("valid sphere")
+    TriMesh::uv_sphere(Vector3::new(0.0, 1.0, 0.0), 0.3, n).expect("valid sphere")
 }
 
 pub fn random_rotation(rng: &mut ChaCha8Rng, max_angle: f64) -> UnitQuaternion<f64> {
