@@ -555,7 +555,9 @@ impl MeshProximity {
         while top > 0 {
             top -= 1;
             let node = &self.nodes[stack[top] as usize];
-            if !(node.bounds.distance_sq(p) <= r2) {
+            // A NaN distance (a NaN point) visits nothing.
+            let d2 = node.bounds.distance_sq(p);
+            if d2.is_nan() || d2 > r2 {
                 continue;
             }
             if node.count > 0 {

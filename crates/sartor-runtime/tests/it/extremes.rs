@@ -13,7 +13,7 @@
 //! With the `png` feature (`cargo test -p sartor-runtime --features png`), set `SARTOR_EXTREMES_PNG` to a folder to keep one picture per extreme (front and back of the
 //! last frame); otherwise they are rendered into a temporary folder.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use nalgebra::Vector3;
@@ -132,7 +132,7 @@ fn run(
 
 #[cfg(feature = "png")]
 fn picture(
-    path: &Path,
+    path: &std::path::Path,
     body: &BodyModel,
     posed: &[Vector3<f32>],
     garment: &[Vector3<f32>],
@@ -151,8 +151,8 @@ fn picture(
     let panels: Vec<Panel<'_>> = [Vector3::new(0.35, 0.1, 1.0), Vector3::new(-0.35, 0.1, -1.0)]
         .into_iter()
         .map(|direction| Panel {
-            meshes: vec![body_mesh.clone(), garment_mesh.clone()],
-            camera: Camera::framing(&[body_mesh.clone()], direction, true),
+            meshes: vec![body_mesh, garment_mesh],
+            camera: Camera::framing(&[body_mesh], direction, true),
         })
         .collect();
     render_png(path, &panels, 200, 340, [1.0, 1.0, 1.0]).expect("png");
