@@ -5,7 +5,11 @@
 //! A bounding-volume hierarchy over the triangles (f64) answers "closest point to p", with the
 //! triangle, barycentric coordinates and a signed distance whose sign comes from angle-weighted
 //! pseudo-normals (Bærentzen & Aanæs 2005): negative inside a closed, outward-oriented surface.
-//! The tree can be refitted to moved vertices without rebuilding (for an animated body).
+//! The tree can be refitted to moved vertices without rebuilding (for an animated body)
+//! ([`MeshProximity::update_positions`]). A caller that finds its candidate triangles itself can
+//! move the vertices without refitting ([`MeshProximity::update_positions_lazy`]): the
+//! pseudo-normals are then computed per answer (bitwise the same), and the tree queries test
+//! every triangle until the next refit.
 
 use nalgebra::Vector3;
 
@@ -82,6 +86,16 @@ pub struct MeshProximity {
     vertex_normals: Vec<Vector3<f64>>,
     /// Per face and corner edge k: the neighbour face across it (or u32::MAX).
     neighbours: Vec<[u32; 3]>,
+    /// Per vertex (CSR), the `(face, corner)` pairs that use it, in face order: the terms of its
+    /// angle-weighted normal in the order `update_normals` adds them.
+    corner_offsets: Vec<u32>,
+    corners: Vec<(u32, u8)>,
+    /// Whether the stored normals belong to the current positions; if not, `answer` computes
+    /// the one it needs.
+    normals_current: bool,
+    /// Whether the tree's boxes belong to the current positions; if not, the tree queries test
+    /// every triangle.
+    tree_current: bool,
 }
 
 impl MeshProximity {
@@ -117,6 +131,23 @@ impl MeshProximity {
                 }
             }
         }
+        let mut corner_offsets = vec![0u32; positions.len() + 1];
+        for t in faces {
+            for &v in t {
+                corner_offsets[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..positions.len() {
+            corner_offsets[v + 1] += corner_offsets[v];
+        }
+        let mut corners = vec![(0u32, 0u8); faces.len() * 3];
+        let mut fill = corner_offsets.clone();
+        for (f, t) in faces.iter().enumerate() {
+            for (k, &v) in t.iter().enumerate() {
+                corners[fill[v as usize] as usize] = (f as u32, k as u8);
+                fill[v as usize] += 1;
+            }
+        }
         let mut s = Self {
             faces: faces.to_vec(),
             positions: positions.to_vec(),
@@ -126,6 +157,10 @@ impl MeshProximity {
             edge_normals: Vec::new(),
             vertex_normals: Vec::new(),
             neighbours,
+            corner_offsets,
+            corners,
+            normals_current: false,
+            tree_current: true,
         };
         let centroids: Vec<Vector3<f64>> = faces
             .iter()
@@ -183,13 +218,7 @@ impl MeshProximity {
         let n_f = self.faces.len();
         self.face_normals.clear();
         for t in &self.faces {
-            let [a, b, c] = t.map(|i| self.positions[i as usize]);
-            self.face_normals.push(
-                (b - a)
-                    .cross(&(c - a))
-                    .try_normalize(0.0)
-                    .unwrap_or_else(Vector3::zeros),
-            );
+            self.face_normals.push(face_normal(self.tri(t)));
         }
         self.vertex_normals.clear();
         self.vertex_normals
@@ -197,14 +226,7 @@ impl MeshProximity {
         for (t, n) in self.faces.iter().zip(&self.face_normals) {
             let p = self.tri(t);
             for k in 0..3 {
-                let e1 = (p[(k + 1) % 3] - p[k])
-                    .try_normalize(0.0)
-                    .unwrap_or_else(Vector3::zeros);
-                let e2 = (p[(k + 2) % 3] - p[k])
-                    .try_normalize(0.0)
-                    .unwrap_or_else(Vector3::zeros);
-                let angle = e1.dot(&e2).clamp(-1.0, 1.0).acos();
-                self.vertex_normals[t[k] as usize] += angle * n;
+                self.vertex_normals[t[k] as usize] += corner_angle(&p, k) * n;
             }
         }
         for n in &mut self.vertex_normals {
@@ -215,12 +237,53 @@ impl MeshProximity {
         for f in 0..n_f {
             for k in 0..3 {
                 let g = self.neighbours[f][k];
-                let sum = if g == u32::MAX {
-                    self.face_normals[f]
-                } else {
-                    self.face_normals[f] + self.face_normals[g as usize]
-                };
-                self.edge_normals[f][k] = sum.try_normalize(0.0).unwrap_or(self.face_normals[f]);
+                let other = (g != u32::MAX).then(|| self.face_normals[g as usize]);
+                self.edge_normals[f][k] = edge_normal(&self.face_normals[f], other.as_ref());
+            }
+        }
+        self.normals_current = true;
+    }
+
+    /// The unit normal of face `f` at the current positions (zero for a degenerate face): the
+    /// stored one, or computed with the same arithmetic.
+    fn face_normal_now(&self, f: u32) -> Vector3<f64> {
+        if self.normals_current {
+            self.face_normals[f as usize]
+        } else {
+            face_normal(self.tri(&self.faces[f as usize]))
+        }
+    }
+
+    /// The pseudo-normal of `feature` of `face` at the current positions: the stored one, or
+    /// computed term by term in the order [`Self::update_normals`] uses (bitwise the same).
+    fn feature_normal(&self, face: u32, feature: ClosestFeature) -> Vector3<f64> {
+        let t = self.faces[face as usize];
+        if self.normals_current {
+            return match feature {
+                ClosestFeature::Face => self.face_normals[face as usize],
+                ClosestFeature::Edge(k) => self.edge_normals[face as usize][k],
+                ClosestFeature::Vertex(k) => self.vertex_normals[t[k] as usize],
+            };
+        }
+        match feature {
+            ClosestFeature::Face => self.face_normal_now(face),
+            ClosestFeature::Edge(k) => {
+                let g = self.neighbours[face as usize][k];
+                let other = (g != u32::MAX).then(|| self.face_normal_now(g));
+                edge_normal(&self.face_normal_now(face), other.as_ref())
+            }
+            ClosestFeature::Vertex(k) => {
+                let v = t[k] as usize;
+                let (a, b) = (
+                    self.corner_offsets[v] as usize,
+                    self.corner_offsets[v + 1] as usize,
+                );
+                let mut sum = Vector3::zeros();
+                for &(f, corner) in &self.corners[a..b] {
+                    let p = self.tri(&self.faces[f as usize]);
+                    sum += corner_angle(&p, corner as usize) * face_normal(p);
+                }
+                sum.try_normalize(0.0).unwrap_or_else(Vector3::zeros)
             }
         }
     }
@@ -228,6 +291,28 @@ impl MeshProximity {
     /// Move the vertices (same count as at construction) and refit the tree and the normals.
     /// No allocation.
     pub fn update_positions(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.refit(positions)?;
+        self.update_normals();
+        Ok(())
+    }
+
+    /// Move the vertices without refitting the tree or recomputing the pseudo-normals: for
+    /// callers that find their candidate triangles themselves and ask [`Self::closest_among`] /
+    /// [`Self::distance_to_face`], which answer for the new positions at once (each answer
+    /// computes the normal of its closest feature, bitwise equal to the stored one
+    /// [`Self::update_positions`] would give). Until the next [`Self::update_positions`], the
+    /// tree queries ([`Self::closest`], [`Self::closest_within`], [`Self::faces_within`],
+    /// [`Self::for_each_face_near`]) test every triangle: the same answers, slower. No
+    /// allocation.
+    pub fn update_positions_lazy(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.check_positions(positions)?;
+        self.positions.copy_from_slice(positions);
+        self.normals_current = false;
+        self.tree_current = false;
+        Ok(())
+    }
+
+    fn check_positions(&self, positions: &[Vector3<f64>]) -> Result<()> {
         if positions.len() != self.positions.len() {
             return Err(Error::invalid(
                 "proximity mesh",
@@ -241,6 +326,12 @@ impl MeshProximity {
         if !positions.iter().all(|p| p.iter().all(|c| c.is_finite())) {
             return Err(Error::invalid("proximity mesh", "non-finite vertex"));
         }
+        Ok(())
+    }
+
+    /// Copy the positions and refit the tree's boxes.
+    fn refit(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.check_positions(positions)?;
         self.positions.copy_from_slice(positions);
         // Children have larger indices than parents: refit in reverse.
         for id in (0..self.nodes.len()).rev() {
@@ -260,7 +351,7 @@ impl MeshProximity {
             };
             self.nodes[id].bounds = bounds;
         }
-        self.update_normals();
+        self.tree_current = true;
         Ok(())
     }
 
@@ -283,7 +374,14 @@ impl MeshProximity {
     /// Closest point on the surface to `p` if it is within `max_distance_m`.
     pub fn closest_within(&self, p: &Vector3<f64>, max_distance_m: f64) -> Option<ClosestPoint> {
         let mut best_d2 = max_distance_m * max_distance_m;
-        let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
+        let mut best: Option<(u32, Vector3<f64>, [f64; 3], ClosestFeature)> = None;
+        if !self.tree_current {
+            for f in 0..self.faces.len() as u32 {
+                self.consider(p, f, &mut best_d2, &mut best);
+            }
+            let (face, point, barycentric, feature) = best?;
+            return Some(self.answer(p, face, point, barycentric, feature));
+        }
         // Nodes to visit with their box distance (computed once, when pushed).
         let mut stack = [(0u32, 0.0f64); 64];
         stack[0].1 = self.nodes[0].bounds.distance_sq(p);
@@ -332,13 +430,43 @@ impl MeshProximity {
     /// # Panics
     /// If a face index is out of range.
     pub fn closest_among(&self, p: &Vector3<f64>, faces: &[u32]) -> Option<ClosestPoint> {
+        let nearest = self.nearest_among(p, faces)?;
+        Some(self.signed(p, &nearest))
+    }
+
+    /// The nearest of the triangles `faces` to `p`, with the tie rule of [`Self::closest`], but
+    /// not its sign and normal (no pseudo-normal is computed): for callers that decide from the
+    /// distance and the feature whether they need them. `None` when `faces` is empty. Faces
+    /// are tested in the order given: put the likely nearest first.
+    ///
+    /// # Panics
+    /// If a face index is out of range.
+    pub fn nearest_among(&self, p: &Vector3<f64>, faces: &[u32]) -> Option<NearestFace> {
         let mut best_d2 = f64::INFINITY;
-        let mut best: Option<(u32, Vector3<f64>, [f64; 3], Feature)> = None;
+        let mut best: Option<(u32, Vector3<f64>, [f64; 3], ClosestFeature)> = None;
         for &f in faces {
             self.consider(p, f, &mut best_d2, &mut best);
         }
         let (face, point, barycentric, feature) = best?;
-        Some(self.answer(p, face, point, barycentric, feature))
+        Some(NearestFace {
+            face,
+            point,
+            barycentric,
+            feature,
+            distance_sq: best_d2,
+        })
+    }
+
+    /// The full answer for a [`NearestFace`] of `p` (sign and pseudo-normal):
+    /// `closest_among(p, faces) == nearest_among(p, faces).map(|n| signed(p, &n))`.
+    pub fn signed(&self, p: &Vector3<f64>, nearest: &NearestFace) -> ClosestPoint {
+        self.answer(
+            p,
+            nearest.face,
+            nearest.point,
+            nearest.barycentric,
+            nearest.feature,
+        )
     }
 
     /// Test face `f` against the best so far (smaller distance wins, ties go to the smaller
@@ -349,7 +477,7 @@ impl MeshProximity {
         p: &Vector3<f64>,
         f: u32,
         best_d2: &mut f64,
-        best: &mut Option<(u32, Vector3<f64>, [f64; 3], Feature)>,
+        best: &mut Option<(u32, Vector3<f64>, [f64; 3], ClosestFeature)>,
     ) {
         let tri = self.tri(&self.faces[f as usize]);
         // The triangle's box is a cheap lower bound: skip triangles that cannot beat the best
@@ -371,6 +499,17 @@ impl MeshProximity {
     pub fn faces_within(&self, p: &Vector3<f64>, radius_m: f64) -> Vec<(u32, f64)> {
         let r2 = radius_m * radius_m;
         let mut found = Vec::new();
+        if !self.tree_current {
+            for f in 0..self.faces.len() as u32 {
+                let tri = self.tri(&self.faces[f as usize]);
+                let d2 = (closest_on_triangle(p, &tri).0 - p).norm_squared();
+                if d2 <= r2 {
+                    found.push((f, d2.sqrt()));
+                }
+            }
+            found.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            return found;
+        }
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
@@ -397,6 +536,53 @@ impl MeshProximity {
         found
     }
 
+    /// Visit every triangle whose axis-aligned box lies within `radius_m` of `p` (a superset of
+    /// the triangles within `radius_m`: the box is a lower bound of the distance), in tree
+    /// order. No allocation. For callers that gather the few triangles near a group of points
+    /// once and then test them themselves.
+    pub fn for_each_face_near(&self, p: &Vector3<f64>, radius_m: f64, mut visit: impl FnMut(u32)) {
+        let r2 = radius_m * radius_m;
+        if !self.tree_current {
+            for f in 0..self.faces.len() as u32 {
+                if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
+                    visit(f);
+                }
+            }
+            return;
+        }
+        let mut stack = [0u32; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            // A NaN distance (a NaN point) visits nothing.
+            let d2 = node.bounds.distance_sq(p);
+            if d2.is_nan() || d2 > r2 {
+                continue;
+            }
+            if node.count > 0 {
+                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                    if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
+                        visit(f);
+                    }
+                }
+            } else {
+                stack[top] = node.left;
+                stack[top + 1] = node.right;
+                top += 2;
+            }
+        }
+    }
+
+    /// Unsigned distance from `p` to triangle `face` (the distance [`Self::closest`] compares).
+    ///
+    /// # Panics
+    /// If `face` is out of range.
+    pub fn distance_to_face(&self, p: &Vector3<f64>, face: u32) -> f64 {
+        let tri = self.tri(&self.faces[face as usize]);
+        (closest_on_triangle(p, &tri).0 - p).norm()
+    }
+
     /// The query result for the closest `point` of `face` (on `feature`) to `p`.
     fn answer(
         &self,
@@ -404,14 +590,9 @@ impl MeshProximity {
         face: u32,
         point: Vector3<f64>,
         barycentric: [f64; 3],
-        feature: Feature,
+        feature: ClosestFeature,
     ) -> ClosestPoint {
-        let t = self.faces[face as usize];
-        let normal = match feature {
-            Feature::Face => self.face_normals[face as usize],
-            Feature::Edge(k) => self.edge_normals[face as usize][k],
-            Feature::Vertex(k) => self.vertex_normals[t[k] as usize],
-        };
+        let normal = self.feature_normal(face, feature);
         let d = (p - point).norm();
         let sign = if (p - point).dot(&normal) < 0.0 {
             -1.0
@@ -428,12 +609,64 @@ impl MeshProximity {
     }
 }
 
-#[derive(Clone, Copy, Debug)]
-enum Feature {
+/// The feature of a triangle its closest point lies on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ClosestFeature {
+    /// The interior: the pseudo-normal is the face's normal.
     Face,
-    /// Edge k = (v_k, v_{k+1}).
+    /// Edge `k` = corners `(k, k + 1 mod 3)`: the mean of its faces' normals.
     Edge(usize),
+    /// Corner `k`: the angle-weighted normal of the faces around that vertex.
     Vertex(usize),
+}
+
+/// The nearest triangle to a point among some, before the sign ([`MeshProximity::nearest_among`];
+/// [`MeshProximity::signed`] completes it into a [`ClosestPoint`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NearestFace {
+    /// Index of the triangle.
+    pub face: u32,
+    /// The closest point on it.
+    pub point: Vector3<f64>,
+    /// Barycentric coordinates of `point`.
+    pub barycentric: [f64; 3],
+    /// The feature `point` lies on.
+    pub feature: ClosestFeature,
+    /// Squared distance from the query point, m².
+    pub distance_sq: f64,
+}
+
+/// Unit normal of a triangle (zero when degenerate).
+#[inline]
+fn face_normal([a, b, c]: [Vector3<f64>; 3]) -> Vector3<f64> {
+    (b - a)
+        .cross(&(c - a))
+        .try_normalize(0.0)
+        .unwrap_or_else(Vector3::zeros)
+}
+
+/// The angle of triangle `p` at corner `k`, radians (the weight of its normal in the vertex's
+/// pseudo-normal).
+#[inline]
+fn corner_angle(p: &[Vector3<f64>; 3], k: usize) -> f64 {
+    let e1 = (p[(k + 1) % 3] - p[k])
+        .try_normalize(0.0)
+        .unwrap_or_else(Vector3::zeros);
+    let e2 = (p[(k + 2) % 3] - p[k])
+        .try_normalize(0.0)
+        .unwrap_or_else(Vector3::zeros);
+    e1.dot(&e2).clamp(-1.0, 1.0).acos()
+}
+
+/// The pseudo-normal of an edge: the mean of its two faces' normals (its face's alone on a
+/// boundary, or when they cancel).
+#[inline]
+fn edge_normal(face: &Vector3<f64>, other: Option<&Vector3<f64>>) -> Vector3<f64> {
+    let sum = match other {
+        Some(g) => face + g,
+        None => *face,
+    };
+    sum.try_normalize(0.0).unwrap_or(*face)
 }
 
 /// Squared distance from `p` to the axis-aligned box of the triangle.
@@ -454,46 +687,50 @@ fn triangle_box_distance_sq(p: &Vector3<f64>, [a, b, c]: &[Vector3<f64>; 3]) -> 
 fn closest_on_triangle(
     p: &Vector3<f64>,
     [a, b, c]: &[Vector3<f64>; 3],
-) -> (Vector3<f64>, [f64; 3], Feature) {
+) -> (Vector3<f64>, [f64; 3], ClosestFeature) {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
     let d1 = ab.dot(&ap);
     let d2 = ac.dot(&ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return (*a, [1.0, 0.0, 0.0], Feature::Vertex(0));
+        return (*a, [1.0, 0.0, 0.0], ClosestFeature::Vertex(0));
     }
     let bp = p - b;
     let d3 = ab.dot(&bp);
     let d4 = ac.dot(&bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return (*b, [0.0, 1.0, 0.0], Feature::Vertex(1));
+        return (*b, [0.0, 1.0, 0.0], ClosestFeature::Vertex(1));
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
         let v = d1 / (d1 - d3);
-        return (a + ab * v, [1.0 - v, v, 0.0], Feature::Edge(0));
+        return (a + ab * v, [1.0 - v, v, 0.0], ClosestFeature::Edge(0));
     }
     let cp = p - c;
     let d5 = ab.dot(&cp);
     let d6 = ac.dot(&cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return (*c, [0.0, 0.0, 1.0], Feature::Vertex(2));
+        return (*c, [0.0, 0.0, 1.0], ClosestFeature::Vertex(2));
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
         let w = d2 / (d2 - d6);
-        return (a + ac * w, [1.0 - w, 0.0, w], Feature::Edge(2));
+        return (a + ac * w, [1.0 - w, 0.0, w], ClosestFeature::Edge(2));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (b + (c - b) * w, [0.0, 1.0 - w, w], Feature::Edge(1));
+        return (b + (c - b) * w, [0.0, 1.0 - w, w], ClosestFeature::Edge(1));
     }
     let denom = 1.0 / (va + vb + vc);
     let v = vb * denom;
     let w = vc * denom;
-    (a + ab * v + ac * w, [1.0 - v - w, v, w], Feature::Face)
+    (
+        a + ab * v + ac * w,
+        [1.0 - v - w, v, w],
+        ClosestFeature::Face,
+    )
 }
 
 #[cfg(test)]

@@ -487,6 +487,10 @@ fn post_process(
         ),
         ("bvh exact".to_string(), CollisionQuery::EXACT_BVH),
         (
+            "certified (exact; far vertices skipped by proof)".to_string(),
+            CollisionQuery::Certified,
+        ),
+        (
             "bvh r=3cm".to_string(),
             CollisionQuery::Bvh { radius_m: 0.03 },
         ),

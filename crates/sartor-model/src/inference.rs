@@ -4,10 +4,10 @@
 use burn::module::Module;
 use burn::nn::Linear;
 use burn::tensor::{Device, Tensor};
-use sartor_dataset::{MeanStd, TrainingData};
+use sartor_dataset::{MeanStd, Split, TrainingData};
 use sartor_runtime::{
     DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, ModelHeader, ModelSizes,
-    ModelWeights, OutputKind, PcaWeights,
+    ModelWeights, OutputKind, PcaWeights, TrainingBetas,
 };
 
 use crate::data::{PcaTensors, tensor, to_vec};
@@ -91,7 +91,8 @@ pub fn feature_blocks(data: &TrainingData) -> Vec<FeatureBlock> {
 
 /// The three trained modules as one runtime model (f32 tensors + header): the fit MLP, the
 /// wrinkle GRU (PyTorch's gate layout) with its dense or PCA output, the linear baseline if
-/// given, the dataset's normalisation and the garment's and body's identity.
+/// given, the dataset's normalisation, the garment's and body's identity and the β of the
+/// training shapes (`training_betas`).
 pub fn export_model(
     data: &TrainingData,
     fit: &FitRegressor,
@@ -148,7 +149,14 @@ pub fn export_model(
         linear_baseline: linear.is_some(),
     };
     let (garment, body) = (data.source().garment.clone(), data.source().body.clone());
-    let header = ModelHeader::new(garment, body, sizes, feature_blocks(data));
+    let mut header = ModelHeader::new(garment, body, sizes, feature_blocks(data));
+    // The shapes the networks were trained on, for the animator's rule beyond them.
+    header.training_betas = Some(TrainingBetas(
+        data.shape_indices(Split::Train)
+            .into_iter()
+            .map(|i| data.shapes()[i].betas.clone())
+            .collect(),
+    ));
     let stats = data.stats();
     let weights = ModelWeights {
         fit_hidden,

@@ -26,7 +26,7 @@ use sartor_core::{
 };
 
 use crate::binding::GarmentBinding;
-use crate::collision::{BodyRegion, Collider, CollisionOptions};
+use crate::collision::{BodyRegion, CertifyStats, Collider, CollisionOptions};
 use crate::error::{Error, Result, check_finite, check_len};
 use crate::format::Feature;
 use crate::kernels::{Parallelism, Precision};
@@ -61,11 +61,33 @@ pub enum WrinkleMode {
     None,
 }
 
+/// What the networks see when the requested body shape lies outside the shapes the model was
+/// trained on (the convex hull of `model.json`'s `training_betas`). The body always takes the
+/// requested shape; the rule decides the garment. A model without recorded training shapes
+/// always extrapolates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BetaOutOfRange {
+    /// The networks see β as requested: they extrapolate (a larger body's garment sinks into
+    /// it, a smaller one's crumples).
+    Extrapolate,
+    /// The networks see `β'`, the point of the training shapes' hull nearest β: the garment of
+    /// the nearest trained shape, on the requested body.
+    Project,
+    /// The networks see `β'`, and the garment follows the rest of the body's shape change
+    /// geometrically: `Δ_G = R_G(β') + D(β) − D(β')` with `D` the [`FitMode::Retarget`]
+    /// displacement (each garment vertex carried by its closest template-body triangle). Inside
+    /// the hull `β' = β`: the network alone.
+    #[default]
+    ProjectAndFollow,
+}
+
 /// What an avatar computes per frame (the scene-side half of a [`LevelOfDetail`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AnimatorOptions {
     /// The shaped garment: the fit MLP (default) or a baseline.
     pub fit: FitMode,
+    /// What the networks see beyond the trained range of β.
+    pub beta_out_of_range: BetaOutOfRange,
     /// The wrinkles: the GRU (default), the linear baseline, or none (static try-on).
     pub wrinkles: WrinkleMode,
     /// The collision post-process, or `None` to skip it.
@@ -78,10 +100,13 @@ pub struct AnimatorOptions {
 }
 
 impl Default for AnimatorOptions {
-    /// Wrinkles on, post-process on (defaults of [`CollisionOptions`]), one thread, 30 fps.
+    /// Wrinkles on, post-process on (defaults of [`CollisionOptions`]), β beyond the training
+    /// shapes projected onto them for the networks with the garment following the body, one
+    /// thread, 30 fps.
     fn default() -> Self {
         Self {
             fit: FitMode::Network,
+            beta_out_of_range: BetaOutOfRange::default(),
             wrinkles: WrinkleMode::Gru,
             collision: Some(CollisionOptions::default()),
             parallelism: Parallelism::Sequential,
@@ -186,8 +211,8 @@ pub struct GarmentRig {
     options: AnimatorOptions,
     inputs: InputMap,
     region: BodyRegion,
-    /// For [`FitMode::Retarget`]: per cloth vertex, the closest template-body triangle's vertices
-    /// and barycentric weights.
+    /// For [`FitMode::Retarget`] and [`BetaOutOfRange::ProjectAndFollow`]: per cloth vertex, the
+    /// closest template-body triangle's vertices and barycentric weights.
     retarget: Option<Vec<([u32; 3], [f64; 3])>>,
 }
 
@@ -234,8 +259,12 @@ impl GarmentRig {
         }
         let inputs = InputMap::new(&network, &body)?;
         let region = BodyRegion::new(&body, binding.region_faces())?;
+        let follow = options.fit == FitMode::Network
+            && options.beta_out_of_range == BetaOutOfRange::ProjectAndFollow
+            && network.header().training_betas.is_some();
         let retarget = match options.fit {
             FitMode::Retarget => Some(retarget_binding(&body, binding.template())?),
+            FitMode::Network if follow => Some(retarget_binding(&body, binding.template())?),
             FitMode::Network | FitMode::Template => None,
         };
         Ok(Self {
@@ -304,6 +333,25 @@ fn retarget_binding(
         .collect())
 }
 
+/// Add to `fit` (`3V` values) each cloth vertex's displacement with its bound triangle from the
+/// body `from` to the body `to` (every body vertex): `Σ_k b_k (to − from)[f_k]`.
+fn add_retarget(
+    fit: &mut [f32],
+    bound: &[([u32; 3], [f64; 3])],
+    to: &[Vector3<f64>],
+    from: &[Vector3<f64>],
+) {
+    for (d, (tri, b)) in fit.chunks_exact_mut(3).zip(bound) {
+        let mut delta = Vector3::zeros();
+        for (&v, &w) in tri.iter().zip(b) {
+            delta += (to[v as usize] - from[v as usize]) * w;
+        }
+        for (x, dx) in d.iter_mut().zip(delta.iter()) {
+            *x += *dx as f32;
+        }
+    }
+}
+
 /// Counts of cloth vertices against the exact closest point of the posed body region.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CollisionCount {
@@ -351,24 +399,44 @@ impl Avatar {
         }
     }
 
-    /// Cache `R_G(β)`, `T̄_c + Δ_G`, `J(β)` and the shaped body region.
+    /// Cache `R_G(β)`, `T̄_c + Δ_G`, `J(β)` and the shaped body region; the networks see β
+    /// through the rig's [`BetaOutOfRange`] rule.
     fn set_shape(&mut self, rig: &GarmentRig, betas: &[f32], ws: &mut Workspace) -> Result<()> {
         check_len("betas", betas.len(), rig.network.n_betas())?;
         check_finite("betas", betas)?;
         let par = rig.options.parallelism;
         let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
+        // What the networks see.
+        let mut seen = betas.to_vec();
+        if let Some(shapes) = &rig.network.header().training_betas
+            && rig.options.beta_out_of_range != BetaOutOfRange::Extrapolate
+        {
+            shapes.project(betas, &mut seen);
+        }
         match (rig.options.fit, &rig.retarget) {
-            (FitMode::Network, _) => rig.network.fit(betas, &mut self.fit, ws, par)?,
-            (FitMode::Retarget, Some(bound)) => {
-                let shaped = rig.body.shaped_vertices(&betas64)?;
-                let rest = rig.body.template().positions();
-                for (d, (tri, b)) in self.fit.chunks_exact_mut(3).zip(bound) {
-                    let mut delta = Vector3::zeros();
-                    for (&v, &w) in tri.iter().zip(b) {
-                        delta += (shaped[v as usize] - rest[v as usize]) * w;
-                    }
-                    d.copy_from_slice(delta.cast::<f32>().as_slice());
+            (FitMode::Network, None) => rig.network.fit(&seen, &mut self.fit, ws, par)?,
+            (FitMode::Network, Some(bound)) => {
+                // Project and follow: the network at the projected shape, plus the body's shape
+                // change from the projected to the requested shape.
+                rig.network.fit(&seen, &mut self.fit, ws, par)?;
+                if seen != betas {
+                    let seen64: Vec<f64> = seen.iter().map(|&b| f64::from(b)).collect();
+                    let (to, from) = (
+                        rig.body.shaped_vertices(&betas64)?,
+                        rig.body.shaped_vertices(&seen64)?,
+                    );
+                    add_retarget(&mut self.fit, bound, &to, &from);
                 }
+            }
+            (FitMode::Retarget, Some(bound)) => {
+                self.fit.fill(0.0);
+                let shaped = rig.body.shaped_vertices(&betas64)?;
+                add_retarget(
+                    &mut self.fit,
+                    bound,
+                    &shaped,
+                    rig.body.template().positions(),
+                );
             }
             (FitMode::Template, _) | (FitMode::Retarget, None) => self.fit.fill(0.0),
         }
@@ -382,11 +450,21 @@ impl Avatar {
         let collider = match &rig.options.collision {
             Some(options) => {
                 let shaped = rig.body.shaped_vertices(&betas64)?;
-                Some(Collider::new(&rig.region, &shaped, &cloth_rest, options)?)
+                let tasks = match rig.options.parallelism {
+                    Parallelism::Sequential => 1,
+                    Parallelism::Rayon => rayon::current_num_threads(),
+                };
+                Some(Collider::new(
+                    &rig.region,
+                    &shaped,
+                    &cloth_rest,
+                    options,
+                    tasks,
+                )?)
             }
             None => None,
         };
-        self.betas = betas.to_vec();
+        self.betas = seen;
         self.rest_joints = rest_joints;
         self.cloth_rest = cloth_rest;
         self.collider = collider;
@@ -469,11 +547,11 @@ impl Avatar {
         let collider = self.collider.as_ref()?;
         let margin = collider.margin_m() - tolerance_m;
         let mut count = CollisionCount::default();
-        for p in vertices {
-            let d = collider.exact(p).signed_distance_m;
+        collider.exact_each(vertices, |c| {
+            let d = c.signed_distance_m;
             count.inside += usize::from(d < 0.0);
             count.within_margin += usize::from(d < margin);
-        }
+        });
         Some(count)
     }
 }
@@ -541,7 +619,7 @@ impl GarmentAnimator {
         self.avatar.set_shape(&self.rig, betas, &mut self.ws)
     }
 
-    /// The current β.
+    /// The β the networks see (the requested β through the rig's [`BetaOutOfRange`] rule).
     pub fn betas(&self) -> &[f32] {
         &self.avatar.betas
     }
@@ -656,6 +734,13 @@ impl GarmentAnimator {
     ) -> Result<Option<CollisionCount>> {
         check_len("garment vertices", vertices.len(), self.rig.n_vertices())?;
         Ok(self.avatar.collision_count(vertices, tolerance_m))
+    }
+
+    /// What the certified query did in the last frame's first pass: vertices certified, vertices
+    /// answered exactly, candidate faces (zeros for the other queries; `None` when the
+    /// post-process is off).
+    pub fn certify_stats(&self) -> Option<CertifyStats> {
+        self.avatar.collider.as_ref().map(|c| c.stats())
     }
 
     /// Mean candidate faces per cloth vertex of the candidate query (0 for the BVH, `None`

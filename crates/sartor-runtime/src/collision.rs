@@ -38,12 +38,22 @@ use sartor_core::{BodyModel, BoneTransform, MeshProximity, Par, SkinWeights, ski
 
 use crate::error::{Error, Result};
 
+mod certify;
+
+pub use certify::CertifyStats;
+use certify::{Certifier, Outcome, Scratch};
+
 /// Distance kept between cloth and body, metres: the paper's 2 mm.
 pub const DEFAULT_MARGIN_M: f64 = 0.002;
 
 /// How the closest body primitive of each cloth vertex is found (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CollisionQuery {
+    /// Exact, and the default: the same pushes as [`CollisionQuery::EXACT_BVH`], with most
+    /// cloth vertices proven to need none by a test on the faces near them, shared by groups of
+    /// nearby vertices; the others get the exact closest point from the faces gathered for
+    /// their group (see the module docs).
+    Certified,
     /// A BVH over the body region, refitted per frame: the exact closest point among the
     /// region points within `radius_m` ([`f64::INFINITY`]: everywhere). A vertex with no body
     /// point within the radius is left alone: it is either farther out than the radius or deeper
@@ -101,7 +111,7 @@ impl CollisionQuery {
                 radius_m,
                 max_per_vertex,
             } => Some((radius_m, max_per_vertex)),
-            Self::Bvh { .. } | Self::BvhBand { .. } => None,
+            Self::Certified | Self::Bvh { .. } | Self::BvhBand { .. } => None,
         }
     }
 
@@ -131,11 +141,11 @@ pub struct CollisionOptions {
 }
 
 impl Default for CollisionOptions {
-    /// 2 mm, the exact BVH, 4 passes.
+    /// 2 mm, the certified query (exact), 4 passes.
     fn default() -> Self {
         Self {
             margin_m: DEFAULT_MARGIN_M,
-            query: CollisionQuery::EXACT_BVH,
+            query: CollisionQuery::Certified,
             passes: 4,
         }
     }
@@ -318,6 +328,10 @@ pub(crate) struct Collider {
     /// CSR candidate faces per cloth vertex (empty for the BVH query).
     offsets: Vec<u32>,
     candidates: Vec<u32>,
+    /// The certified query's state (`None` for the other queries).
+    certifier: Option<Certifier>,
+    /// What the certified query did in the last frame.
+    stats: CertifyStats,
 }
 
 /// What the post-process remembers of a cloth vertex.
@@ -385,12 +399,14 @@ const CHUNK: usize = 256;
 
 impl Collider {
     /// Set up for a body of shape `shaped_body` (`T_b(β)`, every body vertex) and a garment whose
-    /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`).
+    /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`); `tasks` parallel tasks at most (1 for
+    /// sequential frames).
     pub(crate) fn new(
         region: &BodyRegion,
         shaped_body: &[Vector3<f64>],
         cloth_rest: &[Vector3<f32>],
         options: &CollisionOptions,
+        tasks: usize,
     ) -> Result<Self> {
         let rest: Vec<Vector3<f64>> = region
             .vertices
@@ -439,7 +455,15 @@ impl Collider {
             candidates,
             own_parts,
             part_boxes,
+            certifier: (options.query == CollisionQuery::Certified)
+                .then(|| Certifier::new(region.vertices.len(), &region.faces, cloth_rest, tasks)),
+            stats: CertifyStats::default(),
         })
+    }
+
+    /// What the certified query did in the last frame (zeros for the other queries).
+    pub(crate) fn stats(&self) -> CertifyStats {
+        self.stats
     }
 
     /// The margin, metres.
@@ -470,7 +494,15 @@ impl Collider {
             &mut self.posed,
             par,
         )?;
-        self.proximity.update_positions(&self.posed)?;
+        match &mut self.certifier {
+            Some(certifier) => {
+                // The certified query finds its candidate faces in its own grid and asks
+                // `closest_among` only: no tree refit, normals on demand.
+                self.proximity.update_positions_lazy(&self.posed)?;
+                certifier.update(&self.posed);
+            }
+            None => self.proximity.update_positions(&self.posed)?,
+        }
         self.frame = self.frame.wrapping_add(1);
         if let (Some(parts), false) = (&region.face_parts, self.part_boxes.is_empty()) {
             self.part_boxes.fill((
@@ -512,6 +544,13 @@ impl Collider {
     /// One pass over every vertex (`first`) or over those the previous pass moved; updates the
     /// flags and returns how many moved.
     fn pass(&mut self, first: bool, cloth: &mut [Vector3<f32>], par: Par) -> usize {
+        if self.certifier.is_some() {
+            return if first {
+                self.certified_pass(cloth, par)
+            } else {
+                self.certified_later_pass(cloth)
+            };
+        }
         let mut states = std::mem::take(&mut self.vertices);
         let this = &*self;
         let task = |start: usize, chunk: &mut [Vector3<f32>], states: &mut [VertexState]| {
@@ -527,7 +566,9 @@ impl Collider {
                 let q = p.cast::<f64>();
                 let i = start + k;
                 let hit = match this.query {
-                    CollisionQuery::Bvh { .. } => this.closest_from(&q, state),
+                    CollisionQuery::Certified | CollisionQuery::Bvh { .. } => {
+                        this.closest_from(&q, state)
+                    }
                     CollisionQuery::BvhBand {
                         band_m,
                         refresh_every,
@@ -567,6 +608,65 @@ impl Collider {
         };
         self.vertices = states;
         count
+    }
+
+    /// The first pass of the certified query: every vertex certified or answered exactly (see
+    /// `certify.rs`) from the unpushed cloth, then the pushes, as the BVH query's first pass
+    /// makes them.
+    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>], par: Par) -> usize {
+        let Some(certifier) = self.certifier.as_mut() else {
+            return 0;
+        };
+        self.stats = certifier.run(&self.proximity, cloth, self.margin_m, par);
+        let margin = self.margin_m;
+        let mut pushed = 0;
+        let states = &mut self.vertices;
+        certifier.for_each_outcome(|i, outcome| {
+            let (p, state) = (&mut cloth[i], &mut states[i]);
+            state.moved = false;
+            state.plane = None;
+            if let Some(Outcome::Exact(c)) = outcome {
+                state.last_face = c.face;
+                if c.signed_distance_m < margin {
+                    let q = p.cast::<f64>();
+                    let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                    *p = push(&q, &c.normal, b, None).cast::<f32>();
+                    state.plane = Some((c.normal, b));
+                    state.moved = true;
+                    pushed += 1;
+                }
+            }
+        });
+        pushed
+    }
+
+    /// A later pass of the certified query: the exact answer for each vertex the previous pass
+    /// moved (from the grid's candidate faces), pushed as the BVH query's later passes push.
+    fn certified_later_pass(&mut self, cloth: &mut [Vector3<f32>]) -> usize {
+        let Some(certifier) = self.certifier.as_mut() else {
+            return 0;
+        };
+        let (frame, scratch) = certifier.frame_and_scratch();
+        let margin = self.margin_m;
+        let mut pushed = 0;
+        for (p, state) in cloth.iter_mut().zip(&mut self.vertices) {
+            if !state.moved {
+                continue;
+            }
+            state.moved = false;
+            let q = p.cast::<f64>();
+            if let Some(c) = frame.exact(&self.proximity, &q, state.last_face, scratch) {
+                state.last_face = c.face;
+                if c.signed_distance_m < margin {
+                    let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                    *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
+                    state.plane = Some((c.normal, b));
+                    state.moved = true;
+                    pushed += 1;
+                }
+            }
+        }
+        pushed
     }
 
     /// The BVH query within the search radius, started from the distance to the vertex's last
@@ -638,9 +738,31 @@ impl Collider {
         }
     }
 
-    /// The closest region point to `p` by the exact (tree) query: signed distance and face.
-    pub(crate) fn exact(&self, p: &Vector3<f32>) -> sartor_core::ClosestPoint {
-        self.proximity.closest(&p.cast::<f64>())
+    /// `visit` the exact query's answer for each of `points` against the region as posed by
+    /// the last [`Collider::pose`] (for reports; allocates scratch once per call).
+    pub(crate) fn exact_each(
+        &self,
+        points: &[Vector3<f32>],
+        mut visit: impl FnMut(&sartor_core::ClosestPoint),
+    ) {
+        match &self.certifier {
+            Some(certifier) => {
+                let region = certifier.frame();
+                let mut scratch = Scratch::for_frame(region);
+                for p in points {
+                    if let Some(c) =
+                        region.exact(&self.proximity, &p.cast::<f64>(), u32::MAX, &mut scratch)
+                    {
+                        visit(&c);
+                    }
+                }
+            }
+            None => {
+                for p in points {
+                    visit(&self.proximity.closest(&p.cast::<f64>()));
+                }
+            }
+        }
     }
 }
 

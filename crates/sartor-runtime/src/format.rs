@@ -46,9 +46,14 @@
 //!     { "name": "root", "offset": 142, "len": 4, "feature":
 //!       { "root": { "components": ["vel_x", "vel_y", "vel_z", "yaw_rate"] } } }
 //!   ],
-//!   "tensors_sha256": "<sha256 of model.safetensors>"
+//!   "tensors_sha256": "<sha256 of model.safetensors>",
+//!   "training_betas": [[0, 0, 0, 0, 0, 0, 0, 0, 0, 0], [-2, 0, 0, 0, 0, 0, 0, 0, 0, 0], "..."]
 //! }
 //! ```
+//!
+//! `training_betas` (optional; models exported before it have none) lists the β of the
+//! training shapes: the networks were trained on their convex hull at best. Beyond it the
+//! animator applies a [`crate::BetaOutOfRange`] rule.
 //!
 //! `output` is `"dense"` or `{ "pca": k }`; `encoding` is `"rot6d"` (6 values per joint),
 //! `"quaternion"` (4) or `"axis_angle"` (3). The animator ([`crate::GarmentRig`]) computes each
@@ -218,7 +223,7 @@ impl ModelSizes {
 }
 
 /// The contents of `model.json`.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelHeader {
     /// Always [`MODEL_FORMAT`].
@@ -235,6 +240,98 @@ pub struct ModelHeader {
     pub wrinkle_inputs: Vec<FeatureBlock>,
     /// SHA-256 of `model.safetensors`; [`GarmentModel::save`] fills it in.
     pub tensors_sha256: String,
+    /// The β of the training shapes (`None` in models exported before the field existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub training_betas: Option<TrainingBetas>,
+}
+
+/// The body shapes a model was trained on (`model.json`'s `training_betas`): the networks are
+/// trained on the convex hull of these β at best.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct TrainingBetas(pub Vec<Vec<f32>>);
+
+/// Iterations of the hull projection (Frank–Wolfe; a few hundred reach 1e-6 on a few dozen
+/// shapes).
+const HULL_ITERATIONS: usize = 2000;
+/// A β within this distance of the hull counts as inside it (and is left as it is).
+const HULL_TOLERANCE: f64 = 1e-4;
+/// The most β components [`TrainingBetas::project`] handles (on the stack).
+const MAX_BETAS: usize = 32;
+
+impl TrainingBetas {
+    /// The point of the training shapes' convex hull nearest `betas` (`betas` itself when it
+    /// lies in the hull, within 1e-4), into `out` (same length). Frank–Wolfe with exact line
+    /// search from the nearest training shape, in f64: deterministic, no allocation.
+    pub fn project(&self, betas: &[f32], out: &mut [f32]) {
+        out.copy_from_slice(betas);
+        let n = betas.len();
+        let mut x = [0.0f64; MAX_BETAS];
+        if n > MAX_BETAS || self.0.iter().any(|s| s.len() != n) {
+            return;
+        }
+        let b = |k: usize| f64::from(betas[k]);
+        let dist2 = |s: &[f32]| {
+            (0..n)
+                .map(|k| (f64::from(s[k]) - b(k)).powi(2))
+                .sum::<f64>()
+        };
+        let Some(first) = self.0.iter().min_by(|p, q| dist2(p).total_cmp(&dist2(q))) else {
+            return;
+        };
+        for k in 0..n {
+            x[k] = f64::from(first[k]);
+        }
+        for _ in 0..HULL_ITERATIONS {
+            // The training shape along which |x − β|² falls fastest, and the best step to it.
+            let slope = |s: &[f32]| (0..n).map(|k| (x[k] - b(k)) * f64::from(s[k])).sum::<f64>();
+            let Some(s) = self.0.iter().min_by(|p, q| slope(p).total_cmp(&slope(q))) else {
+                break;
+            };
+            let (mut gd, mut dd) = (0.0, 0.0);
+            for k in 0..n {
+                let d = f64::from(s[k]) - x[k];
+                gd += (x[k] - b(k)) * d;
+                dd += d * d;
+            }
+            if gd >= 0.0 || dd == 0.0 {
+                break;
+            }
+            let step = (-gd / dd).min(1.0);
+            for k in 0..n {
+                x[k] += step * (f64::from(s[k]) - x[k]);
+            }
+        }
+        let d2: f64 = (0..n).map(|k| (x[k] - b(k)).powi(2)).sum();
+        if d2.sqrt() > HULL_TOLERANCE {
+            for k in 0..n {
+                out[k] = x[k] as f32;
+            }
+        }
+    }
+
+    fn check(&self, n_betas: usize) -> std::result::Result<(), String> {
+        if self.0.is_empty() {
+            return Err("training_betas is empty".into());
+        }
+        if n_betas > MAX_BETAS {
+            return Err(format!(
+                "training_betas: at most {MAX_BETAS} betas are supported, the model has {n_betas}"
+            ));
+        }
+        for (i, b) in self.0.iter().enumerate() {
+            if b.len() != n_betas {
+                return Err(format!(
+                    "training_betas[{i}] has {} values, expected n_betas = {n_betas}",
+                    b.len()
+                ));
+            }
+            if !b.iter().all(|v| v.is_finite()) {
+                return Err(format!("training_betas[{i}] is not finite"));
+            }
+        }
+        Ok(())
+    }
 }
 
 sartor_core::asset_header!(ModelHeader);
@@ -268,6 +365,7 @@ impl ModelHeader {
             sizes,
             wrinkle_inputs,
             tensors_sha256: String::new(),
+            training_betas: None,
         }
     }
 
@@ -362,6 +460,9 @@ impl ModelHeader {
                 "wrinkle_inputs cover {next} values, expected n_betas + n_pose_features = {}",
                 s.wrinkle_inputs()
             ));
+        }
+        if let Some(shapes) = &self.training_betas {
+            shapes.check(s.n_betas)?;
         }
         Ok(())
     }

@@ -64,18 +64,18 @@ mod network;
 mod writers;
 
 pub use animator::{
-    AnimatorOptions, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd, GarmentRig,
-    LevelOfDetail, WrinkleMode,
+    AnimatorOptions, BetaOutOfRange, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd,
+    GarmentRig, LevelOfDetail, WrinkleMode,
 };
 pub use binding::{
     BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
 };
-pub use collision::{BodyRegion, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
+pub use collision::{BodyRegion, CertifyStats, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
 pub use error::{Error, Result};
 pub use format::{
     AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,
     MODEL_JSON, MODEL_TENSORS, MODEL_VERSION, MeanStd, ModelHeader, ModelSizes, ModelWeights,
-    NormStats, OutputKind, PcaWeights, RotationEncoding,
+    NormStats, OutputKind, PcaWeights, RotationEncoding, TrainingBetas,
 };
 pub use kernels::{
     GruCell, GruScratch, INT8_ZERO_ROW, Linear, Matrix, Mlp, MlpScratch, OutputLayer,

@@ -274,6 +274,7 @@ fn post_process_pushes_vertices_out_of_the_body() {
     };
     for query in [
         CollisionQuery::EXACT_BVH,
+        CollisionQuery::Certified,
         band,
         guarded,
         CollisionQuery::DEFAULT_CANDIDATES,
@@ -290,7 +291,7 @@ fn post_process_pushes_vertices_out_of_the_body() {
         // to the body (a trained model's wrinkles are smooth; `bench runtime` measures that
         // case).
         let factor = match query {
-            CollisionQuery::Bvh { .. } => usize::MAX,
+            CollisionQuery::Bvh { .. } | CollisionQuery::Certified => usize::MAX,
             CollisionQuery::BvhBand { .. } | CollisionQuery::GuardedCandidates { .. } => 20,
             CollisionQuery::Candidates { .. } => 5,
         };

@@ -6,6 +6,7 @@ mod alloc;
 mod animator;
 mod binding;
 mod common;
+mod extremes;
 mod format;
 mod network;
 mod rollout;

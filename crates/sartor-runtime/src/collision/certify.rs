@@ -1,0 +1,900 @@
+//! The certified query of the post-process ([`super::CollisionQuery::Certified`]): for every
+//! cloth vertex, either a proof that the exact per-vertex query would not push it, or the exact
+//! query's own answer — found among a few candidate faces instead of a tree.
+//!
+//! # The proof
+//!
+//! The exact query pushes a vertex `p` when its signed distance is below the margin. Let `U` be
+//! an upper bound of `p`'s distance to the body region (its distance to any one face) and `C`
+//! the faces whose bounding box lies within `U` of `p`: the closest face `f*` is in `C`. The
+//! closest point lies on a face, edge or vertex of `f*`, and its pseudo-normal is a positive
+//! blend of the normals of faces that share a vertex with `f*` — all in the *fans* (the faces
+//! around a vertex) of the vertices of `C`. The closest point lies on each of those faces, so if
+//! `p` is in front of every fan face's plane by at least the margin,
+//! `min_j (p − v_j)·n_k ≥ margin` over the face's corners `v_j`, then the distance is at least
+//! the margin and the sign is positive: no push. The test reads the body as posed this frame
+//! only — no motion bound, no earlier frame — so it holds on the open, self-intersecting region as
+//! the exact query sees it (its sign, not "inside the body"). Otherwise the vertex gets
+//! `MeshProximity::closest_among(C)`: `f*` is in `C` and every other face is farther than `U`,
+//! so it is the exact query's answer (same faces, same arithmetic, same tie rule).
+//!
+//! # The work
+//!
+//! Per frame, the posed region is put in a uniform grid (each face in every cell its box
+//! overlaps; a counting sort) with f32 boxes and planes relative to the grid's corner. Per
+//! vertex: `U` from the face it was nearest last frame (exact distance), the grid cells within
+//! `U`, the faces there, the fans of their vertices. The f32 arithmetic is covered by a 10 µm
+//! guard on every comparison (coordinates relative to the grid, within metres; f32 rounding of
+//! the planes is below a micrometre for faces that are not slivers, and slivers never pass).
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace, Par};
+
+/// Slack on every f32 comparison of the certificates, metres.
+const GUARD_M: f32 = 1e-5;
+/// Grid cell edge, metres (about a body triangle and the typical cloth–body distance).
+const CELL_M: f32 = 0.02;
+/// At most this many grid cells (the cell grows for a very large region or pose).
+const MAX_CELLS: usize = 1 << 18;
+/// Face–cell entries allowed per face on average before the cell grows.
+const ENTRIES_PER_FACE: usize = 32;
+/// A face whose normal is less reliable than this (|e1 × e2| below this fraction of
+/// |e1| |e2|: an angle under 3°, a sliver) never passes the plane test.
+const MIN_SINE: f32 = 0.05;
+/// Lanes of the entry scan.
+const LANES: usize = 8;
+/// Cloth vertices certified together, in lanes (at most 8: a byte of flags).
+const GROUP: usize = 8;
+
+/// The region as a uniform grid of faces, rebuilt per frame.
+#[derive(Clone, Debug)]
+struct Grid {
+    origin: Vector3<f64>,
+    cell_m: f32,
+    dims: [usize; 3],
+    /// Per cell (x fastest), its entries `[start[c], start[c + 1])`.
+    start: Vec<u32>,
+    /// Per entry: the face, its box, its plane (copied in cell order, so a row of cells is
+    /// one contiguous run to scan).
+    entries: Vec<u32>,
+    lo: [Vec<f32>; 3],
+    hi: [Vec<f32>; 3],
+    plane: [Vec<f32>; 4],
+    /// Per face, its cell range (lower and upper corner), computed once per frame.
+    ranges: Vec<([u32; 3], [u32; 3])>,
+}
+
+/// The posed region's faces relative to the grid corner, in f32.
+#[derive(Clone, Debug, Default)]
+struct Faces {
+    lo: Vec<[f32; 3]>,
+    hi: Vec<[f32; 3]>,
+    /// `(n, o)`: `n·x − o = min_j (x − v_j)·n` over the corners, `o = +∞` for a sliver.
+    plane: Vec<[f32; 4]>,
+    centroid: Vec<[f32; 3]>,
+}
+
+/// Per-task scratch: dedup stamps and the candidate list.
+#[derive(Clone, Debug)]
+pub(crate) struct Scratch {
+    face_stamp: Vec<u32>,
+    vertex_stamp: Vec<u32>,
+    stamp: u32,
+    candidates: Vec<u32>,
+    /// A group's gathered faces, with the members that have each as a candidate (bit `j`).
+    gathered: Vec<u32>,
+    gathered_mask: Vec<u8>,
+    /// Per face, the members that must be in front of it (valid where stamped).
+    face_mask: Vec<u8>,
+    /// The fan faces to test.
+    fan_faces: Vec<u32>,
+}
+
+impl Scratch {
+    /// Scratch sized for `frame`'s region.
+    pub(crate) fn for_frame(frame: &Frame) -> Self {
+        Self::new(frame.faces.len(), frame.rel.len())
+    }
+
+    fn new(n_faces: usize, n_vertices: usize) -> Self {
+        Self {
+            face_stamp: vec![0; n_faces],
+            vertex_stamp: vec![0; n_vertices],
+            stamp: 0,
+            candidates: Vec::with_capacity(n_faces),
+            gathered: Vec::with_capacity(n_faces),
+            gathered_mask: Vec::with_capacity(n_faces),
+            face_mask: vec![0; n_faces],
+            fan_faces: Vec::with_capacity(n_faces),
+        }
+    }
+
+    /// A new stamp (clearing the arrays when the counter wraps).
+    fn next(&mut self) -> u32 {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.face_stamp.fill(0);
+            self.vertex_stamp.fill(0);
+            self.stamp = 1;
+        }
+        self.stamp
+    }
+}
+
+/// What the certified pass found for one cloth vertex.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Outcome {
+    /// Proven not to need a push.
+    Certified,
+    /// The exact closest point.
+    Exact(ClosestPoint),
+}
+
+/// Counts of the certified query in one frame (for reports and tests).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CertifyStats {
+    /// Cloth vertices proven not to need a push.
+    pub certified: usize,
+    /// Cloth vertices that got the exact closest point (from their candidate faces).
+    pub exact: usize,
+    /// Candidate faces over all cloth vertices of the first pass.
+    pub candidates: usize,
+}
+
+/// The region as posed this frame: faces, fans, grid.
+#[derive(Clone, Debug)]
+pub(crate) struct Frame {
+    faces: Vec<[u32; 3]>,
+    /// Per region vertex, the faces around it (CSR).
+    fan_offsets: Vec<u32>,
+    fan: Vec<u32>,
+    rel: Vec<[f32; 3]>,
+    data: Faces,
+    grid: Grid,
+}
+
+/// The certified query's state (see the module docs).
+#[derive(Clone, Debug)]
+pub(crate) struct Certifier {
+    frame: Frame,
+    /// [`GROUP`] slots per group of nearby cloth vertices: a vertex, or `u32::MAX`.
+    slots: Vec<u32>,
+    /// Per slot, the face its vertex was nearest last frame (`u32::MAX`: none yet).
+    warm: Vec<u32>,
+    scratch: Vec<Scratch>,
+    /// Per slot.
+    outcomes: Vec<Option<Outcome>>,
+}
+
+impl Certifier {
+    /// For a region of `n_vertices` vertices and `faces`, and a garment whose rest shape is
+    /// `cloth_rest` (it groups nearby vertices), with scratch for `tasks` parallel tasks.
+    pub(crate) fn new(
+        n_vertices: usize,
+        faces: &[[u32; 3]],
+        cloth_rest: &[Vector3<f32>],
+        tasks: usize,
+    ) -> Self {
+        let slots = groups(cloth_rest);
+        let mut fan_offsets = vec![0u32; n_vertices + 1];
+        for t in faces {
+            for &v in t {
+                fan_offsets[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..n_vertices {
+            fan_offsets[v + 1] += fan_offsets[v];
+        }
+        let mut fill = fan_offsets.clone();
+        let mut fan = vec![0u32; faces.len() * 3];
+        for (f, t) in faces.iter().enumerate() {
+            for &v in t {
+                fan[fill[v as usize] as usize] = f as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        let n_f = faces.len();
+        Self {
+            frame: Frame {
+                faces: faces.to_vec(),
+                fan_offsets,
+                fan,
+                rel: vec![[0.0; 3]; n_vertices],
+                data: Faces {
+                    lo: vec![[0.0; 3]; n_f],
+                    hi: vec![[0.0; 3]; n_f],
+                    plane: vec![[0.0; 4]; n_f],
+                    centroid: vec![[0.0; 3]; n_f],
+                },
+                grid: Grid {
+                    origin: Vector3::zeros(),
+                    cell_m: CELL_M,
+                    dims: [1; 3],
+                    start: Vec::with_capacity(MAX_CELLS + 1),
+                    entries: Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES),
+                    lo: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
+                    hi: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
+                    plane: std::array::from_fn(|_| {
+                        Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)
+                    }),
+                    ranges: vec![([0; 3], [0; 3]); n_f],
+                },
+            },
+            warm: vec![u32::MAX; slots.len()],
+            scratch: (0..tasks.max(1))
+                .map(|_| Scratch::new(n_f, n_vertices))
+                .collect(),
+            outcomes: vec![None; slots.len()],
+            slots,
+        }
+    }
+
+    /// Rebuild the face data and the grid from the posed region. Allocation-free.
+    pub(crate) fn update(&mut self, posed: &[Vector3<f64>]) {
+        let mut cell = CELL_M;
+        while !self.frame.try_update(posed, cell) {
+            cell *= 1.5;
+        }
+    }
+
+    /// The posed region.
+    pub(crate) fn frame(&self) -> &Frame {
+        &self.frame
+    }
+
+    /// The frame and a scratch, for callers outside [`Certifier::run`] (the later passes,
+    /// reports).
+    pub(crate) fn frame_and_scratch(&mut self) -> (&Frame, &mut Scratch) {
+        (&self.frame, &mut self.scratch[0])
+    }
+}
+
+impl Frame {
+    /// [`Certifier::update`] with cells of `cell` metres; `false` (and nothing usable) when the
+    /// grid would need more cells or entries than it has room for.
+    fn try_update(&mut self, posed: &[Vector3<f64>], cell: f32) -> bool {
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in posed {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let dims = (hi - lo).map(|e| (e / f64::from(cell)).floor() as usize + 3);
+        let n_cells = dims.x * dims.y * dims.z;
+        if n_cells > MAX_CELLS {
+            return false;
+        }
+        let grid = &mut self.grid;
+        grid.cell_m = cell;
+        grid.dims = [dims.x, dims.y, dims.z];
+        grid.origin = lo - Vector3::repeat(f64::from(cell));
+        for (r, p) in self.rel.iter_mut().zip(posed) {
+            let d = p - grid.origin;
+            *r = [d.x as f32, d.y as f32, d.z as f32];
+        }
+        let data = &mut self.data;
+        for (f, t) in self.faces.iter().enumerate() {
+            let [a, b, c] = t.map(|v| self.rel[v as usize]);
+            // Edges from the f64 positions (the exact query's own), then f32: the normal's
+            // direction error stays below ~1e-5 for faces that pass the sliver test.
+            let [pa, pb, pc] = t.map(|v| posed[v as usize]);
+            let (e1, e2) = ((pb - pa).cast::<f32>(), (pc - pa).cast::<f32>());
+            let mut l = [0.0f32; 3];
+            let mut h = [0.0f32; 3];
+            for k in 0..3 {
+                l[k] = a[k].min(b[k]).min(c[k]);
+                h[k] = a[k].max(b[k]).max(c[k]);
+            }
+            data.lo[f] = l;
+            data.hi[f] = h;
+            data.centroid[f] = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
+            let n = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let scale = ((e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+                * (e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
+                .sqrt();
+            data.plane[f] = if len > MIN_SINE * scale && len > 0.0 {
+                let n = n.map(|x| x / len);
+                let dot = |v: [f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+                [n[0], n[1], n[2], dot(a).max(dot(b)).max(dot(c))]
+            } else {
+                [0.0, 0.0, 0.0, f32::INFINITY]
+            };
+        }
+        // Counting sort of the face–cell entries.
+        let [nx, ny, _] = grid.dims;
+        grid.start.clear();
+        grid.start.resize(n_cells + 1, 0);
+        let mut total = 0usize;
+        for f in 0..self.faces.len() {
+            let (a, b) = grid.range(&data.lo[f], &data.hi[f]);
+            let (a, b) = (a.map(|v| v as u32), b.map(|v| v as u32));
+            grid.ranges[f] = (a, b);
+            total += ((b[0] - a[0] + 1) * (b[1] - a[1] + 1) * (b[2] - a[2] + 1)) as usize;
+            for z in a[2]..=b[2] {
+                for y in a[1]..=b[1] {
+                    let row = (z as usize * ny + y as usize) * nx + 1;
+                    for c in &mut grid.start[row + a[0] as usize..=row + b[0] as usize] {
+                        *c += 1;
+                    }
+                }
+            }
+        }
+        if total + LANES > grid.entries.capacity() {
+            return false;
+        }
+        for c in 0..n_cells {
+            grid.start[c + 1] += grid.start[c];
+        }
+        // `LANES` padding entries at the end: far away, never a hit.
+        grid.entries.clear();
+        grid.entries.resize(total + LANES, 0);
+        for k in 0..3 {
+            grid.lo[k].clear();
+            grid.lo[k].resize(total + LANES, f32::INFINITY);
+            grid.hi[k].clear();
+            grid.hi[k].resize(total + LANES, f32::INFINITY);
+        }
+        for k in 0..4 {
+            grid.plane[k].clear();
+            grid.plane[k].resize(total + LANES, 0.0);
+        }
+        for f in 0..self.faces.len() {
+            let (a, b) = grid.ranges[f];
+            let (lo, hi, plane) = (data.lo[f], data.hi[f], data.plane[f]);
+            for z in a[2]..=b[2] {
+                for y in a[1]..=b[1] {
+                    let row = (z as usize * ny + y as usize) * nx;
+                    for c in row + a[0] as usize..=row + b[0] as usize {
+                        // `start[c]` is the fill cursor here, shifted back below.
+                        let slot = grid.start[c] as usize;
+                        grid.start[c] += 1;
+                        grid.entries[slot] = f as u32;
+                        for k in 0..3 {
+                            grid.lo[k][slot] = lo[k];
+                            grid.hi[k][slot] = hi[k];
+                        }
+                        for k in 0..4 {
+                            grid.plane[k][slot] = plane[k];
+                        }
+                    }
+                }
+            }
+        }
+        for c in (1..=n_cells).rev() {
+            grid.start[c] = grid.start[c - 1];
+        }
+        grid.start[0] = 0;
+        true
+    }
+
+    /// `p` relative to the grid corner, in f32.
+    fn relative(&self, p: &Vector3<f32>) -> [f32; 3] {
+        let d = p.cast::<f64>() - self.grid.origin;
+        [d.x as f32, d.y as f32, d.z as f32]
+    }
+
+    /// Whether `x` (relative) is in front of every face whose normal enters the pseudo-normal
+    /// of `nearest`'s feature, by more than `front`: then that pseudo-normal, a positive blend
+    /// of those normals, has the exact query's sign positive.
+    fn feature_in_front(&self, x: &[f32; 3], nearest: &NearestFace, front: f32) -> bool {
+        let t = self.faces[nearest.face as usize];
+        let in_front = |k: u32| {
+            let [nx, ny, nz, o] = self.data.plane[k as usize];
+            nx * x[0] + ny * x[1] + nz * x[2] - o > front
+        };
+        let fan = |v: u32| {
+            let v = v as usize;
+            &self.fan[self.fan_offsets[v] as usize..self.fan_offsets[v + 1] as usize]
+        };
+        match nearest.feature {
+            ClosestFeature::Face => in_front(nearest.face),
+            ClosestFeature::Edge(k) => {
+                let (va, vb) = (t[k], t[(k + 1) % 3]);
+                fan(va)
+                    .iter()
+                    .filter(|&&g| self.faces[g as usize].contains(&vb))
+                    .all(|&g| in_front(g))
+            }
+            ClosestFeature::Vertex(k) => fan(t[k]).iter().all(|&g| in_front(g)),
+        }
+    }
+
+    /// An upper bound of the distance from `q` to the region: its distance to face `hint` if
+    /// that is a face, else to the first face found in the nearest non-empty cells.
+    fn upper_bound(&self, proximity: &MeshProximity, q: &Vector3<f64>, hint: u32) -> (f64, u32) {
+        if (hint as usize) < self.faces.len() {
+            return (proximity.distance_to_face(q, hint), hint);
+        }
+        // Shells of cells around q's cell until one holds a face.
+        let d = q - self.grid.origin;
+        let x = [d.x as f32, d.y as f32, d.z as f32];
+        let (c, _) = self.grid.range(&x, &x);
+        let [nx, ny, nz] = self.grid.dims;
+        for ring in 0..nx.max(ny).max(nz) {
+            let lo = c.map(|v| v.saturating_sub(ring));
+            let hi = [
+                (c[0] + ring).min(nx - 1),
+                (c[1] + ring).min(ny - 1),
+                (c[2] + ring).min(nz - 1),
+            ];
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    let row = (z * ny + y) * nx;
+                    let (c0, c1) = (
+                        self.grid.start[row + lo[0]] as usize,
+                        self.grid.start[row + hi[0] + 1] as usize,
+                    );
+                    if let Some(&f) = self.grid.entries[c0..c1].first() {
+                        return (proximity.distance_to_face(q, f), f);
+                    }
+                }
+            }
+        }
+        // An empty grid cannot happen (the region has faces); any face bounds the distance.
+        (proximity.distance_to_face(q, 0), 0)
+    }
+
+    /// The exact query's answer at `q` (the closest face, among those within the distance to
+    /// `hint` or to a face found near `q`).
+    pub(crate) fn exact(
+        &self,
+        proximity: &MeshProximity,
+        q: &Vector3<f64>,
+        hint: u32,
+        s: &mut Scratch,
+    ) -> Option<ClosestPoint> {
+        let (upper, face) = self.upper_bound(proximity, q, hint);
+        let d = q - self.grid.origin;
+        let x = [d.x as f32, d.y as f32, d.z as f32];
+        let stamp = s.next();
+        s.candidates.clear();
+        s.candidates.push(face);
+        s.face_stamp[face as usize] = stamp;
+        self.scan(&x, upper as f32 + GUARD_M, |f, _| {
+            if s.face_stamp[f as usize] != stamp {
+                s.face_stamp[f as usize] = stamp;
+                s.candidates.push(f);
+            }
+        });
+        proximity.closest_among(q, &s.candidates)
+    }
+}
+
+impl Certifier {
+    /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]).
+    pub(crate) fn run(
+        &mut self,
+        proximity: &MeshProximity,
+        cloth: &[Vector3<f32>],
+        margin_m: f64,
+        par: Par,
+    ) -> CertifyStats {
+        let Self {
+            frame,
+            slots,
+            warm,
+            scratch,
+            outcomes,
+        } = self;
+        let frame = &*frame;
+        let slots = &*slots;
+        let task =
+            |first: usize, outs: &mut [Option<Outcome>], warms: &mut [u32], s: &mut Scratch| {
+                let mut stats = CertifyStats::default();
+                for (g, (out, w)) in outs
+                    .chunks_mut(GROUP)
+                    .zip(warms.chunks_mut(GROUP))
+                    .enumerate()
+                {
+                    let start = (first + g) * GROUP;
+                    let members = &slots[start..start + GROUP];
+                    add(
+                        &mut stats,
+                        frame.group(proximity, cloth, members, margin_m, w, out, s),
+                    );
+                }
+                stats
+            };
+        match par {
+            Par::Seq => task(0, outcomes, warm, &mut scratch[0]),
+            Par::Rayon => {
+                let n_groups = slots.len() / GROUP;
+                let per_task = n_groups.div_ceil(scratch.len()).max(1);
+                outcomes
+                    .par_chunks_mut(per_task * GROUP)
+                    .zip(warm.par_chunks_mut(per_task * GROUP))
+                    .zip(scratch.par_iter_mut())
+                    .enumerate()
+                    .map(|(t, ((outs, warms), s))| task(t * per_task, outs, warms, s))
+                    .reduce(CertifyStats::default, |mut a, b| {
+                        add(&mut a, b);
+                        a
+                    })
+            }
+        }
+    }
+
+    /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
+    /// fixed order.
+    pub(crate) fn for_each_outcome(&self, mut visit: impl FnMut(usize, Option<Outcome>)) {
+        for (&v, &o) in self.slots.iter().zip(&self.outcomes) {
+            if v != u32::MAX {
+                visit(v as usize, o);
+            }
+        }
+    }
+}
+
+fn add(a: &mut CertifyStats, b: CertifyStats) {
+    a.certified += b.certified;
+    a.exact += b.exact;
+    a.candidates += b.candidates;
+}
+
+/// Cloth vertices in groups of up to [`GROUP`], spatially compact (median splits along the
+/// longest axis of the rest shape, at multiples of [`GROUP`]); [`GROUP`] slots per group,
+/// `u32::MAX` for an empty one. Deterministic.
+fn groups(rest: &[Vector3<f32>]) -> Vec<u32> {
+    fn split(idx: &mut [u32], rest: &[Vector3<f32>], out: &mut Vec<u32>) {
+        let n = idx.len();
+        if n <= GROUP {
+            out.extend_from_slice(idx);
+            out.extend(std::iter::repeat_n(u32::MAX, GROUP - n));
+            return;
+        }
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f32::INFINITY),
+            Vector3::repeat(f32::NEG_INFINITY),
+        );
+        for &i in idx.iter() {
+            lo = lo.inf(&rest[i as usize]);
+            hi = hi.sup(&rest[i as usize]);
+        }
+        let axis = (hi - lo).imax();
+        let mid = (n.div_ceil(GROUP) / 2) * GROUP;
+        idx.select_nth_unstable_by(mid, |&a, &b| {
+            rest[a as usize][axis]
+                .total_cmp(&rest[b as usize][axis])
+                .then(a.cmp(&b))
+        });
+        let (left, right) = idx.split_at_mut(mid);
+        split(left, rest, out);
+        split(right, rest, out);
+    }
+    let mut idx: Vec<u32> = (0..rest.len() as u32).collect();
+    let mut out = Vec::with_capacity(rest.len() + GROUP);
+    split(&mut idx, rest, &mut out);
+    out
+}
+
+impl Frame {
+    /// [`Frame::group_impl`], compiled for AVX2 when the CPU has it (the same arithmetic: the
+    /// outcome never depends on it).
+    #[allow(clippy::too_many_arguments, unsafe_code)]
+    fn group(
+        &self,
+        proximity: &MeshProximity,
+        cloth: &[Vector3<f32>],
+        members: &[u32],
+        margin_m: f64,
+        warm: &mut [u32],
+        out: &mut [Option<Outcome>],
+        s: &mut Scratch,
+    ) -> CertifyStats {
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2")]
+            #[allow(clippy::too_many_arguments)]
+            fn avx2(
+                frame: &Frame,
+                proximity: &MeshProximity,
+                cloth: &[Vector3<f32>],
+                members: &[u32],
+                margin_m: f64,
+                warm: &mut [u32],
+                out: &mut [Option<Outcome>],
+                s: &mut Scratch,
+            ) -> CertifyStats {
+                frame.group_impl(proximity, cloth, members, margin_m, warm, out, s)
+            }
+            if is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2 (checked just above).
+                return unsafe { avx2(self, proximity, cloth, members, margin_m, warm, out, s) };
+            }
+        }
+        self.group_impl(proximity, cloth, members, margin_m, warm, out, s)
+    }
+
+    /// Certify or answer one group of cloth vertices (`members`: [`GROUP`] slots), updating
+    /// their warm faces and outcomes.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn group_impl(
+        &self,
+        proximity: &MeshProximity,
+        cloth: &[Vector3<f32>],
+        members: &[u32],
+        margin_m: f64,
+        warm: &mut [u32],
+        out: &mut [Option<Outcome>],
+        s: &mut Scratch,
+    ) -> CertifyStats {
+        let mut stats = CertifyStats::default();
+        let n = members.iter().take_while(|&&v| v != u32::MAX).count();
+        if n == 0 {
+            return stats;
+        }
+        // Members in lanes (the empty ones repeat the first), their upper bounds.
+        let mut x = [[0.0f32; 3]; GROUP];
+        let mut upper = [0.0f32; GROUP];
+        let mut seed = [0u32; GROUP];
+        for j in 0..GROUP {
+            let v = members[j.min(n - 1)] as usize;
+            let q = cloth[v].cast::<f64>();
+            let (u, f) = self.upper_bound(proximity, &q, warm[j.min(n - 1)]);
+            x[j] = self.relative(&cloth[v]);
+            upper[j] = u as f32 + GUARD_M;
+            seed[j] = f;
+        }
+        // The group's ball, and every face whose lower bound is within reach of a member.
+        let mut centre = [0.0f32; 3];
+        for k in 0..3 {
+            let (lo, hi) = x[..n]
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| {
+                    (a.min(p[k]), b.max(p[k]))
+                });
+            centre[k] = 0.5 * (lo + hi);
+        }
+        let radius = x[..n]
+            .iter()
+            .map(|p| {
+                ((p[0] - centre[0]).powi(2)
+                    + (p[1] - centre[1]).powi(2)
+                    + (p[2] - centre[2]).powi(2))
+                .sqrt()
+            })
+            .fold(0.0f32, f32::max);
+        let reach = upper[..n].iter().fold(0.0f32, |a, &b| a.max(b)) + radius + GUARD_M;
+        let stamp = s.next();
+        s.gathered.clear();
+        for &f in &seed[..n] {
+            if s.face_stamp[f as usize] != stamp {
+                s.face_stamp[f as usize] = stamp;
+                s.gathered.push(f);
+            }
+        }
+        self.scan(&centre, reach, |f, _| {
+            if s.face_stamp[f as usize] != stamp {
+                s.face_stamp[f as usize] = stamp;
+                s.gathered.push(f);
+            }
+        });
+        // Lanes: per gathered face, the members that have it as a candidate (lower bound within
+        // their upper bound); per member, the smallest lower bound and the nearest centroid.
+        let (xs, ys, zs) = (x.map(|p| p[0]), x.map(|p| p[1]), x.map(|p| p[2]));
+        let upper2 = upper.map(|u| u * u);
+        let mut min_lb2 = [f32::INFINITY; GROUP];
+        let mut best_c2 = [f32::INFINITY; GROUP];
+        let mut best_face = seed;
+        s.gathered_mask.clear();
+        for &f in &s.gathered {
+            let fi = f as usize;
+            let (lo, hi) = (self.data.lo[fi], self.data.hi[fi]);
+            let [nx, ny, nz, o] = self.data.plane[fi];
+            let mut lb2 = [0.0f32; GROUP];
+            for j in 0..GROUP {
+                let dx = fmax(fmax(lo[0] - xs[j], xs[j] - hi[0]), 0.0);
+                let dy = fmax(fmax(lo[1] - ys[j], ys[j] - hi[1]), 0.0);
+                let dz = fmax(fmax(lo[2] - zs[j], zs[j] - hi[2]), 0.0);
+                let h = fmax(nx * xs[j] + ny * ys[j] + nz * zs[j] - o, 0.0);
+                lb2[j] = fmax(dx * dx + dy * dy + dz * dz, h * h);
+            }
+            let mut hit = [false; GROUP];
+            for j in 0..GROUP {
+                hit[j] = lb2[j] <= upper2[j];
+            }
+            let mask = pack(hit);
+            if mask != 0 {
+                let c = self.data.centroid[fi];
+                for j in 0..GROUP {
+                    if hit[j] {
+                        min_lb2[j] = min_lb2[j].min(lb2[j]);
+                        let c2 = (c[0] - xs[j]).powi(2)
+                            + (c[1] - ys[j]).powi(2)
+                            + (c[2] - zs[j]).powi(2);
+                        if c2 < best_c2[j] {
+                            best_c2[j] = c2;
+                            best_face[j] = f;
+                        }
+                    }
+                }
+            }
+            s.gathered_mask.push(mask);
+        }
+        // The fans of the candidates' vertices: every member must be in front of each face
+        // around a vertex of one of its candidates. Per such face, the members concerned.
+        s.fan_faces.clear();
+        let fan_stamp = s.next();
+        for (&f, &mask) in s.gathered.iter().zip(&s.gathered_mask) {
+            if mask == 0 {
+                continue;
+            }
+            for &v in &self.faces[f as usize] {
+                let vi = v as usize;
+                for &k in
+                    &self.fan[self.fan_offsets[vi] as usize..self.fan_offsets[vi + 1] as usize]
+                {
+                    let ki = k as usize;
+                    if s.face_stamp[ki] != fan_stamp {
+                        s.face_stamp[ki] = fan_stamp;
+                        s.face_mask[ki] = 0;
+                        s.fan_faces.push(k);
+                    }
+                    s.face_mask[ki] |= mask;
+                }
+            }
+        }
+        let mut behind = 0u8;
+        for &k in &s.fan_faces {
+            let [nx, ny, nz, o] = self.data.plane[k as usize];
+            let mut front = [false; GROUP];
+            for j in 0..GROUP {
+                front[j] = nx * xs[j] + ny * ys[j] + nz * zs[j] - o > GUARD_M;
+            }
+            behind |= s.face_mask[k as usize] & !pack(front);
+        }
+        let front2 = (margin_m as f32 + GUARD_M).powi(2);
+        let margin2 = margin_m * margin_m;
+        for j in 0..n {
+            let v = members[j] as usize;
+            stats.candidates += s.gathered_mask.iter().filter(|&&m| m >> j & 1 == 1).count();
+            if min_lb2[j] >= front2 && behind >> j & 1 == 0 {
+                out[j] = Some(Outcome::Certified);
+                warm[j] = best_face[j];
+                stats.certified += 1;
+                continue;
+            }
+            // The closest face is a candidate of this member: the exact answer.
+            s.candidates.clear();
+            s.candidates.push(seed[j]);
+            s.candidates.extend(
+                s.gathered
+                    .iter()
+                    .zip(&s.gathered_mask)
+                    .filter(|&(&f, &m)| m >> j & 1 == 1 && f != seed[j])
+                    .map(|(&f, _)| f),
+            );
+            let q = cloth[v].cast::<f64>();
+            out[j] = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
+                warm[j] = nearest.face;
+                if nearest.distance_sq >= margin2 && self.feature_in_front(&x[j], &nearest, GUARD_M)
+                {
+                    stats.certified += 1;
+                    Outcome::Certified
+                } else {
+                    stats.exact += 1;
+                    Outcome::Exact(proximity.signed(&q, &nearest))
+                }
+            });
+        }
+        stats
+    }
+
+    /// Visit `(face, lower bound²)` for every grid entry within `reach` of `x` (a face may
+    /// come several times; every face whose box and plane bound are within `reach` comes).
+    #[inline(always)]
+    fn scan(&self, x: &[f32; 3], reach: f32, mut visit: impl FnMut(u32, f32)) {
+        let r = reach + GUARD_M;
+        let r2 = r * r;
+        let (a, b) = self.grid.range(
+            &[x[0] - r, x[1] - r, x[2] - r],
+            &[x[0] + r, x[1] + r, x[2] + r],
+        );
+        let [nx, ny, _] = self.grid.dims;
+        let cell = self.grid.cell_m;
+        let gap = |i: usize, k: usize| {
+            let lo = i as f32 * cell;
+            fmax(fmax(lo - x[k], x[k] - (lo + cell)), 0.0)
+        };
+        let g = &self.grid;
+        for z in a[2]..=b[2] {
+            let gz = gap(z, 2);
+            for y in a[1]..=b[1] {
+                let gy = gap(y, 1);
+                let rest = r2 - gz * gz - gy * gy;
+                if rest < 0.0 {
+                    continue;
+                }
+                let half = rest.sqrt();
+                let (x0, x1) = g.span(x[0] - half, x[0] + half, 0);
+                let row = (z * ny + y) * nx;
+                let (c0, c1) = (g.start[row + x0] as usize, g.start[row + x1 + 1] as usize);
+                let mut e = c0;
+                while e < c1 {
+                    let (lx, ly, lz) = (lanes(&g.lo[0], e), lanes(&g.lo[1], e), lanes(&g.lo[2], e));
+                    let (hx, hy, hz) = (lanes(&g.hi[0], e), lanes(&g.hi[1], e), lanes(&g.hi[2], e));
+                    let (px, py, pz, po) = (
+                        lanes(&g.plane[0], e),
+                        lanes(&g.plane[1], e),
+                        lanes(&g.plane[2], e),
+                        lanes(&g.plane[3], e),
+                    );
+                    let mut lb2 = [0.0f32; LANES];
+                    for l in 0..LANES {
+                        let dx = fmax(fmax(lx[l] - x[0], x[0] - hx[l]), 0.0);
+                        let dy = fmax(fmax(ly[l] - x[1], x[1] - hy[l]), 0.0);
+                        let dz = fmax(fmax(lz[l] - x[2], x[2] - hz[l]), 0.0);
+                        let h = fmax(px[l] * x[0] + py[l] * x[1] + pz[l] * x[2] - po[l], 0.0);
+                        lb2[l] = fmax(dx * dx + dy * dy + dz * dz, h * h);
+                    }
+                    for (l, &b) in lb2.iter().enumerate() {
+                        if b <= r2 {
+                            visit(g.entries[e + l], b);
+                        }
+                    }
+                    e += LANES;
+                }
+            }
+        }
+    }
+}
+
+/// The `LANES` values of `v` from `e` (the grid arrays are padded by `LANES`).
+#[inline(always)]
+fn lanes(v: &[f32], e: usize) -> &[f32; LANES] {
+    v[e..e + LANES]
+        .try_into()
+        .expect("a slice of LANES values is an array of LANES")
+}
+
+/// Lane flags as bits.
+#[inline(always)]
+fn pack(flags: [bool; GROUP]) -> u8 {
+    flags
+        .iter()
+        .enumerate()
+        .fold(0u8, |m, (j, &b)| m | (u8::from(b) << j))
+}
+
+/// `max` that compiles to one instruction (no NaN handling: a NaN operand gives `b`).
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+impl Grid {
+    /// The cells `[a, b]` along axis `k` overlapped by `[lo, hi]`, clamped.
+    #[inline]
+    fn span(&self, lo: f32, hi: f32, k: usize) -> (usize, usize) {
+        let inv = 1.0 / self.cell_m;
+        let top = self.dims[k] - 1;
+        (
+            ((lo * inv).max(0.0) as usize).min(top),
+            ((hi * inv).max(0.0) as usize).min(top),
+        )
+    }
+
+    /// The cells overlapped by the box `[lo, hi]` (relative coordinates), clamped to the grid.
+    #[inline]
+    fn range(&self, lo: &[f32; 3], hi: &[f32; 3]) -> ([usize; 3], [usize; 3]) {
+        let inv = 1.0 / self.cell_m;
+        let mut a = [0usize; 3];
+        let mut b = [0usize; 3];
+        for k in 0..3 {
+            // Truncation is the floor of a non-negative value; NaN and negatives go to 0.
+            let top = self.dims[k] - 1;
+            a[k] = ((lo[k] * inv).max(0.0) as usize).min(top);
+            b[k] = ((hi[k] * inv).max(0.0) as usize).min(top);
+        }
+        (a, b)
+    }
+}
