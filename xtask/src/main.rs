@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use sartor_cli::Env;
 use sartor_pipeline::DataDir;
 
+mod check_retarget;
 mod import_body;
 mod motions;
 mod ship;
@@ -28,6 +29,14 @@ enum Command {
     ImportBody(import_body::ImportBodyArgs),
     /// Import MakeHuman's walk cycle into datasets/motions/walk.json.
     ImportMotion(motions::ImportMotionArgs),
+    /// Import the CMU BVH clips (../shared/cmu) into datasets/motions/cmu: each file's own
+    /// skeleton and channels at 30 fps, T-pose frame dropped, with CMU's acknowledgement and a
+    /// provenance table (deterministic).
+    ImportMotions(motions::ImportMotionsArgs),
+    /// Retarget every BVH of a folder onto the built-in body and check every frame against the
+    /// file's own forward kinematics (bone directions, pelvis, root path, crossed legs): JSON
+    /// report, fails when a clip fails.
+    CheckRetarget(check_retarget::CheckRetargetArgs),
     /// Copy an experiment's export and eval.json into datasets/models/<name>, with a stored
     /// slice of held-out ground truth for the regression check.
     Ship(ship::ShipArgs),
@@ -47,6 +56,8 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::ImportBody(args) => import_body::import_body(&args),
         Command::ImportMotion(args) => motions::import_motion(&args),
+        Command::ImportMotions(args) => motions::import_motions(&args),
+        Command::CheckRetarget(args) => check_retarget::check_retarget(&args, &env),
         Command::Ship(args) => ship::ship(&args, &env),
         Command::CheckModel(args) => ship::check_model(&args, &env),
         Command::Sartor(command) => sartor_cli::run(&command, &env),

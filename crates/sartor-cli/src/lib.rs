@@ -96,6 +96,7 @@ pub fn motion_options(data: &DataDir, up_axis: UpAxis) -> anyhow::Result<MotionS
         motions_dir: data.motions_dir(),
         body: Some(RetargetBody::load(&data.body_dir())?),
         lenient: false,
+        keep_tpose_frame: false,
         up_axis,
     })
 }

@@ -30,22 +30,27 @@
 //! | 10 | L_foot | `LeftToeBase` | | 21 | R_wrist | `RightHand` |
 //!
 //! Rig joints without an SMPL counterpart (`LHipJoint`, `RHipJoint`, `Neck1`, the fingers and
-//! thumbs) follow their parent: they keep their T-pose relation to it.
+//! thumbs) follow their parent: they keep their rest-change relation to it.
 //!
 //! # Axes, rest pose, units
 //!
-//! SMPL's axes are ours (+Y up, +Z forward, +X the body's left) and its rest is a T-pose, so the
-//! world-orientation retargeting of [`crate::motion_sources`] applies unchanged: `Q_j` is SMPL's
-//! world rotation of joint `j`, `G_j = Q_j · C_j`. Most AMASS files are Z-up (their global
-//! orientation includes a +90° turn about X): with [`UpAxis::Z`] every world rotation and the
-//! translation are first rotated by −90° about +X. Translations are in metres, multiplied by
-//! [`AmassOptions::translation_scale`] (1 by default) and taken relative to the first frame.
+//! SMPL's axes are ours (+Y up, +Z forward, +X the body's left). Its rotations are relative to
+//! its rest pose, a T-pose whose exact bone directions depend on the model's joints: with
+//! [`AmassOptions::rest_joints`] (the SMPL model's `J(β)`) the world-orientation retargeting of
+//! [`crate::motion_sources`] turns our rest into exactly that pose ([`crate::SourceRest`]), and
+//! every posture bone's world direction equals SMPL's in every frame; without them SMPL's rest
+//! is taken to be our T-pose. Most AMASS files are Z-up (their global orientation includes a
+//! +90° turn about X): with [`UpAxis::Z`] every world rotation and the translation are first
+//! rotated by −90° about +X (the rest joints stay in SMPL's Y-up model axes). Translations are
+//! in metres, multiplied by [`AmassOptions::translation_scale`] (1 by default) and taken
+//! relative to the first frame.
 
 use std::path::Path;
 
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::npz::NpzFile;
+use crate::rest_pose::SourceRest;
 use crate::retarget::RetargetBody;
 use crate::{Error, Motion, Result};
 
@@ -102,12 +107,19 @@ pub const SMPL_BODY_PARENTS: [Option<usize>; 22] = [
 ];
 
 /// Options of [`retarget_amass`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct AmassOptions {
     /// The file's up axis.
     pub up_axis: UpAxis,
     /// Factor applied to `trans` (1: the file's metres).
     pub translation_scale: f64,
+    /// Rest positions of SMPL's joints (at least the 22 body joints, SMPL's own Y-up axes, any
+    /// length unit): `J(β)` of the file's SMPL / SMPL-H model, e.g. from
+    /// [`crate::smpl_from_npz`] and [`crate::BodyModel::shaped_joints`] with the file's `betas`.
+    /// They give the rest bone directions the rotations are relative to. `None`: SMPL's rest is
+    /// taken to be our T-pose (its thighs and arms then differ by the difference between the
+    /// two skeletons' T-poses, a few degrees).
+    pub rest_joints: Option<Vec<Vector3<f64>>>,
 }
 
 impl Default for AmassOptions {
@@ -115,8 +127,46 @@ impl Default for AmassOptions {
         Self {
             up_axis: UpAxis::Y,
             translation_scale: 1.0,
+            rest_joints: None,
         }
     }
+}
+
+/// The rest change `C_j` for AMASS data: from `rest_joints` when given, else our T-pose.
+fn amass_rest_change(
+    body: &RetargetBody,
+    rig: &[Option<usize>],
+    options: &AmassOptions,
+) -> Result<Vec<UnitQuaternion<f64>>> {
+    let Some(rest) = &options.rest_joints else {
+        return Ok(body.tpose_world_rotations().to_vec());
+    };
+    if rest.len() < SMPL_TO_RIG.len() {
+        return Err(Error::invalid(
+            "AMASS retarget",
+            format!(
+                "{} rest joints, SMPL has {} body joints",
+                rest.len(),
+                SMPL_TO_RIG.len()
+            ),
+        ));
+    }
+    let n = body.skeleton().n_joints();
+    let mut positions = vec![None; n];
+    let mut smpl_of_rig = vec![None; n];
+    for (s, r) in rig.iter().enumerate() {
+        if let Some(r) = r {
+            positions[*r] = Some(rest[s]);
+            smpl_of_rig[*r] = Some(s);
+        }
+    }
+    let source = SourceRest::from_positions(body.skeleton().names(), &positions, |j, c| {
+        match (smpl_of_rig[j], smpl_of_rig[c]) {
+            (Some(sj), Some(sc)) => SMPL_BODY_PARENTS[sc] == Some(sj),
+            _ => false,
+        }
+    })?;
+    body.rest_change(&source)
 }
 
 /// The contents of an AMASS-style file.
@@ -241,6 +291,7 @@ pub fn retarget_amass_native_rate(
             "the body's root must be the rig's Hips",
         ));
     }
+    let rest_change = amass_rest_change(body, &rig, options)?;
     let first = data.trans[0];
     let mut source = vec![None; skeleton.n_joints()];
     let mut frames = Vec::with_capacity(data.n_frames());
@@ -252,7 +303,7 @@ pub fn retarget_amass_native_rate(
             }
         }
         let d = up * (data.trans[i] - first) * options.translation_scale;
-        frames.push(body.pose_from_source(&source, d));
+        frames.push(body.pose_from_source(&rest_change, &source, d));
     }
     Motion::new(
         name.to_string(),

@@ -19,9 +19,19 @@
 //! it rejects files whose head is not above the hips along +Y. The files' length unit varies
 //! (CMU's converted files use neither inches nor metres), so it is never guessed: root
 //! translations are scaled by `our hip height / BVH hip height`, both measured from the root joint
-//! down to the feet (`LeftFoot`/`RightFoot`) in the T-pose, a unit-free ratio. Translations are
-//! taken relative to the first frame (the motion starts at the origin; the first frame is taken
-//! to stand at rest height).
+//! down to the feet (`LeftFoot`/`RightFoot`) in the file's rest posture (ours turned into it by
+//! the rest change), a unit-free ratio. Translations are
+//! taken relative to the first frame played (the motion starts at the origin; that frame is
+//! taken to stand at rest height).
+//!
+//! # Rest pose and the added T-pose frame
+//!
+//! Rotations are relative to the file's own rest pose (all channels zero), whatever it is: the
+//! rest bone directions come from the offsets ([`crate::SourceRest`]) and
+//! [`RetargetBody::rest_change`] turns our rest into it. CMU's converted files rest with the
+//! thighs down and outwards, not in a T-pose. Their frame 0 is a T-pose added by the converter:
+//! [`crate::detect_tpose_frame`] recognises such a frame from the data and it is dropped unless
+//! [`BvhRetargetOptions::keep_tpose_frame`] is set.
 //!
 //! # Names
 //!
@@ -30,8 +40,8 @@
 //! ([`cmu_to_rig_name`]). BVH joints the rig lacks are an error listing them, unless
 //! [`BvhRetargetOptions::lenient`] drops them (the report lists what was dropped; their rotations
 //! still move their children). Rig joints the file lacks keep their T-pose relation to their
-//! parent. The rest-pose difference (T-pose vs our A-pose) is handled by world-orientation
-//! retargeting, see [`crate::motion_sources`].
+//! parent. The rest-pose difference is handled by world-orientation retargeting, see
+//! [`crate::motion_sources`].
 
 use std::path::{Path, PathBuf};
 
@@ -39,6 +49,8 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use sartor_core::io::read_file;
 
+use crate::bvh_tpose::{TposeFrame, detect_tpose_frame};
+use crate::rest_pose::SourceRest;
 use crate::retarget::{RetargetBody, hip_height};
 use crate::{Error, Motion, Result};
 
@@ -60,6 +72,23 @@ pub enum BvhChannel {
 }
 
 impl BvhChannel {
+    /// The channel's name as a BVH file writes it (`Xposition`, …, `Zrotation`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Xposition => "Xposition",
+            Self::Yposition => "Yposition",
+            Self::Zposition => "Zposition",
+            Self::Xrotation => "Xrotation",
+            Self::Yrotation => "Yrotation",
+            Self::Zrotation => "Zrotation",
+        }
+    }
+
+    /// The channel named `s` as a BVH file writes it.
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::parse(s)
+    }
+
     fn parse(s: &str) -> Option<Self> {
         Some(match s {
             "Xposition" => Self::Xposition,
@@ -394,6 +423,74 @@ impl Bvh {
         })
     }
 
+    /// A BVH from its parts (e.g. a stored clip), validated like a parsed file: joint 0 the only
+    /// root, parents before children, unique names, at most one of each channel, finite offsets,
+    /// a positive frame time, at least one frame of finite values. `path` names it in errors.
+    pub fn from_parts(
+        path: PathBuf,
+        joints: Vec<BvhJoint>,
+        frame_time_secs: f64,
+        values: Vec<f64>,
+    ) -> Result<Self> {
+        let fault = |m: String| Error::format(&path, m);
+        if joints.is_empty() {
+            return Err(fault("no joints".into()));
+        }
+        let mut first_channel = Vec::with_capacity(joints.len());
+        let mut n_channels = 0;
+        for (j, joint) in joints.iter().enumerate() {
+            let parent_ok = match (j, joint.parent) {
+                (0, None) => true,
+                (0, Some(_)) | (_, None) => false,
+                (_, Some(p)) => p < j,
+            };
+            if !parent_ok {
+                return Err(fault(format!(
+                    "joint {j} ({}): parent {:?} is not a joint before it (joint 0 is the one root)",
+                    joint.name, joint.parent
+                )));
+            }
+            if joints[..j].iter().any(|o| o.name == joint.name) {
+                return Err(fault(format!("joint name {:?} appears twice", joint.name)));
+            }
+            let finite = joint.offset.iter().all(|c| c.is_finite())
+                && joint
+                    .end_site
+                    .is_none_or(|e| e.iter().all(|c| c.is_finite()));
+            if !finite {
+                return Err(fault(format!(
+                    "joint {:?}: offset is not finite",
+                    joint.name
+                )));
+            }
+            let mut seen = joint.channels.clone();
+            seen.sort_by_key(|c| c.axis());
+            seen.dedup();
+            if seen.len() != joint.channels.len() || joint.channels.len() > 6 {
+                return Err(fault(format!(
+                    "joint {:?}: channels {:?} repeat one",
+                    joint.name, joint.channels
+                )));
+            }
+            first_channel.push(n_channels);
+            n_channels += joint.channels.len();
+        }
+        if !(frame_time_secs.is_finite() && frame_time_secs > 0.0) {
+            return Err(fault(format!(
+                "frame time {frame_time_secs} is not positive"
+            )));
+        }
+        let this = Self {
+            path: path.clone(),
+            joints,
+            first_channel,
+            n_channels,
+            frame_time_secs,
+            values: Vec::new(),
+        };
+        this.with_values(values)
+    }
+
     /// Read and parse a `.bvh` file.
     pub fn load(path: &Path) -> Result<Self> {
         let bytes = read_file(path)?;
@@ -464,6 +561,69 @@ impl Bvh {
         self.local_transform(i, 0).0
     }
 
+    /// World position of every joint in frame `i` (offsets and position channels turned by the
+    /// parents' world rotations), in the file's units.
+    pub fn world_positions(&self, i: usize) -> Vec<Vector3<f64>> {
+        let q = self.world_rotations(i);
+        let mut p: Vec<Vector3<f64>> = Vec::with_capacity(self.joints.len());
+        for (j, joint) in self.joints.iter().enumerate() {
+            let (t, _) = self.local_transform(i, j);
+            p.push(match joint.parent {
+                None => t,
+                Some(parent) => p[parent] + q[parent] * t,
+            });
+        }
+        p
+    }
+
+    /// The same hierarchy with other frames: `values` holds `n × channels` numbers, row-major
+    /// (e.g. a range of this file's frames, or one all-zero frame for the rest pose).
+    pub fn with_values(&self, values: Vec<f64>) -> Result<Self> {
+        let n = self.n_channels.max(1);
+        if values.is_empty() || !values.len().is_multiple_of(n) {
+            return Err(Error::format(
+                &self.path,
+                format!(
+                    "{} values are not a whole, non-zero number of frames of {n} channels",
+                    values.len()
+                ),
+            ));
+        }
+        if let Some(k) = values.iter().position(|x| !x.is_finite()) {
+            return Err(Error::format(
+                &self.path,
+                format!("frame {}: value {} is not finite", k / n, values[k]),
+            ));
+        }
+        Ok(Self {
+            values,
+            ..self.clone()
+        })
+    }
+
+    /// Frames `start..start + len` of this file (errors when out of range).
+    pub fn frames_range(&self, start: usize, len: usize) -> Result<Self> {
+        let n = self.n_frames();
+        if len == 0 || start + len > n {
+            return Err(Error::format(
+                &self.path,
+                format!("frames {start}..{} of a file of {n} frames", start + len),
+            ));
+        }
+        let c = self.n_channels;
+        self.with_values(self.values[start * c..(start + len) * c].to_vec())
+    }
+
+    /// The number of values per frame.
+    pub fn n_channels(&self) -> usize {
+        self.n_channels
+    }
+
+    /// All frame values, `n_frames × n_channels`, row-major.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
     /// Rest (all channels zero) world positions of the joints, from the offsets.
     pub fn rest_positions(&self) -> Vec<Vector3<f64>> {
         let mut p: Vec<Vector3<f64>> = Vec::with_capacity(self.joints.len());
@@ -492,6 +652,9 @@ pub fn cmu_to_rig_name(name: &str) -> &str {
 pub struct BvhRetargetOptions {
     /// Drop BVH joints the rig does not have (listed in the report) instead of failing.
     pub lenient: bool,
+    /// Keep frame 0 even when it is a T-pose added by the converter
+    /// ([`crate::detect_tpose_frame`]); by default such a frame is dropped.
+    pub keep_tpose_frame: bool,
 }
 
 /// What [`retarget_bvh`] did besides producing the motion.
@@ -499,7 +662,7 @@ pub struct BvhRetargetOptions {
 pub struct BvhRetargetReport {
     /// BVH joints the rig lacks, dropped in lenient mode (file order).
     pub dropped_joints: Vec<String>,
-    /// Rig joints the file does not drive (they keep their T-pose relation to their parent).
+    /// Rig joints the file does not drive (they keep their rest relation to their parent).
     pub undriven_joints: Vec<String>,
     /// Factor from the file's length unit to metres (our hip height / the file's).
     pub translation_scale: f64,
@@ -507,6 +670,32 @@ pub struct BvhRetargetReport {
     pub turned_around: bool,
     /// The file's frame rate.
     pub source_fps: f64,
+    /// What the T-pose detector measured on frame 0 (`None`: too few frames or limbs).
+    pub tpose_frame: Option<TposeFrame>,
+    /// Whether frame 0 was dropped as an added T-pose (the motion starts at frame 1).
+    pub tpose_frame_dropped: bool,
+}
+
+/// The file's rest pose as [`SourceRest`] directions for `skeleton` (`rig_of_bvh`: the rig
+/// joint of each BVH joint), turned by `turn`.
+fn bvh_source_rest(
+    bvh: &Bvh,
+    skeleton: &sartor_core::Skeleton,
+    bvh_of_rig: &[Option<usize>],
+    turn: &UnitQuaternion<f64>,
+) -> Result<SourceRest> {
+    let rest = bvh.rest_positions();
+    let positions: Vec<Option<Vector3<f64>>> = bvh_of_rig
+        .iter()
+        .map(|b| b.map(|b| turn * rest[b]))
+        .collect();
+    SourceRest::from_positions(skeleton.names(), &positions, |j, c| {
+        match (bvh_of_rig[j], bvh_of_rig[c]) {
+            (Some(bj), Some(bc)) => bvh.joints[bc].parent == Some(bj),
+            _ => false,
+        }
+    })
+    .map_err(|e| e.in_file(bvh.path()))
 }
 
 /// Retarget a BVH onto `body`, at the file's frame rate (see the module docs for the rules).
@@ -600,9 +789,11 @@ pub fn retarget_bvh_native_rate(
         UnitQuaternion::identity()
     };
 
-    // Units: hip heights.
+    let rest_change = body.rest_change(&bvh_source_rest(bvh, skeleton, &bvh_of_rig, &turn)?)?;
+
+    // Units: hip heights, both in the file's rest posture.
     let bvh_hip = hip_height(&bvh_names, &rest);
-    let our_hip = body.hip_height_m();
+    let our_hip = body.hip_height_in_m(&rest_change)?;
     if !(bvh_hip > 0.0 && our_hip > 0.0) {
         return Err(Error::format(
             path,
@@ -614,16 +805,20 @@ pub fn retarget_bvh_native_rate(
     }
     let scale = our_hip / bvh_hip;
 
-    let first = bvh.root_position(0);
-    let mut frames = Vec::with_capacity(bvh.n_frames());
+    let tpose_frame = detect_tpose_frame(bvh);
+    let tpose_frame_dropped =
+        !options.keep_tpose_frame && tpose_frame.as_ref().is_some_and(|t| t.is_added_tpose);
+    let start = usize::from(tpose_frame_dropped);
+    let first = bvh.root_position(start);
+    let mut frames = Vec::with_capacity(bvh.n_frames() - start);
     let mut source = vec![None; skeleton.n_joints()];
-    for i in 0..bvh.n_frames() {
+    for i in start..bvh.n_frames() {
         let q = bvh.world_rotations(i);
         for (r, b) in bvh_of_rig.iter().enumerate() {
             source[r] = b.map(|b| turn * q[b] * turn.inverse());
         }
         let d = turn * (bvh.root_position(i) - first) * scale;
-        frames.push(body.pose_from_source(&source, d));
+        frames.push(body.pose_from_source(&rest_change, &source, d));
     }
     let name = path
         .file_stem()
@@ -640,6 +835,8 @@ pub fn retarget_bvh_native_rate(
             translation_scale: scale,
             turned_around,
             source_fps,
+            tpose_frame,
+            tpose_frame_dropped,
         },
     ))
 }

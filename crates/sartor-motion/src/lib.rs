@@ -2,12 +2,17 @@
 //!
 //! Motion for sartor: a [`Motion`] is a sequence of [`Pose`]s of the built-in 31-joint `cmu_mb`
 //! rig ([`cmu_mb_skeleton`]) at [`FPS`] after resampling. Every source is retargeted onto a
-//! [`RetargetBody`] by one rule (world orientations, see [`retarget`](crate::RetargetBody)):
+//! [`RetargetBody`] by one rule (world orientations from the source's own rest pose,
+//! [`SourceRest`]; see [`retarget`](crate::RetargetBody)) and BVH retargeting is checked against
+//! the file's own forward kinematics ([`check_bvh_retarget`]):
 //!
 //! - the [`procedural`] clip library (seeded, 73 clips);
 //! - CMU-style BVH files ([`Bvh`], [`retarget_bvh`]);
 //! - AMASS-style `.npz` files ([`load_amass`]);
-//! - saved JSON motions (the imported MakeHuman walk cycle, `datasets/motions/walk.json`).
+//! - saved JSON motions (the imported MakeHuman walk cycle, `datasets/motions/walk.json`);
+//! - imported mocap clips ([`StoredClip`], `datasets/motions/cmu/05_02.json`), sets of them
+//!   (`cmu/*`, [`expand_motion_set`]) and windows of any motion (`cmu/05_02@120+90`,
+//!   [`MotionWindow`]).
 //!
 //! [`load_motion`] picks one from a command-line or config spec. Motion files are parsed here;
 //! no physics, no learning.
@@ -23,10 +28,14 @@
 
 mod amass;
 mod bvh;
+mod bvh_tpose;
 mod motion;
+mod motion_library;
 pub mod npz;
 pub mod procedural;
+mod rest_pose;
 mod retarget;
+mod retarget_check;
 mod rig;
 mod sources;
 
@@ -38,8 +47,21 @@ pub use bvh::{
     Bvh, BvhChannel, BvhJoint, BvhRetargetOptions, BvhRetargetReport, cmu_to_rig_name,
     load_bvh_motion, retarget_bvh, retarget_bvh_native_rate,
 };
+pub use bvh_tpose::{
+    LIMB_BONES, TPOSE_ARM_TOLERANCE_DEG, TPOSE_LEG_TOLERANCE_DEG, TPOSE_MIN_JUMP_DEG, TposeFrame,
+    detect_tpose_frame, max_limb_step_deg,
+};
 pub use motion::Motion;
+pub use motion_library::{
+    CMU_ACKNOWLEDGEMENT, MotionWindow, STORED_CLIP_FORMAT, StoredClip, StoredClipHeader,
+    expand_motion_set, load_stored_clip, motion_file_stem,
+};
+pub use rest_pose::{POSTURE_BONES, SourceRest};
 pub use retarget::{RetargetBody, TPOSE_FILE, load_tpose, pose_from_world, world_rotations};
+pub use retarget_check::{
+    BoneCheck, BvhFkFrame, CROSSING_MARGIN, ClipCheck, CrossingCheck, MAX_BONE_ANGLE_DEG,
+    RetargetCheckOptions, SEPARATION_TOLERANCE, bvh_forward_kinematics, check_bvh_retarget,
+};
 pub use rig::{CMU_MB_JOINTS, cmu_mb_skeleton};
 /// The error type is the core's: motion files fail in the same ways (file, line, format,
 /// invalid value).

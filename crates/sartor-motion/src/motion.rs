@@ -53,6 +53,12 @@ impl Motion {
         &self.name
     }
 
+    /// The same motion under another name.
+    pub fn renamed(mut self, name: String) -> Self {
+        self.name = name;
+        self
+    }
+
     /// Frames per second.
     pub fn fps(&self) -> f64 {
         self.fps

@@ -17,13 +17,21 @@
 //!
 //! # World-orientation retargeting
 //!
-//! Mocap rotations (BVH, SMPL/AMASS) are relative to a **T-pose** rest, ours to an **A-pose**.
-//! Both use world-aligned rest frames (a joint's rotation is expressed in world axes, relative to
-//! its parent), so the difference is one rotation per bone: `C_j`, the world rotation that takes
-//! our rest bone `j` to its T-pose direction (forward kinematics of the T-pose [`Pose`]). With
-//! `Q_j` the source's world rotation of bone `j` (identity in the T-pose), our world rotation is
-//! `G_j = Q_j · C_j` and our local rotation `θ_j = G_parent⁻¹ · G_j`. A rig joint the source does
-//! not drive takes its parent's `Q` (it keeps its T-pose relation to its parent).
+//! Mocap rotations (BVH, SMPL/AMASS) are relative to the **source's rest pose** (all rotations
+//! zero), ours to our **A-pose**. Both use world-aligned rest frames (a joint's rotation is
+//! expressed in world axes, relative to its parent), so the difference is one rotation per
+//! bone: `C_j`, the world rotation that takes our rest bone `j` to where the source's rest pose
+//! has it ([`RetargetBody::rest_change`], built from the source's own rest bone directions, see
+//! [`crate::POSTURE_BONES`]). With `Q_j` the source's world rotation of bone `j` (identity at its
+//! rest), our world rotation is `G_j = Q_j · C_j` and our local rotation
+//! `θ_j = G_parent⁻¹ · G_j`. A rig joint the source does not drive takes its parent's `Q` (it
+//! keeps its rest-change relation to its parent). A source that gives no rest directions (an
+//! AMASS file without its SMPL rest joints) is taken to rest in our T-pose: `C_j` = the
+//! T-pose's world rotations.
+//!
+//! The source's rest is **not** assumed to be a T-pose: the CMU BVH conversion's rest has the
+//! thighs about 20° outwards (its T-pose is frame 0, made by rotations), and taking it for a
+//! T-pose turned our thighs 20° inwards in every frame — knees together, feet apart.
 
 use std::path::Path;
 
@@ -108,7 +116,8 @@ impl RetargetBody {
         &self.tpose
     }
 
-    /// `C_j`, the world rotation of each joint in the T-pose.
+    /// The world rotation of each joint in the T-pose: the rest change `C_j` for a source taken
+    /// to rest in our T-pose (AMASS without rest joints).
     pub fn tpose_world_rotations(&self) -> &[UnitQuaternion<f64>] {
         &self.tpose_world
     }
@@ -130,9 +139,12 @@ impl RetargetBody {
     }
 
     /// Turn per-joint source world rotations into our pose: `Q_j` for the joints the source drives
-    /// (`None` = follow the parent), `G_j = Q_j · C_j`, then local rotations (see the module docs).
+    /// (`None` = follow the parent), `G_j = Q_j · C_j` with `rest_change` = `C_j` (from
+    /// [`Self::rest_change`] or [`Self::tpose_world_rotations`]), then local rotations (see the
+    /// module docs).
     pub(crate) fn pose_from_source(
         &self,
+        rest_change: &[UnitQuaternion<f64>],
         source_world: &[Option<UnitQuaternion<f64>>],
         root_translation_m: Vector3<f64>,
     ) -> Pose {
@@ -145,7 +157,7 @@ impl RetargetBody {
                 (None, Some(p)) => q[p],
                 (None, None) => UnitQuaternion::identity(),
             };
-            g[j] = q[j] * self.tpose_world[j];
+            g[j] = q[j] * rest_change[j];
         }
         pose_from_world(&self.skeleton, &g, root_translation_m)
     }

@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use sartor_core::FPS;
 
 use crate::amass::{AmassOptions, UpAxis, load_amass};
-use crate::bvh::{BvhRetargetOptions, load_bvh_motion};
+use crate::bvh::{BvhRetargetOptions, load_bvh_motion, retarget_bvh};
+use crate::motion_library::{MotionWindow, is_stored_clip, load_stored_clip};
 use crate::retarget::RetargetBody;
 use crate::{Error, Motion, Result};
 
@@ -21,6 +22,9 @@ pub struct MotionSourceOptions {
     pub lenient: bool,
     /// AMASS: the file's up axis.
     pub up_axis: UpAxis,
+    /// BVH: keep frame 0 even when it is a T-pose added by the converter (dropped by default,
+    /// see [`crate::detect_tpose_frame`]).
+    pub keep_tpose_frame: bool,
 }
 
 /// Name of the imported walk cycle, as [`load_motion`] understands it.
@@ -32,8 +36,26 @@ pub const WALK_NAME: &str = "walk";
 /// - a path ending in `.npz` (AMASS-style, retargeted onto `options.body`);
 /// - a path ending in `.json` (a saved [`Motion`]);
 /// - `walk`: `<motions_dir>/walk.json`, the imported MakeHuman walk cycle;
-/// - any name in [`crate::procedural::clip_names`].
+/// - a stored clip such as `cmu/05_02` (`<motions_dir>/cmu/05_02.json`, imported by
+///   `cargo xtask import-motions`, retargeted onto `options.body` at load; see
+///   [`crate::StoredClip`]);
+/// - any name in [`crate::procedural::clip_names`];
+/// - any of these followed by a window `@<start>+<frames>` (frames at 30 fps, e.g.
+///   `cmu/05_02@120+90`): exactly those frames of the whole motion ([`MotionWindow`]).
+///
+/// A set such as `cmu/*` is several motions: expand it first with
+/// [`crate::expand_motion_set`].
 pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> {
+    if let Some(window) = MotionWindow::parse(spec)? {
+        let whole = load_motion(&window.motion, options)?;
+        return window.cut(&whole);
+    }
+    if spec.ends_with("/*") {
+        return Err(Error::invalid(
+            "motion source",
+            format!("{spec:?} is a set of motions: expand it (expand_motion_set) and load each"),
+        ));
+    }
     let lower = spec.to_ascii_lowercase();
     let need_body = |kind: &str| {
         options.body.as_ref().ok_or_else(|| {
@@ -47,6 +69,7 @@ pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> 
         let body = need_body("BVH")?;
         let opts = BvhRetargetOptions {
             lenient: options.lenient,
+            keep_tpose_frame: options.keep_tpose_frame,
         };
         load_bvh_motion(Path::new(spec), body, &opts)?.0
     } else if lower.ends_with(".npz") {
@@ -60,6 +83,15 @@ pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> 
         Motion::load_json(Path::new(spec))?
     } else if spec == WALK_NAME {
         Motion::load_json(&options.motions_dir.join(format!("{WALK_NAME}.json")))?
+    } else if is_stored_clip(&options.motions_dir, spec) {
+        let body = need_body("stored mocap")?;
+        let bvh = load_stored_clip(&options.motions_dir, spec)?;
+        // The T-pose frame was dropped at import; the first stored frame is the performance's.
+        let opts = BvhRetargetOptions {
+            lenient: options.lenient,
+            keep_tpose_frame: true,
+        };
+        retarget_bvh(&bvh, body, &opts)?.0.renamed(spec.to_string())
     } else {
         match crate::procedural::clip(spec) {
             Ok(m) => m,
@@ -67,8 +99,9 @@ pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> 
                 return Err(Error::invalid(
                     "motion source",
                     format!(
-                        "{spec:?} is not a .bvh/.npz/.json path, not {WALK_NAME:?} and not a \
-                         procedural clip (known clips: {})",
+                        "{spec:?} is not a .bvh/.npz/.json path, not {WALK_NAME:?}, not a stored \
+                         clip in {} and not a procedural clip (known clips: {})",
+                        options.motions_dir.display(),
                         crate::procedural::clip_names().join(", ")
                     ),
                 ));

@@ -172,6 +172,7 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
             motions_dir: folders.motions_dir(),
             body: Some(RetargetBody::load(&e.body)?),
             lenient: false,
+            keep_tpose_frame: false,
             up_axis: sartor_motion::UpAxis::Y,
         };
         let motion = load_motion(&args.preview_motion, &options)

@@ -224,7 +224,15 @@ fn write_mcap(
     Ok(())
 }
 
-/// `panels` frames spread over the clip, side by side, one camera framing the first body.
+/// Colour of the ground under the body in PNG previews.
+pub const GROUND_COLOR: [f32; 3] = [0.85, 0.85, 0.85];
+
+/// `panels` frames spread over the clip, side by side. Each panel's camera follows its body
+/// (centred horizontally on it) at one scale and height for the whole strip
+/// ([`Camera::framing_strip`]), so a body that travels stays in the picture and a jump reads
+/// as one. A grey ground square lies under each body at floor height: the 10th percentile over
+/// the clip's frames of each frame's lowest body vertex (robust to a few frames where a foot
+/// dips low, and to a body that spends most of the clip off the ground).
 pub fn write_png(
     path: &Path,
     anim: &Animation,
@@ -236,16 +244,46 @@ pub fn write_png(
     let picks: Vec<usize> = (0..panels.min(n))
         .map(|k| k * (n - 1) / (panels.min(n) - 1).max(1))
         .collect();
-    let first = RenderMesh {
-        positions: &anim.body[picks[0]],
-        faces: body_faces,
-        color: BODY_COLOR,
-    };
-    let camera = Camera::framing(&[first], Vector3::new(0.35, 0.1, 1.0), true);
+    let mut lowest: Vec<f32> = anim
+        .body
+        .iter()
+        .map(|frame| frame.iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
+        .collect();
+    lowest.sort_by(f32::total_cmp);
+    let floor_y = lowest[lowest.len() / 10];
+    let bodies: Vec<[RenderMesh<'_>; 1]> = picks
+        .iter()
+        .map(|&t| {
+            [RenderMesh {
+                positions: &anim.body[t],
+                faces: body_faces,
+                color: BODY_COLOR,
+            }]
+        })
+        .collect();
+    let refs: Vec<&[RenderMesh<'_>]> = bodies.iter().map(|b| b.as_slice()).collect();
+    let cameras = Camera::framing_strip(&refs, Vector3::new(0.35, 0.1, 1.0), true);
+    // A 1.2 m ground square centred under each panel's body.
+    let grounds: Vec<[Vector3<f32>; 4]> = cameras
+        .iter()
+        .map(|c| {
+            let (x, z) = (c.target.x, c.target.z);
+            [(-0.6, -0.6), (0.6, -0.6), (0.6, 0.6), (-0.6, 0.6)]
+                .map(|(dx, dz)| Vector3::new(x + dx, floor_y, z + dz))
+        })
+        .collect();
+    const GROUND_FACES: [[u32; 3]; 2] = [[0, 2, 1], [0, 3, 2]];
     let panels: Vec<Panel<'_>> = picks
         .iter()
-        .map(|&t| Panel {
+        .zip(&cameras)
+        .zip(&grounds)
+        .map(|((&t, camera), ground)| Panel {
             meshes: vec![
+                RenderMesh {
+                    positions: ground,
+                    faces: &GROUND_FACES,
+                    color: GROUND_COLOR,
+                },
                 RenderMesh {
                     positions: &anim.body[t],
                     faces: body_faces,
@@ -257,7 +295,7 @@ pub fn write_png(
                     color: GARMENT_COLOR,
                 },
             ],
-            camera,
+            camera: *camera,
         })
         .collect();
     render_png(path, &panels, 240, 400, [1.0, 1.0, 1.0])?;

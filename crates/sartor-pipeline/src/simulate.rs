@@ -158,6 +158,7 @@ impl SimInputs {
             motions_dir: data.motions_dir(),
             body: RetargetBody::load(&e.body).ok(),
             lenient: false,
+            keep_tpose_frame: false,
             up_axis: sartor_motion::UpAxis::Y,
         };
         Ok(Self {

@@ -1,3 +1,6 @@
 //! sartor-motion's integration tests (one binary).
 
+mod amass_fk;
+mod cmu_excerpts;
+mod motion_library;
 mod motion_sources;

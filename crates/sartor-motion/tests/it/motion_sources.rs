@@ -19,7 +19,7 @@ use sartor_motion::{
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-fn rng(seed: u64) -> ChaCha8Rng {
+pub(crate) fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }
 
@@ -89,7 +89,7 @@ fn synthetic_tpose(s: &Skeleton) -> Pose {
     pose
 }
 
-fn synthetic_body() -> RetargetBody {
+pub fn synthetic_body() -> RetargetBody {
     let s = cmu_mb_skeleton();
     let joints = a_pose_joints(&s);
     let tpose = synthetic_tpose(&s);
@@ -100,7 +100,7 @@ fn fixture_text() -> String {
     std::fs::read_to_string(data("cmu_tiny.bvh")).expect("fixture")
 }
 
-fn posed_joints(body: &RetargetBody, pose: &Pose) -> Vec<Vector3<f64>> {
+pub fn posed_joints(body: &RetargetBody, pose: &Pose) -> Vec<Vector3<f64>> {
     body.skeleton()
         .forward_kinematics(body.rest_joints_m(), pose)
         .expect("fk")
@@ -119,13 +119,18 @@ fn assert_pose_close(a: &Pose, b: &Pose, tol: f64) {
     }
 }
 
+/// Keep every frame (the fixture's frame 0 is a T-pose the detector would drop).
+const KEEP: BvhRetargetOptions = BvhRetargetOptions {
+    lenient: false,
+    keep_tpose_frame: true,
+};
+
 #[test]
-fn bvh_tpose_frame_retargets_to_our_tpose() {
+fn bvh_rest_frame_puts_posture_bones_along_the_offsets() {
     let body = synthetic_body();
     let bvh = Bvh::load(&data("cmu_tiny.bvh")).expect("parse fixture");
     assert_eq!(bvh.joints().len(), 23);
-    let (m, report) =
-        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
+    let (m, report) = retarget_bvh_native_rate(&bvh, &body, &KEEP).expect("retarget");
     assert_eq!(m.n_frames(), 3);
     assert!(
         (report.source_fps - 30.0).abs() < 1e-9,
@@ -133,6 +138,9 @@ fn bvh_tpose_frame_retargets_to_our_tpose() {
     );
     assert!(!report.turned_around);
     assert!(report.dropped_joints.is_empty());
+    // The fixture's frame 0 (all zero) is a T-pose and jumps 90° to frame 1: detected, kept.
+    let t = report.tpose_frame.as_ref().expect("measured");
+    assert!(t.is_added_tpose && !report.tpose_frame_dropped, "{t:?}");
     // Rig joints the file lacks: toes, Neck1, fingers of the right hand, thumbs.
     assert!(report.undriven_joints.contains(&"Neck1".to_string()));
     assert!(
@@ -140,27 +148,90 @@ fn bvh_tpose_frame_retargets_to_our_tpose() {
             .undriven_joints
             .contains(&"LeftHandFinger1".to_string())
     );
-    assert_pose_close(&m.frames()[0], body.tpose(), 1e-6);
-    // Arms horizontal in frame 0.
+    // Frame 0 is the file's rest: every posture bone along the file's offset (arms along ±X,
+    // legs straight down), whatever our rest and T-pose say.
     let s = body.skeleton();
     let j = posed_joints(&body, &m.frames()[0]);
-    assert!((bone_dir(&j, s, "LeftArm", "LeftHand") - Vector3::x()).norm() < 1e-9);
-    assert!((bone_dir(&j, s, "RightArm", "RightHand") + Vector3::x()).norm() < 1e-9);
+    for (a, b, want) in [
+        ("LeftArm", "LeftForeArm", Vector3::x()),
+        ("LeftForeArm", "LeftHand", Vector3::x()),
+        ("RightArm", "RightForeArm", -Vector3::x()),
+        ("LeftUpLeg", "LeftLeg", -Vector3::y()),
+        ("RightLeg", "RightFoot", -Vector3::y()),
+        ("LowerBack", "Spine", Vector3::y()),
+    ] {
+        assert!((bone_dir(&j, s, a, b) - want).norm() < 1e-9, "{a}->{b}");
+    }
+    // Proportion joints keep their rest relation to their parent.
+    for name in ["LHipJoint", "RHipJoint", "LeftShoulder", "Neck1", "Head"] {
+        let q = m.frames()[0].local_rotations[s.index_of(name).expect("joint")];
+        assert!(q.angle() < 1e-9, "{name}: {}", q.angle());
+    }
+    // By default the T-pose frame is dropped: the motion starts at the file's frame 1, at the
+    // origin.
+    let (d, report) =
+        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("drop");
+    assert!(report.tpose_frame_dropped);
+    assert_eq!(d.n_frames(), 2);
+    assert_pose_close(
+        &d.frames()[1],
+        &Pose {
+            root_translation_m: m.frames()[2].root_translation_m - m.frames()[1].root_translation_m,
+            ..m.frames()[2].clone()
+        },
+        1e-9,
+    );
+    assert!(d.frames()[0].root_translation_m.norm() < 1e-12);
+}
+
+#[test]
+fn a_take_that_starts_in_a_tpose_keeps_its_first_frame() {
+    // Frame 1 equal to frame 0 (a T-pose held): no jump, nothing dropped.
+    let body = synthetic_body();
+    let text = fixture_text();
+    let (head, frames) = text.split_once("Frame Time: 0.0333333\n").expect("frames");
+    let lines: Vec<&str> = frames.lines().collect();
+    let held = format!(
+        "{}Frame Time: 0.0333333\n{}\n{}\n{}\n",
+        head, lines[0], lines[0], lines[2]
+    );
+    let bvh = Bvh::parse(&held, Path::new("held.bvh")).expect("parse");
+    let (m, report) =
+        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
+    let t = report.tpose_frame.expect("measured");
+    assert!(t.legs_from_vertical_deg < 1e-6 && t.arms_from_horizontal_deg < 1e-6);
+    assert!(t.jump_to_next_deg < 1e-6 && !t.is_added_tpose);
+    assert!(!report.tpose_frame_dropped);
+    assert_eq!(m.n_frames(), 3);
+    // A first frame that is not a T-pose (the fixture's frame 1, elbow bent) is kept too.
+    let bent = format!(
+        "{}Frame Time: 0.0333333\n{}\n{}\n{}\n",
+        head, lines[1], lines[0], lines[2]
+    );
+    let bvh = Bvh::parse(&bent, Path::new("bent.bvh")).expect("parse");
+    let (m, report) =
+        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
+    let t = report.tpose_frame.expect("measured");
+    assert!(
+        t.arms_from_horizontal_deg > 80.0 && !t.is_added_tpose,
+        "{t:?}"
+    );
+    assert_eq!(m.n_frames(), 3);
 }
 
 #[test]
 fn bvh_known_bend_and_root_motion_come_through() {
     let body = synthetic_body();
     let bvh = Bvh::load(&data("cmu_tiny.bvh")).expect("parse fixture");
-    let (m, report) =
-        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
+    let (m, report) = retarget_bvh_native_rate(&bvh, &body, &KEEP).expect("retarget");
     let s = body.skeleton();
     // Frame 1: the left elbow bent 90° forward, the upper arm still horizontal.
     let j = posed_joints(&body, &m.frames()[1]);
     assert!((bone_dir(&j, s, "LeftArm", "LeftForeArm") - Vector3::x()).norm() < 1e-9);
     assert!((bone_dir(&j, s, "LeftForeArm", "LeftHand") - Vector3::z()).norm() < 1e-9);
-    // The expected local rotation: θ = C_arm⁻¹ · Ry(−90°) · C_forearm.
-    let c = body.tpose_world_rotations();
+    // The expected local rotation: θ = C_arm⁻¹ · Ry(−90°) · C_forearm, with C the world
+    // rotations of the rest frame (frame 0).
+    let c = sartor_motion::world_rotations(s, &m.frames()[0]);
     let (arm, fore) = (
         s.index_of("LeftArm").expect("j"),
         s.index_of("LeftForeArm").expect("j"),
@@ -169,8 +240,9 @@ fn bvh_known_bend_and_root_motion_come_through() {
         * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), deg(-90.0))
         * c[fore];
     assert!(m.frames()[1].local_rotations[fore].angle_to(&want) < 1e-9);
-    // Root translation scaled by the hip heights (15.5 file units ↔ ours).
-    let scale = body.hip_height_m() / 15.5;
+    // Root translation scaled by the hip heights, both in the file's rest posture (15.5 file
+    // units ↔ ours with the legs turned straight down like the file's).
+    let scale = body.hip_height_in_m(&c).expect("hip height") / 15.5;
     assert!((report.translation_scale - scale).abs() < 1e-12);
     let t = m.frames()[1].root_translation_m;
     assert!(
@@ -191,7 +263,7 @@ fn bvh_known_bend_and_root_motion_come_through() {
     let fwd = heading * Vector3::z();
     assert!(shin.dot(&fwd) < -0.5, "the shin swings back");
     // Resampled to 30 fps: the same three frames.
-    let (r, _) = retarget_bvh(&bvh, &body, &BvhRetargetOptions::default()).expect("resampled");
+    let (r, _) = retarget_bvh(&bvh, &body, &KEEP).expect("resampled");
     assert_eq!(r.fps(), FPS);
     assert_eq!(r.n_frames(), 3);
 }
@@ -275,7 +347,7 @@ fn bvh_channel_order_does_not_change_the_motion() {
                 assert!(bvh.local_transform(i, j).1.angle_to(q) < 1e-9, "{order}");
             }
         }
-        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default())
+        retarget_bvh_native_rate(&bvh, &body, &KEEP)
             .expect("retarget")
             .0
     };
@@ -395,8 +467,11 @@ fn unknown_bvh_joints_fail_unless_lenient() {
         msg.starts_with("wing.bvh:") && msg.contains("LeftWing"),
         "{msg}"
     );
-    let (m, report) =
-        retarget_bvh(&bvh, &body, &BvhRetargetOptions { lenient: true }).expect("lenient");
+    let lenient = BvhRetargetOptions {
+        lenient: true,
+        keep_tpose_frame: true,
+    };
+    let (m, report) = retarget_bvh(&bvh, &body, &lenient).expect("lenient");
     assert_eq!(report.dropped_joints, vec!["LeftWing".to_string()]);
     assert_eq!(m.n_frames(), 3);
 }
@@ -424,11 +499,13 @@ fn bvh_facing_minus_z_is_turned_around() {
         .collect();
     let text = format!("{}\nMOTION{motion}", mirrored.join("\n"));
     let bvh = Bvh::parse(&text, Path::new("mirrored.bvh")).expect("parse");
-    let (m, report) =
-        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
+    let (m, report) = retarget_bvh_native_rate(&bvh, &body, &KEEP).expect("retarget");
     assert!(report.turned_around);
-    // The T-pose frame is still our T-pose.
-    assert_pose_close(&m.frames()[0], body.tpose(), 1e-6);
+    // The mirrored file's rest is the original's turned 180° about +Y: turned back, frame 0
+    // (all zero) is the same pose.
+    let original = Bvh::load(&data("cmu_tiny.bvh")).expect("parse fixture");
+    let (o, _) = retarget_bvh_native_rate(&original, &body, &KEEP).expect("retarget");
+    assert_pose_close(&m.frames()[0], &o.frames()[0], 1e-9);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -437,7 +514,7 @@ fn bvh_facing_minus_z_is_turned_around() {
 /// Named arrays to write into an `.npz`: name, shape, values.
 type NpzArrays = Vec<(&'static str, Vec<u64>, Vec<f64>)>;
 
-fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f64>)]) {
+pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f64>)]) {
     let mut npz = npyz::npz::NpzWriter::create(path).expect("create");
     for (name, shape, values) in arrays {
         let mut w = npz
@@ -775,6 +852,7 @@ fn load_motion_understands_every_kind_of_spec() {
         body: Some(body.clone()),
         lenient: false,
         up_axis: UpAxis::Y,
+        keep_tpose_frame: false,
     };
     let m = load_motion("squat_deep", &opts).expect("procedural");
     assert_eq!(m.name(), "squat_deep");
@@ -817,9 +895,7 @@ fn bvh_on_the_builtin_body_gives_horizontal_arms() {
     }
     let body = RetargetBody::load(&dir).expect("built-in body");
     let bvh = Bvh::load(&data("cmu_tiny.bvh")).expect("fixture");
-    let (m, _) =
-        retarget_bvh_native_rate(&bvh, &body, &BvhRetargetOptions::default()).expect("retarget");
-    assert_pose_close(&m.frames()[0], body.tpose(), 1e-6);
+    let (m, _) = retarget_bvh_native_rate(&bvh, &body, &KEEP).expect("retarget");
     let s = body.skeleton();
     let j = posed_joints(&body, &m.frames()[0]);
     for (arm, hand, x) in [
@@ -832,4 +908,9 @@ fn bvh_on_the_builtin_body_gives_horizontal_arms() {
     let j = posed_joints(&body, &m.frames()[1]);
     let fore = bone_dir(&j, s, "LeftForeArm", "LeftHand");
     assert!(fore.z > 0.9, "the bent forearm points forward: {fore:?}");
+}
+
+/// The built-in body model folder of the workspace (`datasets/body/makehuman`).
+pub(crate) fn builtin_model_dir() -> PathBuf {
+    workspace_root().join("datasets/body/makehuman")
 }

@@ -81,6 +81,81 @@ impl Camera {
         }
     }
 
+    /// One camera per panel of a strip, each framing its own panel's meshes at one common
+    /// scale: every camera has the same projection and distance (the largest panel's, with 5 %
+    /// of room) and looks at the same height (the middle of the strip's overall vertical
+    /// extent), centred horizontally on its own panel's meshes. A body that travels stays in
+    /// every panel, and heights (a jump, a crouch) read the same in all panels. Looks along
+    /// `-direction`, +Y up, as [`Self::framing`].
+    pub fn framing_strip(
+        panels: &[&[RenderMesh<'_>]],
+        direction: Vector3<f32>,
+        perspective: bool,
+    ) -> Vec<Self> {
+        let bounds: Vec<(Vector3<f32>, Vector3<f32>)> = panels
+            .iter()
+            .map(|meshes| {
+                let (mut lo, mut hi) = (
+                    Vector3::repeat(f32::INFINITY),
+                    Vector3::repeat(f32::NEG_INFINITY),
+                );
+                for p in meshes.iter().flat_map(|m| m.positions.iter()) {
+                    lo = lo.inf(p);
+                    hi = hi.sup(p);
+                }
+                if lo.iter().all(|c| c.is_finite()) && hi.iter().all(|c| c.is_finite()) {
+                    (lo, hi)
+                } else {
+                    (Vector3::repeat(-1.0), Vector3::repeat(1.0))
+                }
+            })
+            .collect();
+        let y_lo = bounds.iter().map(|b| b.0.y).fold(f32::INFINITY, f32::min);
+        let y_hi = bounds
+            .iter()
+            .map(|b| b.1.y)
+            .fold(f32::NEG_INFINITY, f32::max);
+        let boxes: Vec<(Vector3<f32>, Vector3<f32>)> = bounds
+            .iter()
+            .map(|(lo, hi)| {
+                (
+                    Vector3::new(lo.x, y_lo, lo.z),
+                    Vector3::new(hi.x, y_hi, hi.z),
+                )
+            })
+            .collect();
+        let radius = boxes
+            .iter()
+            .map(|(lo, hi)| (hi - lo).norm() / 2.0)
+            .fold(1e-3, f32::max)
+            * 1.05;
+        boxes
+            .iter()
+            .map(|(lo, hi)| {
+                let corners = [*lo, *hi];
+                let points = RenderMesh {
+                    positions: &corners,
+                    faces: &[],
+                    color: [0.0; 3],
+                };
+                let mut camera = Self::framing(&[points], direction, perspective);
+                // The same scale in every panel: the common radius.
+                let dir = (camera.eye - camera.target)
+                    .try_normalize(1e-12)
+                    .unwrap_or_else(Vector3::z);
+                let distance = match &mut camera.projection {
+                    Projection::Perspective { fov_y_rad } => radius / (*fov_y_rad / 2.0).sin(),
+                    Projection::Orthographic { half_height_m } => {
+                        *half_height_m = radius;
+                        3.0 * radius
+                    }
+                };
+                camera.eye = camera.target + dir * distance;
+                camera
+            })
+            .collect()
+    }
+
     /// Camera axes as rows: right, up, backward (the camera looks along −z).
     fn view(&self) -> Matrix3<f32> {
         let back = (self.eye - self.target)

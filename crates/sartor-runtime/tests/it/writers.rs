@@ -188,3 +188,81 @@ fn rasterizer_draws_in_front_and_side_by_side() {
     }
     assert!(render(&[], 64, 64, [1.0; 3]).is_err());
 }
+
+/// Bounding box `(x0, y0, x1, y1)` of the non-background pixels of panel `k` (panels of `w`
+/// pixels, 8 apart).
+fn drawn_box(image: &sartor_runtime::Image, k: u32, w: u32) -> Option<(u32, u32, u32, u32)> {
+    let mut b: Option<(u32, u32, u32, u32)> = None;
+    for y in 0..image.height {
+        for x in 0..w {
+            if image.pixel(k * (w + 8) + x, y) != [255, 255, 255, 255] {
+                b = Some(match b {
+                    None => (x, y, x, y),
+                    Some((x0, y0, x1, y1)) => (x0.min(x), y0.min(y), x1.max(x), y1.max(y)),
+                });
+            }
+        }
+    }
+    b
+}
+
+#[test]
+fn strip_cameras_follow_each_panel_at_one_scale() {
+    // The unit square travels 5 m along X per panel and rises 0.1 m per panel.
+    let sq = square(3);
+    let moved: Vec<Vec<Vector3<f32>>> = sq
+        .frames()
+        .iter()
+        .enumerate()
+        .map(|(t, f)| {
+            f.iter()
+                .map(|p| p + Vector3::new(5.0 * t as f32, 0.0, 0.0))
+                .collect()
+        })
+        .collect();
+    let meshes: Vec<Vec<RenderMesh>> = moved
+        .iter()
+        .map(|f| {
+            vec![RenderMesh {
+                positions: f,
+                faces: sq.faces(),
+                color: [1.0, 0.0, 0.0],
+            }]
+        })
+        .collect();
+    let refs: Vec<&[RenderMesh]> = meshes.iter().map(Vec::as_slice).collect();
+    for perspective in [false, true] {
+        let cameras = Camera::framing_strip(&refs, Vector3::z(), perspective);
+        assert_eq!(cameras.len(), 3);
+        // One scale: the same projection and distance everywhere.
+        for c in &cameras[1..] {
+            assert_eq!(c.projection, cameras[0].projection);
+            let d = |c: &Camera| (c.eye - c.target).norm();
+            assert!((d(c) - d(&cameras[0])).abs() < 1e-4);
+        }
+        let panels: Vec<Panel> = meshes
+            .iter()
+            .zip(&cameras)
+            .map(|(m, c)| Panel {
+                meshes: m.clone(),
+                camera: *c,
+            })
+            .collect();
+        let w = 64;
+        let image = render(&panels, w, w, [1.0; 3]).expect("render");
+        let boxes: Vec<_> = (0..3)
+            .map(|k| drawn_box(&image, k, w).expect("the square is in every panel"))
+            .collect();
+        for (x0, _, x1, _) in &boxes {
+            // Centred horizontally in its panel.
+            assert!((x0 + x1).abs_diff(w - 1) <= 2, "{boxes:?}");
+        }
+        // Same size; the later squares are drawn higher (smaller row index).
+        let size = |b: &(u32, u32, u32, u32)| (b.2 - b.0, b.3 - b.1);
+        assert!(
+            size(&boxes[0]).0.abs_diff(size(&boxes[2]).0) <= 1,
+            "{boxes:?}"
+        );
+        assert!(boxes[2].1 + 2 <= boxes[0].1, "{boxes:?}");
+    }
+}
