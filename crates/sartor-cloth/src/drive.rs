@@ -520,6 +520,10 @@ pub(crate) struct FrameStepper {
     pub(crate) timing: SequenceTiming,
     pub(crate) substeps: SubstepStats,
     pub(crate) min_excluded_distance_m: f64,
+    /// Per cloth vertex, the last closest face of the check's queries against the region and
+    /// the excluded triangles (hints: work saved, answers unchanged).
+    check_hints: Vec<u32>,
+    guard_hints: Vec<u32>,
 }
 
 impl FrameStepper {
@@ -581,6 +585,8 @@ impl FrameStepper {
                 region_restarts: 0,
             },
             min_excluded_distance_m: f64::INFINITY,
+            check_hints: vec![u32::MAX; n],
+            guard_hints: vec![u32::MAX; n],
         })
     }
 
@@ -725,8 +731,14 @@ impl FrameStepper {
             ..FrameChecks::default()
         };
         let mut deepest = None;
-        for (i, p) in self.sim.positions().iter().enumerate() {
-            if let Some(c) = self.collider.closest_within(*p, 0.0)
+        for (i, (p, hint)) in self
+            .sim
+            .positions()
+            .iter()
+            .zip(&mut self.check_hints)
+            .enumerate()
+        {
+            if let Some(c) = self.collider.closest_within_hinted(*p, 0.0, hint)
                 && -c.distance_m > checks.max_penetration_m
             {
                 checks.max_penetration_m = -c.distance_m;
@@ -745,8 +757,14 @@ impl FrameStepper {
         if let Some(guard) = &mut self.guard {
             guard.update_positions(next).map_err(Error::from)?;
             let mut closest = None;
-            for (i, p) in self.sim.positions().iter().enumerate() {
-                if let Some(c) = guard.closest_within(p, self.guard_radius_m)
+            for (i, (p, hint)) in self
+                .sim
+                .positions()
+                .iter()
+                .zip(&mut self.guard_hints)
+                .enumerate()
+            {
+                if let Some(c) = guard.closest_within_hinted(p, self.guard_radius_m, hint)
                     && c.signed_distance_m.abs() < checks.min_excluded_distance_m
                 {
                     checks.min_excluded_distance_m = c.signed_distance_m.abs();
