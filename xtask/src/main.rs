@@ -9,6 +9,7 @@ use sartor_cli::Env;
 use sartor_pipeline::DataDir;
 
 mod check_retarget;
+mod gt_collisions;
 mod import_body;
 mod motions;
 mod ship;
@@ -42,6 +43,9 @@ enum Command {
     Ship(ship::ShipArgs),
     /// Recompute a shipped model's error on its stored slice; fail beyond 10 % of the record.
     CheckModel(ship::CheckModelArgs),
+    /// The ground truth's signed distance to the posed body (the one collision measure) of a
+    /// sim folder or a shipped model's slice: percentiles, the share below 0 and -1 mm.
+    GtCollisions(gt_collisions::GtCollisionsArgs),
     #[command(flatten)]
     Sartor(sartor_cli::Command),
 }
@@ -60,6 +64,7 @@ fn main() -> anyhow::Result<()> {
         Command::CheckRetarget(args) => check_retarget::check_retarget(&args, &env),
         Command::Ship(args) => ship::ship(&args, &env),
         Command::CheckModel(args) => ship::check_model(&args, &env),
+        Command::GtCollisions(args) => gt_collisions::gt_collisions(&args, &env),
         Command::Sartor(command) => sartor_cli::run(&command, &env),
     }
 }

@@ -22,6 +22,11 @@ pub struct SequenceBenchmark {
     pub ms_per_frame: f64,
     /// Slowest motion frame, ms.
     pub max_ms_per_frame: f64,
+    /// Mean CPU time of a motion frame over all the process's threads, ms (Linux; `None`
+    /// elsewhere): unlike wall time, barely affected by other programs on a loaded machine.
+    /// With one thread it is the cost of a frame; with several, their sum (wall time shows the
+    /// speed-up).
+    pub cpu_ms_per_frame: Option<f64>,
     /// Frames simulated in all (blend and rest included).
     pub frames_total: usize,
     /// Substeps over all frames.
@@ -67,6 +72,7 @@ pub fn benchmark_sequence(
     let betas = vec![0.0; body.n_betas()];
     let mut stamps =
         Vec::with_capacity(motion.n_frames() + config.blend_frames + config.rest_frames);
+    let mut cpu_stamps = Vec::with_capacity(stamps.capacity());
     let start = Instant::now();
     let sequence = simulate_sequence(
         body,
@@ -79,6 +85,8 @@ pub fn benchmark_sequence(
             // A region restart starts again from frame 0: keep the last run's times.
             stamps.truncate(done - 1);
             stamps.push(start.elapsed().as_secs_f64());
+            cpu_stamps.truncate(done - 1);
+            cpu_stamps.push(process_cpu_secs());
         },
     )?;
     let first_motion = sequence
@@ -89,6 +97,16 @@ pub fn benchmark_sequence(
     let frame_ms: Vec<f64> = (first_motion..stamps.len())
         .map(|i| (stamps[i] - if i == 0 { 0.0 } else { stamps[i - 1] }) * 1e3)
         .collect();
+    // The CPU time from the end of the last frame before the motion to the end of the last.
+    let cpu_ms_per_frame = match (
+        first_motion.checked_sub(1).and_then(|i| cpu_stamps.get(i)),
+        cpu_stamps.last(),
+    ) {
+        (Some(Some(a)), Some(Some(b))) if !frame_ms.is_empty() => {
+            Some((b - a) * 1e3 / frame_ms.len() as f64)
+        }
+        _ => None,
+    };
     let h = &sequence.header;
     let substeps = h.substeps.total.max(1) as f64;
     let n_frames = sequence.frames.len().max(1) as f64;
@@ -98,6 +116,7 @@ pub fn benchmark_sequence(
         frames_timed: frame_ms.len(),
         ms_per_frame: frame_ms.iter().sum::<f64>() / frame_ms.len().max(1) as f64,
         max_ms_per_frame: frame_ms.iter().copied().fold(0.0, f64::max),
+        cpu_ms_per_frame,
         frames_total: sequence.frames.len(),
         substeps_total: h.substeps.total,
         retried_frames: h.substeps.retried_frames,
@@ -114,4 +133,17 @@ pub fn benchmark_sequence(
         check_ms_per_frame: per_frame(timing.check_secs),
         region_ms: timing.region_secs * 1e3,
     })
+}
+
+/// CPU time used so far by all threads of this process, s: the sum of every thread's
+/// `/proc/self/task/*/schedstat` (nanoseconds; Linux only). Threads that have exited are not
+/// counted, which is why a benchmark reads it while its pool is alive.
+fn process_cpu_secs() -> Option<f64> {
+    let mut total_ns: u64 = 0;
+    for entry in std::fs::read_dir("/proc/self/task").ok()? {
+        let path = entry.ok()?.path().join("schedstat");
+        let text = std::fs::read_to_string(path).ok()?;
+        total_ns += text.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(total_ns as f64 * 1e-9)
 }

@@ -36,6 +36,28 @@ pub trait Collider: Sync {
     fn closest_within(&self, p: Vector3<f64>, max_distance_m: f64) -> Option<Contact> {
         self.closest(p).filter(|c| c.distance_m <= max_distance_m)
     }
+
+    /// [`Collider::closest_within`] with a hint the caller keeps per query point between
+    /// calls (start it at `u32::MAX`; its meaning is the collider's). The answer must be the
+    /// same as without the hint; only the work may differ. [`crate::MeshCollider`] keeps the
+    /// point's last closest triangle in it, which bounds its tree search from the start.
+    fn closest_within_hinted(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+    ) -> Option<Contact> {
+        let _ = hint;
+        self.closest_within(p, max_distance_m)
+    }
+
+    /// A bound on the obstacle's motion, for callers that skip the queries of points known to
+    /// be far from it: `(identity, travel_m)`, where `identity` names this obstacle (no other
+    /// obstacle reports the same) and `travel_m` grows, at every move, by at least the largest
+    /// displacement of any point of its surface. `None` (the default): unknown, query always.
+    fn motion_bound(&self) -> Option<(u64, f64)> {
+        None
+    }
 }
 
 /// A plane (half-space below it is solid), optionally moving with a constant velocity.

@@ -54,8 +54,8 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
-    BodyModel, BoneTransform, MeshProximity, Par, Pose, faces_near, interpolate_pose, skin_points,
-    split_heading, transfer_skin_weights,
+    BodyDistance, BodyModel, BoneTransform, MeshProximity, Par, Pose, faces_near, interpolate_pose,
+    skin_points, split_heading, transfer_skin_weights,
 };
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
@@ -520,6 +520,16 @@ pub(crate) struct FrameStepper {
     pub(crate) timing: SequenceTiming,
     pub(crate) substeps: SubstepStats,
     pub(crate) min_excluded_distance_m: f64,
+    /// Per cloth vertex, the last closest face of the check's queries against the region and
+    /// the excluded triangles (hints: work saved, answers unchanged).
+    check_hints: Vec<u32>,
+    guard_hints: Vec<u32>,
+    /// The whole body's triangles, and its signed distance ([`BodyDistance`], built on first
+    /// need): the check confirms every vertex the region finds deeper than the tolerance with
+    /// the one collision measure before it rejects a frame.
+    body_faces: Vec<[u32; 3]>,
+    body_distance: Option<BodyDistance>,
+    deep: Vec<usize>,
 }
 
 impl FrameStepper {
@@ -581,6 +591,11 @@ impl FrameStepper {
                 region_restarts: 0,
             },
             min_excluded_distance_m: f64::INFINITY,
+            check_hints: vec![u32::MAX; n],
+            guard_hints: vec![u32::MAX; n],
+            body_faces: body.faces().to_vec(),
+            body_distance: None,
+            deep: Vec::new(),
         })
     }
 
@@ -711,7 +726,8 @@ impl FrameStepper {
         checks
     }
 
-    /// The end-of-frame checks: penetration of the body region and distance to the excluded
+    /// The end-of-frame checks: penetration of the body (found by the region's closest points,
+    /// confirmed by [`BodyDistance`] beyond the tolerance) and distance to the excluded
     /// triangles.
     fn check(
         &mut self,
@@ -725,12 +741,43 @@ impl FrameStepper {
             ..FrameChecks::default()
         };
         let mut deepest = None;
-        for (i, p) in self.sim.positions().iter().enumerate() {
-            if let Some(c) = self.collider.closest_within(*p, 0.0)
-                && -c.distance_m > checks.max_penetration_m
-            {
-                checks.max_penetration_m = -c.distance_m;
-                deepest = Some(i);
+        self.deep.clear();
+        for (i, (p, hint)) in self
+            .sim
+            .positions()
+            .iter()
+            .zip(&mut self.check_hints)
+            .enumerate()
+        {
+            if let Some(c) = self.collider.closest_within_hinted(*p, 0.0, hint) {
+                if -c.distance_m > self.tolerance_m {
+                    self.deep.push(i);
+                } else if -c.distance_m > checks.max_penetration_m {
+                    checks.max_penetration_m = -c.distance_m;
+                    deepest = Some(i);
+                }
+            }
+        }
+        // The region's pseudo-normal sign is wrong behind its cut edges and where body parts
+        // press together: a vertex it finds too deep is judged by the whole body's signed
+        // distance (inside by winding number), the one collision measure.
+        if !self.deep.is_empty() {
+            let distance = match &mut self.body_distance {
+                Some(d) => {
+                    d.update_positions(next).map_err(Error::from)?;
+                    d
+                }
+                None => self
+                    .body_distance
+                    .insert(BodyDistance::new(next, &self.body_faces).map_err(Error::from)?),
+            };
+            let positions = self.sim.positions();
+            for &i in &self.deep {
+                let depth = -distance.signed_distance_m(&positions[i]);
+                if depth > checks.max_penetration_m {
+                    checks.max_penetration_m = depth;
+                    deepest = Some(i);
+                }
             }
         }
         if let Some(vertex) = deepest
@@ -745,8 +792,14 @@ impl FrameStepper {
         if let Some(guard) = &mut self.guard {
             guard.update_positions(next).map_err(Error::from)?;
             let mut closest = None;
-            for (i, p) in self.sim.positions().iter().enumerate() {
-                if let Some(c) = guard.closest_within(p, self.guard_radius_m)
+            for (i, (p, hint)) in self
+                .sim
+                .positions()
+                .iter()
+                .zip(&mut self.guard_hints)
+                .enumerate()
+            {
+                if let Some(c) = guard.closest_within_hinted(p, self.guard_radius_m, hint)
                     && c.signed_distance_m.abs() < checks.min_excluded_distance_m
                 {
                     checks.min_excluded_distance_m = c.signed_distance_m.abs();

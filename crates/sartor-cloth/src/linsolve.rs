@@ -194,6 +194,7 @@ pub(crate) struct LinearWorkspace {
     product: Vec<Vector3<f64>>,
     inverse_diagonal: Vec<Matrix3<f64>>,
     partial: Vec<f64>,
+    pair_partial: Vec<(f64, f64)>,
 }
 
 impl LinearWorkspace {
@@ -239,6 +240,7 @@ impl LinearWorkspace {
             product: vec![Vector3::zeros(); n],
             inverse_diagonal: vec![Matrix3::identity(); n],
             partial: vec![0.0; n.div_ceil(CHUNK)],
+            pair_partial: vec![(0.0, 0.0); n.div_ceil(CHUNK)],
         }
     }
 
@@ -373,6 +375,32 @@ impl LinearWorkspace {
                 Matrix3::from_diagonal(&d.diagonal().map(|v| if v != 0.0 { 1.0 / v } else { 1.0 }))
             });
         }
+        self.cg_iterations(
+            pattern,
+            values,
+            b,
+            x,
+            max_iterations,
+            relative_tolerance,
+            par,
+            start,
+        )
+    }
+
+    /// The CG loop of [`Self::solve_cg`], preconditioned by the block diagonal.
+    #[allow(clippy::too_many_arguments)]
+    fn cg_iterations(
+        &mut self,
+        pattern: &BlockPattern,
+        values: &[Matrix3<f64>],
+        b: &[Vector3<f64>],
+        x: &mut [Vector3<f64>],
+        max_iterations: usize,
+        relative_tolerance: f64,
+        par: Par,
+        start: Instant,
+    ) -> Result<LinearSolveStats, StepFailure> {
+        let n = pattern.n_rows();
         block_matvec(pattern, values, x, &mut self.product, par);
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
@@ -389,8 +417,8 @@ impl LinearWorkspace {
         }
         for i in 0..n {
             self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
-            self.direction[i] = self.preconditioned[i];
         }
+        self.direction.copy_from_slice(&self.preconditioned);
         let stats = |iterations, relative_residual| LinearSolveStats {
             iterations,
             relative_residual,
@@ -404,6 +432,11 @@ impl LinearWorkspace {
         let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
         let mut relative = r_norm / b_norm;
         let mut iterations = 0;
+        // Each iteration is three passes over the vertices in chunks of `CHUNK` (in parallel
+        // with rayon): (1) q = A p with the chunk's share of p·q; (2) the x and r updates,
+        // z = P⁻¹ r, with the chunk's shares of r·z and r·r; (3) p = z + β p. Every dot
+        // product is summed per chunk and then over the chunks in order: the same numbers on
+        // any thread count, and the same as separate dot products.
         while relative > relative_tolerance {
             if iterations == max_iterations || !relative.is_finite() {
                 return Err(StepFailure::SolverNotConverged {
@@ -411,8 +444,7 @@ impl LinearWorkspace {
                     relative_residual: relative,
                 });
             }
-            block_matvec(pattern, values, &self.direction, &mut self.product, par);
-            let p_ap = dot(&self.direction, &self.product, &mut self.partial, par);
+            let p_ap = self.product_and_dot(pattern, values, par);
             if p_ap.is_nan() || p_ap <= 0.0 {
                 return Err(StepFailure::SolverNotConverged {
                     iterations,
@@ -420,21 +452,129 @@ impl LinearWorkspace {
                 });
             }
             let alpha = rz / p_ap;
-            for i in 0..n {
-                x[i] += self.direction[i] * alpha;
-                self.residual[i] -= self.product[i] * alpha;
-                self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
-            }
-            let rz_new = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
+            let (rz_new, rr) = self.update_and_precondition(x, alpha, par);
             let beta = rz_new / rz;
             rz = rz_new;
-            for i in 0..n {
-                self.direction[i] = self.preconditioned[i] + self.direction[i] * beta;
-            }
-            relative = dot(&self.residual, &self.residual, &mut self.partial, par).sqrt() / b_norm;
+            self.update_direction(beta, par);
+            relative = rr.sqrt() / b_norm;
             iterations += 1;
         }
         Ok(stats(iterations, relative))
+    }
+}
+
+impl LinearWorkspace {
+    /// `product = A direction`; returns `direction · product` (per chunk, then in order).
+    fn product_and_dot(
+        &mut self,
+        pattern: &BlockPattern,
+        values: &[Matrix3<f64>],
+        par: Par,
+    ) -> f64 {
+        let direction = &self.direction;
+        let chunk = |c: usize, out: &mut [Vector3<f64>]| -> f64 {
+            for (k, yi) in out.iter_mut().enumerate() {
+                let i = c * CHUNK + k;
+                let mut acc = Vector3::zeros();
+                for s in pattern.row(i) {
+                    acc += values[s] * direction[pattern.cols[s] as usize];
+                }
+                *yi = acc;
+            }
+            // The chunk's share of p·q, summed in vertex order as `dot` does.
+            let start = c * CHUNK;
+            direction[start..start + out.len()]
+                .iter()
+                .zip(out.iter())
+                .map(|(a, b)| a.dot(b))
+                .sum()
+        };
+        match par {
+            Par::Seq => self
+                .product
+                .chunks_mut(CHUNK)
+                .enumerate()
+                .map(|(c, out)| chunk(c, out))
+                .sum(),
+            Par::Rayon => {
+                self.product
+                    .par_chunks_mut(CHUNK)
+                    .zip(self.partial.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(c, (out, p))| *p = chunk(c, out));
+                self.partial.iter().sum()
+            }
+        }
+    }
+
+    /// `x += α p`, `r −= α q`, `z = P⁻¹ r`; returns `(r · z, r · r)` (per chunk, in order).
+    fn update_and_precondition(
+        &mut self,
+        x: &mut [Vector3<f64>],
+        alpha: f64,
+        par: Par,
+    ) -> (f64, f64) {
+        let (direction, product, inverse_diagonal) =
+            (&self.direction, &self.product, &self.inverse_diagonal);
+        let chunk = |c: usize,
+                     x: &mut [Vector3<f64>],
+                     r: &mut [Vector3<f64>],
+                     z: &mut [Vector3<f64>]|
+         -> (f64, f64) {
+            let start = c * CHUNK;
+            for k in 0..x.len() {
+                let i = start + k;
+                x[k] += direction[i] * alpha;
+                r[k] -= product[i] * alpha;
+                z[k] = inverse_diagonal[i] * r[k];
+            }
+            let rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a.dot(b)).sum();
+            let rr: f64 = r.iter().map(|a| a.dot(a)).sum();
+            (rz, rr)
+        };
+        match par {
+            Par::Seq => x
+                .chunks_mut(CHUNK)
+                .zip(self.residual.chunks_mut(CHUNK))
+                .zip(self.preconditioned.chunks_mut(CHUNK))
+                .zip(self.pair_partial.iter_mut())
+                .enumerate()
+                .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
+            Par::Rayon => x
+                .par_chunks_mut(CHUNK)
+                .zip(self.residual.par_chunks_mut(CHUNK))
+                .zip(self.preconditioned.par_chunks_mut(CHUNK))
+                .zip(self.pair_partial.par_iter_mut())
+                .enumerate()
+                .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
+        }
+        (
+            self.pair_partial.iter().map(|p| p.0).sum(),
+            self.pair_partial.iter().map(|p| p.1).sum(),
+        )
+    }
+
+    /// `p = z + β p`.
+    fn update_direction(&mut self, beta: f64, par: Par) {
+        let z = &self.preconditioned;
+        let chunk = |c: usize, p: &mut [Vector3<f64>]| {
+            let start = c * CHUNK;
+            for (k, pi) in p.iter_mut().enumerate() {
+                *pi = z[start + k] + *pi * beta;
+            }
+        };
+        match par {
+            Par::Seq => self
+                .direction
+                .chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(c, p)| chunk(c, p)),
+            Par::Rayon => self
+                .direction
+                .par_chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(c, p)| chunk(c, p)),
+        }
     }
 }
 

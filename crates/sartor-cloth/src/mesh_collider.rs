@@ -14,11 +14,34 @@ use crate::{Error, Result};
 /// For a moving body, call [`MeshCollider::move_to`] with the pose at the *end* of the next
 /// substep before each `Simulator::step`: it refits the tree and sets the vertex velocities to
 /// `(new − old) / dt`.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct MeshCollider {
     proximity: MeshProximity,
     velocities: Vec<Vector3<f64>>,
     search_depth_m: f64,
+    /// This collider's identity for [`Collider::motion_bound`] (a clone gets a new one).
+    identity: u64,
+    /// The sum over every move of the largest vertex displacement, m.
+    travel_m: f64,
+}
+
+/// Identities of mesh colliders, unique within the process.
+static NEXT_IDENTITY: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+fn new_identity() -> u64 {
+    NEXT_IDENTITY.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
+impl Clone for MeshCollider {
+    fn clone(&self) -> Self {
+        Self {
+            proximity: self.proximity.clone(),
+            velocities: self.velocities.clone(),
+            search_depth_m: self.search_depth_m,
+            identity: new_identity(),
+            travel_m: self.travel_m,
+        }
+    }
 }
 
 impl MeshCollider {
@@ -40,6 +63,8 @@ impl MeshCollider {
             proximity: MeshProximity::new(positions, faces)?,
             velocities: vec![Vector3::zeros(); positions.len()],
             search_depth_m,
+            identity: new_identity(),
+            travel_m: 0.0,
         })
     }
 
@@ -61,15 +86,20 @@ impl MeshCollider {
                 ),
             ));
         }
+        let mut largest2: f64 = 0.0;
         for ((v, new), old) in self
             .velocities
             .iter_mut()
             .zip(positions)
             .zip(self.proximity.positions())
         {
-            *v = (new - old) / dt_secs;
+            let step = new - old;
+            largest2 = largest2.max(step.norm_squared());
+            *v = step / dt_secs;
         }
         self.proximity.update_positions(positions)?;
+        // A point of a triangle moves by a convex combination of its vertices' moves.
+        self.travel_m += largest2.sqrt();
         Ok(())
     }
 
@@ -83,9 +113,9 @@ impl MeshCollider {
         &self.velocities
     }
 
-    fn contact(&self, p: Vector3<f64>, max_distance_m: f64) -> Option<Contact> {
+    fn contact(&self, p: Vector3<f64>, max_distance_m: f64, hint: &mut u32) -> Option<Contact> {
         let radius = max_distance_m.max(0.0).max(self.search_depth_m);
-        let c = self.proximity.closest_within(&p, radius)?;
+        let c = self.proximity.closest_within_hinted(&p, radius, hint)?;
         if c.signed_distance_m > max_distance_m {
             return None;
         }
@@ -109,12 +139,30 @@ impl MeshCollider {
     }
 }
 
+/// The hint of a query without one.
+const NO_HINT: u32 = u32::MAX;
+
 impl Collider for MeshCollider {
     fn closest(&self, p: Vector3<f64>) -> Option<Contact> {
-        self.contact(p, f64::INFINITY)
+        let mut hint = NO_HINT;
+        self.contact(p, f64::INFINITY, &mut hint)
     }
 
     fn closest_within(&self, p: Vector3<f64>, max_distance_m: f64) -> Option<Contact> {
-        self.contact(p, max_distance_m)
+        let mut hint = NO_HINT;
+        self.contact(p, max_distance_m, &mut hint)
+    }
+
+    fn closest_within_hinted(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+    ) -> Option<Contact> {
+        self.contact(p, max_distance_m, hint)
+    }
+
+    fn motion_bound(&self) -> Option<(u64, f64)> {
+        Some((self.identity, self.travel_m))
     }
 }

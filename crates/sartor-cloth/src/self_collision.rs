@@ -6,6 +6,11 @@
 //! the triangle does not touch the vertex or its one-ring (those are neighbours through the
 //! surface, not contacts). As in ARCSim, each vertex keeps the closest triangle on each side.
 //! Results are sorted by vertex and side, independent of the thread count.
+//!
+//! The cells are a hash table filled by a counting sort (no comparison sort of the entries),
+//! each bucket listing its faces in ascending order, so a vertex meets its candidates in the
+//! order of a sorted list; a candidate whose inflated box misses the vertex is dropped before
+//! the one-ring and plane tests (it cannot pass them).
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -16,8 +21,19 @@ use crate::energy::SelfContact;
 /// Scratch buffers of the spatial hash, kept between steps.
 #[derive(Debug, Default)]
 pub(crate) struct SelfCollisionGrid {
+    /// `(cell key, face)` per face and covered cell, in face order.
     entries: Vec<(u64, u32)>,
+    /// The entries grouped by bucket (`bucket_start` its CSR offsets), faces ascending.
+    buckets: Vec<(u64, u32)>,
+    bucket_start: Vec<u32>,
+    /// Per face, its box inflated by the radius (and a rounding margin): min, max.
+    boxes: Vec<[Vector3<f64>; 2]>,
     closest: Vec<[Option<(u32, f64)>; 2]>,
+}
+
+/// The bucket of a cell key in a table of `2^bits` buckets.
+fn bucket_of(key: u64, bits: u32) -> usize {
+    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize
 }
 
 fn cell_key(c: [i64; 3]) -> u64 {
@@ -77,10 +93,18 @@ impl SelfCollisionGrid {
         let cell = mean_edge.max(2.0 * radius_m);
         let inv_cell = 1.0 / cell;
         self.entries.clear();
+        self.boxes.clear();
         for (f, t) in faces.iter().enumerate() {
             let [a, b, c] = t.map(|i| x[i as usize]);
-            let lo = a.inf(&b).inf(&c).add_scalar(-radius_m);
-            let hi = a.sup(&b).sup(&c).add_scalar(radius_m);
+            let (lo0, hi0) = (a.inf(&b).inf(&c), a.sup(&b).sup(&c));
+            let lo = lo0.add_scalar(-radius_m);
+            let hi = hi0.add_scalar(radius_m);
+            // A vertex passing the plane test lies within the radius of a point whose
+            // barycentrics are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its box:
+            // this margin keeps every such vertex inside the test box.
+            let slack = radius_m + 1e-5 * (hi0 - lo0).max() + 1e-12;
+            self.boxes
+                .push([lo0.add_scalar(-slack), hi0.add_scalar(slack)]);
             let (clo, chi) = (cell_of(&lo, inv_cell), cell_of(&hi, inv_cell));
             for i in clo[0]..=chi[0] {
                 for j in clo[1]..=chi[1] {
@@ -90,18 +114,51 @@ impl SelfCollisionGrid {
                 }
             }
         }
-        self.entries.sort_unstable();
+        // Counting sort into buckets; within a bucket the faces stay ascending.
+        let bits = self
+            .entries
+            .len()
+            .max(2)
+            .next_power_of_two()
+            .trailing_zeros();
+        let n_buckets = 1usize << bits;
+        self.bucket_start.clear();
+        self.bucket_start.resize(n_buckets + 1, 0);
+        for &(key, _) in &self.entries {
+            self.bucket_start[bucket_of(key, bits) + 1] += 1;
+        }
+        for b in 0..n_buckets {
+            self.bucket_start[b + 1] += self.bucket_start[b];
+        }
+        self.buckets.clear();
+        self.buckets.resize(self.entries.len(), (0, 0));
+        for &(key, f) in &self.entries {
+            let b = bucket_of(key, bits);
+            let slot = &mut self.bucket_start[b];
+            self.buckets[*slot as usize] = (key, f);
+            *slot += 1;
+        }
+        // The fill advanced every start to the next bucket's: shift back.
+        for b in (1..=n_buckets).rev() {
+            self.bucket_start[b] = self.bucket_start[b - 1];
+        }
+        self.bucket_start[0] = 0;
         self.closest.clear();
         self.closest.resize(x.len(), [None, None]);
-        let entries = &self.entries;
+        let (buckets, bucket_start, boxes) = (&self.buckets, &self.bucket_start, &self.boxes);
         let search = |v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
             let p = x[v];
             let key = cell_key(cell_of(&p, inv_cell));
-            let start = entries.partition_point(|e| e.0 < key);
+            let b = bucket_of(key, bits);
             let ring = topology.neighbours(v);
-            for &(k, f) in &entries[start..] {
+            let range = bucket_start[b] as usize..bucket_start[b + 1] as usize;
+            for &(k, f) in &buckets[range] {
                 if k != key {
-                    break;
+                    continue;
+                }
+                let [lo, hi] = &boxes[f as usize];
+                if (0..3).any(|d| p[d] < lo[d] || p[d] > hi[d]) {
+                    continue;
                 }
                 let t = faces[f as usize];
                 if t.iter()

@@ -239,6 +239,11 @@ struct Workspace {
     self_out: Vec<ElementDerivatives<4>>,
     obstacle_contacts: Vec<ObstacleContact>,
     query: Vec<Option<Contact>>,
+    /// Per collider and vertex, what the last queries left (see [`QueryState`]).
+    query_state: Vec<QueryState>,
+    /// Per collider, the identity and travel of [`Collider::motion_bound`] when the clearances
+    /// were last updated.
+    collider_motion: Vec<Option<(u64, f64)>>,
     self_contacts: Vec<SelfContact>,
     grid: SelfCollisionGrid,
     stiffness: Vec<Matrix3<f64>>,
@@ -253,6 +258,72 @@ struct Workspace {
     linear: LinearWorkspace,
 }
 
+/// One element contribution: a triangle's or a hinge's local block (`k` = row · size + column)
+/// or local vertex, packed in a `u32` (bit 31: hinge; bits 4..31: element; bits 0..4: `k`).
+#[derive(Clone, Copy, Debug)]
+struct Source(u32);
+
+enum Element {
+    Triangle(usize, usize),
+    Hinge(usize, usize),
+}
+
+impl Source {
+    const HINGE: u32 = 1 << 31;
+
+    fn triangle(t: usize, k: usize) -> Self {
+        Self(((t as u32) << 4) | k as u32)
+    }
+
+    fn hinge(e: usize, k: usize) -> Self {
+        Self(Self::HINGE | ((e as u32) << 4) | k as u32)
+    }
+
+    fn element(self) -> Element {
+        let (index, k) = (
+            ((self.0 & !Self::HINGE) >> 4) as usize,
+            (self.0 & 15) as usize,
+        );
+        if self.0 & Self::HINGE != 0 {
+            Element::Hinge(index, k)
+        } else {
+            Element::Triangle(index, k)
+        }
+    }
+}
+
+/// For every target (a block or a vertex), the element contributions it sums, in a fixed
+/// order (CSR): assembly as a gather, parallel over targets and deterministic.
+#[derive(Clone, Debug)]
+struct Gather {
+    offsets: Vec<u32>,
+    sources: Vec<Source>,
+}
+
+impl Gather {
+    /// From `(target, source)` pairs; each target keeps its sources in the pairs' order.
+    fn new(n_targets: usize, pairs: impl Iterator<Item = (u32, Source)> + Clone) -> Self {
+        let mut offsets = vec![0u32; n_targets + 1];
+        for (t, _) in pairs.clone() {
+            offsets[t as usize + 1] += 1;
+        }
+        for i in 0..n_targets {
+            offsets[i + 1] += offsets[i];
+        }
+        let mut next: Vec<u32> = offsets[..n_targets].to_vec();
+        let mut sources = vec![Source(0); offsets[n_targets] as usize];
+        for (t, source) in pairs {
+            sources[next[t as usize] as usize] = source;
+            next[t as usize] += 1;
+        }
+        Self { offsets, sources }
+    }
+
+    fn sources(&self, target: usize) -> &[Source] {
+        &self.sources[self.offsets[target] as usize..self.offsets[target + 1] as usize]
+    }
+}
+
 /// A cloth being simulated: the cloth, its state (positions, velocities, pins) and the
 /// reusable solver state.
 pub struct Simulator {
@@ -264,6 +335,11 @@ pub struct Simulator {
     pin_targets: Vec<Vector3<f64>>,
     time_secs: f64,
     pattern: BlockPattern,
+    /// Where each block of the stiffness and each vertex's gradient gather their element
+    /// contributions from (see [`Gather`]).
+    block_gather: Gather,
+    gradient_gather: Gather,
+    /// The block of each (row, column) vertex pair of each triangle and hinge.
     tri_slots: Vec<[u32; 9]>,
     hinge_slots: Vec<[u32; 16]>,
     triangle_area_m2: Vec<f64>,
@@ -272,6 +348,61 @@ pub struct Simulator {
 
 fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N] {
     idx.map(|i| x[i as usize])
+}
+
+/// Obstacles farther than the contact thickness plus this are not looked at again until
+/// their clearance bound runs out (see [`QueryState`]), m.
+const CLEARANCE_LOOKAHEAD_M: f64 = 0.02;
+
+/// What the queries of one vertex against one collider leave for the next ones.
+///
+/// - `hint`: the collider's hint ([`Collider::closest_within_hinted`]): work saved, answers
+///   unchanged.
+/// - `clearance_m`: a lower bound on the distance from the vertex's current position to the
+///   collider's surface, on its outside (0: unknown, or inside). The distance to a surface is
+///   1-Lipschitz in the point and in the surface's motion, and the side cannot change while it
+///   stays positive; so while `clearance − (vertex and surface motion since)` stays above the
+///   contact thickness the vertex cannot be a contact, and while it stays positive it cannot
+///   be inside: its queries are skipped. The same contacts and projections as querying every
+///   vertex every time, except for a vertex deeper inside than the collider looks (which the
+///   end-of-frame check rejects) and where the collider's own sign is not a true inside test.
+#[derive(Clone, Copy, Debug)]
+struct QueryState {
+    hint: u32,
+    clearance_m: f64,
+}
+
+impl QueryState {
+    const UNKNOWN: Self = Self {
+        hint: u32::MAX,
+        clearance_m: 0.0,
+    };
+
+    /// Record the answer of a query made with `lookahead_m` as its distance.
+    fn record(&mut self, contact: Option<&Contact>, lookahead_m: f64) {
+        self.clearance_m = contact.map_or(lookahead_m, |c| c.distance_m.max(0.0));
+    }
+}
+
+/// Apply `f(i, &mut a_i, &mut b_i)` to every pair of items, on rayon's pool or not.
+fn for_each_pair<A: Send, B: Send>(
+    a: &mut [A],
+    b: &mut [B],
+    par: Par,
+    f: impl Fn(usize, &mut A, &mut B) + Sync,
+) {
+    match par {
+        Par::Seq => a
+            .iter_mut()
+            .zip(b)
+            .enumerate()
+            .for_each(|(i, (x, y))| f(i, x, y)),
+        Par::Rayon => a
+            .par_iter_mut()
+            .zip(b)
+            .enumerate()
+            .for_each(|(i, (x, y))| f(i, x, y)),
+    }
 }
 
 /// Apply `f(i, &mut item)` to every item, on rayon's pool or not.
@@ -300,26 +431,61 @@ impl Simulator {
                 .slot(a as usize, b as usize)
                 .expect("element pairs are in the pattern") as u32
         };
-        let tri_slots = cloth
+        let tri_slots: Vec<[u32; 9]> = cloth
             .faces()
             .iter()
             .map(|t| std::array::from_fn(|k| slot(t[k / 3], t[k % 3])))
             .collect();
-        let hinge_slots = cloth
+        let hinge_slots: Vec<[u32; 16]> = cloth
             .hinges()
             .iter()
             .map(|h| std::array::from_fn(|k| slot(h.vertices[k / 4], h.vertices[k % 4])))
             .collect();
+        // Triangles first, then hinges, each in index order: every block and every gradient
+        // sums its contributions in the order of a sequential scatter over the elements.
+        let block_gather = Gather::new(
+            pattern.n_blocks(),
+            tri_slots
+                .iter()
+                .enumerate()
+                .flat_map(|(t, slots)| {
+                    slots
+                        .iter()
+                        .enumerate()
+                        .map(move |(k, &s)| (s, Source::triangle(t, k)))
+                })
+                .chain(hinge_slots.iter().enumerate().flat_map(|(e, slots)| {
+                    slots
+                        .iter()
+                        .enumerate()
+                        .map(move |(k, &s)| (s, Source::hinge(e, k)))
+                })),
+        );
+        let gradient_gather =
+            Gather::new(
+                n,
+                cloth
+                    .faces()
+                    .iter()
+                    .enumerate()
+                    .flat_map(|(t, f)| (0..3).map(move |a| (f[a], Source::triangle(t, a))))
+                    .chain(cloth.hinges().iter().enumerate().flat_map(|(e, h)| {
+                        (0..4).map(move |a| (h.vertices[a], Source::hinge(e, a)))
+                    })),
+            );
         let n_blocks = pattern.n_blocks();
         let zeros = vec![Vector3::zeros(); n];
         let ws = Workspace {
             tri_stiffness: vec![StrainStiffness::default(); cloth.faces().len()],
             hinge_coefficient: vec![0.0; cloth.hinges().len()],
-            tri_out: vec![ElementDerivatives::default(); cloth.faces().len()],
-            hinge_out: vec![ElementDerivatives::default(); cloth.hinges().len()],
+            // Element buffers of the parallel assembly, sized on its first use.
+            tri_out: Vec::new(),
+            hinge_out: Vec::new(),
             self_out: Vec::new(),
             obstacle_contacts: Vec::new(),
             query: vec![None; n],
+            query_state: Vec::new(),
+            collider_motion: Vec::new(),
             self_contacts: Vec::new(),
             grid: SelfCollisionGrid::default(),
             stiffness: vec![Matrix3::zeros(); n_blocks],
@@ -341,6 +507,8 @@ impl Simulator {
             time_secs: 0.0,
             triangle_area_m2: cloth.membranes().iter().map(|m| m.area_m2).collect(),
             pattern,
+            block_gather,
+            gradient_gather,
             tri_slots,
             hinge_slots,
             cloth,
@@ -405,7 +573,17 @@ impl Simulator {
     pub fn set_positions(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
         self.check_state(positions, "positions")?;
         self.positions.copy_from_slice(positions);
+        self.forget_clearances();
         Ok(())
+    }
+
+    /// Forget what the queries learnt about the distance to the colliders (after the state
+    /// changed other than by a step).
+    fn forget_clearances(&mut self) {
+        self.ws
+            .query_state
+            .iter_mut()
+            .for_each(|s| s.clearance_m = 0.0);
     }
 
     /// Set all velocities, m/s.
@@ -606,6 +784,8 @@ impl Simulator {
         for i in 0..n {
             let (x, v) = (&self.ws.x_new[i], &self.ws.v_plus[i]);
             if !(x.iter().chain(v.iter()).all(|c| c.is_finite())) {
+                // The clearances describe the rejected positions.
+                self.forget_clearances();
                 return Err(StepFailure::NonFinite {
                     what: "cloth state",
                 }
@@ -616,6 +796,7 @@ impl Simulator {
         }
         let bound = 0.5 * self.cloth.total_mass_kg() * self.config.max_speed_m_per_s.powi(2);
         if kinetic > bound {
+            self.forget_clearances();
             return Err(StepFailure::EnergyBlowUp {
                 kinetic_energy_j: kinetic,
                 bound_j: bound,
@@ -655,12 +836,37 @@ impl Simulator {
         let par = self.config.parallelism;
         let penalty = self.config.contact_penalty;
         let x = &self.positions;
+        let n = x.len();
         self.ws.obstacle_contacts.clear();
+        if self.ws.query_state.len() != n * colliders.len() {
+            self.ws.query_state.clear();
+            self.ws
+                .query_state
+                .resize(n * colliders.len(), QueryState::UNKNOWN);
+            self.ws.collider_motion.clear();
+            self.ws.collider_motion.resize(colliders.len(), None);
+        }
+        let thickness = penalty.thickness_m;
+        let lookahead = thickness + CLEARANCE_LOOKAHEAD_M;
         for (ci, collider) in colliders.iter().enumerate() {
-            for_each_indexed(&mut self.ws.query, par, |i, q| {
-                *q = collider
-                    .closest_within(x[i], penalty.thickness_m)
-                    .filter(|c| c.distance_m < penalty.thickness_m);
+            let states = &mut self.ws.query_state[ci * n..(ci + 1) * n];
+            // How far the collider's surface moved since the clearances were recorded.
+            let now = collider.motion_bound();
+            let moved = match (self.ws.collider_motion[ci], now) {
+                (Some((a, then)), Some((b, travel))) if a == b => travel - then,
+                _ => f64::INFINITY,
+            };
+            self.ws.collider_motion[ci] = now;
+            for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
+                let bound = state.clearance_m - moved;
+                if bound >= thickness {
+                    state.clearance_m = bound;
+                    *q = None;
+                    return;
+                }
+                let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
+                state.record(c.as_ref(), lookahead);
+                *q = c.filter(|c| c.distance_m < thickness);
             });
             for (i, q) in self.ws.query.iter().enumerate() {
                 if let Some(c) = q {
@@ -704,49 +910,92 @@ impl Simulator {
         let x = &ws.x_iter;
         let membranes = self.cloth.membranes();
         let faces = self.cloth.faces();
-        let stiffness = &ws.tri_stiffness;
-        for_each_indexed(&mut ws.tri_out, par, |t, out| {
-            *out = membranes[t].derivatives(&gather(x, faces[t]), &stiffness[t], Projection::Psd);
-        });
         let hinges = self.cloth.hinges();
+        let masses = self.cloth.masses_kg();
+        let gravity = self.config.gravity_m_per_s2;
+        let stiffness = &ws.tri_stiffness;
         let coefficient = &ws.hinge_coefficient;
-        for_each_indexed(&mut ws.hinge_out, par, |e, out| {
-            *out = hinges[e].derivatives(
-                &gather(x, hinges[e].vertices),
-                coefficient[e],
-                bending_hessian,
-            );
-        });
+        match par {
+            Par::Seq => {
+                // Each element is added as soon as it is computed (no element buffers), in
+                // the order of the parallel gather below: the same sums, bit for bit.
+                ws.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
+                for (g, m) in ws.gradient.iter_mut().zip(masses) {
+                    *g = -gravity * *m;
+                }
+                for (t, slots) in self.tri_slots.iter().enumerate() {
+                    let f = faces[t];
+                    let d = membranes[t].derivatives(&gather(x, f), &stiffness[t], Projection::Psd);
+                    for a in 0..3 {
+                        ws.gradient[f[a] as usize] += d.gradient[a];
+                        for b in 0..3 {
+                            ws.stiffness[slots[3 * a + b] as usize] += d.hessian[a][b];
+                        }
+                    }
+                }
+                for (e, slots) in self.hinge_slots.iter().enumerate() {
+                    let h = &hinges[e];
+                    let d = h.derivatives(&gather(x, h.vertices), coefficient[e], bending_hessian);
+                    for a in 0..4 {
+                        ws.gradient[h.vertices[a] as usize] += d.gradient[a];
+                        for b in 0..4 {
+                            ws.stiffness[slots[4 * a + b] as usize] += d.hessian[a][b];
+                        }
+                    }
+                }
+            }
+            Par::Rayon => {
+                ws.tri_out
+                    .resize(faces.len(), ElementDerivatives::default());
+                ws.hinge_out
+                    .resize(hinges.len(), ElementDerivatives::default());
+                for_each_indexed(&mut ws.tri_out, par, |t, out| {
+                    *out = membranes[t].derivatives(
+                        &gather(x, faces[t]),
+                        &stiffness[t],
+                        Projection::Psd,
+                    );
+                });
+                for_each_indexed(&mut ws.hinge_out, par, |e, out| {
+                    *out = hinges[e].derivatives(
+                        &gather(x, hinges[e].vertices),
+                        coefficient[e],
+                        bending_hessian,
+                    );
+                });
+                // Gather in a fixed order (each block and gradient sums its elements'
+                // contributions triangles first, then hinges, by index).
+                let (tri_out, hinge_out) = (&ws.tri_out, &ws.hinge_out);
+                let block_gather = &self.block_gather;
+                for_each_indexed(&mut ws.stiffness, par, |s, block| {
+                    let mut acc = Matrix3::zeros();
+                    for source in block_gather.sources(s) {
+                        acc += match source.element() {
+                            Element::Triangle(t, k) => tri_out[t].hessian[k / 3][k % 3],
+                            Element::Hinge(e, k) => hinge_out[e].hessian[k / 4][k % 4],
+                        };
+                    }
+                    *block = acc;
+                });
+                let gradient_gather = &self.gradient_gather;
+                for_each_indexed(&mut ws.gradient, par, |i, g| {
+                    let mut acc = -gravity * masses[i];
+                    for source in gradient_gather.sources(i) {
+                        acc += match source.element() {
+                            Element::Triangle(t, a) => tri_out[t].gradient[a],
+                            Element::Hinge(e, a) => hinge_out[e].gradient[a],
+                        };
+                    }
+                    *g = acc;
+                });
+            }
+        }
         let self_contacts = &ws.self_contacts;
         for_each_indexed(&mut ws.self_out, par, |s, out| {
             let c = &self_contacts[s];
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             *out = c.derivatives(&gather(x, idx), &penalty, Projection::Psd);
         });
-
-        // Scatter in a fixed order.
-        let masses = self.cloth.masses_kg();
-        let gravity = self.config.gravity_m_per_s2;
-        ws.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
-        for (g, m) in ws.gradient.iter_mut().zip(masses) {
-            *g = -gravity * *m;
-        }
-        for ((t, out), slots) in faces.iter().zip(&ws.tri_out).zip(&self.tri_slots) {
-            for a in 0..3 {
-                ws.gradient[t[a] as usize] += out.gradient[a];
-                for b in 0..3 {
-                    ws.stiffness[slots[3 * a + b] as usize] += out.hessian[a][b];
-                }
-            }
-        }
-        for ((h, out), slots) in hinges.iter().zip(&ws.hinge_out).zip(&self.hinge_slots) {
-            for a in 0..4 {
-                ws.gradient[h.vertices[a] as usize] += out.gradient[a];
-                for b in 0..4 {
-                    ws.stiffness[slots[4 * a + b] as usize] += out.hessian[a][b];
-                }
-            }
-        }
         for c in &ws.obstacle_contacts {
             let i = c.vertex as usize;
             let d = c.derivatives(&x[i], &penalty);
@@ -846,19 +1095,31 @@ impl Simulator {
     fn project_out(&mut self, colliders: &[&dyn Collider]) -> usize {
         let tolerance = self.config.max_penetration_m;
         let par = self.config.parallelism;
+        let lookahead = self.config.contact_penalty.thickness_m + CLEARANCE_LOOKAHEAD_M;
         let mut moved = 0;
-        for collider in colliders {
-            let x = &self.ws.x_new;
-            for_each_indexed(&mut self.ws.query, par, |i, q| {
-                *q = collider
-                    .closest_within(x[i], 0.0)
-                    .filter(|c| c.distance_m < -tolerance);
+        let n = self.ws.x_new.len();
+        for (ci, collider) in colliders.iter().enumerate() {
+            let (x, start) = (&self.ws.x_new, &self.positions);
+            let states = &mut self.ws.query_state[ci * n..(ci + 1) * n];
+            for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
+                // The same collider pose as the contact query: only the vertex moved.
+                let bound = state.clearance_m - (x[i] - start[i]).norm();
+                if bound > 0.0 {
+                    state.clearance_m = bound;
+                    *q = None;
+                    return;
+                }
+                let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
+                state.record(c.as_ref(), lookahead);
+                *q = c.filter(|c| c.distance_m < -tolerance);
             });
             for (i, q) in self.ws.query.iter().enumerate() {
                 let Some(c) = q else { continue };
                 if self.pinned[i] {
                     continue;
                 }
+                // On the surface now.
+                self.ws.query_state[ci * n + i].clearance_m = 0.0;
                 self.ws.x_new[i] -= c.normal * c.distance_m;
                 let vn = (self.ws.v_plus[i] - c.velocity_m_per_s).dot(&c.normal);
                 if vn < 0.0 {

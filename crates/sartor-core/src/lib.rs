@@ -40,6 +40,7 @@
 
 pub mod asset;
 mod binding;
+mod body_distance;
 mod error;
 mod features;
 pub mod io;
@@ -53,6 +54,7 @@ mod skeleton;
 mod skinning;
 
 pub use binding::{faces_near, transfer_skin_weights};
+pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
 pub use mesh::{Hinge, MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};

@@ -422,6 +422,33 @@ impl MeshProximity {
         Some(self.answer(p, face, point, barycentric, feature))
     }
 
+    /// [`Self::closest_within`] started from a hint: `hint` is a face that is likely close
+    /// to `p` (typically the answer of the previous query of the same moving point;
+    /// `u32::MAX` or an index out of range: none). The distance to it bounds the search from
+    /// the start, which prunes most of the tree at once; the answer is exactly that of
+    /// [`Self::closest_within`] (same face, tie rule and sign), whatever the hint. On a hit,
+    /// `hint` becomes the face found.
+    pub fn closest_within_hinted(
+        &self,
+        p: &Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+    ) -> Option<ClosestPoint> {
+        let mut bound = max_distance_m;
+        if (*hint as usize) < self.faces.len() {
+            let tri = self.tri(&self.faces[*hint as usize]);
+            let d = (closest_on_triangle(p, &tri).0 - p).norm();
+            // Slightly above the distance, so that the face itself passes the bound test: every
+            // face the unbounded search could return is within it.
+            bound = bound.min(d * (1.0 + 1e-9) + 1e-12);
+        }
+        let hit = self.closest_within(p, bound);
+        if let Some(c) = &hit {
+            *hint = c.face;
+        }
+        hit
+    }
+
     /// Closest point to `p` among the triangles `faces` only (indices into [`Self::faces`]),
     /// with the same tie rule, sign and normal as [`Self::closest`]; `None` when `faces` is
     /// empty. For callers that know in advance which few triangles can be closest (e.g. a
@@ -845,6 +872,20 @@ mod tests {
             }
         }
         assert!(m.closest_among(&Vector3::zeros(), &[]).is_none());
+        // A hint changes the work, never the answer: any face, none, or out of range.
+        for i in 0..100 {
+            let x = i as f64 * 0.43;
+            let q = Vector3::new(x.cos(), (1.1 * x).sin(), (0.3 * x).cos()) * 0.9;
+            for radius in [0.05, 0.4, f64::INFINITY] {
+                let exact = m.closest_within(&q, radius);
+                for start in [0, 5, 11, u32::MAX, 99] {
+                    let mut hint = start;
+                    assert_eq!(m.closest_within_hinted(&q, radius, &mut hint), exact);
+                    let expected = exact.map_or(start, |c| c.face);
+                    assert_eq!(hint, expected);
+                }
+            }
+        }
         let c = m
             .closest_among(&Vector3::new(0.0, 0.0, 0.7), &[0, 1])
             .expect("two faces");

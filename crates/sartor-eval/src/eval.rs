@@ -23,8 +23,11 @@
 //! - `mean_vertex_error_mm`: mean over frames and vertices of `|x − x_gt|` after the
 //!   post-process (the runtime's default output); `mean_vertex_error_mm_before_pp` without it.
 //! - `collision_percent_before_pp`, `collision_percent_after_pp`: the share of cloth vertices
-//!   inside the posed body (negative signed distance to the body region the post-process uses,
-//!   by the exact query), over all frames.
+//!   inside the posed body by the one collision measure ([`crate::PosedBody`]: the whole body,
+//!   inside by its winding number; not the post-process's region, whose pseudo-normal sign is
+//!   wrong behind its cut edges and where parts press together), over all frames.
+//! - `ground_truth_collision_percent` and `ground_truth_signed_distance`: the same measure on
+//!   the simulated cloth (share inside; percentiles, share below 0 and −1 mm).
 //! - per sequence: the per-frame error curve (after the post-process), β and its distance to
 //!   the nearest training shape.
 //!
@@ -50,6 +53,7 @@ use sartor_runtime::{
 use serde::Serialize;
 
 use crate::error::{Context, ensure};
+use crate::gt_distance::{DistanceHistogram, DistanceSummary, PosedBody};
 use crate::plot::{Chart, Series, write_charts};
 use crate::report::{Machine, write_json};
 use crate::timing::mean;
@@ -210,6 +214,8 @@ pub fn run_sequence(
     let n = a.rig().n_vertices();
     let mut m = SequenceMetrics::default();
     let mut kept = Vec::new();
+    let mut posed = PosedBody::new(pp.body().clone());
+    let mut histogram = DistanceHistogram::default();
     for (t, (pose, truth)) in seq.truth.poses.iter().zip(&seq.truth.cloth).enumerate() {
         ensure!(
             truth.len() == n,
@@ -222,10 +228,9 @@ pub fn run_sequence(
         let after = a.vertices();
         m.per_frame_before_pp_m.push(mean_distance(before, truth));
         m.per_frame_m.push(mean_distance(after, truth));
-        let count_before = a.collision_count_of(before, 0.0)?.unwrap_or_default();
-        let count_after = a.collision_count(0.0).unwrap_or_default();
-        m.inside_before += count_before.inside;
-        m.inside_after += count_after.inside;
+        posed.pose(&seq.truth.betas, pose)?;
+        m.inside_before += posed.measure(before.iter().map(|p| p.cast()), &mut histogram)?;
+        m.inside_after += posed.measure(after.iter().map(|p| p.cast()), &mut histogram)?;
         m.vertex_frames += n;
         if keep.contains(&t) {
             kept.push(after.to_vec());
@@ -454,8 +459,11 @@ pub struct EvalReport {
     pub held_out_motions: serde_json::Map<String, serde_json::Value>,
     /// Per method on the held-out shapes.
     pub held_out_shapes: serde_json::Map<String, serde_json::Value>,
-    /// Share of the simulated (ground-truth) cloth vertices inside the body, %.
+    /// Share of the simulated (ground-truth) cloth vertex-frames inside the body, %.
     pub ground_truth_collision_percent: f64,
+    /// The ground truth's signed distance to the posed body: percentiles, share below 0 and
+    /// −1 mm (the simulator promises none below −1 mm).
+    pub ground_truth_signed_distance: DistanceSummary,
     /// Test sequences left out because their simulation failed.
     pub skipped_failed_simulations: Vec<String>,
     /// What was not evaluated and why.
@@ -544,8 +552,8 @@ pub fn evaluate_run(run: &EvalRun<'_>, progress: &dyn Progress) -> Result<EvalRe
     let shapes_map = reports.pop().unwrap_or_default();
     let motions_map = reports.pop().unwrap_or_default();
 
-    // The simulator's own contacts, by the same count (its vertices against the same region).
-    let gt_inside = ground_truth_collisions(&assets, &network, &motions, &shapes)?;
+    // The simulator's own contacts, by the same measure.
+    let gt = ground_truth_collisions(&assets, &motions, &shapes)?;
 
     let dir = run.out_dir;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -557,7 +565,8 @@ pub fn evaluate_run(run: &EvalRun<'_>, progress: &dyn Progress) -> Result<EvalRe
         nominal_only: run.nominal_only,
         held_out_motions: motions_map,
         held_out_shapes: shapes_map,
-        ground_truth_collision_percent: gt_inside,
+        ground_truth_collision_percent: gt.below_0_mm_percent,
+        ground_truth_signed_distance: gt,
         skipped_failed_simulations: skipped,
         notes,
         wall_time_s: start.elapsed().as_secs_f64(),
@@ -572,31 +581,35 @@ pub const EVAL_FILE: &str = "eval.json";
 
 fn ground_truth_collisions(
     assets: &Assets,
-    network: &Arc<GarmentNetwork>,
     motions: &[TestSequence],
     shapes: &[TestSequence],
-) -> Result<f64> {
-    let rig = assets.rig(network, Method::Lbs.options(AnimatorOptions::default()))?;
-    let counts = motions
+) -> Result<DistanceSummary> {
+    let seqs: Vec<&TestSequence> = motions.iter().chain(shapes).collect();
+    Ok(ground_truth_signed_distance(&assets.body, &seqs)?.summary())
+}
+
+/// The signed distance of every ground-truth cloth vertex of `seqs` (every frame) to the posed
+/// body, by the one collision measure; sequences in parallel on rayon's pool (the histogram is
+/// the same on any thread count: counts are integers).
+pub fn ground_truth_signed_distance(
+    body: &Arc<BodyModel>,
+    seqs: &[&TestSequence],
+) -> Result<DistanceHistogram> {
+    let parts = seqs
         .par_iter()
-        .chain(shapes.par_iter())
-        .map(|s| -> Result<(usize, usize)> {
-            let betas: Vec<f32> = s.truth.betas.iter().map(|&b| b as f32).collect();
-            let mut a = GarmentAnimator::new(rig.clone())?;
-            a.set_shape(&betas[..rig.network().n_betas()])?;
-            let mut inside = 0;
-            let mut total = 0;
+        .map(|s| -> Result<DistanceHistogram> {
+            let mut posed = PosedBody::new(body.clone());
+            let mut histogram = DistanceHistogram::default();
             for (pose, truth) in s.truth.poses.iter().zip(&s.truth.cloth) {
-                a.frame(pose)?;
-                let gt: Vec<Vector3<f32>> = truth.iter().map(|p| p.cast::<f32>()).collect();
-                inside += a.collision_count_of(&gt, 0.0)?.unwrap_or_default().inside;
-                total += gt.len();
+                posed.pose(&s.truth.betas, pose)?;
+                posed.measure(truth.iter().copied(), &mut histogram)?;
             }
-            Ok((inside, total))
+            Ok(histogram)
         })
         .collect::<Result<Vec<_>>>()?;
-    let (inside, total) = counts.iter().fold((0, 0), |(i, t), &(a, b)| (i + a, t + b));
-    Ok(100.0 * inside as f64 / total.max(1) as f64)
+    let mut total = DistanceHistogram::default();
+    parts.iter().for_each(|h| total.merge(h));
+    Ok(total)
 }
 
 impl EvalReport {

@@ -24,6 +24,7 @@ mod bench_sim;
 mod context;
 mod error;
 mod eval;
+mod gt_distance;
 mod plot;
 mod progress;
 mod report;
@@ -38,8 +39,11 @@ pub use bench_sim::{
 pub use error::{Context, Error, Result};
 pub use eval::{
     Assets, EVAL_FILE, EvalReport, EvalRun, Method, MethodReport, SequenceMetrics, SequenceReport,
-    TestSequence, TestSets, evaluate, evaluate_run, evaluate_with, load_truth, run_sequence,
-    shape_distance, test_sets,
+    TestSequence, TestSets, evaluate, evaluate_run, evaluate_with, ground_truth_signed_distance,
+    load_truth, run_sequence, shape_distance, test_sets,
+};
+pub use gt_distance::{
+    DistanceHistogram, DistanceSummary, PosedBody, sequence_files_signed_distance,
 };
 pub use plot::{Chart, Series, write_charts};
 pub use progress::{NoProgress, Progress};

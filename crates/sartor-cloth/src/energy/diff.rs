@@ -141,6 +141,86 @@ impl Scalar9 {
     }
 }
 
+/// A scalar with its gradient only in the 9 variables `z`: [`Scalar9`] without the Hessian,
+/// for the energies whose solve needs only first derivatives (the Gauss–Newton bending
+/// Hessian `2c ∇θ ∇θᵀ`). Every operation computes its value and gradient with exactly the
+/// floating-point operations of its [`Scalar9`] twin, so the two give bitwise equal gradients
+/// (tested) at a fraction of the cost (no 9 × 9 products).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Grad9 {
+    pub v: f64,
+    pub g: V9,
+}
+
+impl Grad9 {
+    /// `z_i · z_j`.
+    pub fn dot(z: &[Vector3<f64>; 3], i: usize, j: usize) -> Self {
+        let mut g = V9::zeros();
+        if i == j {
+            g.fixed_rows_mut::<3>(3 * i).copy_from(&(2.0 * z[i]));
+        } else {
+            g.fixed_rows_mut::<3>(3 * i).copy_from(&z[j]);
+            g.fixed_rows_mut::<3>(3 * j).copy_from(&z[i]);
+        }
+        Self {
+            v: z[i].dot(&z[j]),
+            g,
+        }
+    }
+
+    /// The triple product `z0 · (z1 × z2)`.
+    pub fn triple(z: &[Vector3<f64>; 3]) -> Self {
+        let [a, b, c] = z;
+        let mut g = V9::zeros();
+        g.fixed_rows_mut::<3>(0).copy_from(&b.cross(c));
+        g.fixed_rows_mut::<3>(3).copy_from(&c.cross(a));
+        g.fixed_rows_mut::<3>(6).copy_from(&a.cross(b));
+        Self {
+            v: a.dot(&b.cross(c)),
+            g,
+        }
+    }
+
+    pub fn sub(&self, o: &Self) -> Self {
+        Self {
+            v: self.v - o.v,
+            g: self.g - o.g,
+        }
+    }
+
+    pub fn mul(&self, o: &Self) -> Self {
+        Self {
+            v: self.v * o.v,
+            g: self.g * o.v + o.g * self.v,
+        }
+    }
+
+    /// `f(self)` for a scalar function with value `f0` and derivative `f1`.
+    pub fn chain(&self, f0: f64, f1: f64) -> Self {
+        Self {
+            v: f0,
+            g: self.g * f1,
+        }
+    }
+
+    /// `√self` (self > 0).
+    pub fn sqrt(&self) -> Self {
+        let r = self.v.sqrt();
+        self.chain(r, 0.5 / r)
+    }
+
+    /// `atan2(self, x)` (not both zero).
+    pub fn atan2(&self, x: &Self) -> Self {
+        let (s, c) = (self.v, x.v);
+        let r2 = s * s + c * c;
+        let (ts, tc) = (c / r2, -s / r2);
+        Self {
+            v: s.atan2(c),
+            g: self.g * ts + x.g * tc,
+        }
+    }
+}
+
 /// Map a gradient and Hessian in `z = (x[plus[0]] − x[base], x[plus[1]] − x[base],
 /// x[plus[2]] − x[base])` to the four vertices `x[0..4]` (`base` and `plus` a permutation of
 /// 0..4). Returns the 4 gradient blocks and the 4 × 4 Hessian blocks.

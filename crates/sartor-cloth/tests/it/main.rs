@@ -8,4 +8,5 @@ mod failure;
 mod finite_difference;
 mod garment;
 mod material;
+mod regression;
 mod stress_strain;

@@ -1,4 +1,5 @@
 //! sartor-core's integration tests (one binary).
 
+mod body_distance;
 mod common;
 mod model;

@@ -1,0 +1,159 @@
+//! The simulator's regression pin: a short simulation (the committed 500-triangle T-shirt on
+//! the built-in body, β₀ = 0.5, 3 blend + 2 rest frames and 4 frames of a fast clip, CG as in
+//! `configs/default.json`) against its result stored in `tests/data/regression-sim.json`.
+//!
+//! What the pin depends on: the garment, the body, the material, the drive settings and the
+//! simulator's equations and tolerances. It is independent of the thread count: the same run on
+//! the calling thread and on rayon's pool must give bitwise equal frames (deterministic
+//! reductions everywhere). It does depend on the platform's `atan2`/`acos` (libm) in their last
+//! bits, which is why the comparison is a tolerance and not a hash (the file also records the
+//! SHA-256 of the frames, printed on a mismatch to tell "round-off" from "other physics").
+//!
+//! Tolerance: [`TOLERANCE_M`], 20 µm on any vertex in any frame. The linear solve stops at a
+//! relative residual of 1e-5, so a change of summation order or of the CG start moves vertices
+//! by up to a few µm after these 9 frames (measured: see the constant); a change of the
+//! equations (a stiffness, a contact rule, a tolerance) moves them by 0.1 mm and more.
+//!
+//! To re-pin after a deliberate change of the physics: `SARTOR_BLESS=1 cargo test -p
+//! sartor-cloth --test it regression` rewrites the file; say why in the commit.
+
+use std::path::{Path, PathBuf};
+
+use sartor_cloth::{
+    ClothSequence, DriveConfig, Garment, LinearSolver, Material, simulate_sequence,
+};
+use sartor_core::Par;
+use sartor_core::io::sha256_hex;
+use sartor_motion::Motion;
+use serde::{Deserialize, Serialize};
+
+/// Largest allowed distance of any vertex in any frame from the pinned result, m.
+const TOLERANCE_M: f64 = 20e-6;
+
+#[derive(Serialize, Deserialize)]
+struct Pinned {
+    /// What was simulated (for the reader).
+    description: String,
+    /// SHA-256 of every frame's f32 positions (little-endian), in order.
+    sha256: String,
+    /// Per frame, every vertex (f32 values as stored in the sequence).
+    frames: Vec<Vec<[f32; 3]>>,
+}
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/regression-sim.json")
+}
+
+fn config(parallelism: Par) -> DriveConfig {
+    let mut c = DriveConfig {
+        blend_frames: 3,
+        rest_frames: 2,
+        ..DriveConfig::default()
+    };
+    c.preview.every_n_frames = 0;
+    c.sim.linear_solver = LinearSolver::ConjugateGradient {
+        max_iterations: 1000,
+        relative_tolerance: 1e-5,
+        fallback_to_cholesky: true,
+    };
+    c.sim.parallelism = parallelism;
+    c
+}
+
+fn simulate(parallelism: Par) -> ClothSequence {
+    let body = crate::common::load_builtin().expect("the built-in body");
+    let garment = Garment::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/garments/tshirt-tiny"),
+    )
+    .expect("datasets/garments/tshirt-tiny");
+    let motion: Motion = sartor_motion::procedural::clip("arm_circles_fast")
+        .expect("procedural clip")
+        .slice(40..44)
+        .expect("frames");
+    let mut betas = vec![0.0; body.n_betas()];
+    betas[0] = 0.5;
+    simulate_sequence(
+        &body,
+        &garment,
+        &Material::gray_interlock(),
+        &betas,
+        Some(&motion),
+        &config(parallelism),
+        &mut |_, _| {},
+    )
+    .expect("simulates")
+}
+
+fn frames(seq: &ClothSequence) -> Vec<Vec<[f32; 3]>> {
+    seq.frames.iter().map(|f| f.positions.clone()).collect()
+}
+
+fn hash(frames: &[Vec<[f32; 3]>]) -> String {
+    let bytes: Vec<u8> = frames
+        .iter()
+        .flatten()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    sha256_hex(&bytes)
+}
+
+#[test]
+fn a_short_simulation_keeps_its_pinned_result_on_any_thread_count() {
+    let seq = frames(&simulate(Par::Seq));
+    let par = frames(&simulate(Par::Rayon));
+    assert!(
+        seq == par,
+        "the calling thread and rayon's pool give different frames"
+    );
+    if std::env::var_os("SARTOR_BLESS").is_some() {
+        let pinned = Pinned {
+            description: "tshirt-tiny on the built-in body, β0 = 0.5, 3 blend + 2 rest frames, \
+                          arm_circles_fast frames 40..44, CG 1e-5 (tests/it/regression.rs)"
+                .into(),
+            sha256: hash(&seq),
+            frames: seq,
+        };
+        let mut json = serde_json::to_string(&pinned).expect("json");
+        json.push('\n');
+        std::fs::create_dir_all(fixture().parent().expect("tests/data")).expect("folder");
+        std::fs::write(fixture(), json).expect("write the fixture");
+        return;
+    }
+    let pinned: Pinned = serde_json::from_slice(
+        &std::fs::read(fixture())
+            .expect("tests/data/regression-sim.json (SARTOR_BLESS=1 writes it)"),
+    )
+    .expect("a valid fixture");
+    assert_eq!(pinned.frames.len(), seq.len(), "frame count");
+    let mut worst = (0.0f64, 0, 0);
+    for (f, (a, b)) in seq.iter().zip(&pinned.frames).enumerate() {
+        assert_eq!(a.len(), b.len(), "vertex count");
+        for (v, (p, q)) in a.iter().zip(b).enumerate() {
+            let d = (0..3)
+                .map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if d > worst.0 {
+                worst = (d, f, v);
+            }
+        }
+    }
+    let same_bits = hash(&seq) == pinned.sha256;
+    println!(
+        "largest difference from the pinned result: {:.3} µm (frame {}, vertex {}); bitwise \
+         equal: {same_bits}",
+        worst.0 * 1e6,
+        worst.1,
+        worst.2
+    );
+    assert!(
+        worst.0 <= TOLERANCE_M,
+        "vertex {} of frame {} is {:.1} µm from the pinned result (tolerance {:.0} µm; bitwise \
+         equal: {same_bits})",
+        worst.2,
+        worst.1,
+        worst.0 * 1e6,
+        TOLERANCE_M * 1e6
+    );
+}
