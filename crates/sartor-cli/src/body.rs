@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use sartor_core::{BodyModel, Par, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj};
+use sartor_core::{
+    BodyModel, Parallelism, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj,
+};
 use sartor_import::load_smpl_npz;
 use sartor_motion::{UpAxis, load_motion};
 use sartor_pipeline::DataDir;
@@ -106,7 +108,7 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
             model.skin_weights(),
             &transforms,
             &mut posed,
-            Par::Rayon,
+            Parallelism::Rayon,
         )?;
         write_obj(
             &args.out.join(format!("frame_{i:04}.obj")),

@@ -11,7 +11,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
 use sartor_cloth::{
-    Cloth, Collider, LinearSolver, Material, Par, SimConfig, Simulator, Sphere, StepStats,
+    Cloth, Collider, LinearSolver, Material, Parallelism, SimConfig, Simulator, Sphere, StepStats,
     rectangle_sheet,
 };
 
@@ -36,7 +36,7 @@ fn sheet() -> Cloth {
 fn config(linear_solver: LinearSolver) -> SimConfig {
     SimConfig {
         linear_solver,
-        parallelism: Par::Rayon,
+        parallelism: Parallelism::Rayon,
         ..SimConfig::default()
     }
 }
@@ -85,7 +85,10 @@ fn bench(c: &mut Criterion) {
     ];
     let mut group = c.benchmark_group("frame_4356_vertices_on_sphere");
     for (name, solver) in solvers {
-        for (par_name, par) in [("seq", Par::Seq), ("rayon", Par::Rayon)] {
+        for (par_name, par) in [
+            ("seq", Parallelism::Sequential),
+            ("rayon", Parallelism::Rayon),
+        ] {
             let name = format!("{name}_{par_name}");
             let config = SimConfig {
                 parallelism: par,

@@ -45,7 +45,7 @@
 //!
 //! # Determinism
 //!
-//! With [`SimConfig::parallelism`] = [`Par::Seq`] (the default; callers parallelise across
+//! With [`SimConfig::parallelism`] = [`Parallelism::Sequential`] (the default; callers parallelise across
 //! sequences) the same inputs give bit-identical outputs, retries included: a retry restarts
 //! from the saved state of the frame and depends on nothing else.
 
@@ -54,8 +54,8 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
-    BodyDistance, BodyModel, BoneTransform, MeshProximity, Par, Pose, faces_near, interpolate_pose,
-    skin_points, split_heading, transfer_skin_weights,
+    BodyDistance, BodyModel, BoneTransform, MeshProximity, Parallelism, Pose, faces_near,
+    interpolate_pose, skin_points, split_heading, transfer_skin_weights,
 };
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
@@ -352,7 +352,7 @@ impl<'a> BodyPoser<'a> {
             self.body.skin_weights(),
             &self.transforms,
             out,
-            Par::Seq,
+            Parallelism::Sequential,
         )?;
         Ok(())
     }
@@ -440,7 +440,7 @@ impl Region {
                 &weights,
                 poser.transforms(),
                 &mut g_posed,
-                Par::Seq,
+                Parallelism::Sequential,
             )?;
             for f in faces_near(&body_posed, faces, &g_posed, garment.faces(), margin_m)? {
                 kept[f as usize] = true;

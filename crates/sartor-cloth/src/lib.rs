@@ -84,7 +84,7 @@ pub use material::{
 };
 pub use mesh_collider::MeshCollider;
 pub use relax::{RelaxConfig, RelaxReport, relax_on_body};
-pub use sartor_core::Par;
+pub use sartor_core::Parallelism;
 pub use sequence::{
     BodyId, ClothSequence, FrameInfo, GarmentId, MotionId, Phase, PreviewFrame, RegionStats,
     SEQUENCE_FORMAT, SEQUENCE_METADATA, SequenceFrame, SequenceHeader, SequencePreview,

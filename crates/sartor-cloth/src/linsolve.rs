@@ -13,7 +13,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use sartor_core::Par;
+use sartor_core::Parallelism;
 use serde::{Deserialize, Serialize};
 
 use crate::error::StepFailure;
@@ -139,7 +139,7 @@ pub(crate) fn block_matvec(
     values: &[Matrix3<f64>],
     x: &[Vector3<f64>],
     y: &mut [Vector3<f64>],
-    par: Par,
+    par: Parallelism,
 ) {
     let row = |i: usize| {
         let mut acc = Vector3::zeros();
@@ -149,8 +149,8 @@ pub(crate) fn block_matvec(
         acc
     };
     match par {
-        Par::Seq => y.iter_mut().enumerate().for_each(|(i, yi)| *yi = row(i)),
-        Par::Rayon => y.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+        Parallelism::Sequential => y.iter_mut().enumerate().for_each(|(i, yi)| *yi = row(i)),
+        Parallelism::Rayon => y.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
             for (k, yi) in chunk.iter_mut().enumerate() {
                 *yi = row(c * CHUNK + k);
             }
@@ -159,13 +159,13 @@ pub(crate) fn block_matvec(
 }
 
 /// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic).
-fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Par) -> f64 {
+fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Parallelism) -> f64 {
     let chunk_dot = |(ca, cb): (&[Vector3<f64>], &[Vector3<f64>])| -> f64 {
         ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum()
     };
     match par {
-        Par::Seq => a.chunks(CHUNK).zip(b.chunks(CHUNK)).map(chunk_dot).sum(),
-        Par::Rayon => {
+        Parallelism::Sequential => a.chunks(CHUNK).zip(b.chunks(CHUNK)).map(chunk_dot).sum(),
+        Parallelism::Rayon => {
             partial
                 .par_iter_mut()
                 .zip(a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)))
@@ -244,10 +244,10 @@ impl LinearWorkspace {
         }
     }
 
-    fn faer_par(par: Par) -> faer::Par {
+    fn faer_par(par: Parallelism) -> faer::Par {
         match par {
-            Par::Seq => faer::Par::Seq,
-            Par::Rayon => faer::Par::rayon(0),
+            Parallelism::Sequential => faer::Par::Seq,
+            Parallelism::Rayon => faer::Par::rayon(0),
         }
     }
 
@@ -258,7 +258,7 @@ impl LinearWorkspace {
         values: &[Matrix3<f64>],
         b: &[Vector3<f64>],
         x: &mut [Vector3<f64>],
-        par: Par,
+        par: Parallelism,
     ) -> Result<LinearSolveStats, StepFailure> {
         let start = Instant::now();
         let n3 = 3 * pattern.n_rows();
@@ -365,7 +365,7 @@ impl LinearWorkspace {
         x: &mut [Vector3<f64>],
         max_iterations: usize,
         relative_tolerance: f64,
-        par: Par,
+        par: Parallelism,
     ) -> Result<LinearSolveStats, StepFailure> {
         let start = Instant::now();
         let n = pattern.n_rows();
@@ -397,7 +397,7 @@ impl LinearWorkspace {
         x: &mut [Vector3<f64>],
         max_iterations: usize,
         relative_tolerance: f64,
-        par: Par,
+        par: Parallelism,
         start: Instant,
     ) -> Result<LinearSolveStats, StepFailure> {
         let n = pattern.n_rows();
@@ -469,7 +469,7 @@ impl LinearWorkspace {
         &mut self,
         pattern: &BlockPattern,
         values: &[Matrix3<f64>],
-        par: Par,
+        par: Parallelism,
     ) -> f64 {
         let direction = &self.direction;
         let chunk = |c: usize, out: &mut [Vector3<f64>]| -> f64 {
@@ -490,13 +490,13 @@ impl LinearWorkspace {
                 .sum()
         };
         match par {
-            Par::Seq => self
+            Parallelism::Sequential => self
                 .product
                 .chunks_mut(CHUNK)
                 .enumerate()
                 .map(|(c, out)| chunk(c, out))
                 .sum(),
-            Par::Rayon => {
+            Parallelism::Rayon => {
                 self.product
                     .par_chunks_mut(CHUNK)
                     .zip(self.partial.par_iter_mut())
@@ -512,7 +512,7 @@ impl LinearWorkspace {
         &mut self,
         x: &mut [Vector3<f64>],
         alpha: f64,
-        par: Par,
+        par: Parallelism,
     ) -> (f64, f64) {
         let (direction, product, inverse_diagonal) =
             (&self.direction, &self.product, &self.inverse_diagonal);
@@ -533,14 +533,14 @@ impl LinearWorkspace {
             (rz, rr)
         };
         match par {
-            Par::Seq => x
+            Parallelism::Sequential => x
                 .chunks_mut(CHUNK)
                 .zip(self.residual.chunks_mut(CHUNK))
                 .zip(self.preconditioned.chunks_mut(CHUNK))
                 .zip(self.pair_partial.iter_mut())
                 .enumerate()
                 .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
-            Par::Rayon => x
+            Parallelism::Rayon => x
                 .par_chunks_mut(CHUNK)
                 .zip(self.residual.par_chunks_mut(CHUNK))
                 .zip(self.preconditioned.par_chunks_mut(CHUNK))
@@ -555,7 +555,7 @@ impl LinearWorkspace {
     }
 
     /// `p = z + β p`.
-    fn update_direction(&mut self, beta: f64, par: Par) {
+    fn update_direction(&mut self, beta: f64, par: Parallelism) {
         let z = &self.preconditioned;
         let chunk = |c: usize, p: &mut [Vector3<f64>]| {
             let start = c * CHUNK;
@@ -564,12 +564,12 @@ impl LinearWorkspace {
             }
         };
         match par {
-            Par::Seq => self
+            Parallelism::Sequential => self
                 .direction
                 .chunks_mut(CHUNK)
                 .enumerate()
                 .for_each(|(c, p)| chunk(c, p)),
-            Par::Rayon => self
+            Parallelism::Rayon => self
                 .direction
                 .par_chunks_mut(CHUNK)
                 .enumerate()
@@ -636,7 +636,7 @@ mod tests {
             .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
             .collect();
         let mut ws = LinearWorkspace::new(&pattern);
-        for par in [Par::Seq, Par::Rayon] {
+        for par in [Parallelism::Sequential, Parallelism::Rayon] {
             let mut x_chol = vec![Vector3::zeros(); n];
             let stats = ws
                 .solve_cholesky(&pattern, &values, &b, &mut x_chol, par)
@@ -657,17 +657,41 @@ mod tests {
         // A guess far worse than none is dropped: CG takes as many iterations as from zero.
         let mut from_zero = vec![Vector3::zeros(); n];
         let zero = ws
-            .solve_cg(&pattern, &values, &b, &mut from_zero, 500, 1e-10, Par::Seq)
+            .solve_cg(
+                &pattern,
+                &values,
+                &b,
+                &mut from_zero,
+                500,
+                1e-10,
+                Parallelism::Sequential,
+            )
             .expect("converges");
         let mut from_bad = vec![Vector3::new(1e6, -1e6, 1e6); n];
         let bad = ws
-            .solve_cg(&pattern, &values, &b, &mut from_bad, 500, 1e-10, Par::Seq)
+            .solve_cg(
+                &pattern,
+                &values,
+                &b,
+                &mut from_bad,
+                500,
+                1e-10,
+                Parallelism::Sequential,
+            )
             .expect("converges from a bad guess");
         assert_eq!(bad.iterations, zero.iterations);
         assert_eq!(from_bad, from_zero);
         let mut x = vec![Vector3::zeros(); n];
         let err = ws
-            .solve_cg(&pattern, &values, &b, &mut x, 2, 1e-12, Par::Seq)
+            .solve_cg(
+                &pattern,
+                &values,
+                &b,
+                &mut x,
+                2,
+                1e-12,
+                Parallelism::Sequential,
+            )
             .expect_err("must fail");
         assert!(matches!(
             err,

@@ -14,7 +14,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{MeshTopology, Par};
+use sartor_core::{MeshTopology, Parallelism};
 
 use crate::energy::SelfContact;
 
@@ -77,7 +77,7 @@ impl SelfCollisionGrid {
         vertex_area_m2: &[f64],
         triangle_area_m2: &[f64],
         radius_m: f64,
-        par: Par,
+        par: Parallelism,
         out: &mut Vec<SelfContact>,
     ) {
         out.clear();
@@ -180,12 +180,12 @@ impl SelfCollisionGrid {
             }
         };
         match par {
-            Par::Seq => self
+            Parallelism::Sequential => self
                 .closest
                 .iter_mut()
                 .enumerate()
                 .for_each(|(v, slot)| search(v, slot)),
-            Par::Rayon => self
+            Parallelism::Rayon => self
                 .closest
                 .par_iter_mut()
                 .enumerate()

@@ -53,7 +53,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use sartor_core::Par;
+use sartor_core::Parallelism;
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;
@@ -101,7 +101,7 @@ pub struct SimConfig {
     /// summation order); faer's parallel Cholesky may differ in the last bits. On a busy 2-core
     /// machine the calling thread was faster (see the `step` benchmark).
     #[serde(skip)]
-    pub parallelism: Par,
+    pub parallelism: Parallelism,
 }
 
 impl Default for SimConfig {
@@ -119,7 +119,7 @@ impl Default for SimConfig {
             self_collision: true,
             max_penetration_m: 1e-3,
             max_speed_m_per_s: 50.0,
-            parallelism: Par::Seq,
+            parallelism: Parallelism::Sequential,
         }
     }
 }
@@ -388,16 +388,16 @@ impl QueryState {
 fn for_each_pair<A: Send, B: Send>(
     a: &mut [A],
     b: &mut [B],
-    par: Par,
+    par: Parallelism,
     f: impl Fn(usize, &mut A, &mut B) + Sync,
 ) {
     match par {
-        Par::Seq => a
+        Parallelism::Sequential => a
             .iter_mut()
             .zip(b)
             .enumerate()
             .for_each(|(i, (x, y))| f(i, x, y)),
-        Par::Rayon => a
+        Parallelism::Rayon => a
             .par_iter_mut()
             .zip(b)
             .enumerate()
@@ -406,10 +406,10 @@ fn for_each_pair<A: Send, B: Send>(
 }
 
 /// Apply `f(i, &mut item)` to every item, on rayon's pool or not.
-fn for_each_indexed<T: Send>(items: &mut [T], par: Par, f: impl Fn(usize, &mut T) + Sync) {
+fn for_each_indexed<T: Send>(items: &mut [T], par: Parallelism, f: impl Fn(usize, &mut T) + Sync) {
     match par {
-        Par::Seq => items.iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
-        Par::Rayon => items.par_iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
+        Parallelism::Sequential => items.iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
+        Parallelism::Rayon => items.par_iter_mut().enumerate().for_each(|(i, t)| f(i, t)),
     }
 }
 
@@ -916,7 +916,7 @@ impl Simulator {
         let stiffness = &ws.tri_stiffness;
         let coefficient = &ws.hinge_coefficient;
         match par {
-            Par::Seq => {
+            Parallelism::Sequential => {
                 // Each element is added as soon as it is computed (no element buffers), in
                 // the order of the parallel gather below: the same sums, bit for bit.
                 ws.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
@@ -944,7 +944,7 @@ impl Simulator {
                     }
                 }
             }
-            Par::Rayon => {
+            Parallelism::Rayon => {
                 ws.tri_out
                     .resize(faces.len(), ElementDerivatives::default());
                 ws.hinge_out

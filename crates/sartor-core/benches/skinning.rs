@@ -6,7 +6,7 @@ use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{UnitQuaternion, Vector3};
-use sartor_core::{BodyModel, Par, Pose, skin_points, unskin_points};
+use sartor_core::{BodyModel, Parallelism, Pose, skin_points, unskin_points};
 
 fn load() -> BodyModel {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman");
@@ -36,13 +36,26 @@ fn bench(c: &mut Criterion) {
                 .skeleton()
                 .forward_kinematics_into(&joints, &pose, &mut posed_joints, &mut transforms)
                 .expect("valid");
-            skin_points(black_box(&rest), weights, &transforms, &mut out, Par::Seq).expect("sizes");
+            skin_points(
+                black_box(&rest),
+                weights,
+                &transforms,
+                &mut out,
+                Parallelism::Sequential,
+            )
+            .expect("sizes");
         })
     });
     group.bench_function("lbs f64 rayon", |b| {
         b.iter(|| {
-            skin_points(black_box(&rest), weights, &transforms, &mut out, Par::Rayon)
-                .expect("sizes")
+            skin_points(
+                black_box(&rest),
+                weights,
+                &transforms,
+                &mut out,
+                Parallelism::Rayon,
+            )
+            .expect("sizes")
         })
     });
     let rest32: Vec<Vector3<f32>> = rest.iter().map(|p| p.cast()).collect();
@@ -50,15 +63,28 @@ fn bench(c: &mut Criterion) {
     let mut out32 = vec![Vector3::zeros(); rest.len()];
     group.bench_function("lbs f32 seq", |b| {
         b.iter(|| {
-            skin_points(black_box(&rest32), weights, &t32, &mut out32, Par::Seq).expect("sizes")
+            skin_points(
+                black_box(&rest32),
+                weights,
+                &t32,
+                &mut out32,
+                Parallelism::Sequential,
+            )
+            .expect("sizes")
         })
     });
     let posed = out.clone();
     let mut back = vec![Vector3::zeros(); rest.len()];
     group.bench_function("inverse lbs f64 seq", |b| {
         b.iter(|| {
-            unskin_points(black_box(&posed), weights, &transforms, &mut back, Par::Seq)
-                .expect("invertible")
+            unskin_points(
+                black_box(&posed),
+                weights,
+                &transforms,
+                &mut back,
+                Parallelism::Sequential,
+            )
+            .expect("invertible")
         })
     });
     group.finish();

@@ -20,7 +20,7 @@
 //! - [`io`]: atomic writes, checked safetensors access, hashing.
 //!
 //! ```
-//! use sartor_core::{Pose, Skeleton, SkinWeights, BoneTransform, Par, skin_points, unskin_points};
+//! use sartor_core::{Pose, Skeleton, SkinWeights, BoneTransform, Parallelism, skin_points, unskin_points};
 //! use nalgebra::{UnitQuaternion, Vector3};
 //!
 //! let skeleton = Skeleton::new(vec!["root".into(), "arm".into()], vec![None, Some(0)])?;
@@ -31,9 +31,9 @@
 //! let weights = SkinWeights::from_dense_top_k(&[0.3, 0.7], 2, 4)?;
 //! let rest = [Vector3::new(1.5, 0.1, 0.0)];
 //! let mut posed = [Vector3::zeros()];
-//! skin_points(&rest, &weights, &transforms, &mut posed, Par::Seq)?;
+//! skin_points(&rest, &weights, &transforms, &mut posed, Parallelism::Sequential)?;
 //! let mut back = [Vector3::zeros()];
-//! unskin_points(&posed, &weights, &transforms, &mut back, Par::Seq)?;
+//! unskin_points(&posed, &weights, &transforms, &mut back, Parallelism::Sequential)?;
 //! assert!((back[0] - rest[0]).norm() < 1e-12);
 //! # Ok::<(), sartor_core::Error>(())
 //! ```
@@ -68,4 +68,4 @@ pub use proximity::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace};
 pub use skeleton::{
     FPS, Pose, PosedSkeleton, Skeleton, canonical, interpolate_pose, split_heading,
 };
-pub use skinning::{BoneTransform, Par, SkinWeights, skin_points, unskin_points};
+pub use skinning::{BoneTransform, Parallelism, SkinWeights, skin_points, unskin_points};

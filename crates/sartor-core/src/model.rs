@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::asset::AssetFiles;
 use crate::io::{OwnedTensor, read_file, serialize_tensors, sha256_hex};
 use crate::skeleton::{Pose, Skeleton};
-use crate::skinning::{BoneTransform, Par, SkinWeights, skin_points};
+use crate::skinning::{BoneTransform, Parallelism, SkinWeights, skin_points};
 use crate::{Error, Result, TriMesh};
 
 /// File name of the tensors of a saved model inside its folder.
@@ -280,7 +280,13 @@ impl BodyModel {
         let rest = self.shaped_vertices(betas)?;
         let transforms = self.skinning_transforms(betas, pose)?;
         let mut out = vec![Vector3::zeros(); rest.len()];
-        skin_points(&rest, &self.skin_weights, &transforms, &mut out, Par::Seq)?;
+        skin_points(
+            &rest,
+            &self.skin_weights,
+            &transforms,
+            &mut out,
+            Parallelism::Sequential,
+        )?;
         Ok(out)
     }
 

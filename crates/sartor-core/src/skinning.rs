@@ -13,13 +13,16 @@ use serde::{Deserialize, Serialize};
 use crate::io::{OwnedTensor, TensorFile};
 use crate::{Error, Result};
 
-/// Whether a kernel runs on the calling thread or on rayon's pool. Results are identical.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Par {
+/// How a kernel may use threads: the one choice every sartor kernel takes (skinning, the
+/// simulator, the runtime's matrix kernels). Results never depend on it: work is split into
+/// fixed chunks computed with the same arithmetic, so [`Parallelism::Rayon`] is bitwise equal
+/// to [`Parallelism::Sequential`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Parallelism {
     /// The calling thread only.
     #[default]
-    Seq,
-    /// Rayon's global pool, in fixed-size chunks (deterministic output).
+    Sequential,
+    /// The current rayon pool (`ThreadPool::install` picks the pool), in fixed-size chunks.
     Rayon,
 }
 
@@ -288,7 +291,7 @@ pub fn skin_points<T: RealField + Copy>(
     weights: &SkinWeights,
     transforms: &[BoneTransform<T>],
     out: &mut [Vector3<T>],
-    par: Par,
+    par: Parallelism,
 ) -> Result<()> {
     weights.check_sizes(rest.len(), out.len(), transforms)?;
     let kernel = |start: usize, out: &mut [Vector3<T>]| {
@@ -298,8 +301,8 @@ pub fn skin_points<T: RealField + Copy>(
         }
     };
     match par {
-        Par::Seq => kernel(0, out),
-        Par::Rayon => out
+        Parallelism::Sequential => kernel(0, out),
+        Parallelism::Rayon => out
             .par_chunks_mut(CHUNK)
             .enumerate()
             .for_each(|(c, o)| kernel(c * CHUNK, o)),
@@ -315,7 +318,7 @@ pub fn unskin_points<T: RealField + Copy>(
     weights: &SkinWeights,
     transforms: &[BoneTransform<T>],
     out: &mut [Vector3<T>],
-    par: Par,
+    par: Parallelism,
 ) -> Result<()> {
     weights.check_sizes(posed.len(), out.len(), transforms)?;
     let min_det: T = nalgebra::convert(1e-6);
@@ -338,8 +341,8 @@ pub fn unskin_points<T: RealField + Copy>(
         Ok(())
     };
     match par {
-        Par::Seq => kernel(0, out),
-        Par::Rayon => out
+        Parallelism::Sequential => kernel(0, out),
+        Parallelism::Rayon => out
             .par_chunks_mut(CHUNK)
             .enumerate()
             .try_for_each(|(c, o)| kernel(c * CHUNK, o)),
@@ -377,7 +380,7 @@ mod tests {
             &w,
             &[BoneTransform::identity(); 2],
             &mut out,
-            Par::Seq,
+            Parallelism::Sequential,
         )
         .expect("sizes");
         assert_eq!(out, rest);
@@ -387,7 +390,7 @@ mod tests {
                 &w,
                 &[BoneTransform::identity(); 3],
                 &mut out,
-                Par::Seq
+                Parallelism::Sequential
             )
             .is_err()
         );
@@ -407,7 +410,7 @@ mod tests {
             &w,
             &[BoneTransform::identity(), flip],
             &mut out,
-            Par::Seq,
+            Parallelism::Sequential,
         );
         assert!(err.is_err());
     }

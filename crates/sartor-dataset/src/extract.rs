@@ -14,7 +14,9 @@
 
 use nalgebra::Vector3;
 
-use sartor_core::{BodyModel, Par, Pose, SkinWeights, transfer_skin_weights, unskin_points};
+use sartor_core::{
+    BodyModel, Parallelism, Pose, SkinWeights, transfer_skin_weights, unskin_points,
+};
 
 use crate::smoothing::Smoother;
 use crate::{Error, Result};
@@ -183,7 +185,7 @@ impl<'a> WrinkleExtractor<'a> {
             &self.binding.skin_weights,
             &transforms,
             &mut self.rest,
-            Par::Seq,
+            Parallelism::Sequential,
         )?;
         flatten(self.rest.iter().zip(&self.fitted).map(|(r, f)| r - f), out);
         Ok(())

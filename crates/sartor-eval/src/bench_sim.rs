@@ -9,7 +9,7 @@ use sartor_cloth::{
     benchmark_sequence, build_garment, relax_on_body,
 };
 use sartor_core::io::read_file;
-use sartor_core::{BodyModel, Par};
+use sartor_core::{BodyModel, Parallelism};
 use sartor_motion::Motion;
 use serde::Serialize;
 
@@ -87,7 +87,7 @@ pub struct SizeEntry {
     pub triangles: usize,
     /// Vertices.
     pub vertices: usize,
-    /// One thread (the driver's default, `Par::Seq`).
+    /// One thread (the driver's default, `Parallelism::Sequential`).
     pub ms_per_frame: f64,
     /// Rayon's pool over all cores.
     pub ms_per_frame_all_threads: Option<f64>,
@@ -161,7 +161,7 @@ pub fn bench_sim(
             None
         } else {
             let mut parallel = config.clone();
-            parallel.sim.parallelism = Par::Rayon;
+            parallel.sim.parallelism = Parallelism::Rayon;
             let all = benchmark_sequence(body, &garment, &material, motion, &parallel)
                 .with_context(|| format!("simulating {} on all threads", garment.name()))?;
             progress.println(&format!("  all threads: {:.1} ms/frame", all.ms_per_frame));

@@ -21,7 +21,7 @@ use std::sync::Arc;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{
-    BodyModel, BoneTransform, FPS, Par, Pose, PoseFeatureSpec, PoseFeatures, RootFeature,
+    BodyModel, BoneTransform, FPS, Parallelism, Pose, PoseFeatureSpec, PoseFeatures, RootFeature,
     RotationEncoding, skin_points,
 };
 
@@ -29,7 +29,7 @@ use crate::binding::GarmentBinding;
 use crate::collision::{BodyRegion, CertifyStats, Collider, CollisionOptions};
 use crate::error::{Error, Result, check_finite, check_len};
 use crate::format::Feature;
-use crate::kernels::{Parallelism, Precision};
+use crate::kernels::Precision;
 use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
 
 /// Where an avatar's shaped garment `T̄_c + Δ` comes from, set once per shape.
@@ -307,13 +307,6 @@ impl GarmentRig {
     pub fn n_vertices(&self) -> usize {
         self.binding.n_vertices()
     }
-
-    fn par(&self) -> Par {
-        match self.options.parallelism {
-            Parallelism::Sequential => Par::Seq,
-            Parallelism::Rayon => Par::Rayon,
-        }
-    }
 }
 
 /// Each cloth vertex's closest point on the template body (β = 0, rest pose): the triangle's
@@ -492,7 +485,7 @@ impl Avatar {
         rig: &GarmentRig,
         pose: &Pose,
         wrinkle: Option<&[f32]>,
-        par: Par,
+        par: Parallelism,
     ) -> Result<()> {
         rig.body.skeleton().forward_kinematics_into(
             &self.rest_joints,
@@ -646,7 +639,7 @@ impl GarmentAnimator {
     /// Allocation-free.
     pub fn frame(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
         let rig = &*self.rig;
-        let par = rig.par();
+        let par = rig.options.parallelism;
         pose.validate(rig.body.skeleton().n_joints())?;
         let par_net = rig.options.parallelism;
         let wrinkle = match rig.options.wrinkles {
@@ -870,7 +863,7 @@ impl GarmentCrowd {
             WrinkleMode::None => {}
         }
         let finish = |((a, pose), w): ((&mut Avatar, &Pose), &[f32])| {
-            a.finish(rig, pose, wrinkles.then_some(w), Par::Seq)
+            a.finish(rig, pose, wrinkles.then_some(w), Parallelism::Sequential)
         };
         match rig.options.parallelism {
             Parallelism::Sequential => self

@@ -34,7 +34,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{BodyModel, BoneTransform, MeshProximity, Par, SkinWeights, skin_points};
+use sartor_core::{BodyModel, BoneTransform, MeshProximity, Parallelism, SkinWeights, skin_points};
 
 use crate::error::{Error, Result};
 
@@ -485,7 +485,7 @@ impl Collider {
         &mut self,
         region: &BodyRegion,
         transforms: &[BoneTransform<f64>],
-        par: Par,
+        par: Parallelism,
     ) -> Result<()> {
         skin_points(
             &self.rest,
@@ -529,7 +529,7 @@ impl Collider {
     /// closest primitive's normal, in up to `passes` passes; returns the number of pushes (a
     /// vertex moved in two passes counts twice).
     /// Allocation-free.
-    pub(crate) fn resolve(&mut self, cloth: &mut [Vector3<f32>], par: Par) -> usize {
+    pub(crate) fn resolve(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         let mut total = 0;
         for pass in 0..self.passes {
             let moved = self.pass(pass == 0, cloth, par);
@@ -543,7 +543,7 @@ impl Collider {
 
     /// One pass over every vertex (`first`) or over those the previous pass moved; updates the
     /// flags and returns how many moved.
-    fn pass(&mut self, first: bool, cloth: &mut [Vector3<f32>], par: Par) -> usize {
+    fn pass(&mut self, first: bool, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         if self.certifier.is_some() {
             return if first {
                 self.certified_pass(cloth, par)
@@ -598,8 +598,8 @@ impl Collider {
             pushed
         };
         let count = match par {
-            Par::Seq => task(0, cloth, &mut states),
-            Par::Rayon => cloth
+            Parallelism::Sequential => task(0, cloth, &mut states),
+            Parallelism::Rayon => cloth
                 .par_chunks_mut(CHUNK)
                 .zip(states.par_chunks_mut(CHUNK))
                 .enumerate()
@@ -613,7 +613,7 @@ impl Collider {
     /// The first pass of the certified query: every vertex certified or answered exactly (see
     /// `certify.rs`) from the unpushed cloth, then the pushes, as the BVH query's first pass
     /// makes them.
-    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>], par: Par) -> usize {
+    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         let Some(certifier) = self.certifier.as_mut() else {
             return 0;
         };

@@ -2,7 +2,7 @@
 //! determinism.
 
 use nalgebra::Vector3;
-use sartor_cloth::{LinearSolver, Material, Par, SimConfig, Simulator};
+use sartor_cloth::{LinearSolver, Material, Parallelism, SimConfig, Simulator};
 
 use crate::common::{horizontal_sheet, simulator, stvk};
 
@@ -226,7 +226,7 @@ fn newton_iterations_and_solvers_agree() {
 
 #[test]
 fn parallel_runs_are_identical() {
-    let run = |par: Par| {
+    let run = |par: Parallelism| {
         let config = SimConfig {
             linear_solver: LinearSolver::ConjugateGradient {
                 max_iterations: 1000,
@@ -244,5 +244,5 @@ fn parallel_runs_are_identical() {
         }
         sim.positions().to_vec()
     };
-    assert_eq!(run(Par::Seq), run(Par::Rayon));
+    assert_eq!(run(Parallelism::Sequential), run(Parallelism::Rayon));
 }

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use sartor_cloth::{
     ClothSequence, DriveConfig, Garment, LinearSolver, Material, simulate_sequence,
 };
-use sartor_core::Par;
+use sartor_core::Parallelism;
 use sartor_core::io::sha256_hex;
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
@@ -44,7 +44,7 @@ fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/regression-sim.json")
 }
 
-fn config(parallelism: Par) -> DriveConfig {
+fn config(parallelism: Parallelism) -> DriveConfig {
     let mut c = DriveConfig {
         blend_frames: 3,
         rest_frames: 2,
@@ -60,7 +60,7 @@ fn config(parallelism: Par) -> DriveConfig {
     c
 }
 
-fn simulate(parallelism: Par) -> ClothSequence {
+fn simulate(parallelism: Parallelism) -> ClothSequence {
     let body = crate::common::load_builtin().expect("the built-in body");
     let garment = Garment::load(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/garments/tshirt-tiny"),
@@ -100,8 +100,8 @@ fn hash(frames: &[Vec<[f32; 3]>]) -> String {
 
 #[test]
 fn a_short_simulation_keeps_its_pinned_result_on_any_thread_count() {
-    let seq = frames(&simulate(Par::Seq));
-    let par = frames(&simulate(Par::Rayon));
+    let seq = frames(&simulate(Parallelism::Sequential));
+    let par = frames(&simulate(Parallelism::Rayon));
     assert!(
         seq == par,
         "the calling thread and rayon's pool give different frames"

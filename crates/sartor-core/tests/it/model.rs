@@ -2,7 +2,7 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
-use sartor_core::{BodyModel, Par, Pose, skin_points, unskin_points};
+use sartor_core::{BodyModel, Parallelism, Pose, skin_points, unskin_points};
 
 use crate::common::{model, random_pose, random_weights, rng};
 
@@ -47,9 +47,17 @@ fn inverse_skinning_undoes_skinning() {
         let betas: Vec<f64> = (0..10).map(|_| r.random::<f64>() - 0.5).collect();
         let transforms = m.skinning_transforms(&betas, &pose).expect("valid");
         let mut posed = vec![Vector3::zeros(); n];
-        skin_points(&rest, &weights, &transforms, &mut posed, Par::Seq).expect("sizes");
+        skin_points(
+            &rest,
+            &weights,
+            &transforms,
+            &mut posed,
+            Parallelism::Sequential,
+        )
+        .expect("sizes");
         let mut back = vec![Vector3::zeros(); n];
-        unskin_points(&posed, &weights, &transforms, &mut back, Par::Rayon).expect("invertible");
+        unskin_points(&posed, &weights, &transforms, &mut back, Parallelism::Rayon)
+            .expect("invertible");
         let err = rest
             .iter()
             .zip(&back)
@@ -60,7 +68,14 @@ fn inverse_skinning_undoes_skinning() {
         let t32: Vec<_> = transforms.iter().map(|t| t.to_f32()).collect();
         let rest32: Vec<Vector3<f32>> = rest.iter().map(|p| p.cast()).collect();
         let mut posed32 = vec![Vector3::zeros(); n];
-        skin_points(&rest32, &weights, &t32, &mut posed32, Par::Seq).expect("sizes");
+        skin_points(
+            &rest32,
+            &weights,
+            &t32,
+            &mut posed32,
+            Parallelism::Sequential,
+        )
+        .expect("sizes");
         let err32 = posed
             .iter()
             .zip(&posed32)
@@ -83,8 +98,15 @@ fn parallel_and_sequential_skinning_agree_bitwise() {
         .skinning_transforms(&[], &random_pose(&mut r, 5, 2.0))
         .expect("valid");
     let (mut a, mut b) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
-    skin_points(&rest, &weights, &transforms, &mut a, Par::Seq).expect("sizes");
-    skin_points(&rest, &weights, &transforms, &mut b, Par::Rayon).expect("sizes");
+    skin_points(
+        &rest,
+        &weights,
+        &transforms,
+        &mut a,
+        Parallelism::Sequential,
+    )
+    .expect("sizes");
+    skin_points(&rest, &weights, &transforms, &mut b, Parallelism::Rayon).expect("sizes");
     assert_eq!(a, b);
 }
 

@@ -3,7 +3,7 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nalgebra::Vector3;
-use sartor_core::{BodyModel, Par, Pose, skin_points};
+use sartor_core::{BodyModel, Parallelism, Pose, skin_points};
 use sartor_dataset::{
     ClothBinding, DataSource, DatasetConfig, DatasetInputs, DatasetPlan, PcaSettings, Result,
     SequencePlan, ShapePlan, SimulatedMotion, SimulationSource, Smoother, Split, build_dataset,
@@ -76,7 +76,7 @@ impl SimulationSource for Synthetic {
                 &self.binding.skin_weights,
                 &transforms,
                 &mut posed,
-                Par::Seq,
+                Parallelism::Sequential,
             )?;
             cloth.push(posed);
         }

@@ -1,7 +1,7 @@
 //! Ground-truth extraction: the round trip through skinning, and the joint selection.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use sartor_core::{Par, Pose, skin_points};
+use sartor_core::{Parallelism, Pose, skin_points};
 use sartor_dataset::{
     ClothBinding, Smoother, Smoothing, WrinkleExtractor, fit_delta, select_joints,
 };
@@ -79,7 +79,7 @@ fn displacements_survive_skinning_and_inverse_skinning() {
             &binding.skin_weights,
             &transforms,
             &mut posed,
-            Par::Seq,
+            Parallelism::Sequential,
         )
         .expect("sizes match");
         let mut out = Vec::new();

@@ -14,9 +14,9 @@ use super::blender::{BONE_FRAMES_FILE, BoneFrames, model_from_blender};
 use super::pca::{TargetRows, pca, weight_covariance};
 use sartor_core::io::{read_file, sha256_hex, write_atomic};
 use sartor_core::{
-    BodyModel, MODEL_HEADER, MODEL_TENSORS, MacroRule, PHENOTYPE_HEADER, PHENOTYPE_TENSORS, Par,
-    Phenotype, PhenotypeSampling, PhenotypeSpace, Pose, Provenance, SkinWeights, TriMesh,
-    skin_points,
+    BodyModel, MODEL_HEADER, MODEL_TENSORS, MacroRule, PHENOTYPE_HEADER, PHENOTYPE_TENSORS,
+    Parallelism, Phenotype, PhenotypeSampling, PhenotypeSpace, Pose, Provenance, SkinWeights,
+    TriMesh, skin_points,
 };
 use sartor_motion::{CMU_MB_JOINTS, TPOSE_FILE, cmu_mb_skeleton};
 
@@ -703,7 +703,13 @@ pub fn import_makehuman(options: &ImportOptions) -> Result<ImportReport> {
     for (_, pose) in &poses {
         let (_, tr) = skeleton.forward_kinematics(&joint_template, pose)?;
         let mut p = vec![Vector3::zeros(); n_body];
-        skin_points(&template_points, &all_weights, &tr, &mut p, Par::Seq)?;
+        skin_points(
+            &template_points,
+            &all_weights,
+            &tr,
+            &mut p,
+            Parallelism::Sequential,
+        )?;
         reference.push((tr, p));
     }
     let mut per_k = Vec::new();
@@ -722,7 +728,7 @@ pub fn import_makehuman(options: &ImportOptions) -> Result<ImportReport> {
         let mut worst = 0.0f64;
         for ((name, _), (tr, p_ref)) in poses.iter().zip(&reference) {
             let mut p = vec![Vector3::zeros(); n_body];
-            skin_points(&template_points, &w, tr, &mut p, Par::Seq)?;
+            skin_points(&template_points, &w, tr, &mut p, Parallelism::Sequential)?;
             let d = p
                 .iter()
                 .zip(p_ref)

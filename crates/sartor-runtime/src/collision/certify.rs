@@ -29,7 +29,7 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace, Par};
+use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace, Parallelism};
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
@@ -475,7 +475,7 @@ impl Certifier {
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
         margin_m: f64,
-        par: Par,
+        par: Parallelism,
     ) -> CertifyStats {
         let Self {
             frame,
@@ -504,8 +504,8 @@ impl Certifier {
                 stats
             };
         match par {
-            Par::Seq => task(0, outcomes, warm, &mut scratch[0]),
-            Par::Rayon => {
+            Parallelism::Sequential => task(0, outcomes, warm, &mut scratch[0]),
+            Parallelism::Rayon => {
                 let n_groups = slots.len() / GROUP;
                 let per_task = n_groups.div_ceil(scratch.len()).max(1);
                 outcomes

@@ -55,35 +55,26 @@ impl Precision {
     }
 }
 
-/// How a kernel may use threads. Results never depend on it: every output row is computed by
-/// one thread with the same arithmetic, so [`Parallelism::Rayon`] is bitwise equal to
-/// [`Parallelism::Sequential`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum Parallelism {
-    /// The calling thread only.
-    #[default]
-    Sequential,
-    /// Row blocks on the current rayon pool (`ThreadPool::install` picks the pool). Products
-    /// smaller than [`Parallelism::MIN_PARALLEL_MACS`] run on the calling thread.
-    Rayon,
-}
+/// How a kernel may use threads: sartor-core's one choice. Every output row is computed by one
+/// thread with the same arithmetic, so [`Parallelism::Rayon`] is bitwise equal to
+/// [`Parallelism::Sequential`]; products smaller than [`MIN_PARALLEL_MACS`] run on the calling
+/// thread.
+pub use sartor_core::Parallelism;
 
-impl Parallelism {
-    /// Below this many multiply–adds a product is not worth splitting across threads.
-    pub const MIN_PARALLEL_MACS: usize = 1 << 16;
+/// Below this many multiply–adds a product is not worth splitting across threads.
+pub const MIN_PARALLEL_MACS: usize = 1 << 16;
 
-    /// Rows per task, or `None` to run on the calling thread.
-    fn rows_per_task(self, rows: usize, cols: usize, batch: usize) -> Option<usize> {
-        match self {
-            Self::Sequential => None,
-            Self::Rayon => {
-                let threads = rayon::current_num_threads();
-                if threads < 2 || rows < 2 || rows * cols.max(1) * batch < Self::MIN_PARALLEL_MACS {
-                    return None;
-                }
-                let tasks = 4 * threads;
-                Some(rows.div_ceil(tasks).max(8))
+/// Rows per task under `par`, or `None` to run on the calling thread.
+fn rows_per_task(par: Parallelism, rows: usize, cols: usize, batch: usize) -> Option<usize> {
+    match par {
+        Parallelism::Sequential => None,
+        Parallelism::Rayon => {
+            let threads = rayon::current_num_threads();
+            if threads < 2 || rows < 2 || rows * cols.max(1) * batch < MIN_PARALLEL_MACS {
+                return None;
             }
+            let tasks = 4 * threads;
+            Some(rows.div_ceil(tasks).max(8))
         }
     }
 }
@@ -294,7 +285,7 @@ impl Matrix {
                 ),
             }
         };
-        match par.rows_per_task(self.rows, cols, batch) {
+        match rows_per_task(par, self.rows, cols, batch) {
             None => task(0, ys_t),
             Some(block) => ys_t
                 .par_chunks_mut(block * batch)

@@ -4,11 +4,11 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use sartor_core::{
-    BoneTransform, Par, PoseFeatureSpec, RootFeature, RotationEncoding, skin_points,
+    BoneTransform, Parallelism, PoseFeatureSpec, RootFeature, RotationEncoding, skin_points,
 };
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentCrowd,
-    GarmentNetwork, NetworkOptions, OutputKind, Parallelism, Precision,
+    GarmentNetwork, NetworkOptions, OutputKind, Precision,
 };
 
 use crate::scene::{binding, body, clip, feature_joints, model, rig};
@@ -84,7 +84,7 @@ fn a_frame_is_the_template_plus_fit_plus_wrinkles_skinned() {
             binding().skin_weights(),
             &t32,
             &mut want,
-            Par::Seq,
+            Parallelism::Sequential,
         )
         .expect("skin");
         let got = avatar.frame(pose).expect("frame");
