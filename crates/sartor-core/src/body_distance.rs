@@ -39,6 +39,7 @@ use nalgebra::Vector3;
 
 use crate::Result;
 use crate::proximity::{ClosestPoint, MeshProximity};
+use crate::tree::MedianTree;
 
 /// Clusters farther than this many times their radius use their dipole (Barill et al.'s β).
 const FAR_FIELD_RATIO: f64 = 2.5;
@@ -77,11 +78,6 @@ struct Cluster {
     /// Axis-aligned bounds of the cluster's vertices, m.
     lo: Vector3<f64>,
     hi: Vector3<f64>,
-    /// Leaf: triangles `start..start + count` of `order`; inner: children `left`, `right`.
-    start: u32,
-    count: u32,
-    left: u32,
-    right: u32,
 }
 
 /// Signed distance to a posed body (see the [module docs](self)): build once per body mesh,
@@ -92,9 +88,9 @@ pub struct BodyDistance {
     proximity: MeshProximity,
     /// Every edge is shared by at least two triangles (no boundary).
     closed: bool,
+    /// The hierarchy over the faces, and each node's cluster (indexed like its nodes).
+    tree: MedianTree,
     clusters: Vec<Cluster>,
-    /// Triangle indices in leaf order.
-    order: Vec<u32>,
 }
 
 impl BodyDistance {
@@ -114,58 +110,23 @@ impl BodyDistance {
             .edge_faces
             .iter()
             .all(|f| f.len() >= 2);
-        let mut s = Self {
-            proximity,
-            closed,
-            clusters: Vec::with_capacity(2 * faces.len() / LEAF_SIZE + 1),
-            order: (0..faces.len() as u32).collect(),
-        };
-        s.build(0, faces.len(), &centroids);
-        s.refit();
-        Ok(s)
-    }
-
-    /// Median split by centroid along the longest axis; ties by index (deterministic). Returns
-    /// the cluster's index; children come after their parent.
-    fn build(&mut self, start: usize, end: usize, centroids: &[Vector3<f64>]) -> u32 {
-        let id = self.clusters.len() as u32;
-        self.clusters.push(Cluster {
+        let tree = MedianTree::new(&centroids, LEAF_SIZE);
+        let empty = Cluster {
             dipole: Vector3::zeros(),
             center: Vector3::zeros(),
             radius_m: 0.0,
             area_m2: 0.0,
             lo: Vector3::zeros(),
             hi: Vector3::zeros(),
-            start: start as u32,
-            count: (end - start) as u32,
-            left: 0,
-            right: 0,
-        });
-        if end - start <= LEAF_SIZE {
-            return id;
-        }
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for &f in &self.order[start..end] {
-            lo = lo.inf(&centroids[f as usize]);
-            hi = hi.sup(&centroids[f as usize]);
-        }
-        let axis = (hi - lo).imax();
-        let mid = (start + end) / 2;
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
-            centroids[a as usize][axis]
-                .total_cmp(&centroids[b as usize][axis])
-                .then(a.cmp(&b))
-        });
-        let left = self.build(start, mid, centroids);
-        let right = self.build(mid, end, centroids);
-        let c = &mut self.clusters[id as usize];
-        c.count = 0;
-        c.left = left;
-        c.right = right;
-        id
+        };
+        let mut s = Self {
+            proximity,
+            closed,
+            clusters: vec![empty; tree.nodes().len()],
+            tree,
+        };
+        s.refit();
+        Ok(s)
     }
 
     /// Recompute every cluster's dipole, center and radius from the current positions
@@ -174,9 +135,9 @@ impl BodyDistance {
         let positions = self.proximity.positions();
         let faces = self.proximity.faces();
         for id in (0..self.clusters.len()).rev() {
-            let c = self.clusters[id];
-            let (dipole, center, area, radius, lo, hi) = if c.count > 0 {
-                let tris = &self.order[c.start as usize..(c.start + c.count) as usize];
+            let node = self.tree.nodes()[id];
+            let (dipole, center, area, radius, lo, hi) = if node.is_leaf() {
+                let tris = self.tree.leaf_items(&node);
                 let mut dipole = Vector3::zeros();
                 let mut weighted = Vector3::zeros();
                 let mut area = 0.0;
@@ -210,8 +171,8 @@ impl BodyDistance {
                 (dipole, center, area, radius, lo, hi)
             } else {
                 let (l, r) = (
-                    self.clusters[c.left as usize],
-                    self.clusters[c.right as usize],
+                    self.clusters[node.left as usize],
+                    self.clusters[node.right as usize],
                 );
                 let area = l.area_m2 + r.area_m2;
                 let center = if area > 0.0 {
@@ -270,19 +231,20 @@ impl BodyDistance {
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let c = &self.clusters[stack[top] as usize];
+            let id = stack[top] as usize;
+            let (c, node) = (&self.clusters[id], &self.tree.nodes()[id]);
             let offset = c.center - p;
             let d2 = offset.norm_squared();
             if d2 > (FAR_FIELD_RATIO * c.radius_m).powi(2) {
                 solid_angle += offset.dot(&c.dipole) / (d2 * d2.sqrt());
-            } else if c.count > 0 {
-                for &f in &self.order[c.start as usize..(c.start + c.count) as usize] {
+            } else if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     let tri = faces[f as usize].map(|v| positions[v as usize]);
                     solid_angle += triangle_solid_angle(p, &tri);
                 }
             } else {
-                stack[top] = c.left;
-                stack[top + 1] = c.right;
+                stack[top] = node.left;
+                stack[top + 1] = node.right;
                 top += 2;
             }
         }
@@ -302,18 +264,19 @@ impl BodyDistance {
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let c = &self.clusters[stack[top] as usize];
+            let id = stack[top] as usize;
+            let (c, node) = (&self.clusters[id], &self.tree.nodes()[id]);
             if !ray_meets_box(p, &inverse, &c.lo, &c.hi) {
                 continue;
             }
-            if c.count > 0 {
-                for &f in &self.order[c.start as usize..(c.start + c.count) as usize] {
+            if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     let tri = faces[f as usize].map(|v| positions[v as usize]);
                     crossings += ray_crossing(p, direction, &tri)?;
                 }
             } else {
-                stack[top] = c.left;
-                stack[top + 1] = c.right;
+                stack[top] = node.left;
+                stack[top + 1] = node.right;
                 top += 2;
             }
         }

@@ -52,6 +52,7 @@ mod proximity;
 pub mod rsvd;
 mod skeleton;
 mod skinning;
+pub mod tree;
 
 pub use binding::{faces_near, transfer_skin_weights};
 pub use body_distance::{BodyDistance, BodyPoint};

@@ -13,6 +13,7 @@
 
 use nalgebra::Vector3;
 
+use crate::tree::MedianTree;
 use crate::{Error, Result};
 
 const LEAF_SIZE: usize = 4;
@@ -61,25 +62,14 @@ impl Aabb {
     }
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Node {
-    bounds: Aabb,
-    /// Leaf: `start..start + count` in `order`; inner: children `left` and `left + 1`... stored
-    /// explicitly for clarity.
-    start: u32,
-    count: u32,
-    left: u32,
-    right: u32,
-}
-
 /// A closest-point structure over a triangle mesh (or any subset of its faces).
 #[derive(Clone, Debug)]
 pub struct MeshProximity {
     faces: Vec<[u32; 3]>,
     positions: Vec<Vector3<f64>>,
-    nodes: Vec<Node>,
-    /// Triangle indices in leaf order.
-    order: Vec<u32>,
+    /// The hierarchy over the faces, and each node's box (indexed like its nodes).
+    tree: MedianTree,
+    bounds: Vec<Aabb>,
     face_normals: Vec<Vector3<f64>>,
     /// Per face, pseudo-normal of edges (v0 v1), (v1 v2), (v2 v0).
     edge_normals: Vec<[Vector3<f64>; 3]>,
@@ -151,8 +141,8 @@ impl MeshProximity {
         let mut s = Self {
             faces: faces.to_vec(),
             positions: positions.to_vec(),
-            nodes: Vec::new(),
-            order: (0..faces.len() as u32).collect(),
+            tree: MedianTree::new(&[], LEAF_SIZE),
+            bounds: Vec::new(),
             face_normals: Vec::new(),
             edge_normals: Vec::new(),
             vertex_normals: Vec::new(),
@@ -166,52 +156,15 @@ impl MeshProximity {
             .iter()
             .map(|t| s.tri(t).iter().sum::<Vector3<f64>>() / 3.0)
             .collect();
-        s.nodes.reserve(2 * faces.len() / LEAF_SIZE + 1);
-        s.build(0, faces.len(), &centroids);
+        s.tree = MedianTree::new(&centroids, LEAF_SIZE);
+        s.bounds = vec![Aabb::empty(); s.tree.nodes().len()];
+        s.refit_tree();
         s.update_normals();
         Ok(s)
     }
 
     fn tri(&self, t: &[u32; 3]) -> [Vector3<f64>; 3] {
         t.map(|i| self.positions[i as usize])
-    }
-
-    fn build(&mut self, start: usize, end: usize, centroids: &[Vector3<f64>]) -> u32 {
-        let mut bounds = Aabb::empty();
-        let mut cbounds = Aabb::empty();
-        for &f in &self.order[start..end] {
-            for p in self.tri(&self.faces[f as usize]) {
-                bounds.grow(&p);
-            }
-            cbounds.grow(&centroids[f as usize]);
-        }
-        let id = self.nodes.len() as u32;
-        self.nodes.push(Node {
-            bounds,
-            start: start as u32,
-            count: (end - start) as u32,
-            left: 0,
-            right: 0,
-        });
-        if end - start <= LEAF_SIZE {
-            return id;
-        }
-        let extent = cbounds.max - cbounds.min;
-        let axis = extent.imax();
-        let mid = (start + end) / 2;
-        // Median split by centroid along the longest axis; ties broken by index (deterministic).
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
-            centroids[a as usize][axis]
-                .total_cmp(&centroids[b as usize][axis])
-                .then(a.cmp(&b))
-        });
-        let left = self.build(start, mid, centroids);
-        let right = self.build(mid, end, centroids);
-        let node = &mut self.nodes[id as usize];
-        node.count = 0;
-        node.left = left;
-        node.right = right;
-        id
     }
 
     fn update_normals(&mut self) {
@@ -333,26 +286,29 @@ impl MeshProximity {
     fn refit(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
         self.check_positions(positions)?;
         self.positions.copy_from_slice(positions);
-        // Children have larger indices than parents: refit in reverse.
-        for id in (0..self.nodes.len()).rev() {
-            let node = self.nodes[id];
-            let bounds = if node.count > 0 {
+        self.refit_tree();
+        self.tree_current = true;
+        Ok(())
+    }
+
+    /// The tree's boxes from the current positions, children before parents (a child's index
+    /// is larger than its parent's). Leaves take their triangles' vertices, inner nodes merge
+    /// their children's boxes.
+    fn refit_tree(&mut self) {
+        for id in (0..self.tree.nodes().len()).rev() {
+            let node = self.tree.nodes()[id];
+            self.bounds[id] = if node.is_leaf() {
                 let mut b = Aabb::empty();
-                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                for &f in self.tree.leaf_items(&node) {
                     for p in self.tri(&self.faces[f as usize]) {
                         b.grow(&p);
                     }
                 }
                 b
             } else {
-                self.nodes[node.left as usize]
-                    .bounds
-                    .merge(&self.nodes[node.right as usize].bounds)
+                self.bounds[node.left as usize].merge(&self.bounds[node.right as usize])
             };
-            self.nodes[id].bounds = bounds;
         }
-        self.tree_current = true;
-        Ok(())
     }
 
     /// The vertex positions currently used.
@@ -384,7 +340,7 @@ impl MeshProximity {
         }
         // Nodes to visit with their box distance (computed once, when pushed).
         let mut stack = [(0u32, 0.0f64); 64];
-        stack[0].1 = self.nodes[0].bounds.distance_sq(p);
+        stack[0].1 = self.bounds[0].distance_sq(p);
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
@@ -392,9 +348,9 @@ impl MeshProximity {
             if box_d2 > best_d2 {
                 continue;
             }
-            let node = &self.nodes[id as usize];
-            if node.count > 0 {
-                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+            let node = &self.tree.nodes()[id as usize];
+            if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     self.consider(p, f, &mut best_d2, &mut best);
                 }
             } else {
@@ -402,8 +358,8 @@ impl MeshProximity {
                 // pushed at all.
                 let (l, r) = (node.left, node.right);
                 let (dl, dr) = (
-                    self.nodes[l as usize].bounds.distance_sq(p),
-                    self.nodes[r as usize].bounds.distance_sq(p),
+                    self.bounds[l as usize].distance_sq(p),
+                    self.bounds[r as usize].distance_sq(p),
                 );
                 let (near, far) = if dl <= dr {
                     ((l, dl), (r, dr))
@@ -541,12 +497,13 @@ impl MeshProximity {
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            if node.bounds.distance_sq(p) > r2 {
+            let id = stack[top] as usize;
+            if self.bounds[id].distance_sq(p) > r2 {
                 continue;
             }
-            if node.count > 0 {
-                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+            let node = &self.tree.nodes()[id];
+            if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     let tri = self.tri(&self.faces[f as usize]);
                     let d2 = (closest_on_triangle(p, &tri).0 - p).norm_squared();
                     if d2 <= r2 {
@@ -581,14 +538,15 @@ impl MeshProximity {
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
-            let node = &self.nodes[stack[top] as usize];
+            let id = stack[top] as usize;
             // A NaN distance (a NaN point) visits nothing.
-            let d2 = node.bounds.distance_sq(p);
+            let d2 = self.bounds[id].distance_sq(p);
             if d2.is_nan() || d2 > r2 {
                 continue;
             }
-            if node.count > 0 {
-                for &f in &self.order[node.start as usize..(node.start + node.count) as usize] {
+            let node = &self.tree.nodes()[id];
+            if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
                         visit(f);
                     }

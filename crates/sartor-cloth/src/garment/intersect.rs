@@ -5,26 +5,19 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::TriMesh;
-
-#[derive(Clone, Copy, Debug)]
-struct Node {
-    lo: Vector3<f64>,
-    hi: Vector3<f64>,
-    /// Leaf: first index into `order`; internal: index of the right child (left is next).
-    start_or_right: u32,
-    /// Leaf: number of triangles (> 0); internal: 0.
-    count: u32,
-}
+use sartor_core::tree::MedianTree;
 
 const LEAF_SIZE: usize = 4;
 
-/// A bounding-volume hierarchy over the triangles of a mesh for box-overlap queries.
+/// A bounding-volume hierarchy over the triangles of a mesh for box-overlap queries: the
+/// project's one [`MedianTree`] over the triangles' box centres, and each node's box.
 #[derive(Clone, Debug)]
 struct OverlapTree {
     positions: Vec<Vector3<f64>>,
     faces: Vec<[u32; 3]>,
-    nodes: Vec<Node>,
-    order: Vec<u32>,
+    tree: MedianTree,
+    /// Per node, `(lo, hi)` of its triangles' boxes.
+    bounds: Vec<(Vector3<f64>, Vector3<f64>)>,
 }
 
 impl OverlapTree {
@@ -37,16 +30,33 @@ impl OverlapTree {
             })
             .collect();
         let centroids: Vec<Vector3<f64>> = boxes.iter().map(|(lo, hi)| 0.5 * (lo + hi)).collect();
-        let mut order: Vec<u32> = (0..faces.len() as u32).collect();
-        let mut nodes = Vec::with_capacity(2 * faces.len() / LEAF_SIZE + 1);
-        if !faces.is_empty() {
-            build(&mut nodes, &mut order, 0, faces.len(), &boxes, &centroids);
+        let tree = MedianTree::new(&centroids, LEAF_SIZE);
+        // Children come after their parents: fill the boxes in reverse.
+        let mut bounds = vec![(Vector3::zeros(), Vector3::zeros()); tree.nodes().len()];
+        for id in (0..tree.nodes().len()).rev() {
+            let node = tree.nodes()[id];
+            bounds[id] = if node.is_leaf() {
+                tree.leaf_items(&node)
+                    .iter()
+                    .map(|&f| boxes[f as usize])
+                    .fold(
+                        (
+                            Vector3::repeat(f64::INFINITY),
+                            Vector3::repeat(f64::NEG_INFINITY),
+                        ),
+                        |(lo, hi), (a, b)| (lo.inf(&a), hi.sup(&b)),
+                    )
+            } else {
+                let ((l0, h0), (l1, h1)) =
+                    (bounds[node.left as usize], bounds[node.right as usize]);
+                (l0.inf(&l1), h0.sup(&h1))
+            };
         }
         Self {
             positions,
             faces,
-            nodes,
-            order,
+            tree,
+            bounds,
         }
     }
 
@@ -58,19 +68,19 @@ impl OverlapTree {
         hi: &Vector3<f64>,
         mut visit: impl FnMut(u32),
     ) {
-        if self.nodes.is_empty() {
+        if self.tree.nodes().is_empty() {
             return;
         }
         let mut stack = vec![0u32];
         while let Some(i) = stack.pop() {
-            let node = &self.nodes[i as usize];
-            let overlaps = (0..3).all(|k| node.lo[k] <= hi[k] && lo[k] <= node.hi[k]);
+            let (nlo, nhi) = &self.bounds[i as usize];
+            let overlaps = (0..3).all(|k| nlo[k] <= hi[k] && lo[k] <= nhi[k]);
             if !overlaps {
                 continue;
             }
-            if node.count > 0 {
-                let s = node.start_or_right as usize;
-                for &f in &self.order[s..s + node.count as usize] {
+            let node = &self.tree.nodes()[i as usize];
+            if node.is_leaf() {
+                for &f in self.tree.leaf_items(node) {
                     let [a, b, c] = self.faces[f as usize].map(|v| self.positions[v as usize]);
                     let (tlo, thi) = (a.inf(&b).inf(&c), a.sup(&b).sup(&c));
                     if (0..3).all(|k| tlo[k] <= hi[k] && lo[k] <= thi[k]) {
@@ -78,61 +88,11 @@ impl OverlapTree {
                     }
                 }
             } else {
-                stack.push(node.start_or_right);
-                stack.push(i + 1);
+                stack.push(node.right);
+                stack.push(node.left);
             }
         }
     }
-}
-
-fn build(
-    nodes: &mut Vec<Node>,
-    order: &mut [u32],
-    start: usize,
-    end: usize,
-    boxes: &[(Vector3<f64>, Vector3<f64>)],
-    centroids: &[Vector3<f64>],
-) -> u32 {
-    let slice = &mut order[start..end];
-    let (mut lo, mut hi) = boxes[slice[0] as usize];
-    let (mut clo, mut chi) = (centroids[slice[0] as usize], centroids[slice[0] as usize]);
-    for &f in slice.iter() {
-        let (a, b) = boxes[f as usize];
-        lo = lo.inf(&a);
-        hi = hi.sup(&b);
-        clo = clo.inf(&centroids[f as usize]);
-        chi = chi.sup(&centroids[f as usize]);
-    }
-    let index = nodes.len() as u32;
-    nodes.push(Node {
-        lo,
-        hi,
-        start_or_right: start as u32,
-        count: (end - start) as u32,
-    });
-    if end - start <= LEAF_SIZE {
-        return index;
-    }
-    let extent = chi - clo;
-    let axis = if extent.x >= extent.y && extent.x >= extent.z {
-        0
-    } else if extent.y >= extent.z {
-        1
-    } else {
-        2
-    };
-    let mid = (end - start) / 2;
-    // Median split; ties broken by triangle index so the tree is deterministic.
-    slice.select_nth_unstable_by(mid, |&a, &b| {
-        centroids[a as usize][axis]
-            .total_cmp(&centroids[b as usize][axis])
-            .then(a.cmp(&b))
-    });
-    build(nodes, order, start, start + mid, boxes, centroids);
-    let right = build(nodes, order, start + mid, end, boxes, centroids);
-    nodes[index as usize].start_or_right = right;
-    nodes[index as usize].count = 0;
-    index
 }
 
 /// Whether segment `[p, q]` crosses triangle `(a, b, c)` (Möller–Trumbore; a segment lying in
