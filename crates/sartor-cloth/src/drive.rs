@@ -54,8 +54,8 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
-    BodyDistance, BodyModel, BoneTransform, MeshProximity, Parallelism, Pose, faces_near,
-    interpolate_pose, skin_points, split_heading, transfer_skin_weights,
+    BodyDistance, BodyModel, BoneTransform, MeshProximity, Parallelism, Pose, SurfaceAnchors,
+    faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
 };
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
@@ -394,12 +394,8 @@ impl Region {
         margin_m: f64,
     ) -> Result<Self> {
         let template = body.template().positions();
-        let proximity = MeshProximity::new(template, body.faces())?;
-        let anchors: Vec<_> = garment
-            .positions()
-            .iter()
-            .map(|p| proximity.closest(p))
-            .collect();
+        let anchors =
+            SurfaceAnchors::new(template, body.faces(), garment.positions().iter().copied())?;
         let weights = transfer_skin_weights(
             template,
             body.faces(),
@@ -426,14 +422,8 @@ impl Region {
             poser.pose_into(betas, pose, &mut body_posed)?;
             let shaped = poser.shaped();
             let faces = body.faces();
-            for ((g, p), c) in g_shaped.iter_mut().zip(garment.positions()).zip(&anchors) {
-                let t = faces[c.face as usize];
-                *g = p
-                    + (0..3)
-                        .map(|k| {
-                            (shaped[t[k] as usize] - template[t[k] as usize]) * c.barycentric[k]
-                        })
-                        .sum::<Vector3<f64>>();
+            for (i, (g, p)) in g_shaped.iter_mut().zip(garment.positions()).enumerate() {
+                *g = p + anchors.displacement(i, shaped, template);
             }
             skin_points(
                 &g_shaped,

@@ -3,6 +3,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use nalgebra::Vector3;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use sha2::{Digest, Sha256};
 
@@ -96,6 +97,24 @@ impl OwnedTensor {
             shape: shape.to_vec(),
             bytes,
         }
+    }
+
+    /// Points as an f32 `[n, 3]` tensor (f64 coordinates rounded to f32).
+    pub fn points<T: nalgebra::Scalar + Copy + Into<f64>>(points: &[Vector3<T>]) -> Self {
+        Self::f32(
+            &[points.len(), 3],
+            points
+                .iter()
+                .flat_map(|p| [p[0].into() as f32, p[1].into() as f32, p[2].into() as f32]),
+        )
+    }
+
+    /// Index tuples (triangles, hinges) as an i32 `[n, K]` tensor.
+    pub fn indices<const K: usize>(tuples: &[[u32; K]]) -> Self {
+        Self::i32(
+            &[tuples.len(), K],
+            tuples.iter().flatten().map(|&i| i as i32),
+        )
     }
 }
 
@@ -267,6 +286,29 @@ impl TensorFile {
                 .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect(),
         ))
+    }
+
+    /// An f32 `[n, 3]` tensor of points (`n` = `rows` when given), as f64.
+    pub fn points(&self, name: &str, rows: Option<usize>) -> Result<Vec<Vector3<f64>>> {
+        let (_, values) = self.f32(name, &[rows, Some(3)])?;
+        Ok(values
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64))
+            .collect())
+    }
+
+    /// A non-negative i32 `[n, K]` tensor of index tuples (`n` = `rows` when given); the
+    /// caller checks the indices' range (a mesh or binding constructor does).
+    pub fn indices<const K: usize>(
+        &self,
+        name: &str,
+        rows: Option<usize>,
+    ) -> Result<Vec<[u32; K]>> {
+        let (_, values) = self.u32(name, &[rows, Some(K)])?;
+        Ok(values
+            .chunks_exact(K)
+            .map(|c| std::array::from_fn(|k| c[k]))
+            .collect())
     }
 
     /// A non-negative i32 tensor (indices, offsets) as u32.

@@ -54,7 +54,10 @@ mod skeleton;
 mod skinning;
 pub mod tree;
 
-pub use binding::{faces_near, transfer_skin_weights};
+pub use binding::{
+    BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader,
+    DEFAULT_REGION_MARGIN_MM, GarmentBinding, SurfaceAnchors, faces_near, transfer_skin_weights,
+};
 pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};

@@ -322,30 +322,19 @@ impl BodyModel {
     fn tensor_bytes(&self) -> Result<Vec<u8>> {
         let (v, j, nb) = (self.n_vertices(), self.skeleton.n_joints(), self.n_betas);
         let f32s = |xs: &[f64]| xs.iter().map(|&x| x as f32).collect::<Vec<_>>();
-        let flat = |ps: &[Vector3<f64>]| {
-            ps.iter()
-                .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
-                .collect::<Vec<_>>()
-        };
         let mut tensors = BTreeMap::new();
         tensors.insert(
             "v_template".to_string(),
-            OwnedTensor::f32(&[v, 3], flat(self.template.positions())),
+            OwnedTensor::points(self.template.positions()),
         );
-        tensors.insert(
-            "faces".to_string(),
-            OwnedTensor::i32(
-                &[self.template.n_faces(), 3],
-                self.faces().iter().flatten().map(|&i| i as i32),
-            ),
-        );
+        tensors.insert("faces".to_string(), OwnedTensor::indices(self.faces()));
         tensors.insert(
             "shapedirs".to_string(),
             OwnedTensor::f32(&[v, 3, nb], f32s(&self.shape_basis)),
         );
         tensors.insert(
             "j_template".to_string(),
-            OwnedTensor::f32(&[j, 3], flat(&self.joint_template)),
+            OwnedTensor::points(&self.joint_template),
         );
         tensors.insert(
             "j_shapedirs".to_string(),
@@ -401,17 +390,11 @@ impl BodyModel {
         let j = header.joint_names.len();
         let skeleton = Skeleton::new(header.joint_names, header.parents)
             .map_err(|e| e.in_file(&header_path))?;
-        let points = |xs: Vec<f32>| {
-            xs.chunks_exact(3)
-                .map(|c| Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64))
-                .collect::<Vec<_>>()
-        };
-        let (_, vt) = file.f32("v_template", &[Some(v), Some(3)])?;
-        let (_, faces) = file.u32("faces", &[Some(f), Some(3)])?;
-        let faces = faces.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let template = TriMesh::new(points(vt), faces).map_err(in_file)?;
+        let vt = file.points("v_template", Some(v))?;
+        let faces = file.indices("faces", Some(f))?;
+        let template = TriMesh::new(vt, faces).map_err(in_file)?;
         let (_, shapedirs) = file.f32("shapedirs", &[Some(v), Some(3), Some(nb)])?;
-        let (_, jt) = file.f32("j_template", &[Some(j), Some(3)])?;
+        let jt = file.points("j_template", Some(j))?;
         let (_, jdirs) = file.f32("j_shapedirs", &[Some(j), Some(3), Some(nb)])?;
         let weights = SkinWeights::from_tensors(&file, "skin_", v, j)?;
         Self::new(
@@ -419,7 +402,7 @@ impl BodyModel {
             template,
             nb,
             shapedirs.into_iter().map(f64::from).collect(),
-            points(jt),
+            jt,
             jdirs.into_iter().map(f64::from).collect(),
             skeleton,
             weights,

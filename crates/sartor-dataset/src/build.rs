@@ -15,14 +15,16 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use sartor_core::io::{read_file, sha256_hex};
-use sartor_core::{BodyModel, FPS, Pose, PoseFeatureSpec, RootFeature, RotationEncoding};
+use sartor_core::{
+    BINDING_JSON, BodyModel, FPS, Pose, PoseFeatureSpec, RootFeature, RotationEncoding,
+};
 
-use crate::extract::{ClothBinding, WrinkleExtractor, fit_delta, select_joints};
+use crate::extract::{WrinkleExtractor, bind_garment, fit_delta, select_joints};
 use crate::smoothing::{Smoother, Smoothing};
 use crate::stats::{PcaSettings, compute_pca, compute_stats};
 use crate::store::{
     BINDING_FILE, Manifest, SHAPES_FILE, STATS_FILE, SequenceEntry, ShapeEntry, sequence_file,
-    write_binding, write_manifest, write_sequence, write_shapes, write_stats,
+    write_manifest, write_sequence, write_shapes, write_stats,
 };
 use crate::{
     DATASET_FORMAT, DATASET_VERSION, DataSource, Error, InputLayout, Result, SequenceSample,
@@ -304,9 +306,15 @@ pub fn build_dataset(
     plan.validate(body.n_betas())?;
     let n_betas = body.n_betas();
     let smoother = Smoother::new(inputs.relaxed, inputs.faces, config.smoothing)?;
-    let binding = ClothBinding::new(body, inputs.relaxed, inputs.faces, &smoother)?;
+    let binding = bind_garment(
+        body,
+        &inputs.source,
+        inputs.relaxed,
+        inputs.faces,
+        &smoother,
+    )?;
     let n = binding.n_vertices();
-    let joints = select_joints(body, &binding.skin_weights, config.joint_min_weight);
+    let joints = select_joints(body, binding.skin_weights(), config.joint_min_weight);
     let spec = PoseFeatureSpec {
         joints: joints.clone(),
         encoding: config.encoding,
@@ -333,7 +341,12 @@ pub fn build_dataset(
     let _ = std::fs::remove_file(out_dir.join(crate::MANIFEST_FILE));
 
     let mut files = BTreeMap::new();
-    files.insert(BINDING_FILE.to_string(), write_binding(out_dir, &binding)?);
+    let header = binding.save(out_dir)?;
+    files.insert(BINDING_FILE.to_string(), header.tensors_sha256);
+    files.insert(
+        BINDING_JSON.to_string(),
+        sha256_hex(&read_file(&out_dir.join(BINDING_JSON))?),
+    );
 
     // Δ_G per shape (in parallel).
     let pad = |b: &[f64]| {
@@ -498,12 +511,12 @@ pub fn build_dataset(
         mean_edge_mm: smoother.mean_edge_m() * 1e3,
         smoothing_iterations: smoother.iterations(),
         smoothing_change: magnitudes(std::iter::once(
-            binding
+            inputs
                 .relaxed
                 .iter()
-                .zip(&binding.template)
+                .zip(binding.template())
                 .flat_map(|(r, t)| {
-                    let d = r - t;
+                    let d = r - t.cast::<f64>();
                     [d.x as f32, d.y as f32, d.z as f32]
                 })
                 .collect::<Vec<f32>>()

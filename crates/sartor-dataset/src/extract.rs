@@ -8,6 +8,10 @@
 //! Δ_L  = W⁻¹(S_c(β, θ), β, θ, W_c) − T̄_c − Δ_G
 //! ```
 //!
+//! The binding is sartor-core's [`GarmentBinding`], the runtime's: `T̄_c` is stored in f32, and
+//! both displacements are taken against that stored `T̄_c`, so that the runtime's
+//! `T̄_c + Δ_G + Δ_L` adds up to the smoothed simulation with no rounding of its own.
+//!
 //! `W⁻¹` is sartor-core's one inverse skinning ([`sartor_core::unskin_points`]); the transforms
 //! are the body's for shape β and pose θ (root motion included), so the recovered displacement
 //! lives in the rest space of the template.
@@ -15,9 +19,11 @@
 use nalgebra::Vector3;
 
 use sartor_core::{
-    BodyModel, Parallelism, Pose, SkinWeights, transfer_skin_weights, unskin_points,
+    BodyModel, DEFAULT_REGION_MARGIN_MM, GarmentBinding, Parallelism, Pose, SkinWeights,
+    unskin_points,
 };
 
+use crate::data::DataSource;
 use crate::smoothing::Smoother;
 use crate::{Error, Result};
 
@@ -25,48 +31,33 @@ use crate::{Error, Result};
 /// vertex by less than a tenth of a millimetre per metre of bone motion.
 pub const CLOTH_WEIGHT_CUTOFF: f32 = 1e-4;
 
-/// The garment bound to the body: template, faces and cloth skin weights.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ClothBinding {
-    /// The garment as relaxed on the template body (before ρ).
-    pub relaxed: Vec<Vector3<f64>>,
-    /// `T̄_c = ρ(relaxed)`.
-    pub template: Vec<Vector3<f64>>,
-    /// Garment triangles.
-    pub faces: Vec<[u32; 3]>,
-    /// `W_c`, one row per garment vertex, over the body's joints.
-    pub skin_weights: SkinWeights,
+/// Bind a garment relaxed on the template body (β = 0, rest pose) to it: `T̄_c = ρ(relaxed)`,
+/// `W_c` transferred from the body to every template vertex (influences below
+/// [`CLOTH_WEIGHT_CUTOFF`] dropped), and the body region within
+/// [`DEFAULT_REGION_MARGIN_MM`] of the template. The one binding type of the project, as the
+/// runtime reads it.
+pub fn bind_garment(
+    body: &BodyModel,
+    source: &DataSource,
+    relaxed: &[Vector3<f64>],
+    faces: &[[u32; 3]],
+    smoother: &Smoother,
+) -> Result<GarmentBinding> {
+    let template = smoother.apply(relaxed)?;
+    Ok(GarmentBinding::from_body(
+        source.garment.clone(),
+        &template,
+        faces,
+        source.body.clone(),
+        body,
+        DEFAULT_REGION_MARGIN_MM * 1e-3,
+        CLOTH_WEIGHT_CUTOFF,
+    )?)
 }
 
-impl ClothBinding {
-    /// Bind a garment relaxed on the template body (β = 0, rest pose): smooth it with ρ, then
-    /// transfer the body's weights to every template vertex.
-    pub fn new(
-        body: &BodyModel,
-        relaxed: &[Vector3<f64>],
-        faces: &[[u32; 3]],
-        smoother: &Smoother,
-    ) -> Result<Self> {
-        let template = smoother.apply(relaxed)?;
-        let skin_weights = transfer_skin_weights(
-            body.template().positions(),
-            body.faces(),
-            body.skin_weights(),
-            &template,
-            CLOTH_WEIGHT_CUTOFF,
-        )?;
-        Ok(Self {
-            relaxed: relaxed.to_vec(),
-            template,
-            faces: faces.to_vec(),
-            skin_weights,
-        })
-    }
-
-    /// Garment vertices `V`.
-    pub fn n_vertices(&self) -> usize {
-        self.template.len()
-    }
+/// `T̄_c` in f64, as the displacements are computed against it.
+fn template64(binding: &GarmentBinding) -> impl Iterator<Item = Vector3<f64>> + '_ {
+    binding.template().iter().map(|p| p.cast::<f64>())
 }
 
 fn flatten(points: impl Iterator<Item = Vector3<f64>>, out: &mut Vec<f32>) {
@@ -94,7 +85,7 @@ fn check_frame(what: &'static str, frame: &[Vector3<f64>], n: usize) -> Result<(
 /// `Δ_G = ρ(S_c(β, 0)) − T̄_c`, `[3V]`, from the cloth `rest_cloth` simulated on the body of
 /// shape β in the rest pose (no root motion).
 pub fn fit_delta(
-    binding: &ClothBinding,
+    binding: &GarmentBinding,
     smoother: &Smoother,
     rest_cloth: &[Vector3<f64>],
 ) -> Result<Vec<f32>> {
@@ -102,7 +93,7 @@ pub fn fit_delta(
     let smooth = smoother.apply(rest_cloth)?;
     let mut out = Vec::with_capacity(3 * smooth.len());
     flatten(
-        smooth.iter().zip(&binding.template).map(|(s, t)| s - t),
+        smooth.iter().zip(template64(binding)).map(|(s, t)| s - t),
         &mut out,
     );
     Ok(out)
@@ -111,7 +102,7 @@ pub fn fit_delta(
 /// Un-poses simulated cloth frames of one shape: `Δ_L` per frame.
 pub struct WrinkleExtractor<'a> {
     body: &'a BodyModel,
-    binding: &'a ClothBinding,
+    binding: &'a GarmentBinding,
     joints: Vec<Vector3<f64>>,
     /// `T̄_c + Δ_G`.
     fitted: Vec<Vector3<f64>>,
@@ -122,7 +113,7 @@ impl<'a> WrinkleExtractor<'a> {
     /// For shape `betas` with fit displacement `fit_delta` (`[3V]`).
     pub fn new(
         body: &'a BodyModel,
-        binding: &'a ClothBinding,
+        binding: &'a GarmentBinding,
         betas: &[f64],
         fit_delta: &[f32],
     ) -> Result<Self> {
@@ -136,20 +127,18 @@ impl<'a> WrinkleExtractor<'a> {
                 ),
             ));
         }
-        if binding.skin_weights.n_joints() != body.skeleton().n_joints() {
+        if binding.skin_weights().n_joints() != body.skeleton().n_joints() {
             return Err(Error::invalid(
                 "wrinkle extraction",
                 format!(
                     "cloth weights over {} joints, body has {}",
-                    binding.skin_weights.n_joints(),
+                    binding.skin_weights().n_joints(),
                     body.skeleton().n_joints()
                 ),
             ));
         }
         let joints = body.shaped_joints(betas)?;
-        let fitted = binding
-            .template
-            .iter()
+        let fitted = template64(binding)
             .enumerate()
             .map(|(v, t)| {
                 t + Vector3::new(
@@ -182,7 +171,7 @@ impl<'a> WrinkleExtractor<'a> {
             .forward_kinematics(&self.joints, pose)?;
         unskin_points(
             cloth,
-            &self.binding.skin_weights,
+            self.binding.skin_weights(),
             &transforms,
             &mut self.rest,
             Parallelism::Sequential,

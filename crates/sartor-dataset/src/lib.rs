@@ -8,8 +8,8 @@
 //!
 //! - [`TrainingData`]: the data in memory ([`ShapeSample`], [`SequenceSample`],
 //!   [`NormStats`], [`PcaBasis`], [`InputLayout`]), validated.
-//! - Ground truth ([`ClothBinding`], [`Smoother`] (ρ), [`fit_delta`], [`WrinkleExtractor`],
-//!   [`select_joints`]), statistics and PCA ([`compute_stats`], [`compute_pca`]).
+//! - Ground truth ([`bind_garment`], which makes sartor-core's `GarmentBinding`, [`Smoother`]
+//!   (ρ), [`fit_delta`], [`WrinkleExtractor`], [`select_joints`]), statistics and PCA ([`compute_stats`], [`compute_pca`]).
 //! - Files ([`load_dataset`], [`Manifest`], `write_*`): safetensors + a manifest with hashes.
 //! - The simulation folder of a run ([`SimFolder`], [`sequence_stem`], [`failed_stems`]): the
 //!   simulator's sequence files read back as ground truth.
@@ -41,7 +41,7 @@ pub use data::{
     TrainingData,
 };
 pub use error::{Error, Result};
-pub use extract::{CLOTH_WEIGHT_CUTOFF, ClothBinding, WrinkleExtractor, fit_delta, select_joints};
+pub use extract::{CLOTH_WEIGHT_CUTOFF, WrinkleExtractor, bind_garment, fit_delta, select_joints};
 pub use simfolder::{
     FAILED_DIR, REST_MOTION, SimFolder, failed_stems, sequence_stem, simulated_plan,
 };
@@ -50,6 +50,5 @@ pub use stats::{MIN_STD, PcaSettings, compute_pca, compute_stats};
 pub use store::{
     BINDING_FILE, DATASET_FORMAT, DATASET_VERSION, MANIFEST_FILE, Manifest, SEQUENCES_DIR,
     SHAPES_FILE, STATS_FILE, SequenceEntry, ShapeEntry, load_dataset, read_binding, read_manifest,
-    read_sequence, sequence_file, write_binding, write_manifest, write_sequence, write_shapes,
-    write_stats,
+    read_sequence, sequence_file, write_manifest, write_sequence, write_shapes, write_stats,
 };

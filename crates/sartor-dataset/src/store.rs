@@ -16,15 +16,13 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use sartor_core::SkinWeights;
 use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
 };
+use sartor_core::{BINDING_JSON, BINDING_TENSORS, BodyModel, GarmentBinding};
 
-use crate::extract::ClothBinding;
 use crate::smoothing::Smoothing;
 use crate::{
     DataSource, Error, InputLayout, MeanStd, NormStats, PcaBasis, Result, SequenceSample,
@@ -33,8 +31,9 @@ use crate::{
 
 /// The manifest's file name.
 pub const MANIFEST_FILE: &str = "manifest.json";
-/// The binding's file name.
-pub const BINDING_FILE: &str = "binding.safetensors";
+/// The binding's tensors: sartor-core's [`GarmentBinding`] format, the runtime's, with its
+/// `binding.json` ([`BINDING_JSON`]) beside it.
+pub const BINDING_FILE: &str = BINDING_TENSORS;
 /// The shapes' file name.
 pub const SHAPES_FILE: &str = "shapes.safetensors";
 /// The statistics' file name.
@@ -43,8 +42,9 @@ pub const STATS_FILE: &str = "stats.safetensors";
 pub const SEQUENCES_DIR: &str = "sequences";
 /// The manifest's `format`.
 pub const DATASET_FORMAT: &str = "sartor-dataset";
-/// The manifest's `version`.
-pub const DATASET_VERSION: u32 = 1;
+/// The manifest's `version`: 2 since the binding is sartor-core's `GarmentBinding` (version 1
+/// stored a binding of its own, with the relaxed garment).
+pub const DATASET_VERSION: u32 = 2;
 
 /// One shape in the manifest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -109,64 +109,14 @@ fn write_tensors(dir: &Path, name: &str, tensors: BTreeMap<String, OwnedTensor>)
     Ok(sha256_hex(&bytes))
 }
 
-fn flat(points: &[Vector3<f64>]) -> Vec<f32> {
-    points
-        .iter()
-        .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
-        .collect()
-}
-
-fn points(values: &[f32]) -> Vec<Vector3<f64>> {
-    values
-        .chunks_exact(3)
-        .map(|c| Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64))
-        .collect()
-}
-
-/// Write `binding.safetensors`; returns its SHA-256.
-pub fn write_binding(dir: &Path, binding: &ClothBinding) -> Result<String> {
-    let v = binding.n_vertices();
-    let mut t = BTreeMap::new();
-    t.insert(
-        "relaxed".into(),
-        OwnedTensor::f32(&[v, 3], flat(&binding.relaxed)),
-    );
-    t.insert(
-        "template".into(),
-        OwnedTensor::f32(&[v, 3], flat(&binding.template)),
-    );
-    t.insert(
-        "faces".into(),
-        OwnedTensor::i32(
-            &[binding.faces.len(), 3],
-            binding.faces.iter().flatten().map(|&i| i as i32),
-        ),
-    );
-    binding.skin_weights.insert_tensors(&mut t, "skin_");
-    write_tensors(dir, BINDING_FILE, t)
-}
-
-/// Read `binding.safetensors` (weights over `n_joints` joints).
-pub fn read_binding(dir: &Path, n_joints: usize) -> Result<ClothBinding> {
-    let path = dir.join(BINDING_FILE);
-    let file = TensorFile::open(&path)?;
-    let (shape, relaxed) = file.f32("relaxed", &[None, Some(3)])?;
-    let v = shape[0];
-    let (_, template) = file.f32("template", &[Some(v), Some(3)])?;
-    let (_, faces) = file.u32("faces", &[None, Some(3)])?;
-    if let Some(bad) = faces.iter().find(|&&i| i as usize >= v) {
-        return Err(Error::format(
-            &path,
-            format!("face index {bad} is past {v} vertices"),
-        ));
-    }
-    let skin_weights = SkinWeights::from_tensors(&file, "skin_", v, n_joints)?;
-    Ok(ClothBinding {
-        relaxed: points(&relaxed),
-        template: points(&template),
-        faces: faces.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-        skin_weights,
-    })
+/// Read and validate the dataset's garment binding (`binding.json` + `binding.safetensors`,
+/// sartor-core's [`GarmentBinding`] format) and check it against `body`.
+pub fn read_binding(dir: &Path, body: &BodyModel) -> Result<GarmentBinding> {
+    let binding = GarmentBinding::load(dir)?;
+    binding
+        .check_body(body)
+        .map_err(|e| e.in_file(dir.join(BINDING_JSON)))?;
+    Ok(binding)
 }
 
 /// Write `shapes.safetensors`; returns its SHA-256.
@@ -342,7 +292,7 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest> {
             ));
         }
     }
-    for f in [BINDING_FILE, SHAPES_FILE, STATS_FILE] {
+    for f in [BINDING_FILE, BINDING_JSON, SHAPES_FILE, STATS_FILE] {
         if !m.files.contains_key(f) {
             return Err(Error::format(&path, format!("no entry for {f}")));
         }

@@ -14,20 +14,18 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use sartor_core::{BodyModel, faces_near};
+use sartor_core::BodyModel;
 use sartor_model::burn::tensor::Device;
 use sartor_model::{AnyModel, ModelKind, export_model, load_trained};
 use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
-use sartor_runtime::{AnimatorOptions, GarmentBinding, GarmentNetwork, GarmentRig};
+use sartor_runtime::{AnimatorOptions, GarmentNetwork, GarmentRig};
 
 use crate::error::{Context, ensure};
 use crate::experiment::Experiment;
 use crate::preview::{Format, animate, write_animation};
 use crate::{DataDir, Error, Result};
 
-/// Default margin of the body region, mm: body triangles farther than this from the garment
-/// template never take part in the collision post-process.
-pub const DEFAULT_REGION_MARGIN_MM: f64 = 60.0;
+pub use sartor_core::DEFAULT_REGION_MARGIN_MM;
 
 /// How [`export_run`] exports.
 #[derive(Clone, Debug)]
@@ -91,7 +89,7 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
         .with_context(|| format!("loading the dataset from {}", data_dir.display()))?;
     let body = BodyModel::load(&e.body)
         .with_context(|| format!("loading the body model from {}", e.body.display()))?;
-    let cloth = sartor_dataset::read_binding(&data_dir, body.skeleton().n_joints())?;
+    let cloth = sartor_dataset::read_binding(&data_dir, &body)?;
     let device = Device::flex();
     let train = e.train_dir();
     let load = |kind: ModelKind| {
@@ -125,27 +123,9 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
     };
     let model = export_model(&data, &fit, &wrinkle, linear.as_ref())?;
 
-    let source = data.source();
-    let template: Vec<_> = cloth.template.clone();
-    let rest = body.template().positions();
-    let region = faces_near(
-        rest,
-        body.faces(),
-        &template,
-        &cloth.faces,
-        args.region_margin_mm * 1e-3,
-    )?;
-    let (garment_id, body_id) = (source.garment.clone(), source.body.clone());
-    let binding = GarmentBinding::new(
-        garment_id,
-        body_id,
-        template.iter().map(|p| p.cast::<f32>()).collect(),
-        cloth.faces.clone(),
-        cloth.skin_weights.clone(),
-        region,
-        body.faces().len(),
-    )?;
-    binding.check_model(model.header())?;
+    // The dataset's binding, with the body region at the export's margin.
+    let binding = cloth.with_region(&body, args.region_margin_mm * 1e-3)?;
+    model.header().check_binding(&binding)?;
     binding.check_body(&body)?;
 
     let name = out
@@ -184,7 +164,7 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
             &args.preview_motion,
             &anim,
             body.faces(),
-            &cloth.faces,
+            rig.binding().faces(),
             motion.fps(),
             &[Format::Gltf, Format::Mcap, Format::Obj],
         )?;

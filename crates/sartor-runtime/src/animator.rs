@@ -22,15 +22,15 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{
     BodyModel, BoneTransform, FPS, Parallelism, Pose, PoseFeatureSpec, PoseFeatures, RootFeature,
-    RotationEncoding, skin_points,
+    RotationEncoding, SurfaceAnchors, skin_points,
 };
 
-use crate::binding::GarmentBinding;
 use crate::collision::{BodyRegion, CertifyStats, Collider, CollisionOptions};
 use crate::error::{Error, Result, check_finite, check_len};
 use crate::format::Feature;
 use crate::kernels::Precision;
 use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
+use sartor_core::GarmentBinding;
 
 /// Where an avatar's shaped garment `T̄_c + Δ` comes from, set once per shape.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -211,9 +211,9 @@ pub struct GarmentRig {
     options: AnimatorOptions,
     inputs: InputMap,
     region: BodyRegion,
-    /// For [`FitMode::Retarget`] and [`BetaOutOfRange::ProjectAndFollow`]: per cloth vertex, the
-    /// closest template-body triangle's vertices and barycentric weights.
-    retarget: Option<Vec<([u32; 3], [f64; 3])>>,
+    /// For [`FitMode::Retarget`] and [`BetaOutOfRange::ProjectAndFollow`]: each cloth vertex
+    /// anchored on the template body.
+    retarget: Option<SurfaceAnchors>,
 }
 
 impl GarmentRig {
@@ -226,7 +226,7 @@ impl GarmentRig {
         body: Arc<BodyModel>,
         options: AnimatorOptions,
     ) -> Result<Self> {
-        binding.check_model(network.header())?;
+        network.header().check_binding(&binding)?;
         binding.check_body(&body)?;
         if network.n_betas() > body.n_betas() {
             return Err(Error::invalid(
@@ -309,36 +309,27 @@ impl GarmentRig {
     }
 }
 
-/// Each cloth vertex's closest point on the template body (β = 0, rest pose): the triangle's
-/// vertices and barycentric weights ([`FitMode::Retarget`]).
-fn retarget_binding(
-    body: &BodyModel,
-    template: &[Vector3<f32>],
-) -> Result<Vec<([u32; 3], [f64; 3])>> {
+/// Each cloth vertex anchored to its closest point on the template body (β = 0, rest pose)
+/// ([`FitMode::Retarget`]).
+fn retarget_binding(body: &BodyModel, template: &[Vector3<f32>]) -> Result<SurfaceAnchors> {
     let mesh = body.template();
-    let proximity = sartor_core::MeshProximity::new(mesh.positions(), mesh.faces())?;
-    Ok(template
-        .iter()
-        .map(|p| {
-            let c = proximity.closest(&p.cast::<f64>());
-            (mesh.faces()[c.face as usize], c.barycentric)
-        })
-        .collect())
+    Ok(SurfaceAnchors::new(
+        mesh.positions(),
+        mesh.faces(),
+        template.iter().map(|p| p.cast::<f64>()),
+    )?)
 }
 
-/// Add to `fit` (`3V` values) each cloth vertex's displacement with its bound triangle from the
-/// body `from` to the body `to` (every body vertex): `Σ_k b_k (to − from)[f_k]`.
+/// Add to `fit` (`3V` values) each cloth vertex's displacement with its anchor from the body
+/// `from` to the body `to` (every body vertex).
 fn add_retarget(
     fit: &mut [f32],
-    bound: &[([u32; 3], [f64; 3])],
+    anchors: &SurfaceAnchors,
     to: &[Vector3<f64>],
     from: &[Vector3<f64>],
 ) {
-    for (d, (tri, b)) in fit.chunks_exact_mut(3).zip(bound) {
-        let mut delta = Vector3::zeros();
-        for (&v, &w) in tri.iter().zip(b) {
-            delta += (to[v as usize] - from[v as usize]) * w;
-        }
+    for (i, d) in fit.chunks_exact_mut(3).enumerate() {
+        let delta = anchors.displacement(i, to, from);
         for (x, dx) in d.iter_mut().zip(delta.iter()) {
             *x += *dx as f32;
         }

@@ -66,6 +66,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
+use sartor_core::GarmentBinding;
 use sartor_core::asset::AssetFiles;
 use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use serde::{Deserialize, Serialize};
@@ -350,6 +351,33 @@ fn unique(what: &str, names: &[String]) -> std::result::Result<(), String> {
 }
 
 impl ModelHeader {
+    /// Check that `binding` is of the garment and body this model was trained for: same garment
+    /// and body ids and hashes, same vertex count.
+    pub fn check_binding(&self, binding: &GarmentBinding) -> Result<()> {
+        let bad = |m: String| Err(Error::invalid("garment binding", m));
+        if self.sizes.n_vertices != binding.n_vertices() {
+            return bad(format!(
+                "the model has {} garment vertices, the binding {}",
+                self.sizes.n_vertices,
+                binding.n_vertices()
+            ));
+        }
+        let (g, b) = (binding.garment(), binding.body());
+        if self.garment != *g {
+            return bad(format!(
+                "the model is for garment {:?} ({}), the binding for {:?} ({})",
+                self.garment.id, self.garment.sha256, g.id, g.sha256
+            ));
+        }
+        if self.body != *b {
+            return bad(format!(
+                "the model is for body {:?} ({}), the binding for {:?} ({})",
+                self.body.id, self.body.sha256, b.id, b.sha256
+            ));
+        }
+        Ok(())
+    }
+
     /// A header with [`MODEL_FORMAT`], [`MODEL_VERSION`] and an empty hash.
     pub fn new(
         garment: AssetId,

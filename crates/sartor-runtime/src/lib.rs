@@ -20,9 +20,11 @@
 //!   one wrinkle frame, batches; a frame allocates nothing. A reduced output rank is chosen at
 //!   load: the first `k'` PCA components, or a truncated SVD of a dense layer
 //!   ([`truncated_svd`]).
-//! - **Binding** ([`GarmentBinding`]): `binding.safetensors` + `binding.json` beside the model:
-//!   garment template `T̄_c`, triangles, cloth skin weights `W_c`, the body region the garment
-//!   can touch, garment and body ids; validated on load and against the model and the body.
+//! - **Binding** ([`GarmentBinding`], sartor-core's one binding type, re-exported):
+//!   `binding.safetensors` + `binding.json` beside the model: garment template `T̄_c`,
+//!   triangles, cloth skin weights `W_c`, the body region the garment can touch, garment and
+//!   body ids; validated on load, against the body, and against the model
+//!   ([`ModelHeader::check_binding`]).
 //! - **Animation** ([`GarmentRig`], [`GarmentAnimator`], [`GarmentCrowd`]): the rig shares the
 //!   loaded assets (`Arc`) across avatars; an avatar caches `R_G(β)`, `J(β)` and the shaped body
 //!   region once per shape, then turns each pose into garment vertices —
@@ -54,7 +56,6 @@
 //! ```
 
 mod animator;
-mod binding;
 mod collision;
 mod error;
 mod format;
@@ -66,9 +67,6 @@ mod writers;
 pub use animator::{
     AnimatorOptions, BetaOutOfRange, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd,
     GarmentRig, LevelOfDetail, WrinkleMode,
-};
-pub use binding::{
-    BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
 };
 pub use collision::{BodyRegion, CertifyStats, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
 pub use error::{Error, Result};
@@ -83,6 +81,9 @@ pub use kernels::{
 };
 pub use lowrank::{LowRank, truncated_svd};
 pub use network::{GarmentNetwork, NetworkOptions, Workspace};
+pub use sartor_core::{
+    BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
+};
 #[cfg(feature = "png")]
 pub use writers::render_png;
 pub use writers::{

@@ -417,28 +417,13 @@ impl Garment {
     }
 
     fn tensors(&self) -> Result<Vec<u8>> {
-        let (n_v, n_f, n_h) = (
-            self.mesh.n_vertices(),
-            self.mesh.n_faces(),
-            self.hinges.len(),
-        );
-        let flat3 = |ps: &[Vector3<f64>]| {
-            ps.iter()
-                .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
-                .collect::<Vec<_>>()
-        };
+        let (n_f, n_h) = (self.mesh.n_faces(), self.hinges.len());
         let mut t = BTreeMap::new();
         t.insert(
             "positions".to_string(),
-            OwnedTensor::f32(&[n_v, 3], flat3(self.mesh.positions())),
+            OwnedTensor::points(self.mesh.positions()),
         );
-        t.insert(
-            "faces".to_string(),
-            OwnedTensor::i32(
-                &[n_f, 3],
-                self.mesh.faces().iter().flatten().map(|&i| i as i32),
-            ),
-        );
+        t.insert("faces".to_string(), OwnedTensor::indices(self.mesh.faces()));
         t.insert(
             "rest_dm".to_string(),
             OwnedTensor::f32(
@@ -452,18 +437,9 @@ impl Garment {
             "rest_area_m2".to_string(),
             OwnedTensor::f32(&[n_f], self.rest_area_m2.iter().map(|&a| a as f32)),
         );
-        t.insert(
-            "frame_u".to_string(),
-            OwnedTensor::f32(&[n_f, 3], flat3(&self.frame_u)),
-        );
-        t.insert(
-            "frame_v".to_string(),
-            OwnedTensor::f32(&[n_f, 3], flat3(&self.frame_v)),
-        );
-        t.insert(
-            "hinges".to_string(),
-            OwnedTensor::i32(&[n_h, 4], self.hinges.iter().flatten().map(|&i| i as i32)),
-        );
+        t.insert("frame_u".to_string(), OwnedTensor::points(&self.frame_u));
+        t.insert("frame_v".to_string(), OwnedTensor::points(&self.frame_v));
+        t.insert("hinges".to_string(), OwnedTensor::indices(&self.hinges));
         t.insert(
             "rest_dihedral_rad".to_string(),
             OwnedTensor::f32(&[n_h], self.rest_dihedral_rad.iter().map(|&a| a as f32)),
@@ -537,38 +513,16 @@ impl Garment {
             Error::Mesh(e) => Error::Mesh(e.in_file(&tensor_path)),
             other => other,
         };
-        let vec3 = |xs: Vec<f32>| {
-            xs.chunks_exact(3)
-                .map(|c| Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64))
-                .collect::<Vec<_>>()
-        };
-        let indices = |xs: Vec<i32>, what: &str| {
-            xs.into_iter()
-                .map(|i| {
-                    u32::try_from(i).map_err(|_| {
-                        Error::format(&tensor_path, format!("negative {what} index {i}"))
-                    })
-                })
-                .collect::<Result<Vec<u32>>>()
-        };
-        let (_, positions) = file.f32("positions", &[Some(n_v), Some(3)])?;
-        let (_, faces) = file.i32("faces", &[Some(n_f), Some(3)])?;
-        let faces: Vec<[u32; 3]> = indices(faces, "face")?
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let mesh = TriMesh::new(vec3(positions), faces)
-            .map_err(|e| Error::Mesh(e.in_file(&tensor_path)))?;
+        let positions = file.points("positions", Some(n_v))?;
+        let faces = file.indices("faces", Some(n_f))?;
+        let mesh =
+            TriMesh::new(positions, faces).map_err(|e| Error::Mesh(e.in_file(&tensor_path)))?;
         let (_, dm) = file.f32("rest_dm", &[Some(n_f), Some(2), Some(2)])?;
         let rest_dm = dm
             .chunks_exact(4)
             .map(|c| Matrix2::new(c[0] as f64, c[1] as f64, c[2] as f64, c[3] as f64))
             .collect();
-        let (_, hinges) = file.i32("hinges", &[Some(n_h), Some(4)])?;
-        let hinges: Vec<[u32; 4]> = indices(hinges, "hinge")?
-            .chunks_exact(4)
-            .map(|c| [c[0], c[1], c[2], c[3]])
-            .collect();
+        let hinges: Vec<[u32; 4]> = file.indices("hinges", Some(n_h))?;
         if hinges != hinges_of(&mesh) {
             return Err(Error::format(
                 &tensor_path,
@@ -587,8 +541,8 @@ impl Garment {
         )
         .map_err(in_file)?;
         let (_, area) = file.f32("rest_area_m2", &[Some(n_f)])?;
-        let (_, fu) = file.f32("frame_u", &[Some(n_f), Some(3)])?;
-        let (_, fv) = file.f32("frame_v", &[Some(n_f), Some(3)])?;
+        let fu = file.points("frame_u", Some(n_f))?;
+        let fv = file.points("frame_v", Some(n_f))?;
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs()));
         let stored_area: Vec<f64> = area.into_iter().map(f64::from).collect();
         let checks = [
@@ -601,15 +555,13 @@ impl Garment {
             ),
             (
                 "frame_u",
-                vec3(fu)
-                    .iter()
+                fu.iter()
                     .zip(&garment.frame_u)
                     .all(|(a, b)| (a - b).norm() <= 1e-5),
             ),
             (
                 "frame_v",
-                vec3(fv)
-                    .iter()
+                fv.iter()
                     .zip(&garment.frame_v)
                     .all(|(a, b)| (a - b).norm() <= 1e-5),
             ),

@@ -3,21 +3,22 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nalgebra::Vector3;
-use sartor_core::{BodyModel, Parallelism, Pose, skin_points};
+use sartor_core::{BodyModel, GarmentBinding, Parallelism, Pose, skin_points};
 use sartor_dataset::{
-    ClothBinding, DataSource, DatasetConfig, DatasetInputs, DatasetPlan, PcaSettings, Result,
-    SequencePlan, ShapePlan, SimulatedMotion, SimulationSource, Smoother, Split, build_dataset,
-    fit_delta, load_dataset, sequence_file,
+    DatasetConfig, DatasetInputs, DatasetPlan, PcaSettings, Result, SequencePlan, ShapePlan,
+    SimulatedMotion, SimulationSource, Smoother, Split, build_dataset, fit_delta, load_dataset,
+    sequence_file,
 };
 use sartor_motion::procedural;
 
-use crate::common::{body, tiny_tshirt};
+use crate::common::{bind, body, source, tiny_tshirt};
 
 /// Simulations made by skinning known displacements: the rest cloth is the relaxed garment
 /// grown by 2 % per unit of β₀, each motion frame adds a known wrinkle field `f_t`.
 struct Synthetic {
     body: BodyModel,
-    binding: ClothBinding,
+    relaxed: Vec<Vector3<f64>>,
+    binding: GarmentBinding,
     smoother: Smoother,
     motion_calls: AtomicUsize,
     frames: usize,
@@ -29,11 +30,9 @@ fn wrinkle(p: &Vector3<f64>, t: usize) -> Vector3<f64> {
 
 impl Synthetic {
     fn rest_cloth(&self, shape: &ShapePlan) -> Vec<Vector3<f64>> {
-        let centre =
-            self.binding.relaxed.iter().sum::<Vector3<f64>>() / self.binding.relaxed.len() as f64;
+        let centre = self.relaxed.iter().sum::<Vector3<f64>>() / self.relaxed.len() as f64;
         let s = 1.0 + 0.02 * shape.betas[0];
-        self.binding
-            .relaxed
+        self.relaxed
             .iter()
             .map(|p| centre + (p - centre) * s)
             .collect()
@@ -66,14 +65,15 @@ impl SimulationSource for Synthetic {
                         delta_g[3 * v + 1] as f64,
                         delta_g[3 * v + 2] as f64,
                     );
-                    self.binding.template[v] + g + wrinkle(&self.binding.template[v], t)
+                    let t_c = self.binding.template()[v].cast::<f64>();
+                    t_c + g + wrinkle(&t_c, t)
                 })
                 .collect();
             let (_, transforms) = self.body.skeleton().forward_kinematics(&joints, pose)?;
             let mut posed = vec![Vector3::zeros(); rest.len()];
             skin_points(
                 &rest,
-                &self.binding.skin_weights,
+                self.binding.skin_weights(),
                 &transforms,
                 &mut posed,
                 Parallelism::Sequential,
@@ -128,11 +128,11 @@ fn setup() -> (Synthetic, DatasetConfig) {
     };
     let smoother =
         Smoother::new(garment.positions(), garment.faces(), config.smoothing).expect("valid");
-    let binding =
-        ClothBinding::new(&body, garment.positions(), garment.faces(), &smoother).expect("binds");
+    let binding = bind(&body, &garment, &smoother);
     (
         Synthetic {
             body,
+            relaxed: garment.positions().to_vec(),
             binding,
             smoother,
             motion_calls: AtomicUsize::new(0),
@@ -140,19 +140,6 @@ fn setup() -> (Synthetic, DatasetConfig) {
         },
         config,
     )
-}
-
-fn source() -> DataSource {
-    DataSource {
-        garment: sartor_core::asset::AssetId {
-            id: "tshirt-tiny".into(),
-            sha256: "a".repeat(64),
-        },
-        body: sartor_core::asset::AssetId {
-            id: "makehuman".into(),
-            sha256: "b".repeat(64),
-        },
-    }
 }
 
 #[test]
@@ -184,8 +171,8 @@ fn builds_loads_resumes_and_checks_hashes() {
     let q = &data.sequences()[0];
     let mut worst = 0.0f64;
     for t in 0..q.n_frames {
-        for (v, p) in sim.binding.template.iter().enumerate() {
-            let w = wrinkle(p, t);
+        for (v, p) in sim.binding.template().iter().enumerate() {
+            let w = wrinkle(&p.cast::<f64>(), t);
             for c in 0..3 {
                 let got = q.wrinkle_delta[t * data.n_outputs() + 3 * v + c] as f64;
                 worst = worst.max((got - w[c]).abs());

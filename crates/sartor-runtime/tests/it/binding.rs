@@ -157,12 +157,13 @@ fn constructor_checks_every_invariant() {
 fn checks_against_model_and_body() {
     let b = binding();
     let h = header(OutputKind::Dense, 8);
-    b.check_model(&h).expect("matches");
+    h.check_binding(&b).expect("matches");
     b.check_body(&body()).expect("matches");
     let mut other = h.clone();
     other.garment.sha256 = "e".repeat(64);
     assert!(
-        b.check_model(&other)
+        other
+            .check_binding(&b)
             .unwrap_err()
             .to_string()
             .contains("garment")
@@ -170,7 +171,8 @@ fn checks_against_model_and_body() {
     let mut other = h.clone();
     other.body.id = "smpl".into();
     assert!(
-        b.check_model(&other)
+        other
+            .check_binding(&b)
             .unwrap_err()
             .to_string()
             .contains("body")
@@ -178,7 +180,8 @@ fn checks_against_model_and_body() {
     let mut other = h;
     other.sizes.n_vertices += 1;
     assert!(
-        b.check_model(&other)
+        other
+            .check_binding(&b)
             .unwrap_err()
             .to_string()
             .contains("vertices")
