@@ -4,11 +4,12 @@
 //! most 0.1 % of the cloth vertices are left inside the body; the rule leaves fewer garment
 //! triangles inside the body than extrapolating does.
 //!
-//! "Inside" is measured against the whole posed body (closest point and angle-weighted
-//! pseudo-normal of the full mesh, so the open cut of the region the post-process works on does
-//! not flip signs), counting the vertices whose closest body face is one of that region: a
-//! garment crossed by a forearm or a hand, which the garment's region does not include, is not
-//! the post-process's to fix (reported, not asserted).
+//! "Inside" is the project's trusted measure, sartor-core's `BodyDistance` on the whole posed
+//! body (inside by the generalized winding number, so neither the open cut of the region the
+//! post-process works on nor two body parts pressed together — an arm against the torso of a
+//! heavy body — flip the sign), counting the vertices whose closest body face is one of that
+//! region: a garment crossed by a forearm or a hand, which the garment's region does not
+//! include, is not the post-process's to fix (reported, not asserted).
 //!
 //! With the `png` feature (`cargo test -p sartor-runtime --features png`), set `SARTOR_EXTREMES_PNG` to a folder to keep one picture per extreme (front and back of the
 //! last frame); otherwise they are rendered into a temporary folder.
@@ -17,7 +18,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use nalgebra::Vector3;
-use sartor_core::{BodyModel, MeshProximity, PhenotypeRequest, PhenotypeSpace, Pose};
+use sartor_core::{BodyDistance, BodyModel, PhenotypeRequest, PhenotypeSpace, Pose};
 use sartor_runtime::{
     AnimatorOptions, BetaOutOfRange, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,
     NetworkOptions,
@@ -67,23 +68,32 @@ struct Inside {
     triangles: usize,
     n_triangles: usize,
     elsewhere: usize,
+    /// Deepest counted vertex, m (≤ 0).
+    deepest_m: f64,
+    /// Counted vertices deeper than 1 mm.
+    deeper_than_1mm: usize,
 }
 
 impl Inside {
     fn add(
         &mut self,
-        proximity: &MeshProximity,
+        distance: &BodyDistance,
         in_region: &[bool],
         garment: &[Vector3<f32>],
         faces: &[[u32; 3]],
     ) {
         let inside = |p: &Vector3<f32>| {
-            let c = proximity.closest(&p.cast::<f64>());
-            (c.signed_distance_m < 0.0, in_region[c.face as usize])
+            let q = distance.query(&p.cast::<f64>());
+            (q.inside(), in_region[q.closest.face as usize])
         };
         for p in garment {
             match inside(p) {
-                (true, true) => self.vertices += 1,
+                (true, true) => {
+                    let d = distance.query(&p.cast::<f64>()).signed_distance_m;
+                    self.vertices += 1;
+                    self.deepest_m = self.deepest_m.min(d);
+                    self.deeper_than_1mm += usize::from(d < -1e-3);
+                }
                 (true, false) => self.elsewhere += 1,
                 _ => {}
             }
@@ -122,8 +132,8 @@ fn run(
     for pose in poses {
         let garment = avatar.frame(pose).expect("frame").to_vec();
         let posed = body.posed_vertices(&betas64, pose).expect("posed body");
-        let proximity = MeshProximity::new(&posed, body.faces()).expect("body mesh");
-        inside.add(&proximity, in_region, &garment, avatar.faces());
+        let distance = BodyDistance::new(&posed, body.faces()).expect("body mesh");
+        inside.add(&distance, in_region, &garment, avatar.faces());
         body_last = posed.iter().map(|p| p.cast::<f32>()).collect();
         garment_last = garment;
     }
@@ -159,7 +169,7 @@ fn picture(
 }
 
 #[test]
-#[ignore = "not reached yet: corner-10 (β = (-3, +3, -3, +3, 0, ...)) leaves 0.154 % of the cloth vertices inside the body (issue 17 part 4); run with --ignored"]
+#[ignore = "not reached yet (issue 17 part 4): by the trusted measure (BodyDistance) 24 of 38 extremes leave more than 0.1 % of the cloth vertices inside the body, worst beta4-5 2.4 %, up to 2 cm deep, where the posed body folds into itself (a surface the push treats as outside lies inside another part); run with --ignored"]
 fn the_shipped_model_stays_out_of_extreme_bodies() {
     let dir = shipped();
     let body = Arc::new(crate::common::load_builtin().expect("built-in body"));
@@ -208,10 +218,13 @@ fn the_shipped_model_stays_out_of_extreme_bodies() {
         let (inside, posed, garment) = run(&follow, &body, &in_region, &betas, &poses);
         let (raw, _, _) = run(&extrapolate, &body, &in_region, &betas, &poses);
         eprintln!(
-            "{name:>16}: vertices inside {:.3} % (extrapolating {:.3} %), triangles inside {:.2} % \
-             ({:.2} %), inside a part outside the region {} ({})",
+            "{name:>16}: vertices inside {:.3} % (extrapolating {:.3} %; deeper than 1 mm {}, \
+             deepest {:.1} mm), triangles inside {:.2} % ({:.2} %), inside a part outside the \
+             region {} ({})",
             inside.vertex_percent(),
             raw.vertex_percent(),
+            inside.deeper_than_1mm,
+            inside.deepest_m * 1e3,
             inside.triangle_percent(),
             raw.triangle_percent(),
             inside.elsewhere,
