@@ -55,13 +55,7 @@ impl Cloth {
         }
         let positions = rest.positions();
         let faces = rest.faces();
-        let mut used = vec![false; rest.n_vertices()];
-        for t in faces {
-            for &v in t {
-                used[v as usize] = true;
-            }
-        }
-        if let Some(v) = used.iter().position(|u| !u) {
+        if let Some(v) = rest.first_unused_vertex() {
             return Err(Error::invalid(
                 "cloth mesh",
                 format!("vertex {v} belongs to no triangle"),

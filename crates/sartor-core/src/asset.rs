@@ -116,9 +116,17 @@ impl AssetFiles {
 
     /// Read the pair from `dir` and check it (see [`Self::parse`]).
     pub fn read<H: AssetHeader>(&self, dir: &Path) -> Result<(H, TensorFile)> {
-        let header = read_file(&dir.join(self.header))?;
-        let tensors = read_file(&dir.join(self.tensors))?;
+        let (header, tensors) = self.read_bytes(dir)?;
         self.parse(dir, &header, tensors)
+    }
+
+    /// The bytes of the header and of the tensors in `dir`, unchecked (for a `from_bytes`
+    /// constructor, which also serves bytes that did not come from files).
+    pub fn read_bytes(&self, dir: &Path) -> Result<(Vec<u8>, Vec<u8>)> {
+        Ok((
+            read_file(&dir.join(self.header))?,
+            read_file(&dir.join(self.tensors))?,
+        ))
     }
 
     /// Parse the pair from bytes read from folder `dir` (named in errors only): the header's

@@ -95,6 +95,16 @@ impl TriMesh {
         self.positions.len()
     }
 
+    /// The first vertex that belongs to no triangle, if any (a garment, a cloth or a remeshing
+    /// input must have none).
+    pub fn first_unused_vertex(&self) -> Option<usize> {
+        let mut used = vec![false; self.n_vertices()];
+        for &v in self.faces.iter().flatten() {
+            used[v as usize] = true;
+        }
+        used.iter().position(|u| !u)
+    }
+
     /// Number of triangles.
     pub fn n_faces(&self) -> usize {
         self.faces.len()

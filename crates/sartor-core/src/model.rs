@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::asset::AssetFiles;
-use crate::io::{OwnedTensor, read_file, serialize_tensors, sha256_hex};
+use crate::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use crate::skeleton::{Pose, Skeleton};
 use crate::skinning::{BoneTransform, Parallelism, SkinWeights, skin_points};
 use crate::{Error, Result, TriMesh};
@@ -369,8 +369,7 @@ impl BodyModel {
     /// Load a model saved by [`Self::save`] from `dir`, checking the header, the tensors' hash,
     /// every shape and every invariant.
     pub fn load(dir: &Path) -> Result<Self> {
-        let header_bytes = read_file(&dir.join(MODEL_HEADER))?;
-        let tensor_bytes = read_file(&dir.join(MODEL_TENSORS))?;
+        let (header_bytes, tensor_bytes) = FILES.read_bytes(dir)?;
         Self::from_bytes(dir, &header_bytes, tensor_bytes)
     }
 

@@ -168,13 +168,7 @@ impl Remesher {
         }
         let topology = mesh.topology();
         topology.check_manifold()?;
-        let mut used = vec![false; mesh.n_vertices()];
-        for t in mesh.faces() {
-            for &v in t {
-                used[v as usize] = true;
-            }
-        }
-        if let Some(v) = used.iter().position(|u| !u) {
+        if let Some(v) = mesh.first_unused_vertex() {
             return Err(Error::invalid(
                 "remeshing input",
                 format!("vertex {v} belongs to no triangle"),

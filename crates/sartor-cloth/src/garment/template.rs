@@ -489,8 +489,7 @@ impl Garment {
     /// shape and every invariant, and that the stored frames and areas are the ones the
     /// positions and rest metric imply.
     pub fn load(dir: &Path) -> Result<Self> {
-        let header = sartor_core::io::read_file(&dir.join(GARMENT_HEADER))?;
-        let tensors = sartor_core::io::read_file(&dir.join(GARMENT_TENSORS))?;
+        let (header, tensors) = FILES.read_bytes(dir)?;
         Self::from_bytes(dir, &header, tensors)
     }
 
@@ -595,13 +594,7 @@ pub(crate) fn check_garment_topology(mesh: &TriMesh) -> Result<()> {
             format!("the mesh has {components} disconnected parts; a garment must be one piece"),
         ));
     }
-    let mut used = vec![false; mesh.n_vertices()];
-    for t in mesh.faces() {
-        for &v in t {
-            used[v as usize] = true;
-        }
-    }
-    if let Some(v) = used.iter().position(|u| !u) {
+    if let Some(v) = mesh.first_unused_vertex() {
         return Err(Error::invalid(
             "garment",
             format!("vertex {v} belongs to no triangle"),
