@@ -20,9 +20,11 @@ pub const REST_MOTION: &str = "rest";
 /// Failure notes go here, inside the sim folder.
 pub const FAILED_DIR: &str = "failed";
 
-/// The file stem of a simulated sequence: `<shape>__<motion>`.
+/// The file stem of a simulated sequence: `<shape>__<motion's file stem>`
+/// ([`sartor_motion::motion_file_stem`]: `cmu/05_02@120+90` → `cmu-05_02@120+90`, a path →
+/// its file's stem), so that every motion spec names one file in the sim folder.
 pub fn sequence_stem(shape_id: &str, motion: &str) -> String {
-    format!("{shape_id}__{motion}")
+    format!("{shape_id}__{}", sartor_motion::motion_file_stem(motion))
 }
 
 /// Reads the sequence files of a simulation folder.

@@ -24,17 +24,24 @@
 //! - `training`: [`TrainingConfig`] (sartor-model; optional, but `train` needs it);
 //! - `evaluation`: [`EvaluationConfig`] (the defaults of `eval` and `tradeoff`).
 //!
+//! A motion is anything sartor-motion's `load_motion` reads — a procedural clip, an imported
+//! clip (`cmu/05_02`), a `.bvh` / `.npz` / `.json` file — or a set of imported clips (`cmu/*`,
+//! expanded once at load), each optionally cut to a window (`cmu/05_02@120+90`: 90 frames
+//! from frame 120). Loading refuses two specs that would write the same files and any frame
+//! of a clip that is in both a training and a held-out motion.
+//!
 //! Paths are relative to the data folder ([`DataDir`]: the repository, or the data shipped with
 //! the `sartor` binary). Outputs go to `<runs>/<name>/` (`sim/`, `dataset/`, `train/`,
 //! `export/`, `eval/`).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use sartor_cloth::DriveConfig;
 use sartor_core::io::{read_file, sha256_hex};
 use sartor_dataset::{DatasetConfig, DatasetPlan, REST_MOTION, SequencePlan, ShapePlan, Split};
 use sartor_model::TrainingConfig;
+use sartor_motion::{MotionWindow, expand_motion_set, motion_file_stem};
 use serde::{Deserialize, Serialize};
 
 use crate::error::bail;
@@ -148,6 +155,37 @@ fn default_material() -> String {
     "gray_interlock".into()
 }
 
+/// A frame two motion specs both use, if they are windows of (or the whole of) one clip whose
+/// frames overlap; `None` for different clips. A whole clip overlaps any window of it.
+fn shared_frame(a: &str, b: &str) -> Result<Option<usize>> {
+    let range = |spec: &str| -> Result<(String, usize, usize)> {
+        Ok(match MotionWindow::parse(spec)? {
+            Some(w) => (w.motion, w.start, w.start + w.frames),
+            None => (spec.to_string(), 0, usize::MAX),
+        })
+    };
+    let ((ma, a0, a1), (mb, b0, b1)) = (range(a)?, range(b)?);
+    let start = a0.max(b0);
+    Ok((ma == mb && start < a1.min(b1)).then_some(start))
+}
+
+/// `spec` with a relative file path (`.bvh`, `.npz`, `.json`, a window suffix kept) resolved
+/// against the data folder, as configs name their assets; any other spec unchanged.
+pub fn resolve_motion_spec(spec: &str, data: &DataDir) -> String {
+    let (motion, window) = match spec.rsplit_once('@') {
+        Some((m, w)) if MotionWindow::parse(spec).is_ok_and(|w| w.is_some()) => {
+            (m, format!("@{w}"))
+        }
+        _ => (spec, String::new()),
+    };
+    let lower = motion.to_ascii_lowercase();
+    if [".bvh", ".npz", ".json"].iter().any(|e| lower.ends_with(e)) {
+        format!("{}{window}", data.resolve(Path::new(motion)).display())
+    } else {
+        spec.to_string()
+    }
+}
+
 fn valid_id(id: &str) -> bool {
     !id.is_empty()
         && id
@@ -169,6 +207,32 @@ impl Experiment {
         if e.material != "gray_interlock" {
             e.material = data.resolve(Path::new(&e.material)).display().to_string();
         }
+        // Sets (`cmu/*`) become their clips, once, here: the plan, the simulation's files and
+        // the saved config all see the same list of motions.
+        let motions_dir = data.motions_dir();
+        let m = &mut e.motions;
+        for list in [&mut m.train, &mut m.held_out, &mut m.held_out_shapes] {
+            let mut expanded = Vec::with_capacity(list.len());
+            for spec in list.iter() {
+                if spec.ends_with("/*") {
+                    expanded.extend(expand_motion_set(&motions_dir, spec).map_err(|err| {
+                        Error::Config {
+                            path: path.to_path_buf(),
+                            line: 0,
+                            message: format!("motion set {spec:?}: {err}"),
+                        }
+                    })?);
+                } else {
+                    expanded.push(spec.clone());
+                }
+            }
+            *list = expanded;
+        }
+        e.validate().map_err(|err| Error::Config {
+            path: path.to_path_buf(),
+            line: 0,
+            message: format!("invalid experiment config (motion sets expanded): {err}"),
+        })?;
         e.runs_root = runs_root.to_path_buf();
         Ok(e)
     }
@@ -244,8 +308,37 @@ impl Experiment {
                 bail!("motion name {m:?} is reserved or contains '__'");
             }
         }
+        // Every sequence gets its own files: no two motions may share a file stem.
+        let mut stems: BTreeMap<String, &String> = BTreeMap::new();
+        for m in train.iter().chain(&held) {
+            if let Some(other) = stems.insert(motion_file_stem(m), m) {
+                bail!(
+                    "motions {other:?} and {m:?} would share the file stem {:?}",
+                    motion_file_stem(m)
+                );
+            }
+        }
+        // No frame of a held-out motion may be trained on: two windows of one clip (or a window
+        // and the whole clip) in both splits must not overlap.
+        for h in &held {
+            for t in &train {
+                if let Some(frame) = shared_frame(t, h)? {
+                    bail!(
+                        "held-out motion {h:?} and training motion {t:?} share frame {frame} of \
+                         the same clip"
+                    );
+                }
+            }
+        }
+        // (Before sets are expanded, a clip of a listed set counts as listed.)
+        let in_a_set = |m: &str| {
+            train.iter().chain(&held).any(|t| {
+                t.strip_suffix("/*")
+                    .is_some_and(|set| m.strip_prefix(set).is_some_and(|r| r.starts_with('/')))
+            })
+        };
         for m in &self.motions.held_out_shapes {
-            if !train.contains(m) && !held.contains(m) {
+            if !train.contains(m) && !held.contains(m) && !in_a_set(m) {
                 bail!("held-out-shape motion {m:?} is neither a training nor a held-out motion");
             }
         }
@@ -396,6 +489,87 @@ mod tests {
         edit(&mut v);
         let text = serde_json::to_string_pretty(&v).expect("json");
         Experiment::parse(Path::new("configs/edited.json"), text.as_bytes())
+    }
+
+    /// The tiny config with `edit` applied, loaded (motion sets expanded) from a file.
+    fn loaded(edit: impl Fn(&mut serde_json::Value)) -> Result<Experiment> {
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(config_path("tiny")).expect("read"))
+                .expect("json");
+        edit(&mut v);
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("edited.json");
+        std::fs::write(&path, serde_json::to_vec_pretty(&v).expect("json")).expect("write");
+        let data = DataDir::new(&root()).expect("the workspace is a data folder");
+        Experiment::load(&path, &data, Path::new("runs"))
+    }
+
+    #[test]
+    fn motion_sets_expand_and_clips_never_leak_across_splits() {
+        // `cmu/*` becomes every imported CMU clip, in name order, and each gets its own files.
+        let e = loaded(|v| {
+            v["motions"]["train"] = serde_json::json!(["cmu/*"]);
+            v["motions"]["held_out"] = serde_json::json!(["jump_forward"]);
+            v["motions"]["held_out_shapes"] = serde_json::json!(["cmu/07_01"]);
+        })
+        .expect("a set of training motions");
+        let all = expand_motion_set(&root().join("datasets/motions"), "cmu/*").expect("set");
+        assert_eq!(e.motions.train, all);
+        assert!(all.len() >= 10 && all.iter().all(|m| m.starts_with("cmu/")));
+        let plan = e.plan();
+        let stems: BTreeSet<String> = plan
+            .sequences
+            .iter()
+            .map(|q| sartor_dataset::sequence_stem(&plan.shapes[q.shape].id, &q.motion))
+            .collect();
+        assert_eq!(stems.len(), plan.sequences.len(), "one file per sequence");
+        assert!(stems.iter().all(|s| !s.contains('/')), "{stems:?}");
+
+        // A held-out clip inside a training set, or overlapping windows of one clip, are refused;
+        // disjoint windows of one clip are fine.
+        let clip = all[0].clone();
+        let leak = loaded(|v| {
+            v["motions"]["train"] = serde_json::json!(["cmu/*"]);
+            v["motions"]["held_out"] = serde_json::json!([clip.clone()]);
+            v["motions"]["held_out_shapes"] = serde_json::json!([clip.clone()]);
+        })
+        .expect_err("a held-out clip in the training set");
+        assert!(leak.to_string().contains(&clip), "{leak}");
+        let overlap = loaded(|v| {
+            v["motions"]["train"] = serde_json::json!([format!("{clip}@0+60")]);
+            v["motions"]["held_out"] = serde_json::json!([format!("{clip}@59+30")]);
+            v["motions"]["held_out_shapes"] = serde_json::json!([]);
+        })
+        .expect_err("overlapping windows");
+        assert!(overlap.to_string().contains("share frame 59"), "{overlap}");
+        loaded(|v| {
+            v["motions"]["train"] = serde_json::json!([format!("{clip}@0+60")]);
+            v["motions"]["held_out"] = serde_json::json!([format!("{clip}@60+30")]);
+            v["motions"]["held_out_shapes"] = serde_json::json!([format!("{clip}@0+60")]);
+        })
+        .expect("disjoint windows of one clip");
+        // Two specs that would write the same files.
+        let same = loaded(|v| {
+            v["motions"]["train"] = serde_json::json!(["cmu/05_02", "cmu-05_02.json"]);
+            v["motions"]["held_out_shapes"] = serde_json::json!([]);
+        })
+        .expect_err("one file stem for two motions");
+        assert!(same.to_string().contains("file stem"), "{same}");
+    }
+
+    #[test]
+    fn motion_paths_resolve_against_the_data_folder() {
+        let data = DataDir::new(&root()).expect("data folder");
+        let spec = "crates/sartor-motion/tests/data/cmu/07_01.bvh@10+20";
+        let resolved = resolve_motion_spec(spec, &data);
+        assert!(resolved.ends_with("07_01.bvh@10+20"), "{resolved}");
+        let path = resolved.trim_end_matches("@10+20");
+        assert!(
+            Path::new(path).is_absolute() && Path::new(path).is_file(),
+            "{path}"
+        );
+        assert_eq!(resolve_motion_spec("cmu/05_02@1+2", &data), "cmu/05_02@1+2");
+        assert_eq!(resolve_motion_spec("walk_normal", &data), "walk_normal");
     }
 
     #[test]

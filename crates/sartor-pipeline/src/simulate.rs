@@ -31,7 +31,7 @@ use sartor_motion::{Motion, MotionSourceOptions, RetargetBody, load_motion};
 use serde::Serialize;
 
 use crate::error::{Context, bail};
-use crate::experiment::Experiment;
+use crate::experiment::{Experiment, resolve_motion_spec};
 use crate::{DataDir, Error, Result};
 
 /// How [`simulate`] runs.
@@ -137,6 +137,8 @@ pub struct SimInputs {
     pub drive: DriveConfig,
     /// Motion sources.
     pub motions: MotionSourceOptions,
+    /// The data folder (motion files named by a relative path are resolved against it).
+    pub data: DataDir,
 }
 
 impl SimInputs {
@@ -167,12 +169,18 @@ impl SimInputs {
             material,
             drive,
             motions,
+            data: data.clone(),
         })
     }
 
     /// The motion of a job, cut to the experiment's `max_frames`.
     pub fn motion(&self, e: &Experiment, name: &str) -> Result<Motion> {
-        let m = load_motion(name, &self.motions).with_context(|| format!("motion {name:?}"))?;
+        let spec = resolve_motion_spec(name, &self.data);
+        // Named by the spec as the config writes it (a BVH file's motion is otherwise named
+        // after the file), so that the sequence files record what the plan asks for.
+        let m = load_motion(&spec, &self.motions)
+            .with_context(|| format!("motion {name:?}"))?
+            .renamed(name.to_string());
         Ok(match e.motions.max_frames {
             Some(n) if n < m.n_frames() => m.slice(0..n)?,
             _ => m,
@@ -339,10 +347,15 @@ pub fn simulate(
                 Some(inputs.motion(e, &job.motion)?)
             };
             let mut last = 0usize;
+            // The simulator counts frames from 0 again when it restarts a sequence with a larger
+            // body region (the cloth left the region): only frames past the furthest reached
+            // advance the bar. (A CMU clip in the tiny pipeline test restarts this way.)
             let mut on_frame = |done: usize, _total: usize| {
-                progress.inc((done - last) as u64);
-                frames_done.fetch_add(done - last, Ordering::Relaxed);
-                last = done;
+                if done > last {
+                    progress.inc((done - last) as u64);
+                    frames_done.fetch_add(done - last, Ordering::Relaxed);
+                    last = done;
+                }
             };
             let path = out.join(format!("{}.mcap", job.stem));
             match simulate_sequence(

@@ -1,4 +1,5 @@
-//! The tiny pipeline on configs/tiny.json: `simulate` + `dataset` (resume after a kill gives
+//! The tiny pipeline on configs/tiny.json (a procedural clip, a window of an imported CMU clip by
+//! name and a CMU BVH file by path): `simulate` + `dataset` (resume after a kill gives
 //! byte-identical files, the dataset loads, no frame of a held-out clip or shape is in the
 //! training split), then `train`, `export` and `eval` on it.
 
