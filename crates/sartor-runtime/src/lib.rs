@@ -75,7 +75,7 @@ pub use error::{Error, Result};
 pub use format::{
     AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,
     MODEL_JSON, MODEL_TENSORS, MODEL_VERSION, MeanStd, ModelHeader, ModelSizes, ModelWeights,
-    NormStats, OutputKind, PcaWeights, RotationEncoding, TrainingBetas,
+    NormStats, OutputKind, PcaWeights, RotationEncoding, TensorStorage, TrainingBetas,
 };
 pub use kernels::{
     GruCell, GruScratch, INT8_ZERO_ROW, Linear, Matrix, Mlp, MlpScratch, OutputLayer,
