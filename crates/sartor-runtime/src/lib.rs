@@ -65,7 +65,7 @@ mod writers;
 
 pub use animator::{
     AnimatorOptions, BetaOutOfRange, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd,
-    GarmentRig, LevelOfDetail, WrinkleMode,
+    GarmentRig, LevelOfDetail, StageTimes, WrinkleMode,
 };
 pub use binding::{
     BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
