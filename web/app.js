@@ -2,7 +2,7 @@
 // model (f16 on the wire) and body, then plays a motion on the body chosen with the sliders.
 // Everything it fetches is under this folder.
 
-import init, { AssetFiles, TryOn, proceduralClips } from "./pkg/sartor_web.js";
+import init, { AssetFiles, TryOn, kernelProbe, proceduralClips } from "./pkg/sartor_web.js";
 import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
@@ -203,13 +203,15 @@ function transferred() {
   const nav = performance.getEntriesByType("navigation")[0];
   let total = nav ? nav.transferSize : 0;
   let model = 0;
+  let body = 0;
   let wasm = 0;
   for (const e of entries) {
     total += e.transferSize;
     if (e.name.includes("/model/")) model += e.transferSize;
+    if (e.name.includes("/body/")) body += e.transferSize;
     if (e.name.endsWith(".wasm")) wasm += e.transferSize;
   }
-  return { total, model, wasm };
+  return { total, model, body, wasm };
 }
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
@@ -314,7 +316,7 @@ async function main() {
   $("loaded").textContent =
     `usable ${(state.readyMs / 1000).toFixed(2)} s after navigation; transferred ${mb(bytes.total)} ` +
     `(model ${mb(bytes.model)} with ${manifest.model.storage}; f32 would be ${mb(manifest.model.f32_bytes)}; ` +
-    `WebAssembly ${mb(bytes.wasm)})`;
+    `body ${mb(bytes.body)}, WebAssembly ${mb(bytes.wasm)})`;
   $("status").textContent = `${manifest.model.garment}, ${manifest.model.triangles} triangles, post-process on`;
   document.body.dataset.ready = "true";
   requestAnimationFrame(tick);
@@ -329,6 +331,7 @@ window.sartor = {
   transferred,
   bench,
   setPlaying,
+  kernelProbe: () => Array.from(kernelProbe()),
 };
 
 main().catch((e) => {

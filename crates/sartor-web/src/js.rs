@@ -225,3 +225,10 @@ impl WebTryOn {
 pub fn procedural_clips() -> Vec<String> {
     procedural_clip_names()
 }
+
+/// The runtime's matrix kernels on fixed inputs ([`crate::kernel_probe`]): the browser test
+/// compares them bit for bit with the native build's.
+#[wasm_bindgen(js_name = kernelProbe)]
+pub fn kernel_probe_js() -> Result<Vec<f32>, JsError> {
+    crate::kernel_probe().map_err(js)
+}

@@ -14,6 +14,8 @@
 //!   Sequential only: the browser gives no threads.
 //! - **JavaScript** (`js.rs`): `AssetFiles`, `TryOn` and `proceduralClips` for the page; every
 //!   fault comes back as a JavaScript `Error` naming it.
+//! - **Kernel probe** ([`kernel_probe`]): the runtime's matrix kernels on fixed inputs, for
+//!   the browser test's bitwise comparison of the WebAssembly build with the native one.
 //! - **Serving** (`serve_dir`, native only): the static server of `cargo xtask web --serve`
 //!   and of the browser test.
 //!
@@ -45,6 +47,7 @@ mod clock;
 mod error;
 mod files;
 mod js;
+mod probe;
 #[cfg(not(target_arch = "wasm32"))]
 mod serve;
 mod session;
@@ -52,7 +55,8 @@ mod session;
 pub use clock::now_ms;
 pub use error::{Error, Result};
 pub use files::{BODY_FILES, FileSet, MODEL_FILES};
-pub use js::{AssetFiles, WebTryOn, procedural_clips};
+pub use js::{AssetFiles, WebTryOn, kernel_probe_js, procedural_clips};
+pub use probe::kernel_probe;
 #[cfg(not(target_arch = "wasm32"))]
 pub use serve::{Server, serve_dir};
 pub use session::{

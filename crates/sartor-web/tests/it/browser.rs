@@ -284,6 +284,11 @@ fn native_frame(dist: &Path) -> Vec<f32> {
     t.garment_vertices()
 }
 
+/// The instruction set of the native kernels compared with the page's.
+fn sartor_runtime_isa() -> &'static str {
+    sartor_runtime::instruction_set()
+}
+
 fn floats(value: &Value) -> Vec<f64> {
     value
         .as_array()
@@ -360,6 +365,20 @@ fn the_page_works_in_headless_chromium() {
     assert!(
         page_vs_native < 1e-4,
         "the page's garment is the native one within 0.1 mm: {page_vs_native} m"
+    );
+
+    // The kernels compute in the page bit for bit what they compute natively.
+    let probe = floats(&browser.eval("return window.sartor.kernelProbe();"));
+    let native_probe = sartor_web::kernel_probe().expect("probe");
+    assert_eq!(probe.len(), native_probe.len());
+    let differing = probe
+        .iter()
+        .zip(&native_probe)
+        .filter(|(a, b)| (**a as f32).to_bits() != b.to_bits())
+        .count();
+    assert_eq!(
+        differing, 0,
+        "kernel outputs differ between the page and native code"
     );
 
     // Frames advance while playing.
@@ -466,10 +485,13 @@ fn the_page_works_in_headless_chromium() {
     println!(
         "page: usable after {ready_ms} ms (wall {wall_s:.2} s); {loaded}\n\
          transferred: {bytes}\nWebGL2 renderer: {webgl}\n\
+         kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
          back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
-        shot.display()
+        probe.len(),
+        sartor_runtime_isa(),
+        shot.display(),
     );
     let _ = writeln!(
         std::io::stderr(),
