@@ -13,6 +13,7 @@ mod gt_collisions;
 mod import_body;
 mod motions;
 mod ship;
+mod web;
 
 #[derive(Parser)]
 #[command(
@@ -46,6 +47,9 @@ enum Command {
     /// The ground truth's signed distance to the posed body (the one collision measure) of a
     /// sim folder or a shipped model's slice: percentiles, the share below 0 and -1 mm.
     GtCollisions(gt_collisions::GtCollisionsArgs),
+    /// Build the try-on page into web/dist (WebAssembly runtime, f16 model, body, clips);
+    /// `--serve` serves it on 127.0.0.1.
+    Web(web::WebArgs),
     #[command(flatten)]
     Sartor(sartor_cli::Command),
 }
@@ -65,6 +69,7 @@ fn main() -> anyhow::Result<()> {
         Command::Ship(args) => ship::ship(&args, &env),
         Command::CheckModel(args) => ship::check_model(&args, &env),
         Command::GtCollisions(args) => gt_collisions::gt_collisions(&args, &env),
+        Command::Web(args) => web::web(&args, &root),
         Command::Sartor(command) => sartor_cli::run(&command, &env),
     }
 }

@@ -499,7 +499,14 @@ impl GarmentBinding {
     /// tensors' hash, the exact set of tensors, dtypes and shapes against the header, and every
     /// invariant of [`GarmentBinding::new`]. Errors name the file and the fault.
     pub fn load(dir: &Path) -> Result<Self> {
-        let (header, file): (BindingHeader, _) = FILES.read(dir)?;
+        let (header, tensors) = FILES.read_bytes(dir)?;
+        Self::from_bytes(dir, &header, tensors)
+    }
+
+    /// [`Self::load`] from the two files' bytes, read from folder `dir` (named in errors
+    /// only): how a web page, which has no file system, loads the binding it fetched.
+    pub fn from_bytes(dir: &Path, header_bytes: &[u8], tensor_bytes: Vec<u8>) -> Result<Self> {
+        let (header, file): (BindingHeader, _) = FILES.parse(dir, header_bytes, tensor_bytes)?;
         let (json_path, path) = (dir.join(BINDING_JSON), dir.join(BINDING_TENSORS));
         let bad_json = |m: String| Error::format(&json_path, m);
         header.garment.check("garment").map_err(bad_json)?;

@@ -50,6 +50,22 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     digest.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// The f32 value of IEEE half-precision bits (exact: every half is an f32).
+pub fn f16_bits_to_f32(h: u16) -> f32 {
+    let negative = h & 0x8000 != 0;
+    let exponent = u32::from((h >> 10) & 0x1f);
+    let mantissa = u32::from(h & 0x3ff);
+    let magnitude = match exponent {
+        // Zero and subnormals: mantissa · 2⁻²⁴, exact in f32.
+        0 => mantissa as f32 * (1.0 / 16_777_216.0),
+        // Infinities and NaNs.
+        0x1f => f32::from_bits(0x7f80_0000 | (mantissa << 13)),
+        // Normal numbers: rebias the exponent (15 → 127), widen the mantissa.
+        _ => f32::from_bits(((exponent + 112) << 23) | (mantissa << 13)),
+    };
+    if negative { -magnitude } else { magnitude }
+}
+
 /// A tensor to be written: name, dtype, shape and little-endian bytes.
 #[derive(Clone, Debug)]
 pub struct OwnedTensor {
@@ -258,6 +274,30 @@ impl TensorFile {
         Ok((s, v))
     }
 
+    /// An f32 tensor, or an f16 one widened to f32 (exactly: every half is an f32), with the
+    /// expected shape. Rejects non-finite values. For files that store some tensors in half
+    /// precision to be small on the wire (a model shipped to a web page).
+    pub fn f32_or_f16(
+        &self,
+        name: &str,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<usize>, Vec<f32>)> {
+        let t = self.tensors();
+        let is_f16 = t.tensor(name).is_ok_and(|v| v.dtype() == Dtype::F16);
+        if !is_f16 {
+            return self.f32(name, shape);
+        }
+        let (s, bits) = self.f16_bits(name, shape)?;
+        let v: Vec<f32> = bits.into_iter().map(f16_bits_to_f32).collect();
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(Error::format(
+                &self.path,
+                format!("tensor {name:?} has a non-finite value at {i}"),
+            ));
+        }
+        Ok((s, v))
+    }
+
     /// An f16 tensor as raw IEEE half bits.
     pub fn f16_bits(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<u16>)> {
         let (s, bytes) = self.raw(name, Dtype::F16, shape)?;
@@ -326,5 +366,54 @@ impl TensorFile {
             })
             .collect::<Result<Vec<_>>>()?;
         Ok((s, values))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn half_bits_widen_exactly() {
+        for (bits, value) in [
+            (0x0000, 0.0f32),
+            (0x3c00, 1.0),
+            (0xc000, -2.0),
+            (0x3555, 0.333_251_95),
+            (0x7bff, 65504.0),
+            (0x0400, 2f32.powi(-14)),
+            (0x0001, 2f32.powi(-24)),
+            (0x83ff, -(1023.0 * 2f32.powi(-24))),
+            (0x7c00, f32::INFINITY),
+        ] {
+            assert_eq!(f16_bits_to_f32(bits), value, "{bits:#06x}");
+        }
+        assert!(f16_bits_to_f32(0x7e00).is_nan());
+        assert!(f16_bits_to_f32(0x8000).is_sign_negative());
+    }
+
+    #[test]
+    fn f32_or_f16_reads_either_and_rejects_infinity() {
+        let mut map = BTreeMap::new();
+        map.insert("a".to_string(), OwnedTensor::f32(&[2], [1.5, -0.25]));
+        map.insert(
+            "h".to_string(),
+            OwnedTensor::f16_bits(&[2], [0x3e00, 0xb400]),
+        );
+        map.insert("inf".to_string(), OwnedTensor::f16_bits(&[1], [0x7c00]));
+        let bytes = serialize_tensors(&map, None).expect("serialises");
+        let file = TensorFile::from_bytes(Path::new("t.safetensors"), bytes).expect("parses");
+        assert_eq!(
+            file.f32_or_f16("a", &[Some(2)]).expect("f32").1,
+            [1.5, -0.25]
+        );
+        assert_eq!(
+            file.f32_or_f16("h", &[Some(2)]).expect("f16").1,
+            [1.5, -0.25]
+        );
+        let err = file.f32_or_f16("inf", &[None]).expect_err("infinite");
+        assert!(err.to_string().contains("non-finite"), "{err}");
+        assert!(file.f32_or_f16("h", &[Some(3)]).is_err());
+        assert!(file.f32("h", &[Some(2)]).is_err(), "f32 alone stays strict");
     }
 }

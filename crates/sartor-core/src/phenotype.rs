@@ -798,7 +798,15 @@ impl PhenotypeSpace {
     /// Load a space saved by [`Self::save`] from `dir` (e.g. the built-in `datasets/body/makehuman`),
     /// checking the header, the tensors' hash, the rule and every shape.
     pub fn load(dir: &Path) -> Result<Self> {
-        let (header, file): (Header, _) = FILES.read(dir)?;
+        let header = crate::io::read_file(&dir.join(PHENOTYPE_HEADER))?;
+        let tensors = crate::io::read_file(&dir.join(PHENOTYPE_TENSORS))?;
+        Self::from_bytes(dir, &header, tensors)
+    }
+
+    /// [`Self::load`] from the two files' bytes, read from folder `dir` (named in errors
+    /// only): how a web page, which has no file system, loads the space it fetched.
+    pub fn from_bytes(dir: &Path, header_bytes: &[u8], tensor_bytes: Vec<u8>) -> Result<Self> {
+        let (header, file): (Header, _) = FILES.parse(dir, header_bytes, tensor_bytes)?;
         let header_path = dir.join(PHENOTYPE_HEADER);
         let (t, nb) = (header.targets.len(), header.n_betas);
         let (_, target_betas) = file.f32("target_betas", &[Some(t), Some(nb)])?;

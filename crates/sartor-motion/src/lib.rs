@@ -54,7 +54,7 @@ pub use bvh_tpose::{
 pub use motion::Motion;
 pub use motion_library::{
     CMU_ACKNOWLEDGEMENT, MotionWindow, STORED_CLIP_FORMAT, StoredClip, StoredClipHeader,
-    expand_motion_set, load_stored_clip, motion_file_stem,
+    expand_motion_set, load_stored_clip, motion_file_stem, stored_clip_from_bytes,
 };
 pub use rest_pose::{POSTURE_BONES, SourceRest};
 pub use retarget::{RetargetBody, TPOSE_FILE, load_tpose, pose_from_world, world_rotations};

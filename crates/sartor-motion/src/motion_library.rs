@@ -264,9 +264,18 @@ pub fn is_stored_clip(motions_dir: &Path, name: &str) -> bool {
 /// stored: the T-pose frame already dropped), checking the tensor file's hash.
 pub fn load_stored_clip(motions_dir: &Path, name: &str) -> Result<Bvh> {
     let json_path = header_path(motions_dir, name);
-    let header: StoredClipHeader = serde_json::from_slice(&read_file(&json_path)?)
-        .map_err(|e| Error::parse(&json_path, e.line(), e.to_string()))?;
-    let fault = |m: String| Error::format(&json_path, m);
+    let json = read_file(&json_path)?;
+    let tensors = read_file(&json_path.with_extension("safetensors"))?;
+    stored_clip_from_bytes(&json_path, &json, tensors)
+}
+
+/// [`load_stored_clip`] from the bytes of the clip's JSON header (read from `json_path`, named
+/// in errors only) and of its safetensors file beside it: how a web page, which has no file
+/// system, loads a clip it fetched.
+pub fn stored_clip_from_bytes(json_path: &Path, json: &[u8], tensor_bytes: Vec<u8>) -> Result<Bvh> {
+    let header: StoredClipHeader = serde_json::from_slice(json)
+        .map_err(|e| Error::parse(json_path, e.line(), e.to_string()))?;
+    let fault = |m: String| Error::format(json_path, m);
     if header.format != STORED_CLIP_FORMAT || header.version != 1 {
         return Err(fault(format!(
             "format {:?} version {} is not {STORED_CLIP_FORMAT} version 1",
@@ -274,7 +283,7 @@ pub fn load_stored_clip(motions_dir: &Path, name: &str) -> Result<Bvh> {
         )));
     }
     let st_path = json_path.with_extension("safetensors");
-    let bytes = read_file(&st_path)?;
+    let bytes = tensor_bytes;
     if sha256_hex(&bytes) != header.tensors_sha256 {
         return Err(Error::format(
             &st_path,

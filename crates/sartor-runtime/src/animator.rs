@@ -345,6 +345,18 @@ pub struct CollisionCount {
     pub within_margin: usize,
 }
 
+/// Where one [`GarmentAnimator::frame`] spent its time, in milliseconds of the clock given to
+/// [`GarmentAnimator::set_stage_clock`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// The wrinkle input and the network step (GRU and output layer, or the linear baseline).
+    pub network_ms: f64,
+    /// Forward kinematics and the garment's skinning.
+    pub skinning_ms: f64,
+    /// The collision post-process (posing the body region and pushing vertices out).
+    pub post_process_ms: f64,
+}
+
 /// One avatar's state, everything but the network buffers (which a crowd batches).
 #[derive(Clone, Debug)]
 struct Avatar {
@@ -361,6 +373,9 @@ struct Avatar {
     collider: Option<Collider>,
     vertices: Vec<Vector3<f32>>,
     pushed: usize,
+    /// A clock in milliseconds that times the stages of a frame (none: not timed).
+    clock: Option<fn() -> f64>,
+    times: StageTimes,
 }
 
 impl Avatar {
@@ -380,7 +395,14 @@ impl Avatar {
             collider: None,
             vertices: rig.binding.template().to_vec(),
             pushed: 0,
+            clock: None,
+            times: StageTimes::default(),
         }
+    }
+
+    /// The clock's reading, or 0 without a clock.
+    fn now(&self) -> f64 {
+        self.clock.map_or(0.0, |clock| clock())
     }
 
     /// Cache `R_G(β)`, `T̄_c + Δ_G`, `J(β)` and the shaped body region; the networks see β
@@ -478,6 +500,7 @@ impl Avatar {
         wrinkle: Option<&[f32]>,
         par: Parallelism,
     ) -> Result<()> {
+        let start = self.now();
         rig.body.skeleton().forward_kinematics_into(
             &self.rest_joints,
             pose,
@@ -507,11 +530,15 @@ impl Avatar {
             &mut self.vertices,
             par,
         )?;
+        let skinned = self.now();
         self.pushed = 0;
         if let Some(collider) = &mut self.collider {
             collider.pose(&rig.region, &self.transforms, par)?;
             self.pushed = collider.resolve(&mut self.vertices, par);
         }
+        let done = self.now();
+        self.times.skinning_ms = skinned - start;
+        self.times.post_process_ms = done - skinned;
         // Field by field: the derived `Pose::clone_from` would allocate a new rotation vector
         // (the lengths agree: the pose was validated against the skeleton).
         self.previous.root_translation_m = pose.root_translation_m;
@@ -633,6 +660,7 @@ impl GarmentAnimator {
         let par = rig.options.parallelism;
         pose.validate(rig.body.skeleton().n_joints())?;
         let par_net = rig.options.parallelism;
+        let start = self.avatar.now();
         let wrinkle = match rig.options.wrinkles {
             WrinkleMode::Gru => {
                 self.avatar.features(rig, pose, &mut self.x)?;
@@ -653,8 +681,24 @@ impl GarmentAnimator {
             }
             WrinkleMode::None => None,
         };
+        self.avatar.times.network_ms = self.avatar.now() - start;
         self.avatar.finish(rig, pose, wrinkle, par)?;
         Ok(&self.avatar.vertices)
+    }
+
+    /// Time the stages of every later frame with `clock`, a monotonic clock in milliseconds
+    /// (`None`: stop timing). The runtime reads no clock itself: a native caller passes one
+    /// built on `std::time::Instant`, a web page one that calls `performance.now()` (where
+    /// `Instant` is not available).
+    pub fn set_stage_clock(&mut self, clock: Option<fn() -> f64>) {
+        self.avatar.clock = clock;
+        self.avatar.times = StageTimes::default();
+    }
+
+    /// Where the last frame spent its time (`None` unless a clock was set with
+    /// [`GarmentAnimator::set_stage_clock`]).
+    pub fn stage_times(&self) -> Option<StageTimes> {
+        self.avatar.clock.map(|_| self.avatar.times)
     }
 
     /// [`GarmentAnimator::frame`], copying the vertices into `out` (`V` entries).

@@ -2,8 +2,12 @@
 //! layout, provenance, content hash). The training side writes exactly this; the runtime
 //! validates all of it on load.
 //!
-//! # Tensors (all f32, row-major; `V` vertices, `B` = `n_betas`, `I` = `n_betas +
+//! # Tensors (f32, row-major; `V` vertices, `B` = `n_betas`, `I` = `n_betas +
 //! n_pose_features`, `H_f` = `fit_hidden`, `H` = `gru_hidden`)
+//!
+//! Any tensor may also be stored as f16 (the reader widens it to f32 exactly):
+//! [`TensorStorage::F16`] writes the 2-D weight matrices so, for a page that downloads the
+//! model. The version stays 1: files written in f32 read as before.
 //!
 //! | name | shape | |
 //! | --- | --- | --- |
@@ -68,7 +72,7 @@ use std::path::Path;
 
 use sartor_core::GarmentBinding;
 use sartor_core::asset::AssetFiles;
-use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
+use sartor_core::io::{OwnedTensor, read_file, serialize_tensors, sha256_hex};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -651,6 +655,19 @@ impl ModelWeights {
     }
 }
 
+/// How [`GarmentModel::save_as`] stores the tensors. Readers take either.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TensorStorage {
+    /// Every tensor in f32 (what the exporter writes).
+    #[default]
+    F32,
+    /// The weight matrices (every 2-D tensor) in f16, rounded to nearest; vectors (biases,
+    /// normalisation) in f32. Half the bytes, for a model sent over the network to a web page.
+    /// The loaded model holds the rounded values: loading it at [`crate::Precision::F16`] gives
+    /// the same network as loading the f32 file at that precision.
+    F16,
+}
+
 /// A validated model: header and f32 tensors whose shapes agree with it, all finite, every
 /// `std` positive.
 #[derive(Clone, Debug, PartialEq)]
@@ -720,18 +737,37 @@ impl GarmentModel {
         (self.header, self.weights)
     }
 
-    /// The safetensors bytes of this model (names sorted, no metadata; deterministic).
+    /// The safetensors bytes of this model (names sorted, no metadata; deterministic), every
+    /// tensor in f32.
     pub fn tensor_bytes(&self) -> Result<Vec<u8>> {
+        self.tensor_bytes_as(TensorStorage::F32)
+    }
+
+    /// The safetensors bytes of this model with the given storage. [`TensorStorage::F16`]
+    /// fails, naming the tensor, when a weight does not fit in half precision (beyond ±65504).
+    pub fn tensor_bytes_as(&self, storage: TensorStorage) -> Result<Vec<u8>> {
         let mut map = BTreeMap::new();
         for (name, shape) in self.header.sizes.tensor_shapes() {
             let t = self
                 .weights
                 .tensor(name)
                 .expect("GarmentModel::new checked that every tensor is present");
-            map.insert(
-                name.to_string(),
-                OwnedTensor::f32(&shape, t.iter().copied()),
-            );
+            let tensor = if storage == TensorStorage::F16 && shape.len() == 2 {
+                let bits: Vec<u16> = t
+                    .iter()
+                    .map(|&v| half::f16::from_f32(v).to_bits())
+                    .collect();
+                if let Some(i) = bits.iter().position(|&b| b & 0x7c00 == 0x7c00) {
+                    return Err(Error::invalid(
+                        "model weights",
+                        format!("{name:?} value {} at {i} does not fit in f16", t[i]),
+                    ));
+                }
+                OwnedTensor::f16_bits(&shape, bits)
+            } else {
+                OwnedTensor::f32(&shape, t.iter().copied())
+            };
+            map.insert(name.to_string(), tensor);
         }
         Ok(serialize_tensors(&map, None)?)
     }
@@ -739,7 +775,12 @@ impl GarmentModel {
     /// Write `dir/model.safetensors` and `dir/model.json` (with the tensors' SHA-256), each
     /// atomically. Returns the header as written.
     pub fn save(&self, dir: &Path) -> Result<ModelHeader> {
-        let bytes = self.tensor_bytes()?;
+        self.save_as(dir, TensorStorage::F32)
+    }
+
+    /// [`Self::save`] with the given tensor storage (see [`TensorStorage`]).
+    pub fn save_as(&self, dir: &Path, storage: TensorStorage) -> Result<ModelHeader> {
+        let bytes = self.tensor_bytes_as(storage)?;
         let mut header = self.header.clone();
         header.tensors_sha256 = sha256_hex(&bytes);
         FILES.write(dir, &header, &bytes)?;
@@ -750,7 +791,15 @@ impl GarmentModel {
     /// layout, the tensors' hash, the exact set of tensor names, every dtype and shape,
     /// finiteness and positive standard deviations. Errors name the file and the fault.
     pub fn load(dir: &Path) -> Result<Self> {
-        let (header, file): (ModelHeader, _) = FILES.read(dir)?;
+        let header = read_file(&dir.join(MODEL_JSON))?;
+        let tensors = read_file(&dir.join(MODEL_TENSORS))?;
+        Self::from_bytes(dir, &header, tensors)
+    }
+
+    /// [`Self::load`] from the two files' bytes, read from folder `dir` (named in errors
+    /// only): how a web page, which has no file system, loads the model it fetched.
+    pub fn from_bytes(dir: &Path, header_bytes: &[u8], tensor_bytes: Vec<u8>) -> Result<Self> {
+        let (header, file): (ModelHeader, _) = FILES.parse(dir, header_bytes, tensor_bytes)?;
         let (json_path, path) = (dir.join(MODEL_JSON), dir.join(MODEL_TENSORS));
         header.validate().map_err(|e| e.in_file(&json_path))?;
         let shapes = header.sizes.tensor_shapes();
@@ -762,7 +811,7 @@ impl GarmentModel {
         let mut tensors = BTreeMap::new();
         for (name, shape) in &shapes {
             let want: Vec<Option<usize>> = shape.iter().map(|&d| Some(d)).collect();
-            let (_, values) = file.f32(name, &want)?;
+            let (_, values) = file.f32_or_f16(name, &want)?;
             tensors.insert(name.to_string(), values);
         }
         let weights = ModelWeights::from_map(&header.sizes, tensors);

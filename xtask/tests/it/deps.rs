@@ -84,6 +84,23 @@ fn the_runtime_depends_on_the_geometry_core_only() {
 }
 
 #[test]
+fn the_web_wrapper_carries_no_training_or_simulation() {
+    let (_, all) = tree("sartor-web");
+    assert!(all.contains("sartor-runtime") && all.contains("wasm-bindgen"));
+    for banned in [
+        "burn",
+        "sartor-cloth",
+        "sartor-dataset",
+        "sartor-model",
+        "sartor-mcap",
+        "sartor-import",
+        "faer",
+    ] {
+        assert!(!all.contains(banned), "sartor-web pulls in {banned}");
+    }
+}
+
+#[test]
 fn no_library_finds_data_through_a_compile_time_path() {
     let mut offenders = Vec::new();
     let mut stack = vec![workspace().join("crates")];

@@ -5,7 +5,8 @@ use std::path::Path;
 
 use sartor_core::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use sartor_runtime::{
-    GarmentModel, GarmentNetwork, MODEL_JSON, MODEL_TENSORS, ModelHeader, OutputKind, Precision,
+    GarmentModel, GarmentNetwork, MODEL_JSON, MODEL_TENSORS, ModelHeader, OutputKind, Parallelism,
+    Precision, TensorStorage,
 };
 
 use crate::common::{random_model, sizes};
@@ -111,6 +112,78 @@ fn write_read_round_trip_is_identical() {
         assert_eq!(json["sizes"]["output"], expected_output);
         GarmentNetwork::load(dir.path(), Precision::Int8).expect("loads as a network");
     }
+}
+
+#[test]
+fn f16_storage_halves_the_matrices_and_loads_as_the_f32_file_at_f16() {
+    let model = random_model(3, sizes(OutputKind::Pca(5), true));
+    let (f32_dir, f16_dir) = (
+        tempfile::tempdir().expect("tempdir"),
+        tempfile::tempdir().expect("tempdir"),
+    );
+    model.save(f32_dir.path()).expect("save");
+    let header = model
+        .save_as(f16_dir.path(), TensorStorage::F16)
+        .expect("save f16");
+    let size = |d: &Path| {
+        std::fs::metadata(d.join(MODEL_TENSORS))
+            .expect("file")
+            .len()
+    };
+    let (full, half) = (size(f32_dir.path()), size(f16_dir.path()));
+    assert!(half < full * 6 / 10, "{half} bytes in f16, {full} in f32");
+    // From bytes as from the folder.
+    let from_bytes = GarmentModel::from_bytes(
+        f16_dir.path(),
+        &std::fs::read(f16_dir.path().join(MODEL_JSON)).expect("json"),
+        std::fs::read(f16_dir.path().join(MODEL_TENSORS)).expect("tensors"),
+    )
+    .expect("from bytes");
+    let loaded = GarmentModel::load(f16_dir.path()).expect("load f16");
+    assert_eq!(loaded, from_bytes);
+    assert_eq!(loaded.header(), &header);
+    // Matrices hold the f16-rounded values, vectors the f32 ones, bit for bit.
+    let (a, b) = (tensors_of(&loaded), tensors_of(&model));
+    for (name, (shape, values)) in &a {
+        let expected: Vec<u32> = b[name]
+            .1
+            .iter()
+            .map(|&v| match shape.len() {
+                2 => half::f16::from_f32(v).to_f32().to_bits(),
+                _ => v.to_bits(),
+            })
+            .collect();
+        let got: Vec<u32> = values.iter().map(|v| v.to_bits()).collect();
+        assert_eq!(got, expected, "{name}");
+    }
+    // At f16 precision the network is the f32 file's, bit for bit.
+    let betas = [0.3f32, -1.0, 0.5, 0.0];
+    let fit = |dir: &Path| {
+        let net = GarmentNetwork::load(dir, Precision::F16).expect("network");
+        let mut ws = net.workspace(1);
+        let mut out = vec![0.0; net.output_size()];
+        net.fit(
+            &betas[..net.n_betas()],
+            &mut out,
+            &mut ws,
+            Parallelism::Sequential,
+        )
+        .expect("fit");
+        crate::common::bits(&out)
+    };
+    assert_eq!(fit(f32_dir.path()), fit(f16_dir.path()));
+}
+
+#[test]
+fn f16_storage_refuses_weights_beyond_its_range() {
+    let model = random_model(4, sizes(OutputKind::Dense, false));
+    let (header, mut weights) = model.into_parts();
+    weights.fit_out.weight[7] = 1e6;
+    let model = GarmentModel::new(header, weights).expect("valid in f32");
+    let err = model
+        .tensor_bytes_as(TensorStorage::F16)
+        .expect_err("too large for f16");
+    assert!(err.to_string().contains("fit.out.weight"), "{err}");
 }
 
 #[test]

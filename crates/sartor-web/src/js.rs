@@ -1,0 +1,234 @@
+//! The JavaScript API (wasm-bindgen): thin conversions around [`crate::TryOn`]. Every fault
+//! comes back as a JavaScript `Error` whose message names it (the page shows it); none panics.
+//!
+//! ```js
+//! const files = new AssetFiles();
+//! files.add("model/model.json", bytes); // … every name of MODEL_FILES and BODY_FILES
+//! const tryOn = TryOn.load(files, "f32", true);
+//! tryOn.setPhenotype(0.0, 1.70, 0.75, 0.5, 25); // female, 1.70 m, heavy
+//! tryOn.playProcedural("dance_disco");
+//! tryOn.step();
+//! const garment = tryOn.garmentVertices(); // Float32Array, x y z …
+//! ```
+
+use sartor_runtime::Precision;
+use wasm_bindgen::prelude::{JsError, wasm_bindgen};
+
+use crate::files::FileSet;
+use crate::session::{PhenotypeSliders, TryOn, TryOnOptions, procedural_clip_names};
+
+fn js(e: crate::Error) -> JsError {
+    JsError::new(&e.to_string())
+}
+
+/// Files fetched by the page, by name (`model/model.json`, `body/tpose.json`, …).
+#[wasm_bindgen]
+#[derive(Default)]
+pub struct AssetFiles {
+    inner: FileSet,
+}
+
+#[wasm_bindgen]
+impl AssetFiles {
+    /// An empty set.
+    #[wasm_bindgen(constructor)]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Add file `name` with its bytes.
+    pub fn add(&mut self, name: &str, bytes: &[u8]) {
+        self.inner.insert(name, bytes.to_vec());
+    }
+}
+
+/// One avatar wearing the shipped garment (see [`crate::TryOn`]).
+#[wasm_bindgen(js_name = TryOn)]
+pub struct WebTryOn {
+    inner: TryOn,
+}
+
+#[wasm_bindgen(js_class = TryOn)]
+impl WebTryOn {
+    /// Load the model and the body; `precision` is `f32`, `f16` or `int8` (weights in memory).
+    pub fn load(
+        files: AssetFiles,
+        precision: &str,
+        post_process: bool,
+    ) -> Result<WebTryOn, JsError> {
+        let precision = match precision {
+            "f32" => Precision::F32,
+            "f16" => Precision::F16,
+            "int8" => Precision::Int8,
+            other => {
+                return Err(JsError::new(&format!(
+                    "precision {other:?}: expected f32, f16 or int8"
+                )));
+            }
+        };
+        let options = TryOnOptions {
+            precision,
+            post_process,
+            clock: Some(crate::clock::now_ms),
+        };
+        Ok(Self {
+            inner: TryOn::load(files.inner, options).map_err(js)?,
+        })
+    }
+
+    /// Shape from the phenotype sliders (gender 0–1, height in metres, weight 0–1, muscle 0–1,
+    /// age in years); returns β.
+    #[wasm_bindgen(js_name = setPhenotype)]
+    pub fn set_phenotype(
+        &mut self,
+        gender: f64,
+        height_m: f64,
+        weight: f64,
+        muscle: f64,
+        age_years: f64,
+    ) -> Result<Vec<f64>, JsError> {
+        let sliders = PhenotypeSliders {
+            gender,
+            height_m,
+            weight,
+            muscle,
+            age_years,
+        };
+        self.inner.set_phenotype(&sliders).map_err(js)
+    }
+
+    /// Shape from a phenotype text such as `female, 1.70 m, heavy`; returns β.
+    #[wasm_bindgen(js_name = setPhenotypeText)]
+    pub fn set_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>, JsError> {
+        self.inner.set_phenotype_text(text).map_err(js)
+    }
+
+    /// Shape from β; returns the β in use.
+    #[wasm_bindgen(js_name = setBetas)]
+    pub fn set_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>, JsError> {
+        self.inner.set_betas(betas).map_err(js)
+    }
+
+    /// Play a procedural clip.
+    #[wasm_bindgen(js_name = playProcedural)]
+    pub fn play_procedural(&mut self, name: &str) -> Result<(), JsError> {
+        let motion = TryOn::motion_procedural(name).map_err(js)?;
+        self.inner.set_motion(motion).map_err(js)
+    }
+
+    /// Play a saved JSON motion (the walk cycle).
+    #[wasm_bindgen(js_name = playJson)]
+    pub fn play_json(&mut self, name: &str, bytes: &[u8]) -> Result<(), JsError> {
+        let motion = TryOn::motion_json(name, bytes).map_err(js)?;
+        self.inner.set_motion(motion).map_err(js)
+    }
+
+    /// Play a stored mocap clip (`cmu/05_06`: its JSON and safetensors bytes).
+    #[wasm_bindgen(js_name = playStored)]
+    pub fn play_stored(&mut self, name: &str, json: &[u8], tensors: &[u8]) -> Result<(), JsError> {
+        let motion = self
+            .inner
+            .motion_stored(name, json, tensors.to_vec())
+            .map_err(js)?;
+        self.inner.set_motion(motion).map_err(js)
+    }
+
+    /// Play a BVH file's text (`name`: its file name).
+    #[wasm_bindgen(js_name = playBvh)]
+    pub fn play_bvh(&mut self, name: &str, text: &str) -> Result<(), JsError> {
+        let motion = self.inner.motion_bvh(name, text).map_err(js)?;
+        self.inner.set_motion(motion).map_err(js)
+    }
+
+    /// Show frame `frame` (scrubbing).
+    pub fn seek(&mut self, frame: usize) -> Result<(), JsError> {
+        self.inner.seek(frame).map_err(js)
+    }
+
+    /// Advance one frame (looping); returns the frame shown.
+    pub fn step(&mut self) -> Result<usize, JsError> {
+        self.inner.step().map_err(js)
+    }
+
+    /// The frame shown.
+    #[wasm_bindgen(getter)]
+    pub fn frame(&self) -> usize {
+        self.inner.frame()
+    }
+
+    /// Frames of the motion.
+    #[wasm_bindgen(getter, js_name = nFrames)]
+    pub fn n_frames(&self) -> usize {
+        self.inner.n_frames()
+    }
+
+    /// The motion's name.
+    #[wasm_bindgen(getter, js_name = motionName)]
+    pub fn motion_name(&self) -> String {
+        self.inner.motion_name().to_string()
+    }
+
+    /// β in use.
+    pub fn betas(&self) -> Vec<f64> {
+        self.inner.betas().to_vec()
+    }
+
+    /// Standing height of the body, metres.
+    #[wasm_bindgen(js_name = heightM)]
+    pub fn height_m(&self) -> Result<f64, JsError> {
+        self.inner.height_m().map_err(js)
+    }
+
+    /// Garment vertices of the frame shown (x, y, z, …; metres).
+    #[wasm_bindgen(js_name = garmentVertices)]
+    pub fn garment_vertices(&self) -> Vec<f32> {
+        self.inner.garment_vertices()
+    }
+
+    /// Body vertices of the frame shown.
+    #[wasm_bindgen(js_name = bodyVertices)]
+    pub fn body_vertices(&self) -> Vec<f32> {
+        self.inner.body_vertices()
+    }
+
+    /// Garment triangles.
+    #[wasm_bindgen(js_name = garmentFaces)]
+    pub fn garment_faces(&self) -> Vec<u32> {
+        self.inner.garment_faces()
+    }
+
+    /// Body triangles.
+    #[wasm_bindgen(js_name = bodyFaces)]
+    pub fn body_faces(&self) -> Vec<u32> {
+        self.inner.body_faces()
+    }
+
+    /// Garment vertices the post-process moved in the frame shown.
+    pub fn pushed(&self) -> usize {
+        self.inner.pushed()
+    }
+
+    /// Milliseconds of the frame shown: network, skinning, post-process, body posing.
+    pub fn times(&self) -> Vec<f64> {
+        let t = self.inner.times();
+        vec![
+            t.garment.network_ms,
+            t.garment.skinning_ms,
+            t.garment.post_process_ms,
+            t.body_ms,
+        ]
+    }
+}
+
+/// The procedural clips (sartor-motion's library).
+#[wasm_bindgen(js_name = proceduralClips)]
+pub fn procedural_clips() -> Vec<String> {
+    procedural_clip_names()
+}
+
+/// The runtime's matrix kernels on fixed inputs ([`crate::kernel_probe`]): the browser test
+/// compares them bit for bit with the native build's.
+#[wasm_bindgen(js_name = kernelProbe)]
+pub fn kernel_probe_js() -> Result<Vec<f32>, JsError> {
+    crate::kernel_probe().map_err(js)
+}

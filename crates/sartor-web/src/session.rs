@@ -1,0 +1,485 @@
+//! [`TryOn`]: one avatar of the shipped garment model on the body, driven by the page — a
+//! body shape (phenotype sliders or β), a motion (procedural, stored mocap, the walk cycle or a
+//! dropped BVH), and a frame to show. Plain Rust, tested natively; `js.rs` only converts types.
+//!
+//! Every frame runs [`GarmentAnimator::frame`] (network, skinning, post-process, sequential:
+//! there are no threads in the browser) and poses the whole body for display with the one
+//! skinning kernel (`sartor_core::skin_points`). Stage times come from the clock given at load
+//! (`performance.now()` on the page).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use sartor_core::{
+    BodyModel, BoneTransform, FPS, Parallelism, PartialPhenotype, Phenotype, PhenotypeRequest,
+    PhenotypeSpace, Pose, skin_points,
+};
+use sartor_motion::{
+    BvhRetargetOptions, Motion, RetargetBody, TPOSE_FILE, procedural, retarget_bvh,
+    stored_clip_from_bytes,
+};
+use sartor_runtime::{
+    AnimatorOptions, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
+    NetworkOptions, Precision, StageTimes,
+};
+
+use crate::error::{Error, Result};
+use crate::files::FileSet;
+
+/// Frames run before the shown one after a jump (scrubbing, a new shape): the GRU starts from
+/// a zero state at the jump, as a training sequence does, and these frames let its wrinkles
+/// build up (half a second at 30 fps).
+pub const WARMUP_FRAMES: usize = 15;
+
+/// What [`TryOn::load`] sets up besides the files.
+#[derive(Clone, Copy, Debug)]
+pub struct TryOnOptions {
+    /// Precision of the weights in memory (the page's files are f16 on the wire; `F32` computes
+    /// with exactly those values).
+    pub precision: Precision,
+    /// The collision post-process (on by default).
+    pub post_process: bool,
+    /// A monotonic clock in milliseconds that times each stage (`None`: no timing).
+    pub clock: Option<fn() -> f64>,
+}
+
+impl Default for TryOnOptions {
+    fn default() -> Self {
+        Self {
+            precision: Precision::F32,
+            post_process: true,
+            clock: None,
+        }
+    }
+}
+
+/// Where the last frame spent its time, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameTimes {
+    /// The garment's stages (network, skinning, post-process).
+    pub garment: StageTimes,
+    /// Posing the whole body for display (not part of the garment model's cost).
+    pub body_ms: f64,
+}
+
+/// The slider values of the page's phenotype panel: the command line's phenotype rule
+/// (`sartor_core::PhenotypeSpace::betas_for`) with every slider given and the height in metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhenotypeSliders {
+    /// 0 female … 1 male.
+    pub gender: f64,
+    /// Standing height, metres (solved on MakeHuman's height slider).
+    pub height_m: f64,
+    /// 0 minimum, 0.5 average, 1 maximum weight.
+    pub weight: f64,
+    /// 0 minimum, 0.5 average, 1 maximum muscle.
+    pub muscle: f64,
+    /// Age in years (1 to 90).
+    pub age_years: f64,
+}
+
+impl PhenotypeSliders {
+    /// The request the command line would build from the same values.
+    pub fn request(&self) -> Result<PhenotypeRequest> {
+        let slider = |name: &str, v: f64| {
+            if v.is_finite() && (0.0..=1.0).contains(&v) {
+                Ok(v)
+            } else {
+                Err(Error::invalid(
+                    "phenotype",
+                    format!("{name} is {v}, expected a value in [0, 1]"),
+                ))
+            }
+        };
+        if !self.height_m.is_finite() {
+            return Err(Error::invalid(
+                "phenotype",
+                format!("height is {} m", self.height_m),
+            ));
+        }
+        Ok(PhenotypeRequest {
+            sliders: PartialPhenotype {
+                gender: Some(slider("gender", self.gender)?),
+                weight: Some(slider("weight", self.weight)?),
+                muscle: Some(slider("muscle", self.muscle)?),
+                age: Some(Phenotype::age_slider_from_years(self.age_years)?),
+                ..PartialPhenotype::default()
+            },
+            height_m: Some(self.height_m),
+        })
+    }
+}
+
+/// The body posed each frame for display: shaped rest vertices and buffers.
+#[derive(Debug)]
+struct PosedBody {
+    shaped: Vec<Vector3<f32>>,
+    rest_joints: Vec<Vector3<f64>>,
+    joints: Vec<Vector3<f64>>,
+    transforms: Vec<BoneTransform<f64>>,
+    transforms_f32: Vec<BoneTransform<f32>>,
+    vertices: Vec<Vector3<f32>>,
+}
+
+impl PosedBody {
+    fn new(body: &BodyModel, betas: &[f64]) -> Result<Self> {
+        let shaped: Vec<Vector3<f32>> = body
+            .shaped_vertices(betas)?
+            .iter()
+            .map(|p| p.cast::<f32>())
+            .collect();
+        let n_joints = body.skeleton().n_joints();
+        Ok(Self {
+            vertices: shaped.clone(),
+            shaped,
+            rest_joints: body.shaped_joints(betas)?,
+            joints: vec![Vector3::zeros(); n_joints],
+            transforms: vec![BoneTransform::identity(); n_joints],
+            transforms_f32: vec![BoneTransform::identity(); n_joints],
+        })
+    }
+
+    fn pose(&mut self, body: &BodyModel, pose: &Pose) -> Result<()> {
+        body.skeleton().forward_kinematics_into(
+            &self.rest_joints,
+            pose,
+            &mut self.joints,
+            &mut self.transforms,
+        )?;
+        for (t32, t) in self.transforms_f32.iter_mut().zip(&self.transforms) {
+            *t32 = t.to_f32();
+        }
+        skin_points(
+            &self.shaped,
+            body.skin_weights(),
+            &self.transforms_f32,
+            &mut self.vertices,
+            Parallelism::Sequential,
+        )?;
+        Ok(())
+    }
+}
+
+/// The try-on: assets, one avatar, the motion and the frame shown.
+#[derive(Debug)]
+pub struct TryOn {
+    body: Arc<BodyModel>,
+    space: PhenotypeSpace,
+    retarget: RetargetBody,
+    animator: GarmentAnimator,
+    /// β of the body and the garment: the model's components (the rest of the body's are 0).
+    betas: Vec<f64>,
+    posed_body: PosedBody,
+    motion: Motion,
+    frame: usize,
+    clock: Option<fn() -> f64>,
+    times: FrameTimes,
+}
+
+/// Flatten points into `x, y, z, x, y, z, …`.
+fn flat(points: &[Vector3<f32>]) -> Vec<f32> {
+    points.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
+}
+
+impl TryOn {
+    /// Load the model folder's and the body folder's files (names in [`crate::MODEL_FILES`]
+    /// and [`crate::BODY_FILES`]), check that they belong together, and show the template body
+    /// (β = 0) standing still.
+    pub fn load(mut files: FileSet, options: TryOnOptions) -> Result<Self> {
+        let (model_dir, body_dir) = (Path::new("model"), Path::new("body"));
+        let model = GarmentModel::from_bytes(
+            model_dir,
+            &files.take("model/model.json")?,
+            files.take("model/model.safetensors")?,
+        )?;
+        let network = GarmentNetwork::with_options(
+            model,
+            NetworkOptions {
+                precision: options.precision,
+                output_rank: None,
+            },
+        )?;
+        let binding = GarmentBinding::from_bytes(
+            model_dir,
+            &files.take("model/binding.json")?,
+            files.take("model/binding.safetensors")?,
+        )?;
+        let body = Arc::new(BodyModel::from_bytes(
+            body_dir,
+            &files.take("body/model.json")?,
+            files.take("body/model.safetensors")?,
+        )?);
+        let space = PhenotypeSpace::from_bytes(
+            body_dir,
+            &files.take("body/phenotype.json")?,
+            files.take("body/phenotype.safetensors")?,
+        )?;
+        let tpose_path = body_dir.join(TPOSE_FILE);
+        let tpose: Pose = serde_json::from_slice(&files.take("body/tpose.json")?)
+            .map_err(|e| sartor_core::Error::parse(&tpose_path, e.line(), e.to_string()))?;
+        tpose
+            .validate(body.skeleton().n_joints())
+            .map_err(|e| e.in_file(&tpose_path))?;
+        let rest = body.shaped_joints(&vec![0.0; body.n_betas()])?;
+        let retarget = RetargetBody::new(body.skeleton().clone(), rest, tpose)?;
+        let animator_options = AnimatorOptions {
+            collision: if options.post_process {
+                AnimatorOptions::default().collision
+            } else {
+                None
+            },
+            parallelism: Parallelism::Sequential,
+            ..AnimatorOptions::default()
+        };
+        let rig = Arc::new(GarmentRig::new(
+            Arc::new(network),
+            Arc::new(binding),
+            body.clone(),
+            animator_options,
+        )?);
+        let mut animator = GarmentAnimator::new(rig)?;
+        animator.set_stage_clock(options.clock);
+        let betas = vec![0.0; animator.rig().network().n_betas()];
+        let posed_body = PosedBody::new(&body, &Self::body_betas(&body, &betas))?;
+        let still = Motion::new(
+            "rest".into(),
+            FPS,
+            body.skeleton().names().to_vec(),
+            vec![Pose::rest(body.skeleton().n_joints())],
+        )?;
+        let mut try_on = Self {
+            body,
+            space,
+            retarget,
+            animator,
+            betas,
+            posed_body,
+            motion: still,
+            frame: 0,
+            clock: options.clock,
+            times: FrameTimes::default(),
+        };
+        try_on.seek(0)?;
+        Ok(try_on)
+    }
+
+    /// The body's β for the model's β (the body's further components are 0).
+    fn body_betas(body: &BodyModel, betas: &[f64]) -> Vec<f64> {
+        let mut full = betas.to_vec();
+        full.resize(body.n_betas(), 0.0);
+        full
+    }
+
+    /// Set the body shape β (at most the body's component count, finite; components beyond the
+    /// model's are dropped for body and garment alike, as the command line does). Recomputes
+    /// the frame shown. Returns the β in use.
+    pub fn set_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>> {
+        self.body.check_betas(betas)?;
+        let n = self.betas.len();
+        let mut model_betas: Vec<f64> = betas.iter().copied().take(n).collect();
+        model_betas.resize(n, 0.0);
+        let b32: Vec<f32> = model_betas.iter().map(|&b| b as f32).collect();
+        self.animator.set_shape(&b32)?;
+        self.posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
+        self.betas = model_betas;
+        self.seek(self.frame)?;
+        Ok(self.betas.clone())
+    }
+
+    /// Set the shape from the phenotype sliders (the command line's rule); returns β.
+    pub fn set_phenotype(&mut self, sliders: &PhenotypeSliders) -> Result<Vec<f64>> {
+        self.set_phenotype_request(&sliders.request()?)
+    }
+
+    /// Set the shape from a phenotype text as the command line takes it (`"female, 1.70 m,
+    /// heavy"`); returns β.
+    pub fn set_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>> {
+        self.set_phenotype_request(&PhenotypeRequest::parse(text)?)
+    }
+
+    fn set_phenotype_request(&mut self, request: &PhenotypeRequest) -> Result<Vec<f64>> {
+        let (_, betas) = self.space.betas_for(&self.body, request)?;
+        self.set_betas(&betas)
+    }
+
+    /// Play `motion` (the body's skeleton, any frame rate: resampled to 30 fps) from its first
+    /// frame.
+    pub fn set_motion(&mut self, motion: Motion) -> Result<()> {
+        if motion.joint_names() != self.body.skeleton().names() {
+            return Err(Error::invalid(
+                "motion",
+                format!(
+                    "{} is for another skeleton than the body {}",
+                    motion.name(),
+                    self.body.name()
+                ),
+            ));
+        }
+        if motion.n_frames() == 0 {
+            return Err(Error::invalid(
+                "motion",
+                format!("{} has no frames", motion.name()),
+            ));
+        }
+        let motion = if (motion.fps() - FPS).abs() > 1e-9 {
+            motion.resample(FPS)?
+        } else {
+            motion
+        };
+        let previous = std::mem::replace(&mut self.motion, motion);
+        if let Err(e) = self.seek(0) {
+            // Back to the motion that played, at its frame.
+            self.motion = previous;
+            self.seek(self.frame)?;
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    /// A procedural clip by name (see [`procedural_clip_names`]).
+    pub fn motion_procedural(name: &str) -> Result<Motion> {
+        Ok(procedural::clip(name)?)
+    }
+
+    /// A saved JSON motion (the imported walk cycle, `datasets/motions/walk.json`).
+    pub fn motion_json(name: &str, bytes: &[u8]) -> Result<Motion> {
+        Ok(Motion::from_json_bytes(Path::new(name), bytes)?)
+    }
+
+    /// A stored mocap clip (`datasets/motions/cmu/<clip>.json` + `.safetensors`), retargeted
+    /// onto the body as `sartor_motion::load_motion` does (`name` as `cmu/05_06`).
+    pub fn motion_stored(&self, name: &str, json: &[u8], tensors: Vec<u8>) -> Result<Motion> {
+        let json_path = Path::new(name).with_extension("json");
+        let bvh = stored_clip_from_bytes(&json_path, json, tensors)?;
+        // The T-pose frame was dropped at import; the first stored frame is the performance's.
+        let options = BvhRetargetOptions {
+            lenient: false,
+            keep_tpose_frame: true,
+        };
+        Ok(retarget_bvh(&bvh, &self.retarget, &options)?
+            .0
+            .renamed(name.to_string()))
+    }
+
+    /// A BVH file's text (`name` is its file name, for errors), retargeted onto the body as
+    /// the command line does (`sartor demo --motion file.bvh`).
+    pub fn motion_bvh(&self, name: &str, text: &str) -> Result<Motion> {
+        let path = Path::new(name);
+        let bvh = sartor_motion::Bvh::parse(text, path)?;
+        let options = BvhRetargetOptions {
+            lenient: false,
+            keep_tpose_frame: false,
+        };
+        Ok(retarget_bvh(&bvh, &self.retarget, &options)?
+            .0
+            .renamed(name.to_string()))
+    }
+
+    /// Show frame `frame` (clamped to the motion): the GRU restarts [`WARMUP_FRAMES`] before
+    /// it (from the pose before, as a training sequence starts) and runs up to it.
+    pub fn seek(&mut self, frame: usize) -> Result<()> {
+        let frame = frame.min(self.motion.n_frames() - 1);
+        let start = frame.saturating_sub(WARMUP_FRAMES);
+        let poses = self.motion.frames();
+        match start.checked_sub(1) {
+            Some(before) => self.animator.reset_from(&poses[before])?,
+            None => self.animator.reset(),
+        }
+        for pose in &poses[start..frame] {
+            self.animator.frame(pose)?;
+        }
+        self.show(frame)
+    }
+
+    /// Advance one frame; after the last, start the motion again (GRU state reset). Returns the
+    /// frame shown.
+    pub fn step(&mut self) -> Result<usize> {
+        if self.frame + 1 >= self.motion.n_frames() {
+            self.seek(0)?;
+        } else {
+            self.show(self.frame + 1)?;
+        }
+        Ok(self.frame)
+    }
+
+    /// Compute frame `frame` (the animator is at the frame before it) and pose the body.
+    fn show(&mut self, frame: usize) -> Result<()> {
+        let pose = &self.motion.frames()[frame];
+        self.animator.frame(pose)?;
+        let start = self.now();
+        self.posed_body.pose(&self.body, pose)?;
+        self.times = FrameTimes {
+            garment: self.animator.stage_times().unwrap_or_default(),
+            body_ms: self.now() - start,
+        };
+        self.frame = frame;
+        Ok(())
+    }
+
+    fn now(&self) -> f64 {
+        self.clock.map_or(0.0, |clock| clock())
+    }
+
+    /// The frame shown.
+    pub fn frame(&self) -> usize {
+        self.frame
+    }
+
+    /// Frames of the motion.
+    pub fn n_frames(&self) -> usize {
+        self.motion.n_frames()
+    }
+
+    /// The motion's name.
+    pub fn motion_name(&self) -> &str {
+        self.motion.name()
+    }
+
+    /// β in use (the model's components).
+    pub fn betas(&self) -> &[f64] {
+        &self.betas
+    }
+
+    /// Standing height of the body shown, metres.
+    pub fn height_m(&self) -> Result<f64> {
+        Ok(self
+            .body
+            .height_m(&Self::body_betas(&self.body, &self.betas))?)
+    }
+
+    /// Garment vertices of the frame shown, `x, y, z, …` (metres).
+    pub fn garment_vertices(&self) -> Vec<f32> {
+        flat(self.animator.vertices())
+    }
+
+    /// Body vertices of the frame shown, `x, y, z, …` (metres).
+    pub fn body_vertices(&self) -> Vec<f32> {
+        flat(&self.posed_body.vertices)
+    }
+
+    /// Garment triangles, three vertex indices each.
+    pub fn garment_faces(&self) -> Vec<u32> {
+        self.animator.faces().iter().flatten().copied().collect()
+    }
+
+    /// Body triangles, three vertex indices each.
+    pub fn body_faces(&self) -> Vec<u32> {
+        self.body.faces().iter().flatten().copied().collect()
+    }
+
+    /// Garment vertices the post-process moved in the frame shown.
+    pub fn pushed(&self) -> usize {
+        self.animator.last_frame_pushed()
+    }
+
+    /// Where the frame shown spent its time (zeros without a clock).
+    pub fn times(&self) -> FrameTimes {
+        self.times
+    }
+}
+
+/// The procedural clips the page offers (all of sartor-motion's library).
+pub fn procedural_clip_names() -> Vec<String> {
+    procedural::clip_names()
+}

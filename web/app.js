@@ -1,0 +1,340 @@
+// The try-on page: loads the WebAssembly runtime (pkg/, made by wasm-bindgen), the shipped
+// model (f16 on the wire) and body, then plays a motion on the body chosen with the sliders.
+// Everything it fetches is under this folder.
+
+import init, { AssetFiles, TryOn, kernelProbe, proceduralClips } from "./pkg/sartor_web.js";
+import { Viewer } from "./viewer.js";
+
+const $ = (id) => document.getElementById(id);
+const MOTION_FPS = 30;
+const WINDOW = 60;
+
+const state = {
+  tryOn: null,
+  playing: true,
+  lastStep: 0,
+  times: [], // [network, skinning, post, body, draw] per frame, the last WINDOW
+  framesStepped: 0,
+  readyMs: null,
+  errors: 0,
+};
+
+function showError(message) {
+  state.errors += 1;
+  const box = $("error");
+  box.textContent = message;
+  box.hidden = false;
+}
+
+function clearError() {
+  $("error").hidden = true;
+}
+
+/// Run `f`, showing any error on the page; returns whether it succeeded.
+function guarded(what, f) {
+  try {
+    f();
+    clearError();
+    return true;
+  } catch (e) {
+    showError(`${what}: ${e && e.message ? e.message : e}`);
+    return false;
+  }
+}
+
+async function fetchBytes(path) {
+  const response = await fetch(path);
+  if (!response.ok) throw new Error(`${path}: HTTP ${response.status}`);
+  return new Uint8Array(await response.arrayBuffer());
+}
+
+const MODEL_FILES = ["model.json", "model.safetensors", "binding.json", "binding.safetensors"];
+const BODY_FILES = ["model.json", "model.safetensors", "phenotype.json", "phenotype.safetensors", "tpose.json"];
+
+function sliders() {
+  return {
+    gender: Number($("gender").value),
+    heightM: Number($("height").value),
+    weight: Number($("weight").value),
+    muscle: Number($("muscle").value),
+    ageYears: Number($("age").value),
+  };
+}
+
+function showBetas(betas) {
+  $("betas-out").textContent = Array.from(betas, (b) => b.toFixed(2)).join(", ");
+}
+
+function applyPhenotype() {
+  const s = sliders();
+  $("height-out").textContent = `${s.heightM.toFixed(2)} m`;
+  $("age-out").textContent = `${s.ageYears} years`;
+  guarded("body", () => {
+    showBetas(state.tryOn.setPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
+    redraw();
+  });
+}
+
+function applyBetas() {
+  const text = $("betas").value.trim();
+  const values = text.split(/[\s,]+/).filter((t) => t.length > 0).map(Number);
+  if (values.some((v) => !Number.isFinite(v))) {
+    showError(`β: "${text}" is not a list of numbers`);
+    return;
+  }
+  guarded("β", () => {
+    showBetas(state.tryOn.setBetas(new Float64Array(values)));
+    redraw();
+  });
+}
+
+async function chooseMotion(value) {
+  const t = state.tryOn;
+  try {
+    if (value.startsWith("procedural:")) {
+      t.playProcedural(value.slice("procedural:".length));
+    } else if (value === "walk") {
+      t.playJson("walk.json", await fetchBytes("motions/walk.json"));
+    } else if (value.startsWith("cmu/")) {
+      const [json, tensors] = await Promise.all([
+        fetchBytes(`motions/${value}.json`),
+        fetchBytes(`motions/${value}.safetensors`),
+      ]);
+      t.playStored(value, json, tensors);
+    }
+    clearError();
+  } catch (e) {
+    showError(`motion ${value}: ${e && e.message ? e.message : e}`);
+  }
+  motionChanged();
+}
+
+async function playBvhFile(file) {
+  try {
+    const text = await file.text();
+    state.tryOn.playBvh(file.name, text);
+    clearError();
+  } catch (e) {
+    showError(`dropped BVH: ${e && e.message ? e.message : e}`);
+  }
+  motionChanged();
+}
+
+function motionChanged() {
+  const t = state.tryOn;
+  $("scrub").max = String(t.nFrames - 1);
+  state.times = [];
+  redraw();
+}
+
+function recordTimes(draw) {
+  const [network, skinning, post, body] = state.tryOn.times();
+  state.times.push([network, skinning, post, body, draw]);
+  if (state.times.length > WINDOW) state.times.shift();
+}
+
+function meanTimes() {
+  const n = state.times.length;
+  const sum = [0, 0, 0, 0, 0];
+  for (const t of state.times) for (let i = 0; i < 5; i++) sum[i] += t[i];
+  return sum.map((s) => (n ? s / n : NaN));
+}
+
+function showTimes() {
+  const [network, skinning, post, body, draw] = meanTimes();
+  const ms = (v) => (Number.isFinite(v) ? `${v.toFixed(2)} ms` : "–");
+  $("t-network").textContent = ms(network);
+  $("t-skinning").textContent = ms(skinning);
+  $("t-post").textContent = ms(post);
+  const total = network + skinning + post;
+  $("t-total").textContent = Number.isFinite(total) ? `${total.toFixed(2)} ms (${(1000 / total).toFixed(0)} frames/s)` : "–";
+  $("t-body").textContent = ms(body);
+  $("t-draw").textContent = ms(draw);
+}
+
+/// Upload the frame shown and draw it.
+function redraw() {
+  const t = state.tryOn;
+  const body = t.bodyVertices();
+  state.viewer.update("body", body);
+  state.viewer.update("garment", t.garmentVertices());
+  state.viewer.follow(body);
+  const start = performance.now();
+  state.viewer.draw();
+  const draw = performance.now() - start;
+  $("scrub").value = String(t.frame);
+  $("frame-out").textContent = `${t.frame + 1} / ${t.nFrames}`;
+  return draw;
+}
+
+function tick(now) {
+  const t = state.tryOn;
+  if (state.playing && now - state.lastStep >= 1000 / MOTION_FPS - 1) {
+    state.lastStep = now;
+    let stepped = true;
+    try {
+      t.step();
+    } catch (e) {
+      showError(`frame: ${e && e.message ? e.message : e}`);
+      stepped = false;
+    }
+    if (stepped) {
+      state.framesStepped += 1;
+      const draw = redraw();
+      recordTimes(draw);
+      if (state.framesStepped % 10 === 0) showTimes();
+    } else {
+      setPlaying(false);
+    }
+  } else if (!state.playing) {
+    state.viewer.draw();
+  }
+  requestAnimationFrame(tick);
+}
+
+function setPlaying(playing) {
+  state.playing = playing;
+  $("play").textContent = playing ? "pause" : "play";
+}
+
+/// Bytes the page transferred so far (Resource Timing), by kind.
+function transferred() {
+  const entries = performance.getEntriesByType("resource");
+  const nav = performance.getEntriesByType("navigation")[0];
+  let total = nav ? nav.transferSize : 0;
+  let model = 0;
+  let body = 0;
+  let wasm = 0;
+  for (const e of entries) {
+    total += e.transferSize;
+    if (e.name.includes("/model/")) model += e.transferSize;
+    if (e.name.includes("/body/")) body += e.transferSize;
+    if (e.name.endsWith(".wasm")) wasm += e.transferSize;
+  }
+  return { total, model, body, wasm };
+}
+
+/// Step `frames` frames back to back (the motion shown, from its start) and return the median
+/// milliseconds of each stage: what the page can sustain, independent of the display rate.
+function bench(frames = 120) {
+  const t = state.tryOn;
+  const was = state.playing;
+  setPlaying(false);
+  t.seek(0);
+  const rows = [];
+  for (let i = 0; i < frames; i++) {
+    t.step();
+    rows.push(t.times());
+  }
+  setPlaying(was);
+  const median = (k) => {
+    const v = rows.map((r) => r[k]).sort((a, b) => a - b);
+    return v[Math.floor(v.length / 2)];
+  };
+  const totals = rows.map((r) => r[0] + r[1] + r[2]).sort((a, b) => a - b);
+  return {
+    frames,
+    network: median(0),
+    skinning: median(1),
+    postProcess: median(2),
+    body: median(3),
+    garmentFrame: totals[Math.floor(totals.length / 2)],
+  };
+}
+
+async function main() {
+  state.viewer = new Viewer($("view"));
+  const [manifestBytes, , ...files] = await Promise.all([
+    fetchBytes("manifest.json"),
+    init({ module_or_path: "pkg/sartor_web_bg.wasm" }),
+    ...MODEL_FILES.map((f) => fetchBytes(`model/${f}`)),
+    ...BODY_FILES.map((f) => fetchBytes(`body/${f}`)),
+  ]);
+  const manifest = JSON.parse(new TextDecoder().decode(manifestBytes));
+  const assets = new AssetFiles();
+  MODEL_FILES.forEach((f, i) => assets.add(`model/${f}`, files[i]));
+  BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, files[MODEL_FILES.length + i]));
+  const t = TryOn.load(assets, "f32", true);
+  state.tryOn = t;
+  state.viewer.setMesh("body", t.bodyFaces(), t.bodyVertices().length / 3, [0.86, 0.72, 0.62]);
+  state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, [0.16, 0.36, 0.7]);
+  const body = t.bodyVertices();
+  let floorY = Infinity;
+  for (let i = 1; i < body.length; i += 3) floorY = Math.min(floorY, body[i]);
+  state.viewer.setFloor(floorY - 0.005, 0, 0);
+
+  // Motions: the manifest's procedural clips (all known to the runtime), the walk, CMU clips.
+  const known = new Set(proceduralClips());
+  const select = $("motion");
+  const add = (value, label) => {
+    const option = document.createElement("option");
+    option.value = value;
+    option.textContent = label;
+    select.append(option);
+  };
+  for (const name of manifest.procedural) {
+    if (known.has(name)) add(`procedural:${name}`, `${name} (procedural)`);
+  }
+  add("walk", "walk (MakeHuman walk cycle)");
+  for (const clip of manifest.clips) add(clip.name, clip.label);
+
+  applyPhenotype();
+  await chooseMotion(select.value);
+
+  for (const id of ["gender", "height", "weight", "muscle", "age"]) {
+    $(id).addEventListener("change", applyPhenotype);
+    $(id).addEventListener("input", () => {
+      $("height-out").textContent = `${Number($("height").value).toFixed(2)} m`;
+      $("age-out").textContent = `${$("age").value} years`;
+    });
+  }
+  $("apply-betas").addEventListener("click", applyBetas);
+  select.addEventListener("change", () => chooseMotion(select.value));
+  $("bvh").addEventListener("change", (e) => {
+    if (e.target.files.length > 0) playBvhFile(e.target.files[0]);
+  });
+  document.addEventListener("dragover", (e) => e.preventDefault());
+  document.addEventListener("drop", (e) => {
+    e.preventDefault();
+    const file = e.dataTransfer.files[0];
+    if (file) playBvhFile(file);
+  });
+  $("play").addEventListener("click", () => setPlaying(!state.playing));
+  $("scrub").addEventListener("input", () => {
+    setPlaying(false);
+    guarded("seek", () => {
+      t.seek(Number($("scrub").value));
+      redraw();
+    });
+  });
+  $("body-panel").disabled = false;
+  $("motion-panel").disabled = false;
+
+  state.readyMs = performance.now();
+  const bytes = transferred();
+  const mb = (b) => `${(b / 1e6).toFixed(2)} MB`;
+  $("loaded").textContent =
+    `usable ${(state.readyMs / 1000).toFixed(2)} s after navigation; transferred ${mb(bytes.total)} ` +
+    `(model ${mb(bytes.model)} with ${manifest.model.storage}; f32 would be ${mb(manifest.model.f32_bytes)}; ` +
+    `body ${mb(bytes.body)}, WebAssembly ${mb(bytes.wasm)})`;
+  $("status").textContent = `${manifest.model.garment}, ${manifest.model.triangles} triangles, post-process on`;
+  document.body.dataset.ready = "true";
+  requestAnimationFrame(tick);
+}
+
+// What the browser test (and a curious reader's console) can look at.
+window.sartor = {
+  state,
+  ready: () => state.readyMs !== null,
+  garment: () => Array.from(state.tryOn.garmentVertices()),
+  meanTimes,
+  transferred,
+  bench,
+  setPlaying,
+  kernelProbe: () => Array.from(kernelProbe()),
+};
+
+main().catch((e) => {
+  showError(`loading: ${e && e.message ? e.message : e}`);
+  $("status").textContent = "failed to load";
+});

@@ -1,0 +1,304 @@
+//! `cargo xtask web [--serve]`: the try-on page into `web/dist/` — the sartor-web module for
+//! the WebAssembly target named in `rust-toolchain.toml`, its JavaScript glue from
+//! wasm-bindgen-cli (installed by cargo into `<target>/tools` at the version of the
+//! `wasm-bindgen` crate in `Cargo.lock`, when missing), the page's sources, and the assets it
+//! loads: the shipped model with its weight matrices in f16 (and without the linear baseline,
+//! which the page does not use), the body, the walk cycle and a few CMU clips. `--serve` then
+//! serves the folder on 127.0.0.1.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, bail, ensure};
+use sartor_runtime::{GarmentModel, TensorStorage};
+use serde::Serialize;
+
+/// The stored CMU clips the page offers, labelled by their subject's theme (CMU subjects 05:
+/// modern dance, 06: basketball, 07: walks, 09: runs).
+pub const PAGE_CLIPS: [(&str, &str); 4] = [
+    ("cmu/07_01", "CMU 07_01: walk"),
+    ("cmu/05_06", "CMU 05_06: modern dance"),
+    ("cmu/09_01", "CMU 09_01: run"),
+    ("cmu/06_01", "CMU 06_01: basketball"),
+];
+
+/// The procedural clips the page offers (computed in the page, nothing downloaded).
+pub const PAGE_PROCEDURAL: [&str; 3] = ["dance_disco", "jumping_jacks", "walk_normal"];
+
+/// Arguments of `web`.
+#[derive(clap::Args, Debug)]
+pub struct WebArgs {
+    /// Serve web/dist on 127.0.0.1 after building it.
+    #[arg(long)]
+    pub serve: bool,
+    /// Port to serve on (0: any free port).
+    #[arg(long, default_value_t = 8000)]
+    pub port: u16,
+    /// Serve web/dist as it is, without building it.
+    #[arg(long)]
+    pub no_build: bool,
+}
+
+#[derive(Serialize)]
+struct Manifest {
+    procedural: Vec<String>,
+    clips: Vec<ManifestClip>,
+    model: ModelInfo,
+}
+
+#[derive(Serialize)]
+struct ManifestClip {
+    name: String,
+    label: String,
+}
+
+#[derive(Serialize)]
+struct ModelInfo {
+    garment: String,
+    triangles: usize,
+    storage: &'static str,
+    f32_bytes: u64,
+    page_bytes: u64,
+}
+
+/// Build (unless `--no-build`) and serve (with `--serve`).
+pub fn web(args: &WebArgs, root: &Path) -> anyhow::Result<()> {
+    let root = &root
+        .canonicalize()
+        .with_context(|| format!("{}", root.display()))?;
+    let dist = root.join("web/dist");
+    if !args.no_build {
+        build(root, &dist)?;
+    }
+    if args.serve {
+        ensure!(
+            dist.join("index.html").is_file(),
+            "{} has no index.html: run `cargo xtask web` first",
+            dist.display()
+        );
+        let server = sartor_web::serve_dir(&dist, args.port)
+            .with_context(|| format!("serving {} on port {}", dist.display(), args.port))?;
+        println!(
+            "serving {} at {} (Ctrl-C stops)",
+            dist.display(),
+            server.url()
+        );
+        loop {
+            std::thread::park();
+        }
+    }
+    Ok(())
+}
+
+/// The WebAssembly target of `rust-toolchain.toml` (its `targets` list).
+fn wasm_target(root: &Path) -> anyhow::Result<String> {
+    let path = root.join("rust-toolchain.toml");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("{}", path.display()))?;
+    text.lines()
+        .filter(|l| l.trim_start().starts_with("targets"))
+        .flat_map(|l| l.split('"'))
+        .find(|t| t.starts_with("wasm32"))
+        .map(str::to_string)
+        .with_context(|| format!("{} lists no wasm32 target in `targets`", path.display()))
+}
+
+/// The version of `package` in `Cargo.lock`.
+fn locked_version(root: &Path, package: &str) -> anyhow::Result<String> {
+    let path = root.join("Cargo.lock");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("{}", path.display()))?;
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
+        if line.trim() == format!("name = \"{package}\"")
+            && let Some(v) = lines
+                .next()
+                .and_then(|l| l.trim().strip_prefix("version = "))
+        {
+            return Ok(v.trim_matches('"').to_string());
+        }
+    }
+    bail!("{package} is not in {}", path.display())
+}
+
+fn target_dir(root: &Path) -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), PathBuf::from)
+}
+
+fn run(command: &mut Command) -> anyhow::Result<()> {
+    let status = command
+        .status()
+        .with_context(|| format!("running {command:?}"))?;
+    ensure!(status.success(), "{command:?} failed ({status})");
+    Ok(())
+}
+
+/// `<target>/tools/bin/wasm-bindgen` at `version`, installed by cargo when missing.
+fn wasm_bindgen_cli(root: &Path, version: &str) -> anyhow::Result<PathBuf> {
+    let tools = target_dir(root).join("tools");
+    let exe = tools.join("bin").join("wasm-bindgen");
+    let current = Command::new(&exe)
+        .arg("--version")
+        .output()
+        .ok()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string());
+    if current.as_deref() != Some(&format!("wasm-bindgen {version}")) {
+        println!(
+            "installing wasm-bindgen-cli {version} into {}",
+            tools.display()
+        );
+        let start = Instant::now();
+        run(
+            Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+                .args(["install", "wasm-bindgen-cli", "--locked", "--version"])
+                .arg(format!("={version}"))
+                .arg("--root")
+                .arg(&tools),
+        )?;
+        println!(
+            "installed wasm-bindgen-cli in {:.0} s",
+            start.elapsed().as_secs_f64()
+        );
+    }
+    Ok(exe)
+}
+
+fn copy(from: &Path, to: &Path) -> anyhow::Result<u64> {
+    if let Some(dir) = to.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::copy(from, to)
+        .with_context(|| format!("copying {} to {}", from.display(), to.display()))
+}
+
+/// Every file of `from` (recursively, but not `dist/`) into `to`.
+fn copy_sources(from: &Path, to: &Path) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(from).with_context(|| format!("{}", from.display()))? {
+        let path = entry?.path();
+        let name = path.file_name().unwrap_or_default();
+        if path.is_dir() {
+            if name != "dist" {
+                copy_sources(&path, &to.join(name))?;
+            }
+        } else {
+            copy(&path, &to.join(name))?;
+        }
+    }
+    Ok(())
+}
+
+fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
+    let target = wasm_target(root)?;
+    let version = locked_version(root, "wasm-bindgen")?;
+    let bindgen = wasm_bindgen_cli(root, &version)?;
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let start = Instant::now();
+    run(Command::new(&cargo)
+        .current_dir(root)
+        .args([
+            "build",
+            "--release",
+            "-p",
+            "sartor-web",
+            "--lib",
+            "--target",
+        ])
+        .arg(&target))?;
+    println!(
+        "built sartor-web for {target} in {:.0} s",
+        start.elapsed().as_secs_f64()
+    );
+    if dist.exists() {
+        std::fs::remove_dir_all(dist).with_context(|| format!("removing {}", dist.display()))?;
+    }
+    let wasm = target_dir(root)
+        .join(&target)
+        .join("release")
+        .join("sartor_web.wasm");
+    run(Command::new(&bindgen)
+        .args(["--target", "web", "--no-typescript", "--out-dir"])
+        .arg(dist.join("pkg"))
+        .arg(&wasm))?;
+    copy_sources(&root.join("web"), dist)?;
+
+    // Assets: the model in f16 without the linear baseline, the body, the motions.
+    let model_dir = root.join("datasets/models/default");
+    let model = GarmentModel::load(&model_dir)?;
+    let (mut header, mut weights) = model.into_parts();
+    header.sizes.linear_baseline = false;
+    weights.lr = None;
+    let page_model = GarmentModel::new(header, weights)?;
+    page_model.save_as(&dist.join("model"), TensorStorage::F16)?;
+    let mut triangles = 0;
+    for file in ["binding.json", "binding.safetensors"] {
+        copy(&model_dir.join(file), &dist.join("model").join(file))?;
+    }
+    if let Ok(binding) = sartor_runtime::GarmentBinding::load(&model_dir) {
+        triangles = binding.faces().len();
+    }
+    let body_dir = root.join("datasets/body/makehuman");
+    for file in [
+        "model.json",
+        "model.safetensors",
+        "phenotype.json",
+        "phenotype.safetensors",
+        "tpose.json",
+    ] {
+        copy(&body_dir.join(file), &dist.join("body").join(file))?;
+    }
+    let motions = root.join("datasets/motions");
+    copy(&motions.join("walk.json"), &dist.join("motions/walk.json"))?;
+    for (clip, _) in PAGE_CLIPS {
+        for ext in ["json", "safetensors"] {
+            let file = format!("{clip}.{ext}");
+            copy(&motions.join(&file), &dist.join("motions").join(&file))?;
+        }
+    }
+    for file in ["README.md", "PROVENANCE.md"] {
+        copy(
+            &motions.join("cmu").join(file),
+            &dist.join("motions/cmu").join(file),
+        )?;
+    }
+    let size = |p: &Path| std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+    let manifest = Manifest {
+        procedural: PAGE_PROCEDURAL.iter().map(|s| s.to_string()).collect(),
+        clips: PAGE_CLIPS
+            .iter()
+            .map(|(name, label)| ManifestClip {
+                name: name.to_string(),
+                label: label.to_string(),
+            })
+            .collect(),
+        model: ModelInfo {
+            garment: page_model.header().garment.id.clone(),
+            triangles,
+            storage: "f16 weight matrices, f32 vectors",
+            f32_bytes: size(&model_dir.join("model.safetensors")),
+            page_bytes: size(&dist.join("model/model.safetensors")),
+        },
+    };
+    let json = serde_json::to_string_pretty(&manifest)?;
+    std::fs::write(dist.join("manifest.json"), json)?;
+    let total: u64 = walk(dist)?.iter().map(|p| size(p)).sum();
+    println!(
+        "wrote {} ({:.1} MB; model {:.1} MB in f16, {:.1} MB in f32)",
+        dist.display(),
+        total as f64 / 1e6,
+        manifest.model.page_bytes as f64 / 1e6,
+        manifest.model.f32_bytes as f64 / 1e6
+    );
+    Ok(())
+}
+
+fn walk(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            out.extend(walk(&path)?);
+        } else {
+            out.push(path);
+        }
+    }
+    Ok(out)
+}
