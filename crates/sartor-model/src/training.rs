@@ -448,95 +448,41 @@ fn backward_step<M: Module>(
     (optim.step(lr, model, grads), value)
 }
 
-struct FitTask<'a> {
+/// Normalised inputs `[N, n_in]` and targets `[N, 3V]` of some items.
+type Gather<S> = fn(&TrainingData, &[S]) -> (Vec<f32>, Vec<f32>);
+
+/// A frame-wise regressor, one optimiser step per batch: the fit MLP over shapes (`S` a shape
+/// index) and the linear baseline over frames (`S` a `(sequence, frame)`).
+struct RegressionTask<'a, M, S> {
     data: &'a TrainingData,
-    config: FitRegressorConfig,
+    init: Box<dyn Fn(&Device) -> M + 'a>,
+    forward: fn(&M, Tensor<2>) -> Tensor<2>,
+    gather: Gather<S>,
+    n_in: usize,
+    /// The targets' normalisation, to report validation error in mm.
+    out_std: &'a [f32],
+    split: Split,
     batch_size: usize,
     seed: u64,
-    train: Vec<usize>,
-    val: Vec<usize>,
+    /// The training items; batches index into it.
+    train: Vec<S>,
+    val: Vec<S>,
     device: Device,
 }
 
-impl Task for FitTask<'_> {
-    type M = FitRegressor;
-    fn init(&self, device: &Device) -> FitRegressor {
-        self.config.init(device)
+/// Validation items per forward pass.
+const EVAL_FRAMES: usize = 512;
+
+impl<M: Module + Clone, S: Copy> Task for RegressionTask<'_, M, S> {
+    type M = M;
+    fn init(&self, device: &Device) -> M {
+        (self.init)(device)
     }
     fn frames_per_epoch(&self) -> usize {
         self.train.len()
     }
     fn batches(&self, epoch: usize) -> Vec<Vec<usize>> {
-        shuffled(&self.train, self.seed, epoch as u64)
-            .chunks(self.batch_size)
-            .map(<[usize]>::to_vec)
-            .collect()
-    }
-    fn steps(&self, _: &[usize]) -> usize {
-        1
-    }
-    fn train_batch(
-        &self,
-        model: FitRegressor,
-        optim: &mut ModuleOptimizer,
-        lr: f64,
-        batch: &[usize],
-        on_step: &mut dyn FnMut(f64, usize),
-    ) -> FitRegressor {
-        let (x, y) = gather_shapes(self.data, batch);
-        let (model, value) = regression_step(
-            model,
-            FitRegressor::forward,
-            x,
-            y,
-            self.data.n_betas(),
-            &self.device,
-            optim,
-            lr,
-        );
-        on_step(value, batch.len());
-        model
-    }
-    fn validate(&self, model: &FitRegressor) -> Option<f64> {
-        if self.val.is_empty() {
-            return None;
-        }
-        let model = model.valid();
-        let device = self.device.clone().inner();
-        let (x, y) = gather_shapes(self.data, &self.val);
-        let n = self.val.len();
-        let pred = to_vec(model.forward(tensor(x, [n, self.data.n_betas()], &device)));
-        let (sum, count) = vertex_error_mm(&pred, &y, &self.data.stats().fit_out.std, None);
-        Some(sum / count.max(1) as f64)
-    }
-    fn validation_split(&self) -> Split {
-        Split::HeldOutShapes
-    }
-}
-
-struct LinearTask<'a> {
-    data: &'a TrainingData,
-    config: LinearRegressorConfig,
-    batch_size: usize,
-    seed: u64,
-    val: Vec<usize>,
-    /// Every training frame `(sequence, frame)`; batches index into it.
-    frames: Vec<(usize, usize)>,
-    device: Device,
-}
-
-const EVAL_FRAMES: usize = 512;
-
-impl Task for LinearTask<'_> {
-    type M = LinearRegressor;
-    fn init(&self, device: &Device) -> LinearRegressor {
-        self.config.init(device)
-    }
-    fn frames_per_epoch(&self) -> usize {
-        self.frames.len()
-    }
-    fn batches(&self, epoch: usize) -> Vec<Vec<usize>> {
-        let all: Vec<usize> = (0..self.frames.len()).collect();
+        let all: Vec<usize> = (0..self.train.len()).collect();
         shuffled(&all, self.seed, epoch as u64)
             .chunks(self.batch_size)
             .map(<[usize]>::to_vec)
@@ -547,51 +493,46 @@ impl Task for LinearTask<'_> {
     }
     fn train_batch(
         &self,
-        model: LinearRegressor,
+        model: M,
         optim: &mut ModuleOptimizer,
         lr: f64,
         batch: &[usize],
         on_step: &mut dyn FnMut(f64, usize),
-    ) -> LinearRegressor {
-        let frames: Vec<(usize, usize)> = batch.iter().map(|&i| self.frames[i]).collect();
-        let (x, y) = gather_frames(self.data, &frames);
+    ) -> M {
+        let items: Vec<S> = batch.iter().map(|&i| self.train[i]).collect();
+        let (x, y) = (self.gather)(self.data, &items);
         let (model, value) = regression_step(
             model,
-            LinearRegressor::forward,
+            self.forward,
             x,
             y,
-            self.data.n_inputs(),
+            self.n_in,
             &self.device,
             optim,
             lr,
         );
-        on_step(value, frames.len());
+        on_step(value, items.len());
         model
     }
-    fn validate(&self, model: &LinearRegressor) -> Option<f64> {
+    fn validate(&self, model: &M) -> Option<f64> {
         if self.val.is_empty() {
             return None;
         }
         let model = model.valid();
         let device = self.device.clone().inner();
-        let frames: Vec<(usize, usize)> = self
-            .val
-            .iter()
-            .flat_map(|&s| (0..self.data.sequences()[s].n_frames).map(move |t| (s, t)))
-            .collect();
         let (mut sum, mut count) = (0.0, 0);
-        for chunk in frames.chunks(EVAL_FRAMES) {
-            let (x, y) = gather_frames(self.data, chunk);
-            let x = tensor(x, [chunk.len(), self.data.n_inputs()], &device);
-            let pred = to_vec(model.forward(x));
-            let (s, c) = vertex_error_mm(&pred, &y, &self.data.stats().wrinkle_out.std, None);
+        for chunk in self.val.chunks(EVAL_FRAMES) {
+            let (x, y) = (self.gather)(self.data, chunk);
+            let x = tensor(x, [chunk.len(), self.n_in], &device);
+            let pred = to_vec((self.forward)(&model, x));
+            let (s, c) = vertex_error_mm(&pred, &y, self.out_std, None);
             sum += s;
             count += c;
         }
         Some(sum / count.max(1) as f64)
     }
     fn validation_split(&self) -> Split {
-        Split::HeldOutMotions
+        self.split
     }
 }
 
@@ -780,6 +721,12 @@ pub fn train_model(
     config.validate()?;
     let stage = config.stage(kind);
     let device = options.device.clone();
+    let cx = RunContext {
+        kind,
+        config,
+        data,
+        options,
+    };
     let train = |split| match kind {
         ModelKind::Fit => data.shape_indices(split),
         _ => data.sequence_indices(split),
@@ -787,50 +734,47 @@ pub fn train_model(
     match kind {
         ModelKind::Fit => {
             let module = config.fit_config(data);
-            let task = FitTask {
+            let init = module.clone();
+            let task = RegressionTask {
                 data,
+                init: Box::new(move |device| init.init(device)),
+                forward: FitRegressor::forward,
+                gather: gather_shapes,
+                n_in: data.n_betas(),
+                out_std: &data.stats().fit_out.std,
+                split: Split::HeldOutShapes,
                 batch_size: stage.batch_size,
                 seed: config.seed,
                 train: train(Split::Train),
                 val: train(Split::HeldOutShapes),
                 device,
-                config: module.clone(),
             };
-            run(
-                kind,
-                &task,
-                &module.to_string(),
-                config,
-                data,
-                options,
-                progress,
-            )
+            run(&task, &module.to_string(), &cx, progress)
         }
         ModelKind::Linear => {
             let module = config.linear_config(data);
-            let sequences = train(Split::Train);
-            let frames = sequences
-                .into_iter()
-                .flat_map(|s| (0..data.sequences()[s].n_frames).map(move |t| (s, t)))
-                .collect();
-            let task = LinearTask {
+            let init = module.clone();
+            let frames = |split| -> Vec<(usize, usize)> {
+                train(split)
+                    .into_iter()
+                    .flat_map(|s| (0..data.sequences()[s].n_frames).map(move |t| (s, t)))
+                    .collect()
+            };
+            let task = RegressionTask {
                 data,
+                init: Box::new(move |device| init.init(device)),
+                forward: LinearRegressor::forward,
+                gather: gather_frames,
+                n_in: data.n_inputs(),
+                out_std: &data.stats().wrinkle_out.std,
+                split: Split::HeldOutMotions,
                 batch_size: stage.batch_size,
                 seed: config.seed,
-                val: train(Split::HeldOutMotions),
-                frames,
+                train: frames(Split::Train),
+                val: frames(Split::HeldOutMotions),
                 device,
-                config: module.clone(),
             };
-            run(
-                kind,
-                &task,
-                &module.to_string(),
-                config,
-                data,
-                options,
-                progress,
-            )
+            run(&task, &module.to_string(), &cx, progress)
         }
         ModelKind::Wrinkle => {
             let module = config.wrinkle_config(data)?;
@@ -849,28 +793,32 @@ pub fn train_model(
                 device,
                 config: module.clone(),
             };
-            run(
-                kind,
-                &task,
-                &module.to_string(),
-                config,
-                data,
-                options,
-                progress,
-            )
+            run(&task, &module.to_string(), &cx, progress)
         }
     }
 }
 
-fn run<T: Task>(
+/// What every task's run shares: the model, the settings, the data and the run's options.
+#[derive(Clone, Copy)]
+struct RunContext<'a> {
     kind: ModelKind,
+    config: &'a TrainingConfig,
+    data: &'a TrainingData,
+    options: &'a TrainOptions<'a>,
+}
+
+fn run<T: Task>(
     task: &T,
     module_config: &str,
-    config: &TrainingConfig,
-    data: &TrainingData,
-    options: &TrainOptions<'_>,
+    cx: &RunContext<'_>,
     progress: &mut dyn Progress,
 ) -> crate::Result<ModelReport> {
+    let RunContext {
+        kind,
+        config,
+        data,
+        options,
+    } = *cx;
     let dir = &options.dir;
     std::fs::create_dir_all(dir).map_err(|source| Error::Io {
         path: dir.clone(),

@@ -42,6 +42,16 @@ pub fn train(
     train_model(kind, data, config, &options, &mut Silent)
 }
 
+/// Train `kind` from scratch in a temporary folder.
+fn learn(
+    kind: ModelKind,
+    data: &sartor_dataset::TrainingData,
+    config: &TrainingConfig,
+) -> ModelReport {
+    let dir = tempfile::tempdir().expect("tempdir");
+    train(kind, data, config, dir.path(), false, false).expect("training")
+}
+
 fn assert_learned(report: &ModelReport, ratio: f64) {
     let first = report.curve.first().expect("an epoch").train_loss;
     let last = report.curve.last().expect("an epoch").train_loss;
@@ -60,16 +70,7 @@ fn assert_learned(report: &ModelReport, ratio: f64) {
 #[test]
 fn fit_mlp_learns_the_shape_displacements() {
     let data = dataset(0.0, false, None);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let report = train(
-        ModelKind::Fit,
-        &data,
-        &config(400, 0, 0),
-        dir.path(),
-        false,
-        false,
-    )
-    .expect("training");
+    let report = learn(ModelKind::Fit, &data, &config(400, 0, 0));
     assert_eq!(report.epochs, 400);
     assert_learned(&report, 0.01);
 }
@@ -77,48 +78,25 @@ fn fit_mlp_learns_the_shape_displacements() {
 #[test]
 fn linear_baseline_fits_a_memoryless_linear_target() {
     let data = dataset(0.0, false, None);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let report = train(
-        ModelKind::Linear,
-        &data,
-        &config(0, 0, 150),
-        dir.path(),
-        false,
-        false,
-    )
-    .expect("training");
+    let report = learn(ModelKind::Linear, &data, &config(0, 0, 150));
     assert_learned(&report, 0.001);
 }
 
 #[test]
 fn wrinkle_gru_learns_a_target_with_memory() {
     let data = dataset(0.8, true, None);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let report = train(
-        ModelKind::Wrinkle,
-        &data,
-        &config(0, 120, 0),
-        dir.path(),
-        false,
-        false,
-    )
-    .expect("training");
+    let report = learn(ModelKind::Wrinkle, &data, &config(0, 120, 0));
     assert_learned(&report, 0.03);
 }
 
 #[test]
 fn wrinkle_gru_learns_through_a_pca_output() {
     let data = dataset(0.8, true, Some(12));
-    let dir = tempfile::tempdir().expect("tempdir");
-    let report = train(
+    let report = learn(
         ModelKind::Wrinkle,
         &data,
         &config(0, 120, 0).with_pca_components(Some(12)),
-        dir.path(),
-        false,
-        false,
-    )
-    .expect("training");
+    );
     assert_learned(&report, 0.05);
 }
 
@@ -151,23 +129,18 @@ fn a_resumed_run_takes_the_same_steps_as_an_uninterrupted_one() {
 fn an_existing_run_is_not_overwritten_and_other_settings_are_refused() {
     let data = dataset(0.0, false, None);
     let dir = tempfile::tempdir().expect("tempdir");
-    train(
-        ModelKind::Fit,
-        &data,
-        &config(2, 0, 0),
-        dir.path(),
-        false,
-        false,
-    )
-    .expect("training");
-    let again = train(
-        ModelKind::Fit,
-        &data,
-        &config(2, 0, 0),
-        dir.path(),
-        false,
-        false,
-    );
+    let fresh = || {
+        train(
+            ModelKind::Fit,
+            &data,
+            &config(2, 0, 0),
+            dir.path(),
+            false,
+            false,
+        )
+    };
+    fresh().expect("training");
+    let again = fresh();
     assert!(
         again.is_err(),
         "a second run without resume must not overwrite the first"
