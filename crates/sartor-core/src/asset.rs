@@ -23,13 +23,20 @@ pub trait AssetHeader: Serialize + DeserializeOwned {
     fn version(&self) -> u32;
     /// The `tensors_sha256` field.
     fn tensors_sha256(&self) -> &str;
+    /// The `units` field of a header that has one; [`AssetFiles::parse`] refuses any but `"m"`.
+    fn units(&self) -> Option<&str> {
+        None
+    }
 }
 
 /// Implement [`AssetHeader`] for a header struct with `format: String`, `version: u32` and
-/// `tensors_sha256: String` fields.
+/// `tensors_sha256: String` fields; `asset_header!(H, units)` also for its `units: String`.
 #[macro_export]
 macro_rules! asset_header {
-    ($header:ty) => {
+    ($header:ty, units) => {
+        $crate::asset_header!($header, fn units(&self) -> Option<&str> { Some(&self.units) });
+    };
+    ($header:ty $(, $extra:item)?) => {
         impl $crate::asset::AssetHeader for $header {
             fn format(&self) -> &str {
                 &self.format
@@ -40,6 +47,7 @@ macro_rules! asset_header {
             fn tensors_sha256(&self) -> &str {
                 &self.tensors_sha256
             }
+            $($extra)?
         }
     };
 }
@@ -156,6 +164,12 @@ impl AssetFiles {
             return Err(Error::format(
                 &header_path,
                 "tensors_sha256 is not 64 lower-case hex digits",
+            ));
+        }
+        if let Some(units) = header.units().filter(|u| *u != "m") {
+            return Err(Error::format(
+                &header_path,
+                format!("units {units:?}, expected \"m\""),
             ));
         }
         let tensor_path = dir.join(self.tensors);

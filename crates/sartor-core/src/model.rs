@@ -64,7 +64,7 @@ struct Header {
     tensors_sha256: String,
 }
 
-crate::asset_header!(Header);
+crate::asset_header!(Header, units);
 
 /// The body model's file pair.
 const FILES: AssetFiles = AssetFiles {
@@ -378,12 +378,6 @@ impl BodyModel {
     pub fn from_bytes(dir: &Path, header_bytes: &[u8], bytes: Vec<u8>) -> Result<Self> {
         let (header, file): (Header, _) = FILES.parse(dir, header_bytes, bytes)?;
         let (header_path, tensor_path) = (dir.join(MODEL_HEADER), dir.join(MODEL_TENSORS));
-        if header.units != "m" {
-            return Err(Error::format(
-                &header_path,
-                format!("units {:?}, expected \"m\"", header.units),
-            ));
-        }
         let in_file = |e: Error| e.in_file(&tensor_path);
         let (v, f, nb) = (header.n_vertices, header.n_faces, header.n_betas);
         let j = header.joint_names.len();

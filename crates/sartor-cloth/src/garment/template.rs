@@ -137,7 +137,7 @@ struct Header {
     tensors_sha256: String,
 }
 
-sartor_core::asset_header!(Header);
+sartor_core::asset_header!(Header, units);
 
 impl Garment {
     /// A garment whose rest state is its template surface, with the material u direction of
@@ -497,13 +497,7 @@ impl Garment {
     /// (used in error messages only).
     pub fn from_bytes(dir: &Path, header_bytes: &[u8], tensor_bytes: Vec<u8>) -> Result<Self> {
         let (header, file): (Header, _) = FILES.parse(dir, header_bytes, tensor_bytes)?;
-        let (header_path, tensor_path) = (dir.join(GARMENT_HEADER), dir.join(GARMENT_TENSORS));
-        if header.units != "m" {
-            return Err(Error::format(
-                &header_path,
-                format!("units {:?}, expected \"m\"", header.units),
-            ));
-        }
+        let tensor_path = dir.join(GARMENT_TENSORS);
         let (n_v, n_f, n_h) = (header.n_vertices, header.n_faces, header.n_hinges);
         let in_file = |e: Error| match e {
             Error::Invalid { what, message } => {
