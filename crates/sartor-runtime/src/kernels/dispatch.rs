@@ -90,8 +90,7 @@ impl Isa {
 mod avx2 {
     use std::arch::x86_64::{
         __m128i, __m256, _mm_loadl_epi64, _mm_loadu_si128, _mm256_add_ps, _mm256_cvtepi8_epi32,
-        _mm256_cvtepi32_ps, _mm256_cvtph_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_setzero_ps,
-        _mm256_storeu_ps,
+        _mm256_cvtepi32_ps, _mm256_cvtph_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_storeu_ps,
     };
 
     use super::super::rows::{F16Bits, LANES, padded, reduce};
@@ -148,64 +147,38 @@ mod avx2 {
         }
     }
 
-    #[inline]
-    #[target_feature(enable = "avx2,fma,f16c")]
-    fn finish(acc: [__m256; 4]) -> f32 {
-        let mut s = [0.0f32; LANES];
-        store_acc(acc, &mut s);
-        reduce(s)
-    }
-
     macro_rules! kernels {
         ($t:ty, $load:ident, $dot:ident, $madd1:ident, $madd2:ident) => {
             #[inline]
             #[target_feature(enable = "avx2,fma,f16c")]
             pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
-                let mut acc = [_mm256_setzero_ps(); 4];
-                let (wc, wt) = w.as_chunks::<LANES>();
-                let (xc, xt) = x.as_chunks::<LANES>();
-                for (a, b) in wc.iter().zip(xc) {
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x8, _) = b.as_chunks::<8>();
-                    for r in 0..4 {
-                        acc[r] =
-                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
-                    }
-                }
-                if !wt.is_empty() {
-                    let (a, b) = (padded(wt), padded(xt));
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x8, _) = b.as_chunks::<8>();
-                    for r in 0..4 {
-                        acc[r] =
-                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
-                    }
-                }
-                finish(acc)
+                // The same sums as `madd1` from zero, lane for lane.
+                let mut s = [0.0f32; LANES];
+                $madd1(w, x, &mut s);
+                reduce(s)
             }
 
             #[inline]
             #[target_feature(enable = "avx2,fma,f16c")]
             pub(super) fn $madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
-                let mut acc = load_acc(s);
-                let (wc, wt) = w.as_chunks::<LANES>();
-                let (xc, xt) = x.as_chunks::<LANES>();
-                for (a, b) in wc.iter().zip(xc) {
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x8, _) = b.as_chunks::<8>();
+                #[inline]
+                #[target_feature(enable = "avx2,fma,f16c")]
+                fn step(acc: &mut [__m256; 4], w: &[$t; LANES], x: &[f32; LANES]) {
+                    let (w8, _) = w.as_chunks::<8>();
+                    let (x8, _) = x.as_chunks::<8>();
                     for r in 0..4 {
                         acc[r] =
                             _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
                     }
                 }
+                let mut acc = load_acc(s);
+                let (wc, wt) = w.as_chunks::<LANES>();
+                let (xc, xt) = x.as_chunks::<LANES>();
+                for (a, b) in wc.iter().zip(xc) {
+                    step(&mut acc, a, b);
+                }
                 if !wt.is_empty() {
-                    let (a, b) = (padded(wt), padded(xt));
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x8, _) = b.as_chunks::<8>();
-                    for r in 0..4 {
-                        acc[r] =
-                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
-                    }
+                    step(&mut acc, &padded(wt), &padded(xt));
                 }
                 store_acc(acc, s);
             }
@@ -219,31 +192,30 @@ mod avx2 {
                 s0: &mut [f32; LANES],
                 s1: &mut [f32; LANES],
             ) {
-                let mut acc0 = load_acc(s0);
-                let mut acc1 = load_acc(s1);
-                let (wc, wt) = w.as_chunks::<LANES>();
-                let (x0c, x0t) = x0.as_chunks::<LANES>();
-                let (x1c, x1t) = x1.as_chunks::<LANES>();
-                for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x08, _) = b0.as_chunks::<8>();
-                    let (x18, _) = b1.as_chunks::<8>();
+                #[inline]
+                #[target_feature(enable = "avx2,fma,f16c")]
+                fn step(acc: [&mut [__m256; 4]; 2], w: &[$t; LANES], x: [&[f32; LANES]; 2]) {
+                    let (w8, _) = w.as_chunks::<8>();
+                    let (x08, _) = x[0].as_chunks::<8>();
+                    let (x18, _) = x[1].as_chunks::<8>();
+                    let [acc0, acc1] = acc;
                     for r in 0..4 {
                         let wv = $load(&w8[r]);
                         acc0[r] = _mm256_add_ps(acc0[r], _mm256_mul_ps(wv, load_f32(&x08[r])));
                         acc1[r] = _mm256_add_ps(acc1[r], _mm256_mul_ps(wv, load_f32(&x18[r])));
                     }
                 }
+                let mut acc0 = load_acc(s0);
+                let mut acc1 = load_acc(s1);
+                let (wc, wt) = w.as_chunks::<LANES>();
+                let (x0c, x0t) = x0.as_chunks::<LANES>();
+                let (x1c, x1t) = x1.as_chunks::<LANES>();
+                for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
+                    step([&mut acc0, &mut acc1], a, [b0, b1]);
+                }
                 if !wt.is_empty() {
                     let (a, b0, b1) = (padded(wt), padded(x0t), padded(x1t));
-                    let (w8, _) = a.as_chunks::<8>();
-                    let (x08, _) = b0.as_chunks::<8>();
-                    let (x18, _) = b1.as_chunks::<8>();
-                    for r in 0..4 {
-                        let wv = $load(&w8[r]);
-                        acc0[r] = _mm256_add_ps(acc0[r], _mm256_mul_ps(wv, load_f32(&x08[r])));
-                        acc1[r] = _mm256_add_ps(acc1[r], _mm256_mul_ps(wv, load_f32(&x18[r])));
-                    }
+                    step([&mut acc0, &mut acc1], &a, [&b0, &b1]);
                 }
                 store_acc(acc0, s0);
                 store_acc(acc1, s1);

@@ -274,6 +274,16 @@ mod tests {
             .collect()
     }
 
+    /// Output `y` of input `b` alone matches the f64 reference and, bit for bit, column `b` of
+    /// the batched (transposed) output.
+    fn assert_column(y: &[f32], want: &[f64], ys_t: &[f32], batch: usize, b: usize) {
+        assert_eq!(y.len(), want.len());
+        for (i, (&y, &want)) in y.iter().zip(want).enumerate() {
+            assert!((y as f64 - want).abs() < 1e-5 * (1.0 + want.abs()));
+            assert_eq!(y.to_bits(), ys_t[i * batch + b].to_bits());
+        }
+    }
+
     #[test]
     fn mlp_matches_f64_reference_and_batches_bitwise() {
         let mut rng = ChaCha8Rng::seed_from_u64(31);
@@ -304,10 +314,7 @@ mod tests {
                 Parallelism::Sequential,
             )
             .expect("sizes");
-            for i in 0..n_out {
-                assert!((y[i] as f64 - want[i]).abs() < 1e-5 * (1.0 + want[i].abs()));
-                assert_eq!(y[i].to_bits(), ys_t[i * batch + b].to_bits());
-            }
+            assert_column(&y, &want, &ys_t, batch, b);
         }
     }
 
@@ -344,10 +351,7 @@ mod tests {
                     Parallelism::Sequential,
                 )
                 .expect("sizes");
-            for i in 0..n_out {
-                assert!((y[i] as f64 - want[i]).abs() < 1e-5 * (1.0 + want[i].abs()));
-                assert_eq!(y[i].to_bits(), ys_t[i * batch + b].to_bits());
-            }
+            assert_column(&y, &want, &ys_t, batch, b);
         }
         assert!(
             layer
