@@ -67,6 +67,28 @@ pub const SLIDERS: [&str; 8] = [
     "firmness",
 ];
 
+/// The slider fields of `$s` in [`SLIDERS`] order, each behind `$r` (`&` or `&mut`): the one
+/// place that maps slider names to fields, for [`Phenotype`] and [`PartialPhenotype`].
+macro_rules! sliders {
+    ($s:expr; $($r:tt)+) => {
+        [
+            $($r)+ $s.gender,
+            $($r)+ $s.age,
+            $($r)+ $s.muscle,
+            $($r)+ $s.weight,
+            $($r)+ $s.height,
+            $($r)+ $s.proportions,
+            $($r)+ $s.cup_size,
+            $($r)+ $s.firmness,
+        ]
+    };
+}
+
+/// The position of slider `name` in [`SLIDERS`].
+fn slider_index(name: &str) -> Option<usize> {
+    SLIDERS.iter().position(|s| *s == name)
+}
+
 /// MakeHuman's macro sliders, each in `[0, 1]`. The default is the neutral adult (all 0.5:
 /// gender halfway between female and male, 25 years, average muscle, weight and height, regular
 /// proportions, average cup size and firmness).
@@ -111,32 +133,14 @@ impl Default for Phenotype {
 impl Phenotype {
     /// The slider called `name` (one of [`SLIDERS`]).
     pub fn get(&self, name: &str) -> Option<f64> {
-        Some(match name {
-            "gender" => self.gender,
-            "age" => self.age,
-            "muscle" => self.muscle,
-            "weight" => self.weight,
-            "height" => self.height,
-            "proportions" => self.proportions,
-            "cup_size" => self.cup_size,
-            "firmness" => self.firmness,
-            _ => return None,
-        })
+        let i = slider_index(name)?;
+        Some(*sliders!(self; &)[i])
     }
 
     /// Mutable access to the slider called `name` (one of [`SLIDERS`]).
     pub fn get_mut(&mut self, name: &str) -> Option<&mut f64> {
-        Some(match name {
-            "gender" => &mut self.gender,
-            "age" => &mut self.age,
-            "muscle" => &mut self.muscle,
-            "weight" => &mut self.weight,
-            "height" => &mut self.height,
-            "proportions" => &mut self.proportions,
-            "cup_size" => &mut self.cup_size,
-            "firmness" => &mut self.firmness,
-            _ => return None,
-        })
+        let i = slider_index(name)?;
+        sliders!(self; &mut).into_iter().nth(i)
     }
 
     /// Check that every slider is finite and in `[0, 1]`.
@@ -235,17 +239,8 @@ pub struct PartialPhenotype {
 
 impl PartialPhenotype {
     fn slot(&mut self, name: &str) -> Option<&mut Option<f64>> {
-        Some(match name {
-            "gender" => &mut self.gender,
-            "age" => &mut self.age,
-            "muscle" => &mut self.muscle,
-            "weight" => &mut self.weight,
-            "height" => &mut self.height,
-            "proportions" => &mut self.proportions,
-            "cup_size" => &mut self.cup_size,
-            "firmness" => &mut self.firmness,
-            _ => return None,
-        })
+        let i = slider_index(name)?;
+        sliders!(self; &mut).into_iter().nth(i)
     }
 
     /// The full phenotype: given sliders, 0.5 for the others.
