@@ -17,9 +17,9 @@ mod smpl;
 mod walkcycle;
 
 pub use makehuman::{
-    BONE_FRAMES_FILE, BoneFrames, HeldOutReport, IMPORT_REPORT_FILE, ImportOptions, ImportReport,
-    JointReport, MeshReport, PcaReport, SAMPLE_RANGES, ShapeSpaceReport, SkinWeightReport,
-    TPoseReport, TopKReport, blender_euler_xyz, import_makehuman,
+    BONE_FRAMES_FILE, BoneFrames, HeldOutReport, IMPORT_FILES, IMPORT_REPORT_FILE, ImportOptions,
+    ImportReport, JointReport, MeshReport, PcaReport, SAMPLE_RANGES, ShapeSpaceReport,
+    SkinWeightReport, TPoseReport, TopKReport, blender_euler_xyz, import_makehuman,
 };
 /// The error type is the core's: importers fail in the same ways (file, line, format, invalid
 /// value).

@@ -8,15 +8,14 @@ use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::{RngCore, SeedableRng};
 use serde::Serialize;
 
-use super::IMPORT_REPORT_FILE;
 use super::assets::{self, RACES, Target};
-use super::blender::{BONE_FRAMES_FILE, BoneFrames, model_from_blender};
+use super::blender::{BoneFrames, model_from_blender};
 use super::pca::{TargetRows, pca, weight_covariance};
+use super::{IMPORT_FILES, IMPORT_REPORT_FILE};
 use sartor_core::io::{read_file, sha256_hex, write_atomic};
 use sartor_core::{
-    BodyModel, MODEL_HEADER, MODEL_TENSORS, MacroRule, PHENOTYPE_HEADER, PHENOTYPE_TENSORS,
-    Parallelism, Phenotype, PhenotypeSampling, PhenotypeSpace, Pose, Provenance, SkinWeights,
-    TriMesh, skin_points,
+    BodyModel, MacroRule, Parallelism, Phenotype, PhenotypeSampling, PhenotypeSpace, Pose,
+    Provenance, SkinWeights, TriMesh, skin_points,
 };
 use sartor_motion::{CMU_MB_JOINTS, TPOSE_FILE, cmu_mb_skeleton};
 
@@ -970,14 +969,9 @@ pub fn import_makehuman(options: &ImportOptions) -> Result<ImportReport> {
         .collect();
 
     let mut files_sha256 = BTreeMap::new();
-    for name in [
-        MODEL_TENSORS,
-        MODEL_HEADER,
-        PHENOTYPE_TENSORS,
-        PHENOTYPE_HEADER,
-        BONE_FRAMES_FILE,
-        TPOSE_FILE,
-    ] {
+    let (report_file, hashed) = IMPORT_FILES.split_last().expect("files");
+    debug_assert_eq!(*report_file, IMPORT_REPORT_FILE);
+    for &name in hashed {
         let (n, h) = file_sha(out, name)?;
         files_sha256.insert(n, h);
     }

@@ -35,3 +35,14 @@ pub use import::{
 
 /// File name of the import report inside the built-in model's folder.
 pub const IMPORT_REPORT_FILE: &str = "import-report.json";
+
+/// Every file an import writes into its folder; the report, last, records the others' hashes.
+pub const IMPORT_FILES: [&str; 7] = [
+    sartor_core::MODEL_TENSORS,
+    sartor_core::MODEL_HEADER,
+    sartor_core::PHENOTYPE_TENSORS,
+    sartor_core::PHENOTYPE_HEADER,
+    BONE_FRAMES_FILE,
+    sartor_motion::TPOSE_FILE,
+    IMPORT_REPORT_FILE,
+];

@@ -1,41 +1,5 @@
-//! Shared fixtures: a small synthetic body model with random shape basis and weights.
-
-use nalgebra::{UnitQuaternion, Vector3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use sartor_core::{Pose, TriMesh};
-
-pub fn rng(seed: u64) -> ChaCha8Rng {
-    ChaCha8Rng::seed_from_u64(seed)
-}
-
-/// A UV sphere of radius 0.3 m centred 1 m up (a stand-in body), `n` rings.
-pub fn sphere(n: usize) -> TriMesh {
-    TriMesh::uv_sphere(Vector3::new(0.0, 1.0, 0.0), 0.3, n).expect("valid sphere")
-}
-
-pub fn random_rotation(rng: &mut ChaCha8Rng, max_angle: f64) -> UnitQuaternion<f64> {
-    let axis = Vector3::new(
-        rng.random::<f64>() - 0.5,
-        rng.random::<f64>() - 0.5,
-        rng.random::<f64>() - 0.5,
-    );
-    UnitQuaternion::from_scaled_axis(axis.normalize() * max_angle * rng.random::<f64>())
-}
-
-pub fn random_pose(rng: &mut ChaCha8Rng, n_joints: usize, max_angle: f64) -> Pose {
-    Pose {
-        root_translation_m: Vector3::new(
-            rng.random::<f64>() - 0.5,
-            0.1 * rng.random::<f64>(),
-            rng.random::<f64>(),
-        ),
-        root_orientation: random_rotation(rng, max_angle),
-        local_rotations: (0..n_joints)
-            .map(|_| random_rotation(rng, max_angle))
-            .collect(),
-    }
-}
+//! Shared fixtures of the importers' tests (the geometry core's random poses and stand-in body
+//! are `crate::core_fixtures`).
 
 /// Where two JSON documents differ beyond `tol` in any number (or at all elsewhere), the path of
 /// the first difference. Committed imports are compared this way: libm's transcendental

@@ -5,25 +5,13 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
 use sartor_core::{
-    BodyModel, MODEL_HEADER, MODEL_TENSORS, PHENOTYPE_HEADER, PHENOTYPE_TENSORS, Phenotype,
-    PhenotypeRequest, PhenotypeSpace,
+    BodyModel, MODEL_HEADER, PHENOTYPE_HEADER, PHENOTYPE_TENSORS, Phenotype, PhenotypeRequest,
+    PhenotypeSpace,
 };
 
 use crate::common::{builtin_model_dir, load_builtin};
-use sartor_import::{
-    BONE_FRAMES_FILE, BoneFrames, IMPORT_REPORT_FILE, ImportOptions, import_makehuman,
-};
+use sartor_import::{BONE_FRAMES_FILE, BoneFrames, IMPORT_FILES, ImportOptions, import_makehuman};
 use sartor_motion::{TPOSE_FILE, load_tpose};
-
-const FILES: [&str; 7] = [
-    MODEL_TENSORS,
-    MODEL_HEADER,
-    PHENOTYPE_TENSORS,
-    PHENOTYPE_HEADER,
-    BONE_FRAMES_FILE,
-    TPOSE_FILE,
-    IMPORT_REPORT_FILE,
-];
 
 /// `<workspace>/../shared/makehuman`: where CI and developers keep the raw assets.
 fn raw_assets() -> PathBuf {
@@ -45,7 +33,7 @@ fn reimport_reproduces_the_committed_files() {
     let report = import_makehuman(&ImportOptions::new(from, dir.path().to_path_buf()))
         .expect("import succeeds");
     assert_eq!(report.mesh.n_vertices, 13380);
-    for name in FILES {
+    for name in IMPORT_FILES {
         let fresh = std::fs::read(dir.path().join(name)).expect("written");
         let committed = std::fs::read(builtin_model_dir().join(name)).expect("committed");
         assert!(
@@ -219,7 +207,7 @@ fn bone_frames_point_along_the_bones() {
 
 fn copy_builtin() -> tempfile::TempDir {
     let dir = tempfile::tempdir().expect("tempdir");
-    for name in FILES {
+    for name in IMPORT_FILES {
         std::fs::copy(builtin_model_dir().join(name), dir.path().join(name)).expect("copy");
     }
     dir

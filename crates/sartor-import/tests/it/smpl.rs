@@ -7,7 +7,7 @@ use rand::Rng;
 use sartor_core::Pose;
 use sartor_import::load_smpl_npz;
 
-use crate::common::{random_pose, rng, sphere};
+use crate::core_fixtures::{random_pose, rng, sphere};
 
 struct Arrays {
     entries: Vec<(String, Vec<u64>, Vec<f64>)>,
