@@ -361,28 +361,42 @@ impl Remesher {
             && n4.dot(&n2) > 0.0
     }
 
-    fn flip_valences(&mut self) {
+    /// Flip, in index order, every live interior edge (ends `[a, b]`, opposite corners
+    /// `[c, d]`) for which `wants(self, [a, b], [c, d])` holds, when the flip is valid and
+    /// keeps the orientation. Whether any edge flipped.
+    fn flip_edges_where(&mut self, wants: impl Fn(&Self, [u32; 2], [u32; 2]) -> bool) -> bool {
+        let mut any = false;
         let n = self.m.n_edge_slots() as u32;
         for e in 0..n {
             if self.m.edge_deleted(e) || self.m.is_boundary_edge(e) {
                 continue;
             }
-            let h = 2 * e;
-            let (a, b) = (self.m.from(h), self.m.to(h));
-            let [c, d] = self.m.flip_opposites(e);
-            let val = |v: u32| self.m.valence(v) as i64;
-            let (va, vb, vc, vd) = (val(a), val(b), val(c), val(d));
-            let min_val = |v: u32| if self.m.is_boundary_vertex(v) { 2 } else { 3 };
-            if va - 1 < min_val(a) || vb - 1 < min_val(b) {
-                continue;
-            }
-            let dev = |x: i64, v: u32| (x - self.target_valence(v)).pow(2);
-            let before = dev(va, a) + dev(vb, b) + dev(vc, c) + dev(vd, d);
-            let after = dev(va - 1, a) + dev(vb - 1, b) + dev(vc + 1, c) + dev(vd + 1, d);
-            if after < before && self.m.is_flip_ok(e) && self.flip_keeps_orientation(e) {
+            let ends = [self.m.from(2 * e), self.m.to(2 * e)];
+            if wants(self, ends, self.m.flip_opposites(e))
+                && self.m.is_flip_ok(e)
+                && self.flip_keeps_orientation(e)
+            {
                 self.m.flip(e);
+                any = true;
             }
         }
+        any
+    }
+
+    /// Flip edges where that brings the four vertices' valences closer to their targets.
+    fn flip_valences(&mut self) {
+        self.flip_edges_where(|r, [a, b], [c, d]| {
+            let val = |v: u32| r.m.valence(v) as i64;
+            let (va, vb, vc, vd) = (val(a), val(b), val(c), val(d));
+            let min_val = |v: u32| if r.m.is_boundary_vertex(v) { 2 } else { 3 };
+            if va - 1 < min_val(a) || vb - 1 < min_val(b) {
+                return false;
+            }
+            let dev = |x: i64, v: u32| (x - r.target_valence(v)).pow(2);
+            let before = dev(va, a) + dev(vb, b) + dev(vc, c) + dev(vd, d);
+            let after = dev(va - 1, a) + dev(vb - 1, b) + dev(vc + 1, c) + dev(vd + 1, d);
+            after < before
+        });
     }
 
     /// Flip interior edges whose two opposite angles sum to more than π (intrinsic Delaunay
@@ -390,32 +404,17 @@ impl Remesher {
     /// most 10 passes). On a fixed vertex set this maximises the smallest angle.
     fn delaunay_flips(&mut self) {
         for _pass in 0..10 {
-            let mut any = false;
-            let n = self.m.n_edge_slots() as u32;
-            for e in 0..n {
-                if self.m.edge_deleted(e) || self.m.is_boundary_edge(e) {
-                    continue;
-                }
-                let h = 2 * e;
-                let (a, b) = (self.m.from(h), self.m.to(h));
-                let p = |v: u32| self.m.pos[v as usize];
-                let opposite: f64 = self
-                    .m
-                    .flip_opposites(e)
+            let any = self.flip_edges_where(|r, [a, b], corners| {
+                let p = |v: u32| r.m.pos[v as usize];
+                let opposite: f64 = corners
                     .iter()
                     .map(|&c| (p(a) - p(c)).angle(&(p(b) - p(c))))
                     .sum();
-                let min_val = |v: u32| if self.m.is_boundary_vertex(v) { 3 } else { 4 };
-                if opposite > std::f64::consts::PI + 1e-9
-                    && self.m.valence(a) >= min_val(a)
-                    && self.m.valence(b) >= min_val(b)
-                    && self.m.is_flip_ok(e)
-                    && self.flip_keeps_orientation(e)
-                {
-                    self.m.flip(e);
-                    any = true;
-                }
-            }
+                let min_val = |v: u32| if r.m.is_boundary_vertex(v) { 3 } else { 4 };
+                opposite > std::f64::consts::PI + 1e-9
+                    && r.m.valence(a) >= min_val(a)
+                    && r.m.valence(b) >= min_val(b)
+            });
             if !any {
                 break;
             }
@@ -425,22 +424,13 @@ impl Remesher {
     /// Flip edges opposite an angle above 170° ("caps") when the flip is valid.
     fn remove_caps(&mut self) {
         let cos_cap = 170f64.to_radians().cos();
-        let n = self.m.n_edge_slots() as u32;
-        for e in 0..n {
-            if self.m.edge_deleted(e) || self.m.is_boundary_edge(e) {
-                continue;
-            }
-            let h = 2 * e;
-            let (a, b) = (self.m.from(h), self.m.to(h));
-            let p = |v: u32| self.m.pos[v as usize];
-            let is_cap = self.m.flip_opposites(e).iter().any(|&c| {
+        self.flip_edges_where(|r, [a, b], opposite| {
+            let p = |v: u32| r.m.pos[v as usize];
+            opposite.iter().any(|&c| {
                 let (u, w) = (p(a) - p(c), p(b) - p(c));
                 u.dot(&w) < cos_cap * u.norm() * w.norm()
-            });
-            if is_cap && self.m.is_flip_ok(e) && self.flip_keeps_orientation(e) {
-                self.m.flip(e);
-            }
-        }
+            })
+        });
     }
 
     /// The relaxation target of vertex `v` (before projection), or `None` for a corner.
@@ -540,52 +530,48 @@ impl Remesher {
             .map(|e| (self.m.edge_length(e), e))
             .collect();
         let faces = self.m.n_faces();
-        if faces < goal {
-            // Longest first.
-            edges.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-            for (_, e) in edges {
-                let faces = self.m.n_faces();
-                if faces >= goal {
-                    break;
-                }
-                if self.m.edge_deleted(e) {
-                    continue;
-                }
-                let (a, b) = (self.m.from(2 * e), self.m.to(2 * e));
-                let boundary = self.m.is_boundary_edge(e);
-                // One missing triangle needs a boundary split (+1), more an interior one (+2).
-                if (goal - faces == 1) != boundary
-                    || spread && (touched[a as usize] || touched[b as usize])
-                {
-                    continue;
-                }
+        if faces == goal {
+            return;
+        }
+        let grow = faces < goal;
+        // Longest first when splitting, shortest first when collapsing.
+        edges.sort_by(|a, b| {
+            let by_length = if grow {
+                b.0.total_cmp(&a.0)
+            } else {
+                a.0.total_cmp(&b.0)
+            };
+            by_length.then(a.1.cmp(&b.1))
+        });
+        for (_, e) in edges {
+            let faces = self.m.n_faces();
+            let missing = if grow {
+                goal.saturating_sub(faces)
+            } else {
+                faces.saturating_sub(goal)
+            };
+            if missing == 0 {
+                break;
+            }
+            if self.m.edge_deleted(e) {
+                continue;
+            }
+            let (a, b) = (self.m.from(2 * e), self.m.to(2 * e));
+            let boundary = self.m.is_boundary_edge(e);
+            // One triangle to go needs a boundary operation (±1), more an interior one (±2).
+            if (missing == 1) != boundary || spread && (touched[a as usize] || touched[b as usize])
+            {
+                continue;
+            }
+            if grow {
                 self.split_edge(e);
                 touched.push(true);
                 touched[a as usize] = true;
                 touched[b as usize] = true;
-            }
-        } else if faces > goal {
-            edges.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            for (_, e) in edges {
-                let faces = self.m.n_faces();
-                if faces <= goal {
-                    break;
-                }
-                if self.m.edge_deleted(e) {
-                    continue;
-                }
-                let (a, b) = (self.m.from(2 * e), self.m.to(2 * e));
-                let boundary = self.m.is_boundary_edge(e);
-                if (faces - goal == 1) != boundary
-                    || spread && (touched[a as usize] || touched[b as usize])
-                {
-                    continue;
-                }
-                if let Some(kept) = self.collapse_edge(e, Some(hi)) {
-                    touched[kept as usize] = true;
-                    for h in self.m.outgoing(kept) {
-                        touched[self.m.to(h) as usize] = true;
-                    }
+            } else if let Some(kept) = self.collapse_edge(e, Some(hi)) {
+                touched[kept as usize] = true;
+                for h in self.m.outgoing(kept) {
+                    touched[self.m.to(h) as usize] = true;
                 }
             }
         }
