@@ -46,6 +46,7 @@ mod features;
 pub mod io;
 mod mesh;
 mod model;
+mod norm;
 mod obj;
 mod phenotype;
 mod proximity;
@@ -63,6 +64,7 @@ pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
 pub use mesh::{Hinge, MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};
+pub use norm::{MeanStd, NormStats};
 pub use obj::{ObjData, obj_text, read_obj, write_obj};
 pub use phenotype::{
     MacroPart, MacroRule, MacroTarget, MacroVariable, PHENOTYPE_HEADER, PHENOTYPE_TENSORS,

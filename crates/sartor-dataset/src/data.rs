@@ -9,7 +9,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use sartor_core::PoseFeatureSpec;
+use sartor_core::{NormStats, PoseFeatureSpec};
 
 use crate::{Error, Result};
 
@@ -73,71 +73,6 @@ pub struct SequenceSample {
     pub inputs: Vec<f32>,
     /// `Δ_L`, `[T, 3V]`, metres.
     pub wrinkle_delta: Vec<f32>,
-}
-
-/// Per-component mean and standard deviation.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MeanStd {
-    /// Mean.
-    pub mean: Vec<f32>,
-    /// Standard deviation (positive).
-    pub std: Vec<f32>,
-}
-
-impl MeanStd {
-    /// Check sizes, finiteness and positive std.
-    pub fn validate(&self, len: usize, what: &'static str) -> Result<()> {
-        if self.mean.len() != len || self.std.len() != len {
-            return Err(Error::invalid(
-                what,
-                format!(
-                    "{} means and {} stds for {len} values",
-                    self.mean.len(),
-                    self.std.len()
-                ),
-            ));
-        }
-        if !self.mean.iter().all(|m| m.is_finite()) {
-            return Err(Error::invalid(what, "non-finite mean"));
-        }
-        if !self.std.iter().all(|s| s.is_finite() && *s > 0.0) {
-            return Err(Error::invalid(what, "std must be finite and positive"));
-        }
-        Ok(())
-    }
-
-    /// Normalise `values` in place; `values.len()` must be a multiple of the size.
-    pub fn normalize(&self, values: &mut [f32]) {
-        let n = self.mean.len();
-        for row in values.chunks_mut(n) {
-            for ((v, m), s) in row.iter_mut().zip(&self.mean).zip(&self.std) {
-                *v = (*v - m) / s;
-            }
-        }
-    }
-
-    /// Undo [`MeanStd::normalize`].
-    pub fn denormalize(&self, values: &mut [f32]) {
-        let n = self.mean.len();
-        for row in values.chunks_mut(n) {
-            for ((v, m), s) in row.iter_mut().zip(&self.mean).zip(&self.std) {
-                *v = *v * s + m;
-            }
-        }
-    }
-}
-
-/// Normalisation statistics, computed on the training split only.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct NormStats {
-    /// Fit MLP input (β), `[n_betas]`.
-    pub fit_in: MeanStd,
-    /// Wrinkle input, `[n_inputs]`.
-    pub wrinkle_in: MeanStd,
-    /// `Δ_G`, `[3V]` (one std for all components).
-    pub fit_out: MeanStd,
-    /// `Δ_L`, `[3V]` (one std for all components).
-    pub wrinkle_out: MeanStd,
 }
 
 /// A PCA basis of the normalised `Δ_L` (training split).

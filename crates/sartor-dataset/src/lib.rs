@@ -37,11 +37,12 @@ pub use build::{
     SequencePlan, ShapePlan, SimulatedMotion, SimulationSource, build_dataset,
 };
 pub use data::{
-    DataSource, InputLayout, MeanStd, NormStats, PcaBasis, SequenceSample, ShapeSample, Split,
-    TrainingData,
+    DataSource, InputLayout, PcaBasis, SequenceSample, ShapeSample, Split, TrainingData,
 };
 pub use error::{Error, Result};
 pub use extract::{CLOTH_WEIGHT_CUTOFF, WrinkleExtractor, bind_garment, fit_delta, select_joints};
+/// The normalisation statistics are the geometry core's (the runtime reads the same type).
+pub use sartor_core::{MeanStd, NormStats};
 pub use simfolder::{
     FAILED_DIR, REST_MOTION, SimFolder, failed_stems, sequence_stem, simulated_plan,
 };

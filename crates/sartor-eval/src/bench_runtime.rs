@@ -18,13 +18,13 @@ use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sartor_core::io::{read_file, sha256_hex};
-use sartor_core::{BodyModel, MODEL_HEADER, Pose, RootFeature};
-use sartor_motion::CMU_MB_JOINTS;
+use sartor_core::{BodyModel, MODEL_HEADER, Pose, PoseFeatureSpec, RootFeature};
+use sartor_motion::cmu_mb_body_joints as feature_joints;
 use sartor_runtime::{
-    AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, Feature,
-    FeatureBlock, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
-    GruWeights, MeanStd, ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats,
-    OutputKind, Parallelism, PcaWeights, Precision, RotationEncoding, instruction_set,
+    AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, FeatureBlock,
+    GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig, GruWeights, MeanStd,
+    ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats, OutputKind, Parallelism,
+    PcaWeights, Precision, RotationEncoding, instruction_set,
 };
 use serde::Serialize;
 
@@ -60,18 +60,6 @@ const PAPER: [(usize, f64, f64); 4] = [
     (26066, 2.40, 6.87),
 ];
 
-/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
-/// fingers, thumbs, hip joints, toes and the second neck joint.
-fn feature_joints() -> Vec<String> {
-    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
-    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
-    CMU_MB_JOINTS
-        .iter()
-        .map(|j| j.0)
-        .filter(keep)
-        .map(String::from)
-        .collect()
-}
 const N_BETAS: usize = 10;
 const FIT_HIDDEN: usize = 20;
 /// Body region: faces with a vertex within this distance of the garment at rest.
@@ -253,12 +241,11 @@ fn model(
 ) -> Result<GarmentModel> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let v = positions.len();
-    let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
     let rot = feature_joints().len() * 6;
     let sizes = ModelSizes {
         n_vertices: v,
         n_betas: N_BETAS,
-        n_pose_features: rot + root.len(),
+        n_pose_features: rot + RootFeature::ALL.len(),
         fit_hidden: FIT_HIDDEN,
         gru_hidden,
         output,
@@ -268,29 +255,14 @@ fn model(
         garment.clone(),
         body.clone(),
         sizes,
-        vec![
-            FeatureBlock {
-                name: "betas".into(),
-                offset: 0,
-                len: N_BETAS,
-                feature: Feature::Betas,
+        FeatureBlock::layout(
+            N_BETAS,
+            &PoseFeatureSpec {
+                joints: feature_joints(),
+                encoding: RotationEncoding::Rot6d,
+                root: RootFeature::ALL.to_vec(),
             },
-            FeatureBlock {
-                name: "pose".into(),
-                offset: N_BETAS,
-                len: rot,
-                feature: Feature::JointRotations {
-                    encoding: RotationEncoding::Rot6d,
-                    joints: feature_joints(),
-                },
-            },
-            FeatureBlock {
-                name: "root".into(),
-                offset: N_BETAS + rot,
-                len: root.len(),
-                feature: Feature::Root { components: root },
-            },
-        ],
+        ),
     );
     let (i, h, o3) = (sizes.wrinkle_inputs(), gru_hidden, 3 * v);
     let a = 1.0 / (h as f32).sqrt();

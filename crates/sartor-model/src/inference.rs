@@ -6,8 +6,8 @@ use burn::nn::Linear;
 use burn::tensor::{Device, Tensor};
 use sartor_dataset::{MeanStd, Split, TrainingData};
 use sartor_runtime::{
-    DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, ModelHeader, ModelSizes,
-    ModelWeights, OutputKind, PcaWeights, TrainingBetas,
+    DenseWeights, FeatureBlock, GarmentModel, GruWeights, ModelHeader, ModelSizes, ModelWeights,
+    OutputKind, PcaWeights, TrainingBetas,
 };
 
 use crate::data::{PcaTensors, tensor, to_vec};
@@ -49,44 +49,6 @@ fn mean_std(m: &MeanStd) -> sartor_runtime::MeanStd {
         mean: m.mean.clone(),
         std: m.std.clone(),
     }
-}
-
-/// The wrinkle input layout as the runtime's feature blocks: β, then the joint rotations,
-/// then the root components (blocks without values left out).
-pub fn feature_blocks(data: &TrainingData) -> Vec<FeatureBlock> {
-    let layout = data.layout();
-    let pose = &layout.pose;
-    let mut blocks = vec![FeatureBlock {
-        name: "betas".into(),
-        offset: 0,
-        len: layout.n_betas,
-        feature: Feature::Betas,
-    }];
-    let mut offset = layout.n_betas;
-    if !pose.joints.is_empty() {
-        let len = pose.joints.len() * pose.encoding.width();
-        blocks.push(FeatureBlock {
-            name: "pose".into(),
-            offset,
-            len,
-            feature: Feature::JointRotations {
-                encoding: pose.encoding,
-                joints: pose.joints.clone(),
-            },
-        });
-        offset += len;
-    }
-    if !pose.root.is_empty() {
-        blocks.push(FeatureBlock {
-            name: "root".into(),
-            offset,
-            len: pose.root.len(),
-            feature: Feature::Root {
-                components: pose.root.iter().map(|r| r.name().to_string()).collect(),
-            },
-        });
-    }
-    blocks
 }
 
 /// The three trained modules as one runtime model (f32 tensors + header): the fit MLP, the
@@ -149,7 +111,12 @@ pub fn export_model(
         linear_baseline: linear.is_some(),
     };
     let (garment, body) = (data.source().garment.clone(), data.source().body.clone());
-    let mut header = ModelHeader::new(garment, body, sizes, feature_blocks(data));
+    let mut header = ModelHeader::new(
+        garment,
+        body,
+        sizes,
+        FeatureBlock::layout(data.layout().n_betas, &data.layout().pose),
+    );
     // The shapes the networks were trained on, for the animator's rule beyond them.
     header.training_betas = Some(TrainingBetas(
         data.shape_indices(Split::Train)

@@ -48,7 +48,7 @@ mod training;
 
 pub use data::to_vec;
 pub use error::{Error, Result};
-pub use inference::{Predictor, export_model, feature_blocks};
+pub use inference::{Predictor, export_model};
 pub use model::{
     FitRegressor, FitRegressorConfig, FusedGru, LinearRegressor, LinearRegressorConfig,
     WrinkleRegressor, WrinkleRegressorConfig,

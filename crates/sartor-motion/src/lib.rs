@@ -62,7 +62,7 @@ pub use retarget_check::{
     BoneCheck, BvhFkFrame, CROSSING_MARGIN, ClipCheck, CrossingCheck, MAX_BONE_ANGLE_DEG,
     RetargetCheckOptions, SEPARATION_TOLERANCE, bvh_forward_kinematics, check_bvh_retarget,
 };
-pub use rig::{CMU_MB_JOINTS, cmu_mb_skeleton};
+pub use rig::{CMU_MB_JOINTS, cmu_mb_body_joints, cmu_mb_skeleton};
 /// The error type is the core's: motion files fail in the same ways (file, line, format,
 /// invalid value).
 pub use sartor_core::{Error, FPS, Pose, Result, split_heading};

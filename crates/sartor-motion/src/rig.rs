@@ -36,6 +36,19 @@ pub const CMU_MB_JOINTS: [(&str, Option<&str>); 31] = [
     ("RThumb", Some("RightHand")),
 ];
 
+/// The 20 body joints of [`CMU_MB_JOINTS`] without fingers, thumbs, hip joints, toes and the
+/// second neck joint: the pose a garment network of the benchmarks and test scenes sees (a
+/// dataset selects its own from the garment's skin weights).
+pub fn cmu_mb_body_joints() -> Vec<String> {
+    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
+    CMU_MB_JOINTS
+        .iter()
+        .map(|j| j.0)
+        .filter(|n| !LEFT_OUT.iter().any(|e| n.contains(e)))
+        .map(String::from)
+        .collect()
+}
+
 /// The `cmu_mb` skeleton as a [`sartor_core::Skeleton`].
 pub fn cmu_mb_skeleton() -> sartor_core::Skeleton {
     let names: Vec<String> = CMU_MB_JOINTS.iter().map(|(n, _)| n.to_string()).collect();

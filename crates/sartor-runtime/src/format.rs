@@ -70,9 +70,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use sartor_core::GarmentBinding;
 use sartor_core::asset::AssetFiles;
 use sartor_core::io::{OwnedTensor, read_file, serialize_tensors, sha256_hex};
+use sartor_core::{GarmentBinding, PoseFeatureSpec};
+pub use sartor_core::{MeanStd, NormStats};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -144,6 +145,45 @@ pub struct FeatureBlock {
     pub len: usize,
     /// What the values are.
     pub feature: Feature,
+}
+
+impl FeatureBlock {
+    /// The wrinkle input layout of sartor's datasets as feature blocks: β (`n_betas` values),
+    /// then the joint rotations of `pose`, then its root components (blocks without values
+    /// left out).
+    pub fn layout(n_betas: usize, pose: &PoseFeatureSpec) -> Vec<Self> {
+        let mut blocks = vec![Self {
+            name: "betas".into(),
+            offset: 0,
+            len: n_betas,
+            feature: Feature::Betas,
+        }];
+        let mut offset = n_betas;
+        if !pose.joints.is_empty() {
+            let len = pose.joints.len() * pose.encoding.width();
+            blocks.push(Self {
+                name: "pose".into(),
+                offset,
+                len,
+                feature: Feature::JointRotations {
+                    encoding: pose.encoding,
+                    joints: pose.joints.clone(),
+                },
+            });
+            offset += len;
+        }
+        if !pose.root.is_empty() {
+            blocks.push(Self {
+                name: "root".into(),
+                offset,
+                len: pose.root.len(),
+                feature: Feature::Root {
+                    components: pose.root.iter().map(|r| r.name().to_string()).collect(),
+                },
+            });
+        }
+        blocks
+    }
 }
 
 /// Network sizes.
@@ -529,28 +569,6 @@ pub struct PcaWeights {
     pub basis: Vec<f32>,
     /// `[3V]`.
     pub mean: Vec<f32>,
-}
-
-/// Per-component mean and standard deviation.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MeanStd {
-    /// Mean.
-    pub mean: Vec<f32>,
-    /// Standard deviation (positive).
-    pub std: Vec<f32>,
-}
-
-/// Normalisation statistics of the network inputs and outputs.
-#[derive(Clone, Debug, PartialEq)]
-pub struct NormStats {
-    /// Fit MLP input (β), `[n_betas]`.
-    pub fit_in: MeanStd,
-    /// Wrinkle input, `[I]`.
-    pub wrinkle_in: MeanStd,
-    /// Fit displacement, `[3V]`.
-    pub fit_out: MeanStd,
-    /// Wrinkle displacement, `[3V]`.
-    pub wrinkle_out: MeanStd,
 }
 
 /// Every tensor of a model, in f32.

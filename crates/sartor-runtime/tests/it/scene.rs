@@ -5,27 +5,14 @@
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
-use sartor_core::{BodyModel, Pose, RootFeature, TriMesh};
-use sartor_motion::CMU_MB_JOINTS;
+use sartor_core::{BodyModel, Pose, PoseFeatureSpec, RootFeature, TriMesh};
+pub use sartor_motion::cmu_mb_body_joints as feature_joints;
 use sartor_runtime::{
-    AnimatorOptions, AssetId, Feature, FeatureBlock, GarmentBinding, GarmentModel, GarmentNetwork,
+    AnimatorOptions, AssetId, FeatureBlock, GarmentBinding, GarmentModel, GarmentNetwork,
     GarmentRig, ModelHeader, ModelSizes, NetworkOptions, OutputKind, RotationEncoding,
 };
 
 use crate::common::random_model_with;
-
-/// The 20 body joints whose rotations the model sees (6D each): the built-in skeleton without
-/// fingers, thumbs, hip joints, toes and the second neck joint.
-pub fn feature_joints() -> Vec<String> {
-    const LEFT_OUT: [&str; 5] = ["Finger", "Thumb", "HipJoint", "ToeBase", "Neck1"];
-    let keep = |n: &&str| !LEFT_OUT.iter().any(|e| n.contains(e));
-    CMU_MB_JOINTS
-        .iter()
-        .map(|j| j.0)
-        .filter(keep)
-        .map(String::from)
-        .collect()
-}
 
 pub fn body() -> Arc<BodyModel> {
     static BODY: OnceLock<Arc<BodyModel>> = OnceLock::new();
@@ -78,42 +65,26 @@ pub fn binding() -> Arc<GarmentBinding> {
 pub fn header(output: OutputKind, gru_hidden: usize) -> ModelHeader {
     let n_betas = 10;
     let rot = feature_joints().len() * 6;
-    let root: Vec<String> = RootFeature::ALL.iter().map(|f| f.name().into()).collect();
     ModelHeader::new(
         garment_id(),
         body_id(),
         ModelSizes {
             n_vertices: binding().n_vertices(),
             n_betas,
-            n_pose_features: rot + root.len(),
+            n_pose_features: rot + RootFeature::ALL.len(),
             fit_hidden: 8,
             gru_hidden,
             output,
             linear_baseline: false,
         },
-        vec![
-            FeatureBlock {
-                name: "betas".into(),
-                offset: 0,
-                len: n_betas,
-                feature: Feature::Betas,
+        FeatureBlock::layout(
+            n_betas,
+            &PoseFeatureSpec {
+                joints: feature_joints(),
+                encoding: RotationEncoding::Rot6d,
+                root: RootFeature::ALL.to_vec(),
             },
-            FeatureBlock {
-                name: "pose".into(),
-                offset: n_betas,
-                len: rot,
-                feature: Feature::JointRotations {
-                    encoding: RotationEncoding::Rot6d,
-                    joints: feature_joints(),
-                },
-            },
-            FeatureBlock {
-                name: "root".into(),
-                offset: n_betas + rot,
-                len: root.len(),
-                feature: Feature::Root { components: root },
-            },
-        ],
+        ),
     )
 }
 
