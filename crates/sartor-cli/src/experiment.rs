@@ -5,12 +5,12 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use sartor_eval::{EvalRun, TradeoffOptions, evaluate_run};
+use sartor_eval::TradeoffOptions;
 use sartor_model::{MODEL_NAMES, ModelKind};
 use sartor_pipeline::{
-    DEFAULT_REGION_MARGIN_MM, DataDir, Experiment, ExportOptions, PipelineOptions,
-    PipelineProgress, SimulateOptions, SimulateOutcome, TradeoffRun, TrainStageOptions, export_run,
-    resolve_shard, run_pipeline, run_tradeoff, simulate, train,
+    DEFAULT_REGION_MARGIN_MM, DataDir, EvalOverrides, Experiment, ExportOptions, PipelineOptions,
+    PipelineProgress, SimulateOptions, SimulateOutcome, TradeoffRun, TrainStageOptions, evaluate,
+    export_run, resolve_shard, run_pipeline, run_tradeoff, simulate, train,
 };
 use serde_json::Value;
 
@@ -238,24 +238,20 @@ pub struct EvalArgs {
 /// Run `eval`.
 pub fn eval_cmd(args: &EvalArgs, env: &Env) -> anyhow::Result<()> {
     let e = args.experiment.load(env)?;
-    let plan = e.plan();
-    let model_dir = args.model.clone().unwrap_or_else(|| e.export_dir());
-    let out_dir = e.eval_dir();
-    let run = EvalRun {
-        plan: &plan,
-        sim_dir: &e.sim_dir(),
-        body_dir: &e.body,
-        model_dir: &model_dir,
-        nominal_only: args.nominal_only || e.evaluation.nominal_only,
-        render_frames: args.render_frames.unwrap_or(e.evaluation.render_frames),
-        out_dir: &out_dir,
-        config: args.experiment.name(&env.data),
+    let overrides = EvalOverrides {
+        model_dir: args.model.clone(),
+        nominal_only: args.nominal_only,
+        render_frames: args.render_frames,
     };
-    let report = evaluate_run(&run, &Bar::new())?;
+    let config = args.experiment.name(&env.data);
+    let report = evaluate(&e, &config, &overrides, &Bar::new())?;
     for line in report.summary_lines() {
         println!("{line}");
     }
-    println!("wrote {}", out_dir.join(sartor_eval::EVAL_FILE).display());
+    println!(
+        "wrote {}",
+        e.eval_dir().join(sartor_eval::EVAL_FILE).display()
+    );
     Ok(())
 }
 

@@ -36,8 +36,8 @@ pub use export::{
     DEFAULT_REGION_MARGIN_MM, ExportOptions, ExportSummary, export_run, run_experiment,
 };
 pub use pipeline::{
-    PipelineOptions, PipelineProgress, PipelineReport, STAGES, StageTime, pipeline_report_path,
-    run_pipeline, summary,
+    EvalOverrides, PipelineOptions, PipelineProgress, PipelineReport, STAGES, StageTime, evaluate,
+    pipeline_report_path, run_pipeline, summary,
 };
 pub use preview::{
     Animation, BODY_COLOR, Format, GARMENT_COLOR, animate, model_betas, write_animation, write_png,

@@ -10,7 +10,9 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use sartor_eval::{EVAL_FILE, EvalRun, Machine, Progress, evaluate_run, read_json, write_json};
+use sartor_eval::{
+    EVAL_FILE, EvalReport, EvalRun, Machine, Progress, evaluate_run, read_json, write_json,
+};
 use sartor_model::{MODEL_NAMES, ModelKind};
 use serde::Serialize;
 use serde_json::Value;
@@ -56,6 +58,45 @@ pub struct PipelineReport {
     pub wall_time_s: f64,
     /// Where it ran.
     pub machine: Machine,
+}
+
+/// What a run of the eval stage changes of the experiment's `evaluation` section.
+#[derive(Clone, Debug, Default)]
+pub struct EvalOverrides {
+    /// Evaluate this exported model instead of the experiment's own.
+    pub model_dir: Option<PathBuf>,
+    /// Only the nominal shape, whatever the config says.
+    pub nominal_only: bool,
+    /// Frames shown in the rendered comparison.
+    pub render_frames: Option<usize>,
+}
+
+/// The eval stage: the experiment's exported model (or `overrides.model_dir`) on its test
+/// sequences, written into its eval folder; `config` names the config file in the report.
+pub fn evaluate(
+    e: &Experiment,
+    config: &str,
+    overrides: &EvalOverrides,
+    progress: &dyn Progress,
+) -> Result<EvalReport> {
+    let plan = e.plan();
+    let model_dir = overrides
+        .model_dir
+        .clone()
+        .unwrap_or_else(|| e.export_dir());
+    let run = EvalRun {
+        plan: &plan,
+        sim_dir: &e.sim_dir(),
+        body_dir: &e.body,
+        model_dir: &model_dir,
+        nominal_only: overrides.nominal_only || e.evaluation.nominal_only,
+        render_frames: overrides
+            .render_frames
+            .unwrap_or(e.evaluation.render_frames),
+        out_dir: &e.eval_dir(),
+        config: config.to_string(),
+    };
+    Ok(evaluate_run(&run, progress)?)
 }
 
 /// What the caller sees of a running pipeline.
@@ -119,20 +160,7 @@ pub fn run_pipeline(
 
     progress.stage(5, STAGES[4]);
     let t = Instant::now();
-    let plan = e.plan();
-    let model_dir = e.export_dir();
-    let out_dir = e.eval_dir();
-    let run = EvalRun {
-        plan: &plan,
-        sim_dir: &e.sim_dir(),
-        body_dir: &e.body,
-        model_dir: &model_dir,
-        nominal_only: e.evaluation.nominal_only,
-        render_frames: e.evaluation.render_frames,
-        out_dir: &out_dir,
-        config: config.to_string(),
-    };
-    evaluate_run(&run, progress.steps()).with_context(|| context(5))?;
+    evaluate(e, config, &EvalOverrides::default(), progress.steps()).with_context(|| context(5))?;
     timed(&mut stages, 5, t);
 
     let report = PipelineReport {
