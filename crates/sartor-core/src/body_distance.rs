@@ -222,25 +222,28 @@ impl BodyDistance {
         &self.proximity
     }
 
-    /// The generalized winding number of the body at `p` (hierarchical; see the module docs).
-    pub fn winding_number(&self, p: &Vector3<f64>) -> f64 {
+    /// Depth-first over the tree: `enter(cluster)` says whether to enter a node; an entered
+    /// leaf hands its triangles to `triangle`, an entered inner node its two children to the
+    /// walk. `triangle` returning `None` stops the walk, which then returns `None`.
+    fn walk(
+        &self,
+        mut enter: impl FnMut(&Cluster) -> bool,
+        mut triangle: impl FnMut(&[Vector3<f64>; 3]) -> Option<()>,
+    ) -> Option<()> {
         let positions = self.proximity.positions();
         let faces = self.proximity.faces();
-        let mut solid_angle = 0.0;
         let mut stack = [0u32; 64];
         let mut top = 1usize;
         while top > 0 {
             top -= 1;
             let id = stack[top] as usize;
-            let (c, node) = (&self.clusters[id], &self.tree.nodes()[id]);
-            let offset = c.center - p;
-            let d2 = offset.norm_squared();
-            if d2 > (FAR_FIELD_RATIO * c.radius_m).powi(2) {
-                solid_angle += offset.dot(&c.dipole) / (d2 * d2.sqrt());
-            } else if node.is_leaf() {
+            let node = &self.tree.nodes()[id];
+            if !enter(&self.clusters[id]) {
+                continue;
+            }
+            if node.is_leaf() {
                 for &f in self.tree.leaf_items(node) {
-                    let tri = faces[f as usize].map(|v| positions[v as usize]);
-                    solid_angle += triangle_solid_angle(p, &tri);
+                    triangle(&faces[f as usize].map(|v| positions[v as usize]))?;
                 }
             } else {
                 stack[top] = node.left;
@@ -248,7 +251,28 @@ impl BodyDistance {
                 top += 2;
             }
         }
-        solid_angle / (4.0 * std::f64::consts::PI)
+        Some(())
+    }
+
+    /// The generalized winding number of the body at `p` (hierarchical; see the module docs).
+    pub fn winding_number(&self, p: &Vector3<f64>) -> f64 {
+        // One sum, in the walk's order, of the dipoles of far clusters and the exact solid
+        // angles of near triangles.
+        let solid_angle = std::cell::Cell::new(0.0);
+        let far = |c: &Cluster| {
+            let offset = c.center - p;
+            let d2 = offset.norm_squared();
+            let is_far = d2 > (FAR_FIELD_RATIO * c.radius_m).powi(2);
+            if is_far {
+                solid_angle.set(solid_angle.get() + offset.dot(&c.dipole) / (d2 * d2.sqrt()));
+            }
+            !is_far
+        };
+        self.walk(far, |tri| {
+            solid_angle.set(solid_angle.get() + triangle_solid_angle(p, tri));
+            Some(())
+        });
+        solid_angle.get() / (4.0 * std::f64::consts::PI)
     }
 
     /// The winding number of the body at `p` as the signed count of surface crossings along a
@@ -256,30 +280,15 @@ impl BodyDistance {
     /// or without self-intersections. `None` when the ray grazes an edge or vertex, lies in a
     /// triangle's plane at a crossing, or starts on the surface (then another ray is needed).
     fn ray_winding(&self, p: &Vector3<f64>, direction: &Vector3<f64>) -> Option<i32> {
-        let positions = self.proximity.positions();
-        let faces = self.proximity.faces();
-        let mut crossings = 0i32;
         let inverse = direction.map(|d| 1.0 / d);
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let id = stack[top] as usize;
-            let (c, node) = (&self.clusters[id], &self.tree.nodes()[id]);
-            if !ray_meets_box(p, &inverse, &c.lo, &c.hi) {
-                continue;
-            }
-            if node.is_leaf() {
-                for &f in self.tree.leaf_items(node) {
-                    let tri = faces[f as usize].map(|v| positions[v as usize]);
-                    crossings += ray_crossing(p, direction, &tri)?;
-                }
-            } else {
-                stack[top] = node.left;
-                stack[top + 1] = node.right;
-                top += 2;
-            }
-        }
+        let mut crossings = 0i32;
+        self.walk(
+            |c| ray_meets_box(p, &inverse, &c.lo, &c.hi),
+            |tri| {
+                crossings += ray_crossing(p, direction, tri)?;
+                Some(())
+            },
+        )?;
         Some(crossings)
     }
 
