@@ -26,7 +26,7 @@ use sartor_runtime::{
 };
 use serde::Serialize;
 
-use crate::eval::{Assets, Method, MethodReport, TestSequence, evaluate, evaluate_with};
+use crate::eval::{Assets, Method, TestSequence, evaluate_with};
 use crate::plot::{Chart, Series, write_charts};
 use crate::progress::NoProgress;
 use crate::report::Machine;
@@ -197,11 +197,7 @@ pub fn sweep_model(
                     }
                 };
                 // One evaluation gives the error with and without the post-process.
-                let report = if fit_only {
-                    evaluate_fit_only(assets, &network, seqs, &quiet)?
-                } else {
-                    evaluate(assets, &network, Method::Ours, seqs, &quiet)?
-                };
+                let report = evaluate_with(assets, &network, options(true), seqs, &quiet)?;
                 for pp in [true, false] {
                     let rig = assets.rig(&network, options(pp))?;
                     let ms = time_sequence(&rig, &seqs[0], args.timed_frames)?;
@@ -234,26 +230,6 @@ pub fn sweep_model(
     }
     progress.finish();
     Ok(points)
-}
-
-/// `evaluate` with the wrinkle GRU off (the network's fit only).
-fn evaluate_fit_only(
-    assets: &Assets,
-    network: &Arc<sartor_runtime::GarmentNetwork>,
-    seqs: &[TestSequence],
-    progress: &dyn Progress,
-) -> Result<MethodReport> {
-    evaluate_with(
-        assets,
-        network,
-        AnimatorOptions {
-            fit: FitMode::Network,
-            wrinkles: WrinkleMode::None,
-            ..AnimatorOptions::default()
-        },
-        seqs,
-        progress,
-    )
 }
 
 /// `pareto.{png,svg}` in `dir`: error against ms per frame, one series per precision and
