@@ -37,21 +37,29 @@ pub struct Camera {
     pub projection: Projection,
 }
 
+/// The bounding box of every point of `meshes`; the box `[-1, 1]³` when there is none or one
+/// is not finite.
+fn bounds(meshes: &[RenderMesh<'_>]) -> (Vector3<f32>, Vector3<f32>) {
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f32::INFINITY),
+        Vector3::repeat(f32::NEG_INFINITY),
+    );
+    for p in meshes.iter().flat_map(|m| m.positions.iter()) {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    if lo.iter().chain(hi.iter()).all(|c| c.is_finite()) {
+        (lo, hi)
+    } else {
+        (Vector3::repeat(-1.0), Vector3::repeat(1.0))
+    }
+}
+
 impl Camera {
     /// A camera that frames every point of `meshes` (with 5 % of room), looking along
     /// `-direction` (e.g. `+Z` to see the front of a body facing +Z), +Y up.
     pub fn framing(meshes: &[RenderMesh<'_>], direction: Vector3<f32>, perspective: bool) -> Self {
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f32::INFINITY),
-            Vector3::repeat(f32::NEG_INFINITY),
-        );
-        for p in meshes.iter().flat_map(|m| m.positions.iter()) {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        if !lo.iter().all(|c| c.is_finite()) {
-            (lo, hi) = (Vector3::repeat(-1.0), Vector3::repeat(1.0));
-        }
+        let (lo, hi) = bounds(meshes);
         let target = (lo + hi) / 2.0;
         let radius = ((hi - lo).norm() / 2.0).max(1e-3) * 1.05;
         let dir = direction.try_normalize(1e-9).unwrap_or_else(Vector3::z);
@@ -92,24 +100,8 @@ impl Camera {
         direction: Vector3<f32>,
         perspective: bool,
     ) -> Vec<Self> {
-        let bounds: Vec<(Vector3<f32>, Vector3<f32>)> = panels
-            .iter()
-            .map(|meshes| {
-                let (mut lo, mut hi) = (
-                    Vector3::repeat(f32::INFINITY),
-                    Vector3::repeat(f32::NEG_INFINITY),
-                );
-                for p in meshes.iter().flat_map(|m| m.positions.iter()) {
-                    lo = lo.inf(p);
-                    hi = hi.sup(p);
-                }
-                if lo.iter().all(|c| c.is_finite()) && hi.iter().all(|c| c.is_finite()) {
-                    (lo, hi)
-                } else {
-                    (Vector3::repeat(-1.0), Vector3::repeat(1.0))
-                }
-            })
-            .collect();
+        let bounds: Vec<(Vector3<f32>, Vector3<f32>)> =
+            panels.iter().map(|meshes| bounds(meshes)).collect();
         let y_lo = bounds.iter().map(|b| b.0.y).fold(f32::INFINITY, f32::min);
         let y_hi = bounds
             .iter()
