@@ -30,33 +30,30 @@ impl Scalar9 {
         h.fixed_view_mut::<3, 3>(3 * i, 3 * j).copy_from(m);
     }
 
+    /// The value and gradient of `first` (the same arithmetic as [`Grad9`]) with Hessian `h`.
+    fn with_hessian(first: Grad9, h: M9) -> Self {
+        Self {
+            v: first.v,
+            g: first.g,
+            h,
+        }
+    }
+
     /// `z_i · z_j`.
     pub fn dot(z: &[Vector3<f64>; 3], i: usize, j: usize) -> Self {
-        let mut g = V9::zeros();
         let mut h = M9::zeros();
         if i == j {
-            g.fixed_rows_mut::<3>(3 * i).copy_from(&(2.0 * z[i]));
             Self::set_block(&mut h, i, i, &(2.0 * Matrix3::identity()));
         } else {
-            g.fixed_rows_mut::<3>(3 * i).copy_from(&z[j]);
-            g.fixed_rows_mut::<3>(3 * j).copy_from(&z[i]);
             Self::set_block(&mut h, i, j, &Matrix3::identity());
             Self::set_block(&mut h, j, i, &Matrix3::identity());
         }
-        Self {
-            v: z[i].dot(&z[j]),
-            g,
-            h,
-        }
+        Self::with_hessian(Grad9::dot(z, i, j), h)
     }
 
     /// The triple product `z0 · (z1 × z2)`.
     pub fn triple(z: &[Vector3<f64>; 3]) -> Self {
         let [a, b, c] = z;
-        let mut g = V9::zeros();
-        g.fixed_rows_mut::<3>(0).copy_from(&b.cross(c));
-        g.fixed_rows_mut::<3>(3).copy_from(&c.cross(a));
-        g.fixed_rows_mut::<3>(6).copy_from(&a.cross(b));
         // ∂²/∂a∂b = ∂(b × c)/∂b = −[c]×, ∂²/∂a∂c = [b]×, ∂²/∂b∂c = ∂(c × a)/∂c = −[a]×.
         let mut h = M9::zeros();
         let (hab, hac, hbc) = (-skew(c), skew(b), -skew(a));
@@ -66,11 +63,7 @@ impl Scalar9 {
         Self::set_block(&mut h, 2, 0, &hac.transpose());
         Self::set_block(&mut h, 1, 2, &hbc);
         Self::set_block(&mut h, 2, 1, &hbc.transpose());
-        Self {
-            v: a.dot(&b.cross(c)),
-            g,
-            h,
-        }
+        Self::with_hessian(Grad9::triple(z), h)
     }
 
     pub fn sub(&self, o: &Self) -> Self {
