@@ -375,32 +375,7 @@ impl LinearWorkspace {
                 Matrix3::from_diagonal(&d.diagonal().map(|v| if v != 0.0 { 1.0 / v } else { 1.0 }))
             });
         }
-        self.cg_iterations(
-            pattern,
-            values,
-            b,
-            x,
-            max_iterations,
-            relative_tolerance,
-            par,
-            start,
-        )
-    }
-
-    /// The CG loop of [`Self::solve_cg`], preconditioned by the block diagonal.
-    #[allow(clippy::too_many_arguments)]
-    fn cg_iterations(
-        &mut self,
-        pattern: &BlockPattern,
-        values: &[Matrix3<f64>],
-        b: &[Vector3<f64>],
-        x: &mut [Vector3<f64>],
-        max_iterations: usize,
-        relative_tolerance: f64,
-        par: Parallelism,
-        start: Instant,
-    ) -> Result<LinearSolveStats, StepFailure> {
-        let n = pattern.n_rows();
+        // The CG loop, preconditioned by the block diagonal.
         block_matvec(pattern, values, x, &mut self.product, par);
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
