@@ -264,29 +264,22 @@ mod tests {
     #[test]
     fn bad_sizes_are_rejected() {
         let d = data();
+        let with_sequences = |seqs| {
+            TrainingData::new(
+                d.source().clone(),
+                1,
+                d.layout().clone(),
+                d.shapes().to_vec(),
+                seqs,
+                d.stats().clone(),
+                None,
+            )
+        };
         let mut seqs = d.sequences().to_vec();
         seqs[0].inputs.pop();
-        let r = TrainingData::new(
-            d.source().clone(),
-            1,
-            d.layout().clone(),
-            d.shapes().to_vec(),
-            seqs,
-            d.stats().clone(),
-            None,
-        );
-        assert!(r.is_err());
+        assert!(with_sequences(seqs).is_err());
         let mut seqs = d.sequences().to_vec();
         seqs[1].wrinkle_delta[0] = f32::NAN;
-        let r = TrainingData::new(
-            d.source().clone(),
-            1,
-            d.layout().clone(),
-            d.shapes().to_vec(),
-            seqs,
-            d.stats().clone(),
-            None,
-        );
-        assert!(r.is_err());
+        assert!(with_sequences(seqs).is_err());
     }
 }
