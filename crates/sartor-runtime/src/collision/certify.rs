@@ -486,6 +486,11 @@ impl Certifier {
         } = self;
         let frame = &*frame;
         let slots = &*slots;
+        let query = Query {
+            proximity,
+            cloth,
+            margin_m,
+        };
         let task =
             |first: usize, outs: &mut [Option<Outcome>], warms: &mut [u32], s: &mut Scratch| {
                 let mut stats = CertifyStats::default();
@@ -495,11 +500,12 @@ impl Certifier {
                     .enumerate()
                 {
                     let start = (first + g) * GROUP;
-                    let members = &slots[start..start + GROUP];
-                    add(
-                        &mut stats,
-                        frame.group(proximity, cloth, members, margin_m, w, out, s),
-                    );
+                    let work = GroupWork {
+                        members: &slots[start..start + GROUP],
+                        warm: w,
+                        out,
+                    };
+                    add(&mut stats, frame.group(&query, work, s));
                 }
                 stats
             };
@@ -575,58 +581,49 @@ fn groups(rest: &[Vector3<f32>]) -> Vec<u32> {
     out
 }
 
+/// What every group of one frame's query reads.
+#[derive(Clone, Copy)]
+struct Query<'a> {
+    proximity: &'a MeshProximity,
+    cloth: &'a [Vector3<f32>],
+    margin_m: f64,
+}
+
+/// One group of cloth vertices (`members`: [`GROUP`] slots) with their warm faces and outcomes.
+struct GroupWork<'a> {
+    members: &'a [u32],
+    warm: &'a mut [u32],
+    out: &'a mut [Option<Outcome>],
+}
+
 impl Frame {
     /// [`Frame::group_impl`], compiled for AVX2 when the CPU has it (the same arithmetic: the
     /// outcome never depends on it).
-    #[allow(clippy::too_many_arguments, unsafe_code)]
-    fn group(
-        &self,
-        proximity: &MeshProximity,
-        cloth: &[Vector3<f32>],
-        members: &[u32],
-        margin_m: f64,
-        warm: &mut [u32],
-        out: &mut [Option<Outcome>],
-        s: &mut Scratch,
-    ) -> CertifyStats {
+    #[allow(unsafe_code)]
+    fn group(&self, query: &Query<'_>, work: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
         #[cfg(target_arch = "x86_64")]
         {
             #[target_feature(enable = "avx2")]
-            #[allow(clippy::too_many_arguments)]
-            fn avx2(
-                frame: &Frame,
-                proximity: &MeshProximity,
-                cloth: &[Vector3<f32>],
-                members: &[u32],
-                margin_m: f64,
-                warm: &mut [u32],
-                out: &mut [Option<Outcome>],
-                s: &mut Scratch,
-            ) -> CertifyStats {
-                frame.group_impl(proximity, cloth, members, margin_m, warm, out, s)
+            fn avx2(f: &Frame, q: &Query<'_>, w: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
+                f.group_impl(q, w, s)
             }
             if is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU has AVX2 (checked just above).
-                return unsafe { avx2(self, proximity, cloth, members, margin_m, warm, out, s) };
+                return unsafe { avx2(self, query, work, s) };
             }
         }
-        self.group_impl(proximity, cloth, members, margin_m, warm, out, s)
+        self.group_impl(query, work, s)
     }
 
-    /// Certify or answer one group of cloth vertices (`members`: [`GROUP`] slots), updating
-    /// their warm faces and outcomes.
-    #[allow(clippy::too_many_arguments)]
+    /// Certify or answer one group of cloth vertices, updating their warm faces and outcomes.
     #[inline(always)]
-    fn group_impl(
-        &self,
-        proximity: &MeshProximity,
-        cloth: &[Vector3<f32>],
-        members: &[u32],
-        margin_m: f64,
-        warm: &mut [u32],
-        out: &mut [Option<Outcome>],
-        s: &mut Scratch,
-    ) -> CertifyStats {
+    fn group_impl(&self, query: &Query<'_>, work: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
+        let Query {
+            proximity,
+            cloth,
+            margin_m,
+        } = *query;
+        let GroupWork { members, warm, out } = work;
         let mut stats = CertifyStats::default();
         let n = members.iter().take_while(|&&v| v != u32::MAX).count();
         if n == 0 {
