@@ -44,6 +44,7 @@ mod data;
 mod error;
 mod inference;
 mod model;
+mod ridge;
 mod training;
 
 pub use data::to_vec;

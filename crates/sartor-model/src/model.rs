@@ -261,4 +261,10 @@ impl LinearRegressor {
     pub(crate) fn layer(&self) -> &Linear {
         &self.linear
     }
+
+    /// Replace the weights (`[n_inputs, n_outputs]`, burn's row layout) and the bias.
+    pub(crate) fn set_weights(&mut self, weight: Param<Tensor<2>>, bias: Param<Tensor<1>>) {
+        self.linear.weight = weight;
+        self.linear.bias = Some(bias);
+    }
 }

@@ -127,7 +127,8 @@ pub struct TrainingConfig {
     pub fit: StageConfig,
     /// The wrinkle GRU's optimisation.
     pub wrinkle: StageConfig,
-    /// The linear baseline's optimisation.
+    /// The linear baseline: fitted in closed form (ridge regression, weight decay picked on
+    /// validation; see `ridge.rs`), so only `epochs` matters — 0 skips it, more is one solve.
     pub linear: StageConfig,
     /// Hidden units of the fit MLP (20 in the paper).
     #[config(default = 20)]
@@ -363,6 +364,10 @@ pub enum AnyModel {
 trait Task {
     type M: Module + Clone;
     fn init(&self, device: &Device) -> Self::M;
+    /// Epochs to run when the config asks for `configured`.
+    fn epochs(&self, configured: usize) -> usize {
+        configured
+    }
     /// Items (shapes, frames) per epoch.
     fn frames_per_epoch(&self) -> usize;
     /// Batches of epoch `epoch` (0-based), each a list of item indices in the task's own terms.
@@ -533,6 +538,61 @@ impl<M: Module + Clone, S: Copy> Task for RegressionTask<'_, M, S> {
     }
     fn validation_split(&self) -> Split {
         self.split
+    }
+}
+
+/// The linear baseline in closed form ([`crate::ridge`]): one "epoch" of one step, which
+/// solves the normal equations and picks the weight decay on the validation motions. Batching,
+/// validation and the rest are the frame-wise regression task's.
+struct RidgeTask<'a> {
+    frames: RegressionTask<'a, LinearRegressor, (usize, usize)>,
+    config: LinearRegressorConfig,
+}
+
+impl Task for RidgeTask<'_> {
+    type M = LinearRegressor;
+    fn init(&self, device: &Device) -> LinearRegressor {
+        self.frames.init(device)
+    }
+    fn epochs(&self, configured: usize) -> usize {
+        configured.min(1)
+    }
+    fn frames_per_epoch(&self) -> usize {
+        self.frames.frames_per_epoch()
+    }
+    fn batches(&self, _: usize) -> Vec<Vec<usize>> {
+        vec![Vec::new()]
+    }
+    fn steps(&self, _: &[usize]) -> usize {
+        1
+    }
+    fn train_batch(
+        &self,
+        model: LinearRegressor,
+        _: &mut ModuleOptimizer,
+        _: f64,
+        _: &[usize],
+        on_step: &mut dyn FnMut(f64, usize),
+    ) -> LinearRegressor {
+        let f = &self.frames;
+        match crate::ridge::fit(f.data, &self.config, &f.train, &f.val, &f.device) {
+            Some((fitted, report)) => {
+                on_step(report.train_mse, f.train.len());
+                fitted
+            }
+            // Singular for every weight decay (cannot happen with λ > 0): a non-finite loss
+            // stops the run as a divergence.
+            None => {
+                on_step(f64::NAN, f.train.len());
+                model
+            }
+        }
+    }
+    fn validate(&self, model: &LinearRegressor) -> Option<f64> {
+        self.frames.validate(model)
+    }
+    fn validation_split(&self) -> Split {
+        self.frames.validation_split()
     }
 }
 
@@ -760,7 +820,7 @@ pub fn train_model(
                     .flat_map(|s| (0..data.sequences()[s].n_frames).map(move |t| (s, t)))
                     .collect()
             };
-            let task = RegressionTask {
+            let frames = RegressionTask {
                 data,
                 init: Box::new(move |device| init.init(device)),
                 forward: LinearRegressor::forward,
@@ -773,6 +833,10 @@ pub fn train_model(
                 train: frames(Split::Train),
                 val: frames(Split::HeldOutMotions),
                 device,
+            };
+            let task = RidgeTask {
+                frames,
+                config: module.clone(),
             };
             run(&task, &module.to_string(), &cx, progress)
         }
@@ -889,7 +953,8 @@ fn run<T: Task>(
     let base_time = state.wall_time_s;
     let elapsed = |start: &Instant| base_time + start.elapsed().as_secs_f64();
     let mut interrupted = false;
-    while state.epochs_done < stage.epochs {
+    let epochs = task.epochs(stage.epochs);
+    while state.epochs_done < epochs {
         let epoch = state.epochs_done;
         let batches = task.batches(epoch);
         let steps: usize = batches.iter().map(|b| task.steps(b)).sum();
@@ -897,7 +962,7 @@ fn run<T: Task>(
             .iter()
             .map(|b| task.steps(b))
             .sum();
-        progress.start(name, epoch + 1, stage.epochs, steps, steps_done);
+        progress.start(name, epoch + 1, epochs, steps, steps_done);
         for batch in &batches[state.batches_done.min(batches.len())..] {
             let mut diverged = None;
             let (mut loss_sum, mut loss_frames) = (0.0, 0.0);
