@@ -48,6 +48,11 @@ pub const ANCHORS_INSTALL: &str = "python3 -m venv .venv-anchors && .venv-anchor
 /// The `format` of the script's JSON.
 const SCRIPT_FORMAT: &str = "sartor-anchors";
 
+/// An anchor agrees with sartor when its largest output difference is at most this fraction
+/// of sartor's largest |output| (f32 rounding differs by about 1e-7 of it; a wrong gate order or
+/// layout by order 1).
+pub const AGREEMENT_TOLERANCE: f64 = 1e-4;
+
 /// Where the anchors come from and how long they run.
 #[derive(Clone, Debug)]
 pub struct AnchorOptions {
@@ -141,6 +146,9 @@ struct AnchorTime {
     ms_per_frame_mean: Option<f64>,
     /// Against sartor's f32 displacements over the checked frames, metres.
     max_abs_diff_m: Option<f64>,
+    /// `max_abs_diff_m` within [`AGREEMENT_TOLERANCE`] of the largest output; an engine that
+    /// disagrees times another computation and is never the best anchor.
+    agrees_with_sartor: Option<bool>,
     error: Option<String>,
     /// sartor f32 / this anchor (below 1: sartor is faster).
     ratio_f32: Option<f64>,
@@ -160,7 +168,7 @@ struct ThreadAnchors {
     /// sartor's fastest precision / the floor of that precision's weight bytes.
     sartor_fastest_over_floor: Option<f64>,
     anchors: Vec<AnchorTime>,
-    /// The fastest anchor that ran.
+    /// The fastest anchor that ran and agrees with sartor.
     best_anchor: Option<String>,
     best_anchor_ms_per_frame: Option<f64>,
     ratio_f32_to_best_anchor: Option<f64>,
@@ -431,11 +439,13 @@ fn ratio(a: f64, b: Option<f64>) -> Option<f64> {
 
 /// Combine sartor's timings, the floors and the script's entries at one thread count: the
 /// fastest precision, the ratios to every anchor and to the fastest one, and to the floor.
+/// `max_abs_output_m` is the scale of the agreement check.
 fn thread_anchors(
     threads: usize,
     sartor: Vec<SartorTime>,
     floor: Vec<Floor>,
     entries: &[ScriptEntry],
+    max_abs_output_m: f64,
 ) -> Result<ThreadAnchors> {
     let f32_ms = sartor
         .iter()
@@ -457,6 +467,9 @@ fn thread_anchors(
             ms_per_frame: e.ms_per_frame,
             ms_per_frame_mean: e.ms_per_frame_mean,
             max_abs_diff_m: e.max_abs_diff,
+            agrees_with_sartor: e
+                .max_abs_diff
+                .map(|d| d <= AGREEMENT_TOLERANCE * max_abs_output_m),
             error: e.error.clone(),
             ratio_f32: ratio(f32_ms, e.ms_per_frame),
             ratio_fastest: ratio(fastest.ms_per_frame, e.ms_per_frame),
@@ -464,6 +477,7 @@ fn thread_anchors(
         .collect();
     let best = anchors
         .iter()
+        .filter(|a| a.agrees_with_sartor == Some(true))
         .filter_map(|a| a.ms_per_frame.map(|ms| (a, ms)))
         .min_by(|a, b| a.1.total_cmp(&b.1));
     Ok(ThreadAnchors {
@@ -596,12 +610,13 @@ fn model_anchors(
     )?;
     let text = std::fs::read_to_string(&out_path).map_err(|e| Error::io(&out_path, e))?;
     let script = parse_script_output(&text, options.check_frames)?;
+    let max_abs_output_m = want.iter().fold(0.0f64, |a, &v| a.max(f64::from(v).abs()));
     let mut threads = Vec::new();
     for (t, sartor, floor) in per_thread {
-        let ta = thread_anchors(t, sartor, floor, &script.engines)?;
+        let ta = thread_anchors(t, sartor, floor, &script.engines, max_abs_output_m)?;
         for a in &ta.anchors {
             progress.println(&format!(
-                "  anchors {} {} {t} thread(s): {} (sartor f32 / it {}; max abs diff {})",
+                "  anchors {} {} {t} thread(s): {} (sartor f32 / it {}; max abs diff {}{})",
                 m.name,
                 a.engine,
                 a.ms_per_frame
@@ -609,7 +624,12 @@ fn model_anchors(
                 a.ratio_f32
                     .map_or_else(|| "-".into(), |r| format!("{r:.2}")),
                 a.max_abs_diff_m
-                    .map_or_else(|| "-".into(), |d| format!("{d:.1e} m"))
+                    .map_or_else(|| "-".into(), |d| format!("{d:.1e} m")),
+                if a.agrees_with_sartor == Some(false) {
+                    ", DISAGREES with sartor"
+                } else {
+                    ""
+                }
             ));
         }
         threads.push(ta);
@@ -627,7 +647,7 @@ fn model_anchors(
             .iter()
             .map(|n| (n.precision().name(), n.wrinkle_weight_bytes() as f64 / 1e6))
             .collect(),
-        max_abs_output_m: want.iter().fold(0.0f64, |a, &v| a.max(f64::from(v).abs())),
+        max_abs_output_m,
         precision_error: precision_errors,
         onnx_export: script.onnx_export.clone(),
         threads,
@@ -675,7 +695,9 @@ pub(crate) fn anchors(
              that many bytes, warm, back to back as the frames are), per precision's weight \
              size; sartor_*_over_floor = sartor's ms / that floor (1: at the memory bandwidth).",
             "max_abs_diff_m: the engine's displacements against sartor's f32 ones for the same \
-             inputs from a zero state, metres; max_abs_output_m is their scale.",
+             inputs from a zero state, metres; max_abs_output_m is their scale; \
+             agrees_with_sartor: within 1e-4 of that scale (an engine that disagrees is never \
+             the best anchor).",
             "Inputs are seeded random raw features (mean + std · u, u in [-1, 1]): the time of \
              a dense step does not depend on them.",
         ],
@@ -737,13 +759,14 @@ mod tests {
     fn ratios_from_a_canned_script_output() -> Result<()> {
         let script = parse_script_output(CANNED, 4)?;
         assert_eq!(script.onnx_export.exporter.as_deref(), Some("torchscript"));
-        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines)?;
+        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 0.01)?;
         assert_eq!(t1.anchors.len(), 3, "only the one-thread entries");
         assert_eq!(t1.fastest_precision, "int8");
         let eager = &t1.anchors[0];
         assert!((eager.ratio_f32.unwrap_or(f64::NAN) - 4.4 / 5.0).abs() < 1e-12);
         assert!((eager.ratio_fastest.unwrap_or(f64::NAN) - 1.1 / 5.0).abs() < 1e-12);
         assert_eq!(eager.max_abs_diff_m, Some(2e-7));
+        assert_eq!(eager.agrees_with_sartor, Some(true));
         let compiled = &t1.anchors[1];
         assert_eq!(compiled.ms_per_frame, None);
         assert_eq!(compiled.ratio_f32, None, "no ratio to a failed engine");
@@ -761,10 +784,21 @@ mod tests {
         // The fastest precision (int8) against the floor of int8's bytes.
         assert!((t1.sartor_fastest_over_floor.unwrap_or(f64::NAN) - 2.2).abs() < 1e-12);
 
-        let t2 = thread_anchors(2, sartor(2.0, 3.0, 4.0), floors(), &script.engines)?;
+        let t2 = thread_anchors(2, sartor(2.0, 3.0, 4.0), floors(), &script.engines, 0.01)?;
         assert_eq!(t2.fastest_precision, "f32");
         assert_eq!(t2.anchors.len(), 1);
         assert!((t2.ratio_f32_to_best_anchor.unwrap_or(f64::NAN) - 0.8).abs() < 1e-12);
+
+        // At a scale of 1e-3 m, ONNX Runtime's 1e-7 agrees, eager's 2e-7 does not: eager is
+        // no longer a candidate, and the fastest that agrees is still ONNX Runtime.
+        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 1.5e-3)?;
+        assert_eq!(t1.anchors[0].agrees_with_sartor, Some(false));
+        assert_eq!(t1.anchors[2].agrees_with_sartor, Some(true));
+        assert_eq!(t1.best_anchor_ms_per_frame, Some(4.0));
+        // Nothing agrees: no best anchor, no ratio to it.
+        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 1e-4)?;
+        assert_eq!(t1.best_anchor, None);
+        assert_eq!(t1.ratio_f32_to_best_anchor, None);
         Ok(())
     }
 
