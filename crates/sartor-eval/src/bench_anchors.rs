@@ -290,19 +290,32 @@ pub fn check_anchors(options: &AnchorOptions) -> Result<BTreeMap<String, String>
     Ok(check.versions)
 }
 
-/// Sum of 64-bit words with eight independent lanes (so the adds neither serialise nor stop
-/// the compiler from vectorising): one pass over the memory.
+/// Concurrent read streams of [`stream_sum`]: a matrix–vector product reads several rows at
+/// once, and on the development machine 8 streams read 109 MB about 7 % faster than one (3.7
+/// against 3.9–4.2 ms), so one stream would not be a floor.
+const STREAMS: usize = 8;
+/// Words per stream and step: eight independent lanes, so the adds neither serialise nor stop
+/// the compiler from vectorising.
+const LANES: usize = 8;
+
+/// Wrapping sum of `words`, read once as [`STREAMS`] concurrent streams over as many
+/// contiguous parts (the words left over after whole steps are added at the end).
 fn stream_sum(words: &[u64]) -> u64 {
-    let mut acc = [0u64; 8];
-    let chunks = words.chunks_exact(8);
-    let rest = chunks.remainder();
-    for c in chunks {
-        for (a, &w) in acc.iter_mut().zip(c) {
-            *a = a.wrapping_add(w);
+    let steps = words.len() / (STREAMS * LANES);
+    let part = steps * LANES;
+    let parts: [&[u64]; STREAMS] = std::array::from_fn(|k| &words[k * part..(k + 1) * part]);
+    let mut acc = [[0u64; LANES]; STREAMS];
+    for i in (0..part).step_by(LANES) {
+        for (a, p) in acc.iter_mut().zip(&parts) {
+            for (a, &w) in a.iter_mut().zip(&p[i..i + LANES]) {
+                *a = a.wrapping_add(w);
+            }
         }
     }
-    let tail = rest.iter().fold(0u64, |s, &w| s.wrapping_add(w));
-    acc.iter().fold(tail, |s, &a| s.wrapping_add(a))
+    let tail = words[STREAMS * part..]
+        .iter()
+        .fold(0u64, |s, &w| s.wrapping_add(w));
+    acc.iter().flatten().fold(tail, |s, &a| s.wrapping_add(a))
 }
 
 fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
@@ -815,8 +828,17 @@ mod tests {
 
     #[test]
     fn stream_floor_is_positive_and_finite() -> Result<()> {
-        let sums = stream_sum(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, u64::MAX]);
-        assert_eq!(sums, 54, "every word once, wrapping");
+        assert_eq!(
+            stream_sum(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, u64::MAX]),
+            54,
+            "every word once, wrapping"
+        );
+        // Every word exactly once at every length around whole steps of the streams.
+        let words: Vec<u64> = (0..300u64).map(|i| i * i + 1).collect();
+        for n in 0..words.len() {
+            let want = words[..n].iter().fold(0u64, |s, &w| s.wrapping_add(w));
+            assert_eq!(stream_sum(&words[..n]), want, "{n} words");
+        }
         for threads in [1, 2] {
             let ms = stream_floor_ms(1 << 20, threads, 5)?;
             assert!(ms.is_finite() && ms > 0.0, "{threads} threads: {ms} ms");
