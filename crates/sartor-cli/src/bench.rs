@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use clap::{Args, Subcommand};
 use sartor_core::BodyModel;
 use sartor_eval::{
-    GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime, bench_sim, write_json,
+    AnchorOptions, GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime,
+    bench_sim, write_json,
 };
 use sartor_motion::{MotionSourceOptions, load_motion};
 
@@ -108,6 +109,53 @@ pub struct RuntimeBenchArgs {
     /// Where garments built for the benchmark are kept between runs.
     #[arg(long, default_value = "target/bench-garments")]
     pub garment_cache: PathBuf,
+    /// Also time the shipped model and the paper-size model (8,710 triangles) in PyTorch
+    /// (eager and compiled) and ONNX Runtime with `--anchors-script`, batch 1, on 1 and 2
+    /// threads, against a memory-bandwidth floor measured in the same run; adds `anchors` to
+    /// the report. Needs Python with torch, onnx, onnxruntime, numpy and safetensors (see the
+    /// README); fails, saying how to install them, when they are missing.
+    #[arg(long)]
+    pub anchors: bool,
+    /// Python for the anchors [default: $SARTOR_PYTHON, else python3].
+    #[arg(long)]
+    pub anchors_python: Option<PathBuf>,
+    /// The anchors script (relative paths: in the data folder).
+    #[arg(long, default_value = "bench/anchors.py")]
+    pub anchors_script: PathBuf,
+    /// The shipped-size model the anchors time [default: the data folder's shipped model].
+    #[arg(long)]
+    pub anchors_model: Option<PathBuf>,
+    /// Frames before timing, for every anchor and sartor's network step.
+    #[arg(long, default_value_t = 50)]
+    pub anchors_warmup: usize,
+    /// Frames timed, for every anchor and sartor's network step.
+    #[arg(long, default_value_t = 500)]
+    pub anchors_frames: usize,
+}
+
+/// Environment variable naming the anchors' Python (`--anchors-python` overrides it).
+pub const PYTHON_ENV: &str = "SARTOR_PYTHON";
+
+impl RuntimeBenchArgs {
+    /// The anchors' options (`None` without `--anchors`).
+    fn anchor_options(&self, env: &Env) -> Option<AnchorOptions> {
+        self.anchors.then(|| AnchorOptions {
+            python: self
+                .anchors_python
+                .clone()
+                .or_else(|| std::env::var_os(PYTHON_ENV).map(PathBuf::from))
+                .unwrap_or_else(|| PathBuf::from("python3")),
+            script: env.data.resolve(&self.anchors_script),
+            shipped_model: self
+                .anchors_model
+                .as_ref()
+                .map_or_else(|| env.data.default_model_dir(), |m| env.data.resolve(m)),
+            threads: vec![1, 2],
+            warmup: self.anchors_warmup,
+            frames: self.anchors_frames,
+            check_frames: 60,
+        })
+    }
 }
 
 fn garment_dirs(env: &Env, cache: &Path) -> GarmentDirs {
@@ -161,6 +209,7 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
                 frames: a.frames,
                 gru_hidden: a.gru_hidden,
                 reference_triangles: a.reference_triangles,
+                anchors: a.anchor_options(env),
             };
             let dirs = garment_dirs(env, &a.garment_cache);
             let report = bench_runtime(&options, &env.data.body_dir(), &dirs, &progress)?;

@@ -9,6 +9,10 @@
 //! functions of the vertex position, `R` random), so the wrinkles look like wrinkles (about
 //! 5 mm, smooth) rather than per-vertex noise: that matters for the post-process, not for the
 //! network's speed (the stored matrix is dense `3V × H`).
+//!
+//! With [`RuntimeBenchOptions::anchors`], the same run also times the shipped model and the
+//! paper-size model at 8,710 triangles in PyTorch and ONNX Runtime, against a memory-bandwidth
+//! floor (the `anchors` section; see `bench_anchors.rs`).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -28,6 +32,7 @@ use sartor_runtime::{
 };
 use serde::Serialize;
 
+use crate::bench_anchors::{AnchorModel, AnchorOptions, AnchorsReport, anchors, check_anchors};
 use crate::bench_sim::{GarmentDirs, garment_of_size};
 use crate::error::Context;
 use crate::report::{Machine, load_average};
@@ -50,7 +55,14 @@ pub struct RuntimeBenchOptions {
     pub gru_hidden: usize,
     /// Garment size (triangles) of the post-process comparison and the reduced models.
     pub reference_triangles: usize,
+    /// Also time the shipped model and the paper-size model ([`ANCHOR_PAPER_TRIANGLES`]) in
+    /// PyTorch and ONNX Runtime, against a memory-bandwidth floor (`None`: no anchors, the
+    /// report as before).
+    pub anchors: Option<AnchorOptions>,
 }
+
+/// Garment size (triangles) of the paper-size model the anchors time: the paper's 8,710.
+pub const ANCHOR_PAPER_TRIANGLES: usize = 8710;
 
 /// The paper's Table 1 (Titan X + i7): triangles, ms per frame without / with post-process.
 const PAPER: [(usize, f64, f64); 4] = [
@@ -173,6 +185,9 @@ pub struct RuntimeBenchReport {
     garments: Vec<GarmentResult>,
     post_process: Option<PostProcess>,
     reduced: Vec<Reduced>,
+    /// The same weights in PyTorch and ONNX Runtime (`--anchors` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    anchors: Option<AnchorsReport>,
     notes: Vec<&'static str>,
     wall_time_s: f64,
 }
@@ -669,6 +684,11 @@ pub fn bench_runtime(
     progress: &dyn Progress,
 ) -> Result<RuntimeBenchReport> {
     let start = Instant::now();
+    // Fail before minutes of timing when the anchors' Python packages are missing.
+    let anchor_versions = match &args.anchors {
+        Some(a) => Some(check_anchors(a)?),
+        None => None,
+    };
     let load_average_start = load_average();
     let body = Arc::new(BodyModel::load(body_dir)?);
     let body_id = AssetId {
@@ -681,6 +701,7 @@ pub fn bench_runtime(
     let mut post = None;
     let mut reduced_models = Vec::new();
     let mut model_sizes = None;
+    let mut paper_model = None;
     for &triangles in &args.triangles {
         let t = Instant::now();
         let scene = scene(triangles, &body, &body_id, dirs, progress)?;
@@ -693,6 +714,9 @@ pub fn bench_runtime(
             7,
         )?;
         model_sizes = Some(m.header().sizes);
+        if args.anchors.is_some() && triangles == ANCHOR_PAPER_TRIANGLES {
+            paper_model = Some(m.clone());
+        }
         progress.println(&format!(
             "tshirt-{triangles}: {} vertices, {} region faces (set up in {:.1} s)",
             scene.positions.len(),
@@ -733,6 +757,43 @@ pub fn bench_runtime(
             runs: runs_all,
         });
     }
+    let anchors_report = match (&args.anchors, anchor_versions) {
+        (Some(options), Some(versions)) => {
+            let paper = match paper_model {
+                Some(m) => m,
+                None => {
+                    let scene = scene(ANCHOR_PAPER_TRIANGLES, &body, &body_id, dirs, progress)?;
+                    model(
+                        &scene.garment_id,
+                        &scene.body_id,
+                        &scene.positions,
+                        args.gru_hidden,
+                        OutputKind::Dense,
+                        7,
+                    )?
+                }
+            };
+            let shipped = GarmentModel::load(&options.shipped_model)?;
+            let models = vec![
+                AnchorModel {
+                    name: "shipped",
+                    source: options.shipped_model.display().to_string(),
+                    model: shipped,
+                },
+                AnchorModel {
+                    name: "paper",
+                    source: format!(
+                        "this benchmark's model at {ANCHOR_PAPER_TRIANGLES} triangles (random \
+                         weights, GRU {}, dense output)",
+                        args.gru_hidden
+                    ),
+                    model: paper,
+                },
+            ];
+            Some(anchors(models, options, versions, progress)?)
+        }
+        _ => None,
+    };
     let report = RuntimeBenchReport {
         command: std::env::args().collect::<Vec<_>>().join(" "),
         machine: Machine::current(),
@@ -747,6 +808,7 @@ pub fn bench_runtime(
         garments,
         post_process: post,
         reduced: reduced_models,
+        anchors: anchors_report,
         notes: vec![
             "ms_per_frame is the median over the timed frames of one avatar's whole frame: pose \
              features, GRU step and output layer, T̄_c + Δ_G + Δ_L, skinning with W_c, and (for \

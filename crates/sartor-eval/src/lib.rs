@@ -13,12 +13,15 @@
 //! - [`sweep_model`], [`mark_pareto`], [`plot_tradeoff`] (`tradeoff.json`): what each speed
 //!   knob of the runtime costs in accuracy.
 //! - [`bench_runtime`] (`bench-runtime.json`): the runtime against the paper's Table 1;
-//!   [`bench_sim`] (`bench-sim.json`): the simulator per garment size.
+//!   [`bench_sim`] (`bench-sim.json`): the simulator per garment size; with [`AnchorOptions`],
+//!   the same weights in PyTorch and ONNX Runtime beside a memory-bandwidth floor
+//!   ([`AnchorsReport`]).
 //! - [`write_slice`], [`check_slice`]: the stored ground-truth slice of a shipped model and the
 //!   regression check on it.
 //! - Reports: [`Machine`], [`write_json`]; [`median`], the one median of every speed figure;
 //!   [`write_charts`] (plotters, PNG + SVG, embedded font).
 
+mod bench_anchors;
 mod bench_runtime;
 mod bench_sim;
 mod context;
@@ -32,7 +35,12 @@ mod slice;
 mod timing;
 mod tradeoff;
 
-pub use bench_runtime::{RuntimeBenchOptions, RuntimeBenchReport, bench_runtime};
+pub use bench_anchors::{
+    ANCHORS_INSTALL, AnchorOptions, AnchorsReport, ModelAnchors, check_anchors, stream_floor_ms,
+};
+pub use bench_runtime::{
+    ANCHOR_PAPER_TRIANGLES, RuntimeBenchOptions, RuntimeBenchReport, bench_runtime,
+};
 pub use bench_sim::{
     GarmentDirs, SimBenchOptions, SimBenchReport, SizeEntry, Solver, bench_sim, garment_of_size,
 };
