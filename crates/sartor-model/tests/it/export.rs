@@ -44,13 +44,7 @@ fn trained(pca: Option<usize>) -> Trained {
     }
 }
 
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
+use crate::reference::max_abs_diff;
 
 /// Runtime outputs for one held-out sequence: `(Δ_G, Δ_L per frame, LR per frame)`.
 fn runtime_outputs(

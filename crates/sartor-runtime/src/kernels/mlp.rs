@@ -244,6 +244,12 @@ impl OutputLayer {
     }
 }
 
+/// The f64 reference arithmetic of the runtime's integration tests.
+#[cfg(test)]
+#[allow(dead_code)]
+#[path = "../../tests/it/reference.rs"]
+mod reference;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -266,13 +272,7 @@ mod tests {
         (l, w, b)
     }
 
-    fn affine(w: &[f32], b: &[f32], x: &[f64]) -> Vec<f64> {
-        let n = x.len();
-        b.iter()
-            .enumerate()
-            .map(|(i, &bi)| (0..n).map(|j| w[i * n + j] as f64 * x[j]).sum::<f64>() + bi as f64)
-            .collect()
-    }
+    use super::reference::affine;
 
     /// Output `y` of input `b` alone matches the f64 reference and, bit for bit, column `b` of
     /// the batched (transposed) output.

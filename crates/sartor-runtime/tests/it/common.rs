@@ -127,13 +127,7 @@ pub fn random_model_with(seed: u64, header: ModelHeader, scale_m: f32) -> Garmen
     GarmentModel::new(header, weights).expect("a valid random model")
 }
 
-fn affine(w: &[f32], b: &[f32], x: &[f64]) -> Vec<f64> {
-    let n = x.len();
-    b.iter()
-        .enumerate()
-        .map(|(i, &bi)| (0..n).map(|j| w[i * n + j] as f64 * x[j]).sum::<f64>() + bi as f64)
-        .collect()
-}
+use crate::reference::affine;
 
 fn normalise(x: &[f32], s: &MeanStd) -> Vec<f64> {
     x.iter()

@@ -9,6 +9,8 @@ mod common;
 mod extremes;
 mod format;
 mod network;
+#[allow(dead_code)]
+mod reference;
 mod rollout;
 mod scene;
 mod writers;

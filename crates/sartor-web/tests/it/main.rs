@@ -4,4 +4,8 @@
 mod browser;
 mod common;
 mod errors;
+/// Reference arithmetic shared with the runtime's tests.
+#[allow(dead_code)]
+#[path = "../../../sartor-runtime/tests/it/reference.rs"]
+mod reference;
 mod try_on;

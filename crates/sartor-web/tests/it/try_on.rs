@@ -6,13 +6,7 @@ use sartor_web::{PhenotypeSliders, TryOn};
 
 use crate::common::{load, repo};
 
-fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
+use crate::reference::max_abs_diff;
 
 fn cli_options() -> MotionSourceOptions {
     MotionSourceOptions {
