@@ -20,7 +20,7 @@ use nalgebra::DMatrix;
 use sartor_dataset::{TrainingData, gather_frames};
 
 use crate::data::vertex_error_mm;
-use crate::model::{LinearRegressor, LinearRegressorConfig};
+use crate::model::LinearRegressor;
 
 /// The weight decays tried, relative to the number of training frames (inputs have unit
 /// variance, so `λ = 1` is as strong as the data itself).
@@ -104,53 +104,40 @@ fn errors(data: &TrainingData, w: &DMatrix<f64>, frames: &[(usize, usize)]) -> (
     (sum_mm / count.max(1) as f64, sum_sq / values.max(1) as f64)
 }
 
-/// What [`fit`] chose.
-#[derive(Clone, Debug, PartialEq)]
-pub(crate) struct RidgeFit {
-    /// The weight decay picked.
-    pub lambda: f64,
-    /// Mean squared error on the training frames, normalised units.
-    pub train_mse: f64,
-    /// Validation error per tried `λ`, mm (empty without a validation split).
-    pub validation_mm: Vec<(f64, f64)>,
-}
-
-/// Fit the linear baseline in closed form on `train`, picking `λ` on `val`; the module (on
-/// `device`, weights `[in, out]` as burn's `Linear`) and what was chosen. `None` when no `λ`
-/// gives a solution.
+/// Fit the linear baseline in closed form on `train`, picking `λ` on `val`: the weights of `module`
+/// are replaced (on `device`, `[in, out]` as burn's `Linear`; no random draw, so trainings that
+/// run at once stay reproducible). Returns the mean squared error on `train` (normalised
+/// units); `None`, with `module` untouched, when no `λ` gives a solution.
 pub(crate) fn fit(
     data: &TrainingData,
-    config: &LinearRegressorConfig,
+    module: &mut LinearRegressor,
     train: &[(usize, usize)],
     val: &[(usize, usize)],
     device: &Device,
-) -> Option<(LinearRegressor, RidgeFit)> {
+) -> Option<f64> {
     let normal = normal_equations(data, train);
-    let mut best: Option<(f64, f64, DMatrix<f64>)> = None;
-    let mut validation_mm = Vec::new();
+    let mut best: Option<(f64, DMatrix<f64>)> = None;
     for &lambda in &LAMBDAS {
         let Some(w) = solve(&normal, lambda) else {
             continue;
         };
         if val.is_empty() {
-            best = Some((lambda, 0.0, w));
+            best = Some((0.0, w));
             break;
         }
         let (mm, _) = errors(data, &w, val);
-        validation_mm.push((lambda, mm));
-        if best.as_ref().is_none_or(|b| mm < b.1) {
-            best = Some((lambda, mm, w));
+        if best.as_ref().is_none_or(|b| mm < b.0) {
+            best = Some((mm, w));
         }
     }
-    let (lambda, _, w) = best?;
+    let (_, w) = best?;
     let (_, train_mse) = errors(data, &w, train);
-    let (n_in, n_out) = (config.n_inputs, config.n_outputs);
+    let (n_in, n_out) = (data.n_inputs(), data.n_outputs());
     let weight: Vec<f32> = (0..n_in)
         .flat_map(|i| (0..n_out).map(move |o| (i, o)))
         .map(|(i, o)| w[(i, o)] as f32)
         .collect();
     let bias: Vec<f32> = (0..n_out).map(|o| w[(n_in, o)] as f32).collect();
-    let mut module = config.init(device);
     module.set_weights(
         Param::from_tensor(Tensor::from_data(
             TensorData::new(weight, [n_in, n_out]),
@@ -158,12 +145,5 @@ pub(crate) fn fit(
         )),
         Param::from_tensor(Tensor::from_data(TensorData::new(bias, [n_out]), device)),
     );
-    Some((
-        module,
-        RidgeFit {
-            lambda,
-            train_mse,
-            validation_mm,
-        },
-    ))
+    Some(train_mse)
 }

@@ -546,7 +546,6 @@ impl<M: Module + Clone, S: Copy> Task for RegressionTask<'_, M, S> {
 /// validation and the rest are the frame-wise regression task's.
 struct RidgeTask<'a> {
     frames: RegressionTask<'a, LinearRegressor, (usize, usize)>,
-    config: LinearRegressorConfig,
 }
 
 impl Task for RidgeTask<'_> {
@@ -575,18 +574,12 @@ impl Task for RidgeTask<'_> {
         on_step: &mut dyn FnMut(f64, usize),
     ) -> LinearRegressor {
         let f = &self.frames;
-        match crate::ridge::fit(f.data, &self.config, &f.train, &f.val, &f.device) {
-            Some((fitted, report)) => {
-                on_step(report.train_mse, f.train.len());
-                fitted
-            }
-            // Singular for every weight decay (cannot happen with λ > 0): a non-finite loss
-            // stops the run as a divergence.
-            None => {
-                on_step(f64::NAN, f.train.len());
-                model
-            }
-        }
+        let mut model = model;
+        // Singular for every weight decay (cannot happen with λ > 0): a non-finite loss stops
+        // the run as a divergence.
+        let train_mse = crate::ridge::fit(f.data, &mut model, &f.train, &f.val, &f.device);
+        on_step(train_mse.unwrap_or(f64::NAN), f.train.len());
+        model
     }
     fn validate(&self, model: &LinearRegressor) -> Option<f64> {
         self.frames.validate(model)
@@ -834,10 +827,7 @@ pub fn train_model(
                 val: frames(Split::HeldOutMotions),
                 device,
             };
-            let task = RidgeTask {
-                frames,
-                config: module.clone(),
-            };
+            let task = RidgeTask { frames };
             run(&task, &module.to_string(), &cx, progress)
         }
         ModelKind::Wrinkle => {
