@@ -414,10 +414,13 @@ impl Avatar {
         let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
         // What the networks see.
         let mut seen = betas.to_vec();
-        if let Some(shapes) = &rig.network.header().training_betas
-            && rig.options.beta_out_of_range != BetaOutOfRange::Extrapolate
-        {
+        let mut beyond_training = true;
+        if let Some(shapes) = &rig.network.header().training_betas {
             shapes.project(betas, &mut seen);
+            beyond_training = seen != betas;
+            if rig.options.beta_out_of_range == BetaOutOfRange::Extrapolate {
+                seen.copy_from_slice(betas);
+            }
         }
         match (rig.options.fit, &rig.retarget) {
             (FitMode::Network, None) => rig.network.fit(&seen, &mut self.fit, ws, par)?,
@@ -466,6 +469,7 @@ impl Avatar {
                     &cloth_rest,
                     options,
                     tasks,
+                    beyond_training,
                 )?)
             }
             None => None,

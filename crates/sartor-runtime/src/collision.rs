@@ -24,6 +24,19 @@
 //!   that sends a vertex to the exact BVH query whenever a body part none of its candidates
 //!   belongs to comes within the margin.
 //!
+//! # Body parts that interpenetrate
+//!
+//! A posed body sinks into itself where parts press together (an arm into the side of a heavy
+//! torso, at shapes beyond the training range). There the closest region face of a cloth
+//! vertex inside one part can be a face of the other part buried in it, whose pseudo-normal
+//! reads the vertex as outside: the BVH query never pushes it. The certified query, the
+//! default, finds the buried faces each frame (by default only beyond the training shapes:
+//! [`Interpenetration`]) (a ray along each face's normal, counted by the
+//! winding number along it) and answers from the exposed surface only; a vertex whose closest
+//! exposed face touches a buried one ("crease") is checked by the same ray test and, inside,
+//! pushed out through the nearest exposed face it lies behind (within 5 cm). A body part
+//! outside the region (a hand sunk into the belly) stays invisible to the post-process.
+//!
 //! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking
 //! (`docs/reports/bench-runtime.json`: int8 network, one thread, CPU time, 2-core AMD EPYC;
 //! "inside" counts cloth vertex-frames left inside the body, of 533,640, 10,057 before the
@@ -52,7 +65,9 @@ pub enum CollisionQuery {
     /// Exact, and the default: the same pushes as [`CollisionQuery::EXACT_BVH`], with most
     /// cloth vertices proven to need none by a test on the faces near them, shared by groups of
     /// nearby vertices; the others get the exact closest point from the faces gathered for
-    /// their group (see the module docs).
+    /// their group (see the module docs). Where body parts interpenetrate it also leaves out the
+    /// faces buried inside another part, and takes a vertex that lies inside a part out of it
+    /// (see the module docs): there it pushes more than the BVH query.
     Certified,
     /// A BVH over the body region, refitted per frame: the exact closest point among the
     /// region points within `radius_m` ([`f64::INFINITY`]: everywhere). A vertex with no body
@@ -138,15 +153,36 @@ pub struct CollisionOptions {
     /// `0` poses the region but pushes nothing: for reports that count collisions before the
     /// post-process ([`crate::GarmentAnimator::collision_count`]).
     pub passes: usize,
+    /// When the certified query looks for body parts sunk into each other (see the module
+    /// docs); the other queries never do.
+    pub interpenetration: Interpenetration,
+}
+
+/// When the certified query finds the region faces buried inside another body part each frame
+/// and answers from the exposed surface (see the module docs). The test costs a ray per region
+/// face per frame: at the shipped model's size, more than the rest of the post-process.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Interpenetration {
+    /// Never: the paper's post-process.
+    Ignore,
+    /// When the avatar's shape lies outside the model's training shapes (or the model records
+    /// none), where heavy bodies sink an arm or a hand into the torso; within them the body is
+    /// taken to keep its parts apart.
+    #[default]
+    BeyondTrainingShapes,
+    /// At every shape (the armpit of a walking body at the mean shape sinks a little too).
+    Always,
 }
 
 impl Default for CollisionOptions {
-    /// 2 mm, the certified query (exact), 4 passes.
+    /// 2 mm, the certified query (exact), 4 passes, interpenetration handled beyond the
+    /// training shapes.
     fn default() -> Self {
         Self {
             margin_m: DEFAULT_MARGIN_M,
             query: CollisionQuery::Certified,
             passes: 4,
+            interpenetration: Interpenetration::default(),
         }
     }
 }
@@ -400,13 +436,15 @@ const CHUNK: usize = 256;
 impl Collider {
     /// Set up for a body of shape `shaped_body` (`T_b(β)`, every body vertex) and a garment whose
     /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`); `tasks` parallel tasks at most (1 for
-    /// sequential frames).
+    /// sequential frames); `beyond_training` says whether the shape lies outside the model's
+    /// training shapes ([`Interpenetration`]).
     pub(crate) fn new(
         region: &BodyRegion,
         shaped_body: &[Vector3<f64>],
         cloth_rest: &[Vector3<f32>],
         options: &CollisionOptions,
         tasks: usize,
+        beyond_training: bool,
     ) -> Result<Self> {
         let rest: Vec<Vector3<f64>> = region
             .vertices
@@ -455,8 +493,20 @@ impl Collider {
             candidates,
             own_parts,
             part_boxes,
-            certifier: (options.query == CollisionQuery::Certified)
-                .then(|| Certifier::new(region.vertices.len(), &region.faces, cloth_rest, tasks)),
+            certifier: (options.query == CollisionQuery::Certified).then(|| {
+                let buried = match options.interpenetration {
+                    Interpenetration::Ignore => false,
+                    Interpenetration::BeyondTrainingShapes => beyond_training,
+                    Interpenetration::Always => true,
+                };
+                Certifier::new(
+                    region.vertices.len(),
+                    &region.faces,
+                    cloth_rest,
+                    tasks,
+                    buried,
+                )
+            }),
             stats: CertifyStats::default(),
         })
     }

@@ -69,7 +69,9 @@ pub use animator::{
     AnimatorOptions, BetaOutOfRange, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd,
     GarmentRig, LevelOfDetail, StageTimes, WrinkleMode,
 };
-pub use collision::{BodyRegion, CertifyStats, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M};
+pub use collision::{
+    BodyRegion, CertifyStats, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M, Interpenetration,
+};
 pub use error::{Error, Result};
 pub use format::{
     AssetId, DenseWeights, Feature, FeatureBlock, GarmentModel, GruWeights, MODEL_FORMAT,

@@ -18,6 +18,15 @@
 //! `MeshProximity::closest_among(C)`: `f*` is in `C` and every other face is farther than `U`,
 //! so it is the exact query's answer (same faces, same arithmetic, same tie rule).
 //!
+//! # Buried faces
+//!
+//! The region the proof and the answers read is the *exposed* surface: per frame, a face whose
+//! centroid lies inside another part (the winding number along a ray on its normal, walked
+//! through the grid) is taken out of the grid, so no candidate set holds it; the fans keep it
+//! (the pseudo-normals are those of the whole region). A vertex with a crease face (exposed,
+//! sharing a vertex with a buried one) among its candidates is never certified, and its answer
+//! is checked by the same ray test (`Frame::settle`).
+//!
 //! # The work
 //!
 //! Per frame, the posed region is put in a uniform grid (each face in every cell its box
@@ -46,6 +55,14 @@ const MIN_SINE: f32 = 0.05;
 const LANES: usize = 8;
 /// Cloth vertices certified together, in lanes (at most 8: a byte of flags).
 const GROUP: usize = 8;
+/// How far the buried-face test follows a face's normal, metres (at most to the grid's edge).
+const BURIED_RAY_M: f32 = 0.5;
+/// How far from a cloth vertex inside another part [`Frame::settle`] looks for the surface
+/// that takes it out, metres.
+const SETTLE_M: f32 = 0.05;
+/// The buried-face test's ray starts this far in front of the face's centroid, metres (off the
+/// face itself).
+const BURIED_START_M: f32 = 1e-4;
 
 /// The region as a uniform grid of faces, rebuilt per frame.
 #[derive(Clone, Debug)]
@@ -140,6 +157,8 @@ pub struct CertifyStats {
     pub exact: usize,
     /// Candidate faces over all cloth vertices of the first pass.
     pub candidates: usize,
+    /// Region faces buried inside another body part, left out of the query.
+    pub buried_faces: usize,
 }
 
 /// The region as posed this frame: faces, fans, grid.
@@ -152,6 +171,17 @@ pub(crate) struct Frame {
     rel: Vec<[f32; 3]>,
     data: Faces,
     grid: Grid,
+    /// Whether [`Frame::mark_buried`] runs.
+    find_buried: bool,
+    /// Per face, buried inside another body part this frame (see [`Frame::mark_buried`]).
+    buried: Vec<bool>,
+    n_buried: usize,
+    /// Per face, exposed but sharing a vertex with a buried face (see [`Frame::settle`]).
+    crease: Vec<bool>,
+    /// Scratch of [`Frame::mark_buried`]: per face, the last ray that tested it; per vertex,
+    /// whether a buried face uses it.
+    ray_seen: Vec<u32>,
+    vertex_touches_buried: Vec<bool>,
 }
 
 /// The certified query's state (see the module docs).
@@ -170,11 +200,13 @@ pub(crate) struct Certifier {
 impl Certifier {
     /// For a region of `n_vertices` vertices and `faces`, and a garment whose rest shape is
     /// `cloth_rest` (it groups nearby vertices), with scratch for `tasks` parallel tasks.
+    /// `buried`: find the faces buried inside another part each frame (see the module docs).
     pub(crate) fn new(
         n_vertices: usize,
         faces: &[[u32; 3]],
         cloth_rest: &[Vector3<f32>],
         tasks: usize,
+        buried: bool,
     ) -> Self {
         let slots = groups(cloth_rest);
         let mut fan_offsets = vec![0u32; n_vertices + 1];
@@ -220,6 +252,12 @@ impl Certifier {
                     }),
                     ranges: vec![([0; 3], [0; 3]); n_f],
                 },
+                find_buried: buried,
+                buried: vec![false; n_f],
+                n_buried: 0,
+                crease: vec![false; n_f],
+                ray_seen: vec![0; n_f],
+                vertex_touches_buried: vec![false; n_vertices],
             },
             warm: vec![u32::MAX; slots.len()],
             scratch: (0..tasks.max(1))
@@ -372,7 +410,177 @@ impl Frame {
             grid.start[c] = grid.start[c - 1];
         }
         grid.start[0] = 0;
+        if self.find_buried {
+            self.mark_buried();
+        }
         true
+    }
+
+    /// Find the faces buried inside another body part, and take them out of the grid (their
+    /// entries get an empty box, which no scan reaches): the query then answers from the exposed
+    /// surface only. Where body parts interpenetrate (an arm sunk into the torso of a heavy
+    /// body, two thighs), the closest region face of a cloth vertex inside one part can be a
+    /// face of the other part buried in the first, whose pseudo-normal reads the vertex as
+    /// outside: it would never be pushed.
+    ///
+    /// A face is buried when the ray from its centroid along its outward normal leaves the
+    /// region through more faces than it enters it by ([`Frame::ray_starts_inside`]): it started
+    /// inside a part. Where the ray passes through the region's open cut, a crossing is missing
+    /// and the face reads as exposed, as before.
+    fn mark_buried(&mut self) {
+        self.n_buried = 0;
+        let mut seen = std::mem::take(&mut self.ray_seen);
+        seen.fill(0);
+        for f in 0..self.faces.len() {
+            let buried = self.ray_starts_inside(f, &mut seen);
+            self.buried[f] = buried;
+            self.n_buried += usize::from(buried);
+        }
+        self.ray_seen = seen;
+        self.crease.fill(false);
+        if self.n_buried == 0 {
+            return;
+        }
+        // Exposed faces that share a vertex with a buried one: they cross into the other part,
+        // so the sign of their pseudo-normal can be wrong there.
+        let mut touches = std::mem::take(&mut self.vertex_touches_buried);
+        touches.fill(false);
+        for (t, &b) in self.faces.iter().zip(&self.buried) {
+            if b {
+                for &v in t {
+                    touches[v as usize] = true;
+                }
+            }
+        }
+        for (f, t) in self.faces.iter().enumerate() {
+            self.crease[f] = !self.buried[f] && t.iter().any(|&v| touches[v as usize]);
+        }
+        self.vertex_touches_buried = touches;
+
+        let grid = &mut self.grid;
+        let [nx, ny, _] = grid.dims;
+        for f in (0..self.faces.len()).filter(|&f| self.buried[f]) {
+            let (a, b) = grid.ranges[f];
+            for z in a[2]..=b[2] {
+                for y in a[1]..=b[1] {
+                    let row = (z as usize * ny + y as usize) * nx;
+                    let (c0, c1) = (
+                        grid.start[row + a[0] as usize] as usize,
+                        grid.start[row + b[0] as usize + 1] as usize,
+                    );
+                    for slot in c0..c1 {
+                        if grid.entries[slot] == f as u32 {
+                            for k in 0..3 {
+                                grid.lo[k][slot] = f32::INFINITY;
+                                grid.hi[k][slot] = f32::INFINITY;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Whether the ray from face `f`'s centroid along its normal starts inside another part
+    /// ([`Frame::ray_winding`] above zero).
+    fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
+        let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
+        let n = cross(sub(b, a), sub(c, a));
+        let len = dot(n, n).sqrt();
+        if len.is_nan() || len <= 0.0 {
+            return false;
+        }
+        let d = n.map(|x| x / len);
+        let centroid = self.data.centroid[f];
+        let o = [0, 1, 2].map(|k| centroid[k] + d[k] * BURIED_START_M);
+        // `seen[g] == f + 1`: face g was tested for this ray.
+        self.ray_winding(o, d, f as u32, seen, f as u32 + 1) > 0
+    }
+
+    /// The region's winding number at `o` (relative) counted along the ray `o + t d` (`d`
+    /// unit, `t` up to [`BURIED_RAY_M`]): the faces it leaves through minus those it enters
+    /// through (`skip` not counted). Exact for a closed surface whatever the number of layers
+    /// it crosses.
+    fn ray_winding(&self, o: [f32; 3], d: [f32; 3], skip: u32, seen: &mut [u32], mark: u32) -> i32 {
+        let mut winding = 0;
+        self.walk_ray(o, d, skip, seen, mark, |leaves| {
+            winding += if leaves { 1 } else { -1 };
+        });
+        winding
+    }
+
+    /// Walk the ray `o + t d` (relative, `d` unit, `t` up to [`BURIED_RAY_M`]) through the grid
+    /// cell by cell (Amanatides and Woo), telling `cross` whether it leaves or enters the part
+    /// behind each face it crosses (but `skip`). A face in several cells is tested once
+    /// (`seen[g] == mark` once tested).
+    fn walk_ray(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        skip: u32,
+        seen: &mut [u32],
+        mark: u32,
+        mut cross: impl FnMut(bool),
+    ) {
+        let grid = &self.grid;
+        let cell = grid.cell_m;
+        let mut idx = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_next = [f32::INFINITY; 3];
+        let mut t_delta = [f32::INFINITY; 3];
+        for k in 0..3 {
+            idx[k] = (o[k] / cell).floor() as i64;
+            if d[k] > 0.0 {
+                step[k] = 1;
+                t_next[k] = ((idx[k] + 1) as f32 * cell - o[k]) / d[k];
+                t_delta[k] = cell / d[k];
+            } else if d[k] < 0.0 {
+                step[k] = -1;
+                t_next[k] = (idx[k] as f32 * cell - o[k]) / d[k];
+                t_delta[k] = -cell / d[k];
+            }
+        }
+        let [nx, ny, nz] = grid.dims.map(|n| n as i64);
+        let inv = d.map(|x| 1.0 / x);
+        let mut t_enter = 0.0f32;
+        while t_enter < BURIED_RAY_M
+            && (0..nx).contains(&idx[0])
+            && (0..ny).contains(&idx[1])
+            && (0..nz).contains(&idx[2])
+        {
+            let c = ((idx[2] * ny + idx[1]) * nx + idx[0]) as usize;
+            for slot in grid.start[c] as usize..grid.start[c + 1] as usize {
+                let g = grid.entries[slot];
+                if g == skip || seen[g as usize] == mark {
+                    continue;
+                }
+                seen[g as usize] = mark;
+                if !ray_meets_box(
+                    &o,
+                    &inv,
+                    &self.data.lo[g as usize],
+                    &self.data.hi[g as usize],
+                ) {
+                    continue;
+                }
+                let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
+                if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
+                    && t < BURIED_RAY_M
+                {
+                    cross(leaves);
+                }
+            }
+            let k = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+                0
+            } else if t_next[1] <= t_next[2] {
+                1
+            } else {
+                2
+            };
+            t_enter = t_next[k];
+            idx[k] += step[k];
+            t_next[k] += t_delta[k];
+        }
     }
 
     /// `p` relative to the grid corner, in f32.
@@ -410,7 +618,7 @@ impl Frame {
     /// An upper bound of the distance from `q` to the region: its distance to face `hint` if
     /// that is a face, else to the first face found in the nearest non-empty cells.
     fn upper_bound(&self, proximity: &MeshProximity, q: &Vector3<f64>, hint: u32) -> (f64, u32) {
-        if (hint as usize) < self.faces.len() {
+        if (hint as usize) < self.faces.len() && !self.buried[hint as usize] {
             return (proximity.distance_to_face(q, hint), hint);
         }
         // Shells of cells around q's cell until one holds a face.
@@ -432,13 +640,17 @@ impl Frame {
                         self.grid.start[row + lo[0]] as usize,
                         self.grid.start[row + hi[0] + 1] as usize,
                     );
-                    if let Some(&f) = self.grid.entries[c0..c1].first() {
+                    if let Some(&f) = self.grid.entries[c0..c1]
+                        .iter()
+                        .find(|&&f| !self.buried[f as usize])
+                    {
                         return (proximity.distance_to_face(q, f), f);
                     }
                 }
             }
         }
-        // An empty grid cannot happen (the region has faces); any face bounds the distance.
+        // Every face buried cannot happen (a closed part has an outside); any face bounds the
+        // distance.
         (proximity.distance_to_face(q, 0), 0)
     }
 
@@ -464,7 +676,60 @@ impl Frame {
                 s.candidates.push(f);
             }
         });
-        proximity.closest_among(q, &s.candidates)
+        proximity
+            .closest_among(q, &s.candidates)
+            .map(|c| self.settle(proximity, q, c, s))
+    }
+
+    /// The answer `c` for `q`, unless `c` reads `q` as outside from a crease face (exposed, next
+    /// to a buried one) while `q` lies inside another part, by the winding number along `c`'s
+    /// normal: then the nearest exposed face within [`SETTLE_M`] that `q` lies behind, whose
+    /// push takes it out of that part (`c` if none reads it as inside).
+    fn settle(
+        &self,
+        proximity: &MeshProximity,
+        q: &Vector3<f64>,
+        c: ClosestPoint,
+        s: &mut Scratch,
+    ) -> ClosestPoint {
+        if !self.crease[c.face as usize] || c.signed_distance_m < 0.0 {
+            return c;
+        }
+
+        let d = q - self.grid.origin;
+        let x = [d.x as f32, d.y as f32, d.z as f32];
+        let n = [c.normal.x as f32, c.normal.y as f32, c.normal.z as f32];
+        let mark = s.next();
+        if self.ray_winding(x, n, u32::MAX, &mut s.face_stamp, mark) <= 0 {
+            return c;
+        }
+
+        // Growing balls: most such vertices are within a centimetre of the way out.
+        let mut reach = SETTLE_M / 4.0;
+        loop {
+            let stamp = s.next();
+            s.candidates.clear();
+            self.scan(&x, reach, |f, _| {
+                let fi = f as usize;
+                if s.face_stamp[fi] != stamp {
+                    s.face_stamp[fi] = stamp;
+                    let [nx, ny, nz, o] = self.data.plane[fi];
+                    if nx * x[0] + ny * x[1] + nz * x[2] - o < 0.0 {
+                        s.candidates.push(f);
+                    }
+                }
+            });
+            match proximity.closest_among(q, &s.candidates) {
+                Some(behind)
+                    if behind.signed_distance_m < 0.0
+                        && -behind.signed_distance_m <= f64::from(reach) =>
+                {
+                    return behind;
+                }
+                _ if reach >= SETTLE_M => return c,
+                _ => reach = (reach * 2.0).min(SETTLE_M),
+            }
+        }
     }
 }
 
@@ -509,7 +774,7 @@ impl Certifier {
                 }
                 stats
             };
-        match par {
+        let stats = match par {
             Parallelism::Sequential => task(0, outcomes, warm, &mut scratch[0]),
             Parallelism::Rayon => {
                 let n_groups = slots.len() / GROUP;
@@ -525,6 +790,10 @@ impl Certifier {
                         a
                     })
             }
+        };
+        CertifyStats {
+            buried_faces: frame.n_buried,
+            ..stats
         }
     }
 
@@ -682,6 +951,8 @@ impl Frame {
         let mut min_lb2 = [f32::INFINITY; GROUP];
         let mut best_c2 = [f32::INFINITY; GROUP];
         let mut best_face = seed;
+        // Members with a crease face among their candidates: never certified (see `settle`).
+        let mut crease_members = 0u8;
         s.gathered_mask.clear();
         for &f in &s.gathered {
             let fi = f as usize;
@@ -700,6 +971,9 @@ impl Frame {
                 hit[j] = lb2[j] <= upper2[j];
             }
             let mask = pack(hit);
+            if self.crease[fi] {
+                crease_members |= mask;
+            }
             if mask != 0 {
                 let c = self.data.centroid[fi];
                 for j in 0..GROUP {
@@ -754,7 +1028,8 @@ impl Frame {
         for j in 0..n {
             let v = members[j] as usize;
             stats.candidates += s.gathered_mask.iter().filter(|&&m| m >> j & 1 == 1).count();
-            if min_lb2[j] >= front2 && behind >> j & 1 == 0 {
+            let crease = crease_members >> j & 1 == 1;
+            if min_lb2[j] >= front2 && behind >> j & 1 == 0 && !crease {
                 out[j] = Some(Outcome::Certified);
                 warm[j] = best_face[j];
                 stats.certified += 1;
@@ -773,13 +1048,16 @@ impl Frame {
             let q = cloth[v].cast::<f64>();
             out[j] = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 warm[j] = nearest.face;
-                if nearest.distance_sq >= margin2 && self.feature_in_front(&x[j], &nearest, GUARD_M)
+                if !crease
+                    && nearest.distance_sq >= margin2
+                    && self.feature_in_front(&x[j], &nearest, GUARD_M)
                 {
                     stats.certified += 1;
                     Outcome::Certified
                 } else {
                     stats.exact += 1;
-                    Outcome::Exact(proximity.signed(&q, &nearest))
+                    let c = proximity.signed(&q, &nearest);
+                    Outcome::Exact(self.settle(proximity, &q, c, s))
                 }
             });
         }
@@ -862,6 +1140,72 @@ fn pack(flags: [bool; GROUP]) -> u8 {
         .fold(0u8, |m, (j, &b)| m | (u8::from(b) << j))
 }
 
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Whether the segment `o + t d`, `0 ≤ t ≤` [`BURIED_RAY_M`], meets the box `[lo, hi]` (`inv`:
+/// `1 / d` per axis, infinite along an axis `d` does not move on).
+#[inline(always)]
+fn ray_meets_box(o: &[f32; 3], inv: &[f32; 3], lo: &[f32; 3], hi: &[f32; 3]) -> bool {
+    let (mut t0, mut t1) = (0.0f32, BURIED_RAY_M);
+    for k in 0..3 {
+        if inv[k].is_infinite() {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return false;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - o[k]) * inv[k], (hi[k] - o[k]) * inv[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    t0 <= t1
+}
+
+/// Where the ray `o + t d` (t > 0) meets triangle `(a, b, c)` (Möller and Trumbore), and
+/// whether it meets it from behind (along the triangle's normal `(b − a) × (c − a)`).
+fn ray_triangle(
+    o: [f32; 3],
+    d: [f32; 3],
+    a: [f32; 3],
+    b: [f32; 3],
+    c: [f32; 3],
+) -> Option<(f32, bool)> {
+    let (e1, e2) = (sub(b, a), sub(c, a));
+    let p = cross(d, e2);
+    // det = −d·((b − a) × (c − a)): negative when the ray runs along the normal.
+    let det = dot(e1, p);
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = sub(o, a);
+    let u = dot(s, p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = cross(s, e1);
+    let v = dot(d, q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = dot(e2, q) * inv;
+    (t > 0.0).then_some((t, det < 0.0))
+}
+
 /// `max` that compiles to one instruction (no NaN handling: a NaN operand gives `b`).
 #[inline(always)]
 fn fmax(a: f32, b: f32) -> f32 {
@@ -893,5 +1237,80 @@ impl Grid {
             b[k] = ((hi[k] * inv).max(0.0) as usize).min(top);
         }
         (a, b)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An axis-aligned box as 12 outward-facing triangles, appended to `vertices` and `faces`.
+    fn cuboid(
+        lo: [f64; 3],
+        hi: [f64; 3],
+        vertices: &mut Vec<Vector3<f64>>,
+        faces: &mut Vec<[u32; 3]>,
+    ) {
+        let base = vertices.len() as u32;
+        for i in 0..8 {
+            let pick = |k: usize| if i >> k & 1 == 1 { hi[k] } else { lo[k] };
+            vertices.push(Vector3::new(pick(0), pick(1), pick(2)));
+        }
+        // Corners by bits (x = 1, y = 2, z = 4); each side counter-clockwise from outside.
+        for quad in [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ] {
+            let [a, b, c, d] = quad.map(|k: u32| base + k);
+            faces.push([a, b, c]);
+            faces.push([a, c, d]);
+        }
+    }
+
+    #[test]
+    fn faces_inside_another_part_are_buried_and_left_out() {
+        // Part A, a 6 cm box; part B sunk 3 cm into its +x side; part C, a box inside both
+        // (three layers); part D apart.
+        let (mut v, mut f) = (Vec::new(), Vec::new());
+        cuboid([0.0, 0.0, 0.0], [0.06, 0.06, 0.06], &mut v, &mut f);
+        cuboid([0.03, 0.01, 0.01], [0.10, 0.05, 0.05], &mut v, &mut f);
+        cuboid([0.035, 0.02, 0.02], [0.055, 0.04, 0.04], &mut v, &mut f);
+        cuboid([0.2, 0.0, 0.0], [0.23, 0.03, 0.03], &mut v, &mut f);
+        let centroid = |t: &[u32; 3]| t.iter().map(|&i| v[i as usize]).sum::<Vector3<f64>>() / 3.0;
+        let inside = |p: Vector3<f64>, lo: [f64; 3], hi: [f64; 3]| {
+            (0..3).all(|k| p[k] > lo[k] && p[k] < hi[k])
+        };
+        let mut certifier = Certifier::new(v.len(), &f, &[Vector3::zeros()], 1, true);
+        certifier.update(&v);
+        let frame = certifier.frame();
+        let mut n_buried = 0;
+        for (i, t) in f.iter().enumerate() {
+            let c = centroid(t);
+            // Buried: inside a part other than its own (the boxes are open sets).
+            let expected =
+                inside(c, [0.0; 3], [0.06; 3]) || inside(c, [0.03, 0.01, 0.01], [0.10, 0.05, 0.05]);
+            assert_eq!(frame.buried[i], expected, "face {i} at {c:?}");
+            n_buried += usize::from(expected);
+        }
+        // A's +x side (2 faces), B's −x side (2), on each of B's four long sides the triangle
+        // whose centroid is in A (4), the whole of C (12).
+        assert_eq!((n_buried, frame.n_buried), (20, 20));
+        // The query answers from the exposed surface: a point inside B, just in front of A's
+        // buried +x side, is inside (the closest exposed face is B's), not 1 mm outside A.
+        let proximity = MeshProximity::new(&v, &f).expect("mesh");
+        let mut scratch = Scratch::for_frame(frame);
+        let q = Vector3::new(0.061, 0.03, 0.03);
+        let c = frame
+            .exact(&proximity, &q, u32::MAX, &mut scratch)
+            .expect("an answer");
+        assert!(c.signed_distance_m < -0.015, "{c:?}");
+        assert!(
+            proximity.closest(&q).signed_distance_m > 0.0,
+            "the full surface reads outside"
+        );
     }
 }
