@@ -75,7 +75,7 @@ pub struct ShapePlan {
     pub id: String,
     /// β.
     pub betas: Vec<f64>,
-    /// [`Split::Train`] or [`Split::HeldOutShapes`].
+    /// [`Split::Train`], [`Split::HeldOutShapes`] or [`Split::Validation`].
     pub split: Split,
 }
 
@@ -87,7 +87,9 @@ pub struct SequencePlan {
     pub shape: usize,
     /// Motion name.
     pub motion: String,
-    /// Split (a held-out shape's sequences are [`Split::HeldOutShapes`]).
+    /// Split: a training shape's sequences are [`Split::Train`], [`Split::HeldOutMotions`] or
+    /// [`Split::Validation`]; a held-out shape's are [`Split::HeldOutShapes`]; a validation shape
+    /// has none (only its rest simulation).
     pub split: Split,
 }
 
@@ -109,8 +111,8 @@ pub struct DatasetPlan {
 }
 
 impl DatasetPlan {
-    /// Check indices, unique ids and the split rules (no held-out shape in a training or
-    /// held-out-motion sequence, and vice versa).
+    /// Check indices, unique ids and the split rules (training, held-out-motion and validation
+    /// sequences on training shapes only, held-out-shape sequences on held-out shapes only).
     pub fn validate(&self, n_betas: usize) -> Result<()> {
         let bad = |m: String| Err(Error::invalid("dataset plan", m));
         let mut ids = std::collections::BTreeSet::new();
@@ -144,8 +146,13 @@ impl DatasetPlan {
             if !seen.insert((q.shape, &q.motion)) {
                 return bad(format!("sequence {} is listed twice", q.id(&self.shapes)));
             }
-            let held_shape = shape.split == Split::HeldOutShapes;
-            if held_shape != (q.split == Split::HeldOutShapes) {
+            let fits = match q.split {
+                Split::Train | Split::HeldOutMotions | Split::Validation => {
+                    shape.split == Split::Train
+                }
+                Split::HeldOutShapes => shape.split == Split::HeldOutShapes,
+            };
+            if !fits {
                 return bad(format!(
                     "sequence {} is in split {:?} but its shape is in {:?}",
                     q.id(&self.shapes),
@@ -232,6 +239,7 @@ fn split_name(s: Split) -> String {
         Split::Train => "train",
         Split::HeldOutMotions => "held_out_motions",
         Split::HeldOutShapes => "held_out_shapes",
+        Split::Validation => "validation",
     }
     .to_string()
 }
@@ -537,7 +545,12 @@ pub fn build_dataset(
             .entry(split_name(s.split))
             .or_default() += 1;
     }
-    for split in [Split::Train, Split::HeldOutMotions, Split::HeldOutShapes] {
+    for split in [
+        Split::Train,
+        Split::Validation,
+        Split::HeldOutMotions,
+        Split::HeldOutShapes,
+    ] {
         let qs: Vec<&SequenceSample> = sequences.iter().filter(|q| q.split == split).collect();
         if qs.is_empty() {
             continue;

@@ -23,6 +23,10 @@ pub enum Split {
     HeldOutMotions,
     /// Held-out shapes (every motion, and their rest simulations).
     HeldOutShapes,
+    /// Validation: validation motions on the training shapes, and validation shapes (their rest
+    /// simulations). Training picks its epochs and settings on it; it is neither trained on nor
+    /// reported as the test.
+    Validation,
 }
 
 /// The layout of the wrinkle network's input vector: `n_betas` shape values, then the pose

@@ -597,6 +597,8 @@ struct WrinkleTask<'a> {
     seed: u64,
     train: Vec<usize>,
     val: Vec<usize>,
+    /// The split `val` comes from.
+    split: Split,
     pca: Option<PcaTensors>,
     device: Device,
 }
@@ -696,7 +698,7 @@ impl Task for WrinkleTask<'_> {
         Some(sum / count.max(1) as f64)
     }
     fn validation_split(&self) -> Split {
-        Split::HeldOutMotions
+        self.split
     }
 }
 
@@ -784,6 +786,14 @@ pub fn train_model(
         ModelKind::Fit => data.shape_indices(split),
         _ => data.sequence_indices(split),
     };
+    // The validation split, else (a config without one) the held-out one.
+    let validation = |held_out| {
+        if train(Split::Validation).is_empty() {
+            held_out
+        } else {
+            Split::Validation
+        }
+    };
     match kind {
         ModelKind::Fit => {
             let module = config.fit_config(data);
@@ -795,11 +805,11 @@ pub fn train_model(
                 gather: gather_shapes,
                 n_in: data.n_betas(),
                 out_std: &data.stats().fit_out.std,
-                split: Split::HeldOutShapes,
+                split: validation(Split::HeldOutShapes),
                 batch_size: stage.batch_size,
                 seed: config.seed,
                 train: train(Split::Train),
-                val: train(Split::HeldOutShapes),
+                val: train(validation(Split::HeldOutShapes)),
                 device,
             };
             run(&task, &module.to_string(), &cx, progress)
@@ -820,11 +830,11 @@ pub fn train_model(
                 gather: gather_frames,
                 n_in: data.n_inputs(),
                 out_std: &data.stats().wrinkle_out.std,
-                split: Split::HeldOutMotions,
+                split: validation(Split::HeldOutMotions),
                 batch_size: stage.batch_size,
                 seed: config.seed,
                 train: frames(Split::Train),
-                val: frames(Split::HeldOutMotions),
+                val: frames(validation(Split::HeldOutMotions)),
                 device,
             };
             let task = RidgeTask { frames };
@@ -842,7 +852,8 @@ pub fn train_model(
                 window_frames: config.window_frames,
                 seed: config.seed,
                 train: train(Split::Train),
-                val: train(Split::HeldOutMotions),
+                val: train(validation(Split::HeldOutMotions)),
+                split: validation(Split::HeldOutMotions),
                 pca,
                 device,
                 config: module.clone(),

@@ -12,8 +12,10 @@
 //!   "garment": "datasets/garments/tshirt-4210",
 //!   "material": "gray_interlock",
 //!   "shapes": { "train": [{"id": "s00", "betas": [0, 0, 0, 0]}, ...],
+//!               "validation": [{"id": "v00", "betas": [1, 1, 0, 0]}, ...],
 //!               "held_out": [{"id": "h00", "betas": [3, 0, 0, 0]}, ...] },
-//!   "motions": { "train": ["walk_normal", ...], "held_out": ["jump_forward", ...],
+//!   "motions": { "train": ["walk_normal", ...], "validation": ["cmu/07_02", ...],
+//!                "held_out": ["jump_forward", ...],
 //!                "held_out_shapes": ["walk_normal", ...], "max_frames": 120 },
 //!   "simulation": { ... }, "dataset": { ... }, "training": { ... }, "evaluation": { ... }
 //! }
@@ -28,7 +30,13 @@
 //! clip (`cmu/05_02`), a `.bvh` / `.npz` / `.json` file — or a set of imported clips (`cmu/*`,
 //! expanded once at load), each optionally cut to a window (`cmu/05_02@120+90`: 90 frames
 //! from frame 120). Loading refuses two specs that would write the same files and any frame
-//! of a clip that is in both a training and a held-out motion.
+//! of a clip that is in two of the training, validation and held-out motions.
+//!
+//! Three splits that never overlap: training picks its epochs and settings on the validation
+//! motions (on the training shapes) and the validation shapes (their rest simulations, for the
+//! fit network); evaluation reports the held-out motions and shapes, the test. A config without
+//! validation motions (or shapes) validates on the held-out ones, as the first configs did; the
+//! training report says which split it used.
 //!
 //! Paths are relative to the data folder ([`DataDir`]: the repository, or the data shipped with
 //! the `sartor` binary). Outputs go to `<runs>/<name>/` (`sim/`, `dataset/`, `train/`,
@@ -66,6 +74,10 @@ pub struct Shapes {
     /// Shapes for the shape-generalisation test (some beyond the training range).
     #[serde(default)]
     pub held_out: Vec<NamedShape>,
+    /// Shapes the fit network is validated on (rest simulations only; neither trained on nor
+    /// reported).
+    #[serde(default)]
+    pub validation: Vec<NamedShape>,
 }
 
 /// Training and held-out motions.
@@ -74,9 +86,13 @@ pub struct Shapes {
 pub struct Motions {
     /// Motions for training (each on every training shape).
     pub train: Vec<String>,
-    /// Held-out motions (each on every training shape; never trained on).
+    /// Held-out motions (each on every training shape; never trained on): the test.
     #[serde(default)]
     pub held_out: Vec<String>,
+    /// Validation motions (each on every training shape; never trained on nor reported):
+    /// training picks its epochs and settings on them.
+    #[serde(default)]
+    pub validation: Vec<String>,
     /// Motions simulated on the held-out shapes (any of the above).
     #[serde(default)]
     pub held_out_shapes: Vec<String>,
@@ -211,7 +227,12 @@ impl Experiment {
         // the saved config all see the same list of motions.
         let motions_dir = data.motions_dir();
         let m = &mut e.motions;
-        for list in [&mut m.train, &mut m.held_out, &mut m.held_out_shapes] {
+        for list in [
+            &mut m.train,
+            &mut m.validation,
+            &mut m.held_out,
+            &mut m.held_out_shapes,
+        ] {
             let mut expanded = Vec::with_capacity(list.len());
             for spec in list.iter() {
                 if spec.ends_with("/*") {
@@ -278,7 +299,13 @@ impl Experiment {
             bail!("name {:?}: use letters, digits, '-' and '_'", self.name);
         }
         let mut ids = BTreeSet::new();
-        for s in self.shapes.train.iter().chain(&self.shapes.held_out) {
+        for s in self
+            .shapes
+            .train
+            .iter()
+            .chain(&self.shapes.held_out)
+            .chain(&self.shapes.validation)
+        {
             if !valid_id(&s.id) {
                 bail!(
                     "shape id {:?}: use letters, digits, '-' and '_' (no '__')",
@@ -297,20 +324,33 @@ impl Experiment {
         }
         let train: BTreeSet<&String> = self.motions.train.iter().collect();
         let held: BTreeSet<&String> = self.motions.held_out.iter().collect();
-        if train.len() != self.motions.train.len() || held.len() != self.motions.held_out.len() {
+        let val: BTreeSet<&String> = self.motions.validation.iter().collect();
+        if train.len() != self.motions.train.len()
+            || held.len() != self.motions.held_out.len()
+            || val.len() != self.motions.validation.len()
+        {
             bail!("a motion is listed twice");
         }
-        if let Some(m) = train.intersection(&held).next() {
-            bail!("motion {m:?} is both a training and a held-out motion");
+        let splits = [
+            ("training", &train),
+            ("validation", &val),
+            ("held-out", &held),
+        ];
+        for (i, (a_name, a)) in splits.iter().enumerate() {
+            for (b_name, b) in &splits[i + 1..] {
+                if let Some(m) = a.intersection(b).next() {
+                    bail!("motion {m:?} is both a {a_name} and a {b_name} motion");
+                }
+            }
         }
-        for m in train.iter().chain(&held) {
+        for m in train.iter().chain(&held).chain(&val) {
             if m.contains("__") || m.as_str() == REST_MOTION {
                 bail!("motion name {m:?} is reserved or contains '__'");
             }
         }
         // Every sequence gets its own files: no two motions may share a file stem.
         let mut stems: BTreeMap<String, &String> = BTreeMap::new();
-        for m in train.iter().chain(&held) {
+        for m in train.iter().chain(&held).chain(&val) {
             if let Some(other) = stems.insert(motion_file_stem(m), m) {
                 bail!(
                     "motions {other:?} and {m:?} would share the file stem {:?}",
@@ -318,15 +358,20 @@ impl Experiment {
                 );
             }
         }
-        // No frame of a held-out motion may be trained on: two windows of one clip (or a window
-        // and the whole clip) in both splits must not overlap.
-        for h in &held {
-            for t in &train {
-                if let Some(frame) = shared_frame(t, h)? {
-                    bail!(
-                        "held-out motion {h:?} and training motion {t:?} share frame {frame} of \
-                         the same clip"
-                    );
+        // No frame of a held-out motion may be trained on or validated on, nor a validation
+        // frame trained on: two windows of one clip (or a window and the whole clip) in two
+        // splits must not overlap.
+        for (i, (a_name, a)) in splits.iter().enumerate() {
+            for (b_name, b) in &splits[i + 1..] {
+                for t in a.iter() {
+                    for h in b.iter() {
+                        if let Some(frame) = shared_frame(t, h)? {
+                            bail!(
+                                "{b_name} motion {h:?} and {a_name} motion {t:?} share frame \
+                                 {frame} of the same clip"
+                            );
+                        }
+                    }
                 }
             }
         }
@@ -394,8 +439,9 @@ impl Experiment {
         })
     }
 
-    /// The plan: every shape with its split; every training shape × (training + held-out
-    /// motions), every held-out shape × `held_out_shapes` motions.
+    /// The plan: every shape with its split (training, held-out, then validation shapes); every
+    /// training shape × (training + held-out + validation motions), every held-out shape ×
+    /// `held_out_shapes` motions. Validation shapes get their rest simulation only.
     pub fn plan(&self) -> DatasetPlan {
         let mut shapes = Vec::new();
         for s in &self.shapes.train {
@@ -412,6 +458,13 @@ impl Experiment {
                 split: Split::HeldOutShapes,
             });
         }
+        for s in &self.shapes.validation {
+            shapes.push(ShapePlan {
+                id: s.id.clone(),
+                betas: s.betas.clone(),
+                split: Split::Validation,
+            });
+        }
         let mut sequences = Vec::new();
         for (i, _) in self.shapes.train.iter().enumerate() {
             for m in &self.motions.train {
@@ -426,6 +479,13 @@ impl Experiment {
                     shape: i,
                     motion: m.clone(),
                     split: Split::HeldOutMotions,
+                });
+            }
+            for m in &self.motions.validation {
+                sequences.push(SequencePlan {
+                    shape: i,
+                    motion: m.clone(),
+                    split: Split::Validation,
                 });
             }
         }
@@ -628,6 +688,57 @@ mod tests {
                 "{name} tests shape generalisation"
             );
         }
+    }
+
+    #[test]
+    fn validation_motions_and_shapes_are_a_split_of_their_own() {
+        let clip = "cmu/07_01";
+        let e = loaded(|v| {
+            v["motions"]["train"] = serde_json::json!([format!("{clip}@0+40"), "walk_normal"]);
+            v["motions"]["validation"] = serde_json::json!([format!("{clip}@40+20")]);
+            v["motions"]["held_out"] = serde_json::json!([format!("{clip}@60+20")]);
+            v["motions"]["held_out_shapes"] = serde_json::json!(["walk_normal"]);
+            v["shapes"]["validation"] = serde_json::json!([{"id": "v00", "betas": [0.7]}]);
+        })
+        .expect("three disjoint windows of one clip");
+        let plan = e.plan();
+        plan.validate(10).expect("a valid plan");
+        let n_train = e.shapes.train.len();
+        // Every training shape gets the validation window; the validation shape gets none.
+        let val: Vec<_> = plan
+            .sequences
+            .iter()
+            .filter(|q| q.split == Split::Validation)
+            .collect();
+        assert_eq!(val.len(), n_train);
+        for q in &val {
+            assert_eq!(q.motion, format!("{clip}@40+20"));
+            assert_eq!(plan.shapes[q.shape].split, Split::Train);
+        }
+        let v00 = plan.shapes.iter().position(|s| s.id == "v00").expect("v00");
+        assert_eq!(plan.shapes[v00].split, Split::Validation);
+        assert!(plan.sequences.iter().all(|q| q.shape != v00));
+        // A validation frame in the training or the held-out set is refused.
+        for (other, window) in [("train", "@30+20"), ("held_out", "@55+20")] {
+            let err = loaded(|v| {
+                v["motions"]["train"] = serde_json::json!(["walk_normal"]);
+                v["motions"]["held_out"] = serde_json::json!([]);
+                v["motions"]["held_out_shapes"] = serde_json::json!([]);
+                v["motions"]["validation"] = serde_json::json!([format!("{clip}@40+20")]);
+                v["motions"][other] = serde_json::json!([format!("{clip}{window}")]);
+            })
+            .expect_err("overlapping validation window");
+            assert!(err.to_string().contains("validation motion"), "{err}");
+        }
+        let err = loaded(|v| {
+            v["motions"]["validation"] = serde_json::json!(["walk_normal"]);
+        })
+        .expect_err("a training motion listed for validation");
+        assert!(err.to_string().contains("walk_normal"), "{err}");
+        // A validation shape id may not repeat a training one.
+        let mut e = config("tiny");
+        e.shapes.validation.push(e.shapes.train[0].clone());
+        assert!(e.validate().is_err());
     }
 
     #[test]

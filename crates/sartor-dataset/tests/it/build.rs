@@ -89,17 +89,23 @@ impl SimulationSource for Synthetic {
     }
 }
 
-fn plan() -> DatasetPlan {
-    let shape = |id: &str, b0: f64, split| ShapePlan {
+fn shape(id: &str, b0: f64, split: Split) -> ShapePlan {
+    ShapePlan {
         id: id.into(),
         betas: vec![b0, 0.5],
         split,
-    };
-    let seq = |shape, motion: &str, split| SequencePlan {
+    }
+}
+
+fn seq(shape: usize, motion: &str, split: Split) -> SequencePlan {
+    SequencePlan {
         shape,
         motion: motion.into(),
         split,
-    };
+    }
+}
+
+fn plan() -> DatasetPlan {
     DatasetPlan {
         shapes: vec![
             shape("s0", 0.0, Split::Train),
@@ -240,4 +246,18 @@ fn plans_that_leak_between_splits_are_rejected() {
     p.shapes[0].betas = vec![0.0; 11];
     assert!(p.validate(10).is_err(), "too many betas");
     assert!(plan().validate(10).is_ok());
+    // Validation: motions on the training shapes, and shapes of their own with no sequence.
+    let mut p = plan();
+    p.sequences.push(seq(1, "c", Split::Validation));
+    p.shapes.push(shape("v0", 0.5, Split::Validation));
+    assert!(p.validate(10).is_ok());
+    p.sequences.push(seq(2, "c", Split::Validation));
+    assert!(
+        p.validate(10).is_err(),
+        "a validation motion on a held-out shape"
+    );
+    let mut p = plan();
+    p.shapes.push(shape("v0", 0.5, Split::Validation));
+    p.sequences.push(seq(3, "a", Split::Train));
+    assert!(p.validate(10).is_err(), "a validation shape in training");
 }

@@ -18,6 +18,16 @@ fn weight(i: usize, j: usize) -> f32 {
 /// `memory`: weight of the previous frame's inputs in `Δ_L` (0: a memoryless target, which a
 /// linear layer can fit exactly when `nonlinear` is false too).
 pub fn dataset(memory: f32, nonlinear: bool, pca: Option<usize>) -> TrainingData {
+    build(memory, nonlinear, pca, false)
+}
+
+/// [`dataset`] with a validation split: the third motion of every training shape, and one
+/// validation shape (no sequence).
+pub fn dataset_with_validation(memory: f32, nonlinear: bool, pca: Option<usize>) -> TrainingData {
+    build(memory, nonlinear, pca, true)
+}
+
+fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> TrainingData {
     let layout = InputLayout {
         n_betas: N_BETAS,
         pose: PoseFeatureSpec {
@@ -38,6 +48,7 @@ pub fn dataset(memory: f32, nonlinear: bool, pca: Option<usize>) -> TrainingData
             &[0.5, 0.5],
             Split::HeldOutShapes,
         )))
+        .chain(validation.then(|| ("v0".to_string(), &[-0.5, 0.5], Split::Validation)))
         .map(|(id, b, split)| ShapeSample {
             id,
             betas: b.to_vec(),
@@ -49,10 +60,14 @@ pub fn dataset(memory: f32, nonlinear: bool, pca: Option<usize>) -> TrainingData
         .collect();
     let mut sequences = Vec::new();
     for (s, shape) in shapes.iter_mut().enumerate() {
+        if shape.split == Split::Validation {
+            continue;
+        }
         for m in 0..4 {
             let split = match (shape.split, m) {
                 (Split::HeldOutShapes, _) => Split::HeldOutShapes,
                 (_, 3) => Split::HeldOutMotions,
+                (_, 2) if validation => Split::Validation,
                 _ => Split::Train,
             };
             let mut inputs = Vec::with_capacity(FRAMES * n_in);
