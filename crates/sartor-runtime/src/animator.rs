@@ -414,7 +414,8 @@ impl Avatar {
         let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
         // What the networks see.
         let mut seen = betas.to_vec();
-        let mut beyond_training = true;
+        // Unknown (no training shapes recorded): taken as within.
+        let mut beyond_training = false;
         if let Some(shapes) = &rig.network.header().training_betas {
             shapes.project(betas, &mut seen);
             beyond_training = seen != betas;

@@ -165,9 +165,9 @@ pub struct CollisionOptions {
 pub enum Interpenetration {
     /// Never: the paper's post-process.
     Ignore,
-    /// When the avatar's shape lies outside the model's training shapes (or the model records
-    /// none), where heavy bodies sink an arm or a hand into the torso; within them the body is
-    /// taken to keep its parts apart.
+    /// When the avatar's shape lies outside the model's training shapes (a model that records
+    /// none counts as within), where heavy bodies sink an arm or a hand into the torso; within
+    /// them the body is taken to keep its parts apart.
     #[default]
     BeyondTrainingShapes,
     /// At every shape (the armpit of a walking body at the mean shape sinks a little too).
