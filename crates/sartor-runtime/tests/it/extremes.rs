@@ -277,3 +277,48 @@ fn the_shipped_model_stays_out_of_extreme_bodies() {
         total_raw.triangle_percent()
     );
 }
+
+/// The interpenetration test runs where [`Interpenetration`] says: by default only beyond the
+/// training shapes, where it finds the faces an arm or a hand buries in a heavy torso.
+#[test]
+fn the_interpenetration_test_runs_beyond_the_training_shapes() {
+    use sartor_runtime::{CollisionOptions, Interpenetration};
+    let dir = shipped();
+    let body = Arc::new(crate::common::load_builtin().expect("built-in body"));
+    let network =
+        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
+    let pose = walk.frames()[16].clone();
+    let buried = |interpenetration, betas: &[f32]| {
+        let options = AnimatorOptions {
+            collision: Some(CollisionOptions {
+                interpenetration,
+                ..CollisionOptions::default()
+            }),
+            ..AnimatorOptions::default()
+        };
+        let rig = GarmentRig::new(network.clone(), binding.clone(), body.clone(), options);
+        let mut avatar = GarmentAnimator::new(Arc::new(rig.expect("rig"))).expect("avatar");
+        avatar.set_shape(betas).expect("finite shape");
+        avatar.frame(&pose).expect("frame");
+        avatar
+            .certify_stats()
+            .expect("post-process on")
+            .buried_faces
+    };
+    let mean = vec![0.0f32; network.n_betas()];
+    let mut heavy = mean.clone();
+    heavy[4] = -5.0;
+    let default = Interpenetration::default();
+    assert_eq!(default, Interpenetration::BeyondTrainingShapes);
+    assert_eq!(
+        buried(default, &mean),
+        0,
+        "within the training shapes: not run"
+    );
+    let beyond = buried(default, &heavy);
+    assert!(beyond > 0, "an arm sunk into a heavy torso buries faces");
+    assert_eq!(buried(Interpenetration::Ignore, &heavy), 0);
+    assert_eq!(buried(Interpenetration::Always, &heavy), beyond);
+}
