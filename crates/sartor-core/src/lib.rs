@@ -62,7 +62,9 @@ pub use binding::{
 pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
-pub use mesh::{Hinge, MeshTopology, TriMesh, bounding_box, face_normals, vertex_normals};
+pub use mesh::{
+    Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, face_normals, vertex_normals,
+};
 pub use model::{BodyModel, MODEL_HEADER, MODEL_TENSORS, Provenance};
 pub use norm::{MeanStd, NormStats};
 pub use obj::{ObjData, obj_text, read_obj, write_obj};

@@ -185,6 +185,27 @@ pub fn bounding_box(points: &[Vector3<f64>]) -> Option<(Vector3<f64>, Vector3<f6
     )
 }
 
+/// The axis-aligned box `[lo, hi]` as a closed mesh: 8 corners (bit 0 of the index picks
+/// `hi.x`, bit 1 `hi.y`, bit 2 `hi.z`) and 12 triangles, counter-clockwise seen from outside,
+/// two per side in the order −z, +z, −y, +y, −x, +x.
+pub fn box_mesh(lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+    let corners = (0..8)
+        .map(|i| Vector3::from_fn(|k, _| if i >> k & 1 == 1 { hi[k] } else { lo[k] }))
+        .collect();
+    let faces = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ]
+    .iter()
+    .flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]])
+    .collect();
+    (corners, faces)
+}
+
 /// Unit face normals of any indexed triangle set (zero for degenerate faces).
 pub fn face_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
     faces

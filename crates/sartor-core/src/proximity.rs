@@ -724,28 +724,7 @@ mod tests {
 
     /// An axis-aligned unit cube centred at the origin, outward-oriented.
     fn cube() -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
-        let p: Vec<Vector3<f64>> = (0..8)
-            .map(|i| {
-                Vector3::new(
-                    (i & 1) as f64 - 0.5,
-                    ((i >> 1) & 1) as f64 - 0.5,
-                    ((i >> 2) & 1) as f64 - 0.5,
-                )
-            })
-            .collect();
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        let f = quads
-            .iter()
-            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-            .collect();
-        (p, f)
+        crate::box_mesh(Vector3::repeat(-0.5), Vector3::repeat(0.5))
     }
 
     #[test]

@@ -1244,7 +1244,7 @@ impl Grid {
 mod tests {
     use super::*;
 
-    /// An axis-aligned box as 12 outward-facing triangles, appended to `vertices` and `faces`.
+    /// An axis-aligned box (sartor-core's `box_mesh`), appended to `vertices` and `faces`.
     fn cuboid(
         lo: [f64; 3],
         hi: [f64; 3],
@@ -1252,23 +1252,9 @@ mod tests {
         faces: &mut Vec<[u32; 3]>,
     ) {
         let base = vertices.len() as u32;
-        for i in 0..8 {
-            let pick = |k: usize| if i >> k & 1 == 1 { hi[k] } else { lo[k] };
-            vertices.push(Vector3::new(pick(0), pick(1), pick(2)));
-        }
-        // Corners by bits (x = 1, y = 2, z = 4); each side counter-clockwise from outside.
-        for quad in [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ] {
-            let [a, b, c, d] = quad.map(|k: u32| base + k);
-            faces.push([a, b, c]);
-            faces.push([a, c, d]);
-        }
+        let (v, f) = sartor_core::box_mesh(lo.into(), hi.into());
+        vertices.extend(v);
+        faces.extend(f.iter().map(|t| t.map(|k| base + k)));
     }
 
     #[test]
