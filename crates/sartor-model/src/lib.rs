@@ -57,7 +57,7 @@ pub use model::{
 pub use training::{
     AnyModel, BEST_FILE, CONFIG_FILE, EpochRecord, MODEL_NAMES, ModelKind, ModelReport, Progress,
     STATE_FILE, Silent, StageConfig, TrainOptions, TrainingConfig, load_trained, load_weights,
-    save_weights, train_model,
+    save_weights, seeded, train_model,
 };
 
 /// burn itself, so callers name devices and tensors with the same version.

@@ -41,6 +41,29 @@ use crate::model::{
 
 static INIT_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+/// Run `draw` (a module's `init`) with burn's random numbers seeded by `seed` (`None`: left as
+/// they are), under one lock, and draw its weights there. burn's generator may be one per
+/// process, and burn initialises parameters lazily, at their first use: a draw in another
+/// thread between a seed and the first forward pass changes the weights. So every module of
+/// this crate and of its callers' tests is made here, its parameters drawn before the lock is
+/// released (a record of the module reads every one), or two trainings at once (tests run in
+/// parallel) are not reproducible.
+pub fn seeded<M: Module + Clone>(
+    device: &Device,
+    seed: Option<u64>,
+    draw: impl FnOnce() -> M,
+) -> M {
+    let _guard = INIT_LOCK
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(seed) = seed {
+        device.seed(seed);
+    }
+    let module = draw();
+    drop(module.clone().into_record());
+    module
+}
+
 /// The models `train` knows, by name.
 pub const MODEL_NAMES: [&str; 3] = ["fit", "wrinkle", "linear"];
 
@@ -900,16 +923,8 @@ fn run<T: Task>(
     let fingerprint = fingerprint(kind, module_config, config, data);
     let state_path = dir.join(STATE_FILE);
     let device = &options.device;
-    let mut model = {
-        // burn's random numbers may come from one generator per process: seeding and drawing
-        // the initial weights under a lock keeps them reproducible when several trainings run
-        // at once (tests do).
-        let _guard = INIT_LOCK
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        device.seed(config.seed ^ (kind as u64 + 1).wrapping_mul(0x9E37_79B9));
-        task.init(device)
-    };
+    let seed = config.seed ^ (kind as u64 + 1).wrapping_mul(0x9E37_79B9);
+    let mut model = seeded(device, Some(seed), || task.init(device));
     let mut optim = AdamConfig::new().init();
     let mut state = if state_path.exists() {
         let state: TrainState = serde_json::from_slice(&read_file(&state_path)?)
@@ -1090,15 +1105,24 @@ pub fn load_trained(kind: ModelKind, dir: &Path, device: &Device) -> crate::Resu
     Ok(match kind {
         ModelKind::Fit => {
             let c: FitRegressorConfig = serde_json::from_slice(&text).map_err(bad)?;
-            AnyModel::Fit(load_weights(c.init(device), &best)?)
+            AnyModel::Fit(load_weights(
+                seeded(device, None, || c.init(device)),
+                &best,
+            )?)
         }
         ModelKind::Wrinkle => {
             let c: WrinkleRegressorConfig = serde_json::from_slice(&text).map_err(bad)?;
-            AnyModel::Wrinkle(load_weights(c.init(device), &best)?)
+            AnyModel::Wrinkle(load_weights(
+                seeded(device, None, || c.init(device)),
+                &best,
+            )?)
         }
         ModelKind::Linear => {
             let c: LinearRegressorConfig = serde_json::from_slice(&text).map_err(bad)?;
-            AnyModel::Linear(load_weights(c.init(device), &best)?)
+            AnyModel::Linear(load_weights(
+                seeded(device, None, || c.init(device)),
+                &best,
+            )?)
         }
     })
 }
@@ -1135,11 +1159,12 @@ mod tests {
     #[test]
     fn tbptt_carries_the_state_but_not_the_gradient() {
         let device = Device::flex().autodiff();
-        device.seed(7);
-        let model = WrinkleRegressorConfig::new(3, 6)
-            .with_hidden(8)
-            .with_dropout(0.0)
-            .init(&device);
+        let model = seeded(&device, Some(7), || {
+            WrinkleRegressorConfig::new(3, 6)
+                .with_hidden(8)
+                .with_dropout(0.0)
+                .init(&device)
+        });
         let (b, l) = (2, 4);
         let x1 = ramp([b, l, 3], 1.0, &device).require_grad();
         let x2 = ramp([b, l, 3], -0.5, &device).require_grad();
@@ -1193,8 +1218,7 @@ mod tests {
     #[test]
     fn fused_gru_matches_the_equations_step_by_step() {
         let device = Device::flex();
-        device.seed(3);
-        let gru = FusedGru::new(2, 3, &device);
+        let gru = seeded(&device, Some(3), || FusedGru::new(2, 3, &device));
         let x = ramp([1, 2, 2], 0.8, &device);
         let (out, last) = gru.forward(x.clone(), Tensor::zeros([1, 3], &device));
         let [w_ih, w_hh] = gru.params();

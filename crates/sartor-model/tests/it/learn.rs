@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 use sartor_model::burn::tensor::{Device, Tensor, TensorData};
 use sartor_model::{
     FitRegressorConfig, ModelKind, ModelReport, Silent, StageConfig, TrainOptions, TrainingConfig,
-    WrinkleRegressorConfig, load_weights, save_weights, to_vec, train_model,
+    WrinkleRegressorConfig, load_weights, save_weights, seeded, to_vec, train_model,
 };
 
 use sartor_dataset::Split;
@@ -191,16 +191,14 @@ fn an_existing_run_is_not_overwritten_and_other_settings_are_refused() {
 #[test]
 fn saved_weights_load_back_to_identical_outputs() {
     let device = Device::flex();
-    device.seed(1);
     let config = WrinkleRegressorConfig::new(9, 15)
         .with_hidden(12)
         .with_dropout(0.0);
-    let model = config.init(&device);
+    let model = seeded(&device, Some(1), || config.init(&device));
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("w.bpk");
     save_weights(&model, &path).expect("save");
-    device.seed(2);
-    let other = config.init(&device);
+    let other = seeded(&device, Some(2), || config.init(&device));
     let loaded = load_weights(other, &path).expect("load");
     let x: Tensor<3> = Tensor::from_data(
         TensorData::new(
@@ -214,10 +212,13 @@ fn saved_weights_load_back_to_identical_outputs() {
     let (b, _) = loaded.forward(x, s);
     assert_eq!(to_vec(a), to_vec(b));
     // A file for another architecture is an error naming it, not a panic.
-    let fit = FitRegressorConfig::new(2, 15).init(&device);
+    let fit = seeded(&device, None, || {
+        FitRegressorConfig::new(2, 15).init(&device)
+    });
     let err = load_weights(fit, &path).expect_err("mismatched weights");
     assert!(err.to_string().contains("w.bpk"), "{err}");
     std::fs::write(&path, b"not a burnpack").expect("write");
-    let err = load_weights(config.init(&device), &path).expect_err("garbage");
+    let err =
+        load_weights(seeded(&device, None, || config.init(&device)), &path).expect_err("garbage");
     assert!(err.to_string().contains("w.bpk"), "{err}");
 }
