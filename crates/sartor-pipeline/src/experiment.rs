@@ -16,7 +16,8 @@
 //!               "held_out": [{"id": "h00", "betas": [3, 0, 0, 0]}, ...] },
 //!   "motions": { "train": ["walk_normal", ...], "validation": ["cmu/07_02", ...],
 //!                "held_out": ["jump_forward", ...],
-//!                "held_out_shapes": ["walk_normal", ...], "max_frames": 120 },
+//!                "held_out_shapes": ["walk_normal", ...], "max_frames": 120,
+//!                "shapes_per_motion": 4 },
 //!   "simulation": { ... }, "dataset": { ... }, "training": { ... }, "evaluation": { ... }
 //! }
 //! ```
@@ -99,6 +100,31 @@ pub struct Motions {
     /// Use at most this many frames of each motion (`None`: all).
     #[serde(default)]
     pub max_frames: Option<usize>,
+    /// Simulate each training and validation motion on this many training shapes (`None`: on
+    /// every one, the paper's protocol): the first training shape (the nominal body) and the
+    /// next ones in turn, so that every other training shape gets the same share of the
+    /// motions. Held-out motions, the test, always run on every training shape.
+    #[serde(default)]
+    pub shapes_per_motion: Option<usize>,
+}
+
+impl Motions {
+    /// The training shapes (indices among `n_shapes`) that the `k`-th motion of a list that
+    /// [`Motions::shapes_per_motion`] applies to is simulated on: shape 0, then
+    /// `shapes_per_motion - 1` of the others, continuing where the motion before left off.
+    pub fn shapes_of(&self, k: usize, n_shapes: usize) -> Vec<usize> {
+        match self.shapes_per_motion {
+            Some(n) if n < n_shapes => {
+                let others = n_shapes - 1;
+                let mut shapes: Vec<usize> = std::iter::once(0)
+                    .chain((0..n - 1).map(|j| 1 + (k * (n - 1) + j) % others))
+                    .collect();
+                shapes.sort_unstable();
+                shapes
+            }
+            _ => (0..n_shapes).collect(),
+        }
+    }
 }
 
 /// The whole experiment config.
@@ -390,6 +416,9 @@ impl Experiment {
         if self.motions.max_frames == Some(0) {
             bail!("motions.max_frames must be at least 1");
         }
+        if self.motions.shapes_per_motion == Some(0) {
+            bail!("motions.shapes_per_motion must be at least 1");
+        }
         if let Some(training) = &self.training {
             training.validate()?;
         }
@@ -440,8 +469,9 @@ impl Experiment {
     }
 
     /// The plan: every shape with its split (training, held-out, then validation shapes); every
-    /// training shape × (training + held-out + validation motions), every held-out shape ×
-    /// `held_out_shapes` motions. Validation shapes get their rest simulation only.
+    /// training shape × (training + held-out + validation motions; training and validation
+    /// motions on [`Motions::shapes_of`] only), every held-out shape × `held_out_shapes`
+    /// motions. Validation shapes get their rest simulation only.
     pub fn plan(&self) -> DatasetPlan {
         let mut shapes = Vec::new();
         for s in &self.shapes.train {
@@ -465,31 +495,32 @@ impl Experiment {
                 split: Split::Validation,
             });
         }
+        // Shape-major, as before: a shape's sequences follow each other in the plan.
+        let n_train = self.shapes.train.len();
+        let on_shape = |list: &[String], i: usize| -> Vec<String> {
+            list.iter()
+                .enumerate()
+                .filter(|(k, _)| self.motions.shapes_of(*k, n_train).contains(&i))
+                .map(|(_, m)| m.clone())
+                .collect()
+        };
         let mut sequences = Vec::new();
-        for (i, _) in self.shapes.train.iter().enumerate() {
-            for m in &self.motions.train {
-                sequences.push(SequencePlan {
-                    shape: i,
-                    motion: m.clone(),
-                    split: Split::Train,
-                });
-            }
-            for m in &self.motions.held_out {
-                sequences.push(SequencePlan {
-                    shape: i,
-                    motion: m.clone(),
-                    split: Split::HeldOutMotions,
-                });
-            }
-            for m in &self.motions.validation {
-                sequences.push(SequencePlan {
-                    shape: i,
-                    motion: m.clone(),
-                    split: Split::Validation,
-                });
+        for i in 0..n_train {
+            let lists = [
+                (on_shape(&self.motions.train, i), Split::Train),
+                (self.motions.held_out.clone(), Split::HeldOutMotions),
+                (on_shape(&self.motions.validation, i), Split::Validation),
+            ];
+            for (motions, split) in lists {
+                for motion in motions {
+                    sequences.push(SequencePlan {
+                        shape: i,
+                        motion,
+                        split,
+                    });
+                }
             }
         }
-        let n_train = self.shapes.train.len();
         for (i, _) in self.shapes.held_out.iter().enumerate() {
             for m in &self.motions.held_out_shapes {
                 sequences.push(SequencePlan {
@@ -670,7 +701,7 @@ mod tests {
 
     #[test]
     fn committed_configs_are_valid_and_their_plans_do_not_leak() {
-        for name in ["tiny", "default", "paper"] {
+        for name in ["tiny", "default", "cmu", "paper"] {
             let e = config(name);
             let plan = e.plan();
             plan.validate(10).expect("a valid plan");
@@ -686,6 +717,32 @@ mod tests {
             assert!(
                 !e.shapes.held_out.is_empty(),
                 "{name} tests shape generalisation"
+            );
+        }
+        // The experiments on real motion: at least four test clips that no other split sees
+        // any frame of, a validation split, and training shapes that vary all ten β.
+        let clip = |m: &String| m.split('@').next().unwrap_or(m).to_string();
+        for name in ["cmu", "paper"] {
+            let e = config(name);
+            let test: BTreeSet<String> = e.motions.held_out.iter().map(clip).collect();
+            assert!(test.len() >= 4, "{name}: {test:?}");
+            assert!(
+                test.iter().all(|c| c.starts_with("cmu/")),
+                "{name}: {test:?}"
+            );
+            assert!(!e.motions.validation.is_empty(), "{name}");
+            for m in e.motions.train.iter().chain(&e.motions.validation) {
+                assert!(!test.contains(&clip(m)), "{name}: {m} is a test clip");
+            }
+        }
+        let e = config("cmu");
+        for k in 0..10 {
+            assert!(
+                e.shapes
+                    .train
+                    .iter()
+                    .any(|s| s.betas.get(k).is_some_and(|b| *b != 0.0)),
+                "no training shape varies β{k}"
             );
         }
     }
@@ -739,6 +796,69 @@ mod tests {
         let mut e = config("tiny");
         e.shapes.validation.push(e.shapes.train[0].clone());
         assert!(e.validate().is_err());
+    }
+
+    #[test]
+    fn shapes_per_motion_spreads_motions_evenly_over_the_shapes() {
+        let e = edited(|v| {
+            v["shapes"]["train"] = serde_json::json!(
+                (0..7)
+                    .map(|i| serde_json::json!({"id": format!("s{i}"), "betas": [i]}))
+                    .collect::<Vec<_>>()
+            );
+            v["motions"]["train"] = serde_json::json!(["walk_normal", "walk_fast", "run_jog"]);
+            v["motions"]["validation"] = serde_json::json!(["squat_deep", "torso_twist"]);
+            v["motions"]["shapes_per_motion"] = serde_json::json!(3);
+        })
+        .expect("valid");
+        let plan = e.plan();
+        plan.validate(10).expect("a valid plan");
+        let of = |split: Split| -> Vec<(String, usize)> {
+            plan.sequences
+                .iter()
+                .filter(|q| q.split == split)
+                .map(|q| (q.motion.clone(), q.shape))
+                .collect()
+        };
+        let train = of(Split::Train);
+        // Each motion on the nominal shape and two others; the six others once each.
+        assert_eq!(train.len(), 3 * 3);
+        for m in &e.motions.train {
+            let shapes: Vec<usize> = train
+                .iter()
+                .filter(|(n, _)| n == m)
+                .map(|(_, s)| *s)
+                .collect();
+            assert_eq!(shapes.len(), 3, "{m}: {shapes:?}");
+            assert!(shapes.contains(&0), "{m} runs on the nominal shape");
+        }
+        for s in 1..7 {
+            assert_eq!(
+                train.iter().filter(|(_, t)| *t == s).count(),
+                1,
+                "shape {s}"
+            );
+        }
+        assert_eq!(of(Split::Validation).len(), 2 * 3);
+        // The test split stays on every training shape.
+        assert_eq!(
+            of(Split::HeldOutMotions).len(),
+            7 * e.motions.held_out.len()
+        );
+        // At least every shape: the paper's protocol.
+        let all = edited(|v| v["motions"]["shapes_per_motion"] = serde_json::json!(9));
+        let n = all.expect("valid").shapes.train.len();
+        assert_eq!(e.motions.shapes_of(0, 2), vec![0, 1]);
+        assert_eq!(
+            Motions {
+                shapes_per_motion: None,
+                ..e.motions.clone()
+            }
+            .shapes_of(4, n)
+            .len(),
+            n
+        );
+        assert!(edited(|v| v["motions"]["shapes_per_motion"] = serde_json::json!(0)).is_err());
     }
 
     #[test]

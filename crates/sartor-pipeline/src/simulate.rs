@@ -461,16 +461,19 @@ mod tests {
     fn every_shape_gets_a_rest_job_and_file_names_are_unique() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
         let data = DataDir::new(&root).expect("data folder");
-        let e = Experiment::load(&root.join("configs/default.json"), &data, Path::new("runs"))
-            .expect("valid");
-        let all = jobs(&e);
-        let n_shapes = e.shapes.train.len() + e.shapes.held_out.len();
-        assert_eq!(
-            all.iter().filter(|j| j.motion == REST_MOTION).count(),
-            n_shapes
-        );
-        assert_eq!(all.len(), n_shapes + e.plan().sequences.len());
-        let stems: std::collections::BTreeSet<&String> = all.iter().map(|j| &j.stem).collect();
-        assert_eq!(stems.len(), all.len(), "unique file names");
+        for name in ["default", "cmu"] {
+            let path = root.join(format!("configs/{name}.json"));
+            let e = Experiment::load(&path, &data, Path::new("runs")).expect("valid");
+            let all = jobs(&e);
+            let n_shapes =
+                e.shapes.train.len() + e.shapes.held_out.len() + e.shapes.validation.len();
+            assert_eq!(
+                all.iter().filter(|j| j.motion == REST_MOTION).count(),
+                n_shapes
+            );
+            assert_eq!(all.len(), n_shapes + e.plan().sequences.len());
+            let stems: std::collections::BTreeSet<&String> = all.iter().map(|j| &j.stem).collect();
+            assert_eq!(stems.len(), all.len(), "{name}: unique file names");
+        }
     }
 }
