@@ -59,7 +59,11 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
             let request: PhenotypeRequest = text.parse()?;
             let space = PhenotypeSpace::load(&model_dir)?;
             let (phenotype, betas) = space.betas_for(&model, &request)?;
-            println!("phenotype {text:?} → {phenotype:?}");
+            let rounded: Vec<String> = betas.iter().map(|b| format!("{b:.2}")).collect();
+            println!(
+                "phenotype {text:?} → {phenotype:?}, β [{}]",
+                rounded.join(", ")
+            );
             betas
         }
         None => args.beta.clone(),
