@@ -54,7 +54,7 @@ use serde::Serialize;
 
 use crate::error::{Context, ensure};
 use crate::gt_distance::{DistanceHistogram, DistanceSummary, PosedBody};
-use crate::plot::{Chart, Series, write_charts};
+use crate::plot::{Chart, Marker, Series, write_charts};
 use crate::report::{Machine, write_json};
 use crate::timing::mean;
 use crate::{Progress, Result};
@@ -678,7 +678,7 @@ fn plot_errors(
             series.push(Series {
                 name: name.clone(),
                 points,
-                markers: false,
+                marker: None,
             });
         }
         charts.push(Chart {
@@ -686,6 +686,8 @@ fn plot_errors(
             x_label: "frame".into(),
             y_label: "mean vertex error (mm)".into(),
             series,
+            log_x: false,
+            legend_at_bottom: false,
         });
     }
     if !charts.is_empty() {
@@ -699,7 +701,7 @@ fn plot_errors(
                 .iter()
                 .map(|s| (s.shape_distance, s.mean_vertex_error_mm))
                 .collect(),
-            markers: true,
+            marker: Some(Marker::Circle),
         })
         .collect();
     if !series.is_empty() {
@@ -708,6 +710,8 @@ fn plot_errors(
             x_label: "β distance to the nearest training shape".into(),
             y_label: "mean vertex error (mm)".into(),
             series,
+            log_x: false,
+            legend_at_bottom: false,
         };
         write_charts(&dir.join("error_vs_shape"), &[chart], 1, (640, 420))?;
     }

@@ -53,7 +53,7 @@ pub use eval::{
 pub use gt_distance::{
     DistanceHistogram, DistanceSummary, PosedBody, sequence_files_signed_distance,
 };
-pub use plot::{Chart, Series, write_charts};
+pub use plot::{Chart, Marker, Series, write_charts};
 pub use progress::{NoProgress, Progress};
 pub use report::{Machine, load_average, read_json, write_json};
 pub use slice::{

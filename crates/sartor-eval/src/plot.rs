@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::error::{Context, ensure};
@@ -18,8 +20,23 @@ pub struct Series {
     pub name: String,
     /// `(x, y)` points, drawn in order.
     pub points: Vec<(f64, f64)>,
-    /// Draw markers only (a scatter), not a line.
-    pub markers: bool,
+    /// Draw these markers only (a scatter); `None`: a line.
+    pub marker: Option<Marker>,
+}
+
+/// The shape of a scatter series' markers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Marker {
+    /// A filled disc.
+    Circle,
+    /// A filled triangle.
+    Triangle,
+    /// A diagonal cross.
+    Cross,
+    /// A filled square.
+    Square,
+    /// An open circle, larger than the others: drawn over them, it rings points.
+    Ring,
 }
 
 /// One chart of a grid.
@@ -33,16 +50,21 @@ pub struct Chart {
     pub y_label: String,
     /// The series; colours follow their order.
     pub series: Vec<Series>,
+    /// A logarithmic x axis (the values must be positive).
+    pub log_x: bool,
+    /// The legend in the lower right corner (default: upper right).
+    pub legend_at_bottom: bool,
 }
 
-/// Colours by series index (colour-blind safe, Okabe–Ito).
-const PALETTE: [RGBColor; 7] = [
+/// Colours by series index (colour-blind safe, Okabe–Ito); rings are always black.
+const PALETTE: [RGBColor; 8] = [
     RGBColor(0, 114, 178),
     RGBColor(213, 94, 0),
     RGBColor(0, 158, 115),
     RGBColor(204, 121, 167),
     RGBColor(230, 159, 0),
     RGBColor(86, 180, 233),
+    RGBColor(240, 228, 66),
     RGBColor(0, 0, 0),
 ];
 
@@ -140,40 +162,98 @@ fn draw_chart<DB: DrawingBackend>(
     chart: &Chart,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     let points = || chart.series.iter().flat_map(|s| s.points.iter());
-    let xs = padded(points().map(|p| p.0), false);
     let ys = padded(points().map(|p| p.1), true);
-    let mut ctx = ChartBuilder::on(area)
+    let mut builder = ChartBuilder::on(area);
+    builder
         .caption(&chart.title, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(36)
-        .y_label_area_size(56)
-        .build_cartesian_2d(xs, ys)?;
+        .y_label_area_size(56);
+    if chart.log_x {
+        // A fifth of a decade of room on each side.
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+        for x in points().map(|p| p.0).filter(|x| x.is_finite() && *x > 0.0) {
+            lo = lo.min(x);
+            hi = hi.max(x);
+        }
+        let (lo, hi) = if lo.is_finite() {
+            (lo / 1.6, hi * 1.6)
+        } else {
+            (0.1, 10.0)
+        };
+        draw_series(builder.build_cartesian_2d((lo..hi).log_scale(), ys)?, chart)
+    } else {
+        let xs = padded(points().map(|p| p.0), false);
+        draw_series(builder.build_cartesian_2d(xs, ys)?, chart)
+    }
+}
+
+fn draw_series<'a, DB: DrawingBackend + 'a, X>(
+    mut ctx: ChartContext<'a, DB, Cartesian2d<X, RangedCoordf64>>,
+    chart: &Chart,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
         .label_style(("sans-serif", 13))
         .draw()?;
     for (k, s) in chart.series.iter().enumerate() {
-        let color = PALETTE[k % PALETTE.len()];
+        let color = if s.marker == Some(Marker::Ring) {
+            BLACK
+        } else {
+            PALETTE[k % PALETTE.len()]
+        };
         let pts = s
             .points
             .iter()
             .copied()
             .filter(|p| p.0.is_finite() && p.1.is_finite());
-        let anno = if s.markers {
-            ctx.draw_series(pts.map(|p| Circle::new(p, 4, color.filled())))?
-        } else {
-            ctx.draw_series(LineSeries::new(pts, color.stroke_width(2)))?
+        let anno = match s.marker {
+            None => ctx.draw_series(LineSeries::new(pts, color.stroke_width(2)))?,
+            Some(Marker::Circle) => {
+                ctx.draw_series(pts.map(|p| Circle::new(p, 4, color.filled())))?
+            }
+            Some(Marker::Triangle) => {
+                ctx.draw_series(pts.map(|p| TriangleMarker::new(p, 5, color.filled())))?
+            }
+            Some(Marker::Cross) => {
+                ctx.draw_series(pts.map(|p| Cross::new(p, 4, color.stroke_width(2))))?
+            }
+            Some(Marker::Square) => ctx.draw_series(pts.map(|p| {
+                EmptyElement::at(p) + Rectangle::new([(-4, -4), (4, 4)], color.filled())
+            }))?,
+            Some(Marker::Ring) => {
+                ctx.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
+            }
         };
-        anno.label(&s.name)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], color.filled()));
+        let marker = s.marker;
+        anno.label(&s.name).legend(move |(x, y)| {
+            let at = (x + 8, y);
+            match marker {
+                None => Rectangle::new([(x, y - 1), (x + 16, y + 1)], color.filled()).into_dyn(),
+                Some(Marker::Circle) => Circle::new(at, 4, color.filled()).into_dyn(),
+                Some(Marker::Triangle) => TriangleMarker::new(at, 5, color.filled()).into_dyn(),
+                Some(Marker::Cross) => Cross::new(at, 4, color.stroke_width(2)).into_dyn(),
+                Some(Marker::Square) => {
+                    Rectangle::new([(x + 4, y - 4), (x + 12, y + 4)], color.filled()).into_dyn()
+                }
+                Some(Marker::Ring) => Circle::new(at, 7, color.stroke_width(2)).into_dyn(),
+            }
+        });
     }
     if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
         ctx.configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 13))
-            .position(SeriesLabelPosition::UpperRight)
+            .position(if chart.legend_at_bottom {
+                SeriesLabelPosition::LowerRight
+            } else {
+                SeriesLabelPosition::UpperRight
+            })
             .draw()?;
     }
     Ok(())
@@ -194,17 +274,28 @@ mod tests {
                 Series {
                     name: "ours".into(),
                     points: (0..10).map(|i| (i as f64, (i * i) as f64)).collect(),
-                    markers: false,
+                    marker: None,
                 },
                 Series {
                     name: "lbs".into(),
                     points: vec![(1.0, 3.0), (4.0, f64::NAN)],
-                    markers: true,
+                    marker: Some(Marker::Circle),
                 },
             ],
+            log_x: false,
+            legend_at_bottom: false,
         };
         let stem = dir.path().join("sub/plot");
-        let paths = write_charts(&stem, &[chart.clone(), chart], 2, (300, 200)).expect("drawn");
+        let log = Chart {
+            log_x: true,
+            series: vec![Series {
+                name: "ring".into(),
+                points: vec![(0.05, 1.0), (3.0, 2.0)],
+                marker: Some(Marker::Ring),
+            }],
+            ..chart.clone()
+        };
+        let paths = write_charts(&stem, &[chart, log], 2, (300, 200)).expect("drawn");
         assert_eq!(paths.len(), 2);
         let png = std::fs::read(&paths[0]).expect("png");
         assert_eq!(&png[1..4], b"PNG");

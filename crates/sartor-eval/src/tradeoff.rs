@@ -11,11 +11,14 @@
 //! - the fit-only static try-on mode (no wrinkle GRU), per precision.
 //!
 //! Each point's error is the mean vertex error (mm) of `ours` on the experiment's held-out
-//! motions (on the nominal shape unless `--all-shapes`), exactly as `eval` computes it. Its cost
-//! is the median wall time of `GarmentAnimator::frame` on one thread over one held-out clip,
-//! measured sequentially after a warm-up. A point is on the Pareto front when no other point is
-//! both faster and more accurate. Writes `runs/<name>/tradeoff/tradeoff.json` and
-//! `pareto.{png,svg}`.
+//! motions (on the nominal shape unless `--all-shapes`), exactly as `eval` computes it, with the
+//! share of cloth vertex-frames inside the body before and after the post-process (eval's
+//! measure, the body's winding number: [`sartor_core::BodyDistance`]). Its cost is the median wall
+//! time of `GarmentAnimator::frame` on one thread over one held-out clip, measured sequentially
+//! after a warm-up, and the bytes of its weights. A point is in the Pareto set when no other
+//! point is at least as good in error, collisions and time and better in one. Writes
+//! `runs/<name>/tradeoff/tradeoff.json` and `pareto.{png,svg}` (log time axis, one marker shape
+//! per precision, the Pareto set ringed).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -27,7 +30,7 @@ use sartor_runtime::{
 use serde::Serialize;
 
 use crate::eval::{Assets, Method, TestSequence, evaluate_with};
-use crate::plot::{Chart, Series, write_charts};
+use crate::plot::{Chart, Marker, Series, write_charts};
 use crate::progress::NoProgress;
 use crate::report::Machine;
 use crate::timing::{median, time_frames};
@@ -64,11 +67,18 @@ pub struct TradeoffPoint {
     pub fit_only: bool,
     /// Mean vertex error on the test set, mm.
     pub mean_vertex_error_mm: f64,
-    /// Share of vertices inside the body, %.
+    /// Share of this point's cloth vertex-frames inside the body, %: `collision_percent_after_pp`
+    /// with the post-process, `collision_percent_before_pp` without.
     pub collision_percent: f64,
+    /// The same network's share before the post-process, %.
+    pub collision_percent_before_pp: f64,
+    /// The same network's share after the post-process, %.
+    pub collision_percent_after_pp: f64,
     /// Median ms per frame, one thread.
     pub ms_per_frame: f64,
-    /// No other point is both faster and more accurate.
+    /// The weights this point runs (fit MLP, and GRU and output unless fit-only), MB (10⁶ bytes).
+    pub model_mb: f64,
+    /// No other point is at least as good in error, collisions and time and better in one.
     pub pareto: bool,
 }
 
@@ -120,19 +130,19 @@ fn time_sequence(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> Re
     ))
 }
 
-/// Mark the points no other point dominates (faster or equal and strictly more accurate, or
-/// strictly faster and at least as accurate).
+/// Mark the points no other point dominates over (time, error, collisions): at least as good
+/// in all three and strictly better in one.
 pub fn mark_pareto(points: &mut [TradeoffPoint]) {
-    let key: Vec<(f64, f64)> = points
+    let key: Vec<[f64; 3]> = points
         .iter()
-        .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
+        .map(|p| [p.ms_per_frame, p.mean_vertex_error_mm, p.collision_percent])
         .collect();
     for (i, p) in points.iter_mut().enumerate() {
-        let (t, e) = key[i];
+        let a = key[i];
         p.pareto = !key
             .iter()
             .enumerate()
-            .any(|(j, &(tj, ej))| j != i && tj <= t && ej <= e && (tj < t || ej < e));
+            .any(|(j, b)| j != i && (0..3).all(|k| b[k] <= a[k]) && (0..3).any(|k| b[k] < a[k]));
     }
 }
 
@@ -196,6 +206,12 @@ pub fn sweep_model(
                         ..o
                     }
                 };
+                let bytes = network.fit_weight_bytes()
+                    + if fit_only {
+                        0
+                    } else {
+                        network.wrinkle_weight_bytes()
+                    };
                 // One evaluation gives the error with and without the post-process.
                 let report = evaluate_with(assets, &network, options(true), seqs, &quiet)?;
                 for pp in [true, false] {
@@ -220,7 +236,10 @@ pub fn sweep_model(
                         } else {
                             report.collision_percent_before_pp
                         },
+                        collision_percent_before_pp: report.collision_percent_before_pp,
+                        collision_percent_after_pp: report.collision_percent_after_pp,
                         ms_per_frame: ms,
+                        model_mb: bytes as f64 * 1e-6,
                         pareto: false,
                     });
                 }
@@ -232,52 +251,50 @@ pub fn sweep_model(
     Ok(points)
 }
 
-/// `pareto.{png,svg}` in `dir`: error against ms per frame, one series per precision and
-/// post-process setting.
+/// `pareto.{png,svg}` in `dir`: error against ms per frame on a log axis, one series per
+/// precision (its marker shape) and post-process setting, the Pareto set ringed.
 pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
-    let mut groups: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    let mut series: Vec<Series> = Vec::new();
     for p in points {
-        let name = format!(
-            "{}{}",
-            if p.fit_only {
-                "fit-only"
-            } else {
-                p.precision.as_str()
-            },
-            if p.post_process { " + pp" } else { "" }
-        );
+        let (kind, marker) = if p.fit_only {
+            ("fit-only", Marker::Square)
+        } else {
+            match p.precision.as_str() {
+                "f32" => ("f32", Marker::Circle),
+                "f16" => ("f16", Marker::Triangle),
+                _ => ("int8", Marker::Cross),
+            }
+        };
+        let name = format!("{kind}{}", if p.post_process { " + pp" } else { "" });
         let point = (p.ms_per_frame, p.mean_vertex_error_mm);
-        match groups.iter_mut().find(|(n, _)| *n == name) {
-            Some((_, v)) => v.push(point),
-            None => groups.push((name, vec![point])),
+        match series.iter_mut().find(|s| s.name == name) {
+            Some(s) => s.points.push(point),
+            None => series.push(Series {
+                name,
+                points: vec![point],
+                marker: Some(marker),
+            }),
         }
     }
-    let mut front: Vec<(f64, f64)> = points
-        .iter()
-        .filter(|p| p.pareto)
-        .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
-        .collect();
-    front.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut series: Vec<Series> = groups
-        .into_iter()
-        .map(|(name, points)| Series {
-            name,
-            points,
-            markers: true,
-        })
-        .collect();
     series.push(Series {
-        name: "Pareto front".into(),
-        points: front,
-        markers: false,
+        name: "Pareto set (error, collisions, time)".into(),
+        points: points
+            .iter()
+            .filter(|p| p.pareto)
+            .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
+            .collect(),
+        marker: Some(Marker::Ring),
     });
     write_charts(
         &dir.join("pareto"),
         &[Chart {
             title: "Error against cost per frame (one thread)".into(),
-            x_label: "ms per frame".into(),
+            x_label: "ms per frame (log)".into(),
             y_label: "mean vertex error (mm)".into(),
             series,
+            log_x: true,
+            // Errors sit well above zero: the bottom of the chart is empty.
+            legend_at_bottom: true,
         }],
         1,
         (900, 600),
@@ -301,7 +318,10 @@ mod tests {
             fit_only: false,
             mean_vertex_error_mm: err,
             collision_percent: 0.0,
+            collision_percent_before_pp: 0.0,
+            collision_percent_after_pp: 0.0,
             ms_per_frame: ms,
+            model_mb: 0.0,
             pareto: false,
         }
     }
@@ -319,5 +339,14 @@ mod tests {
         mark_pareto(&mut p);
         let flags: Vec<bool> = p.iter().map(|p| p.pareto).collect();
         assert_eq!(flags, [true, true, false, true, true, false]);
+        // Collisions are the third axis: a slower, less accurate point that leaves fewer
+        // vertices inside the body is in the set; one that is worse on all three is not.
+        let mut q = vec![point(1.0, 10.0), point(2.0, 11.0), point(3.0, 12.0)];
+        q[0].collision_percent = 5.0;
+        q[1].collision_percent = 0.1;
+        q[2].collision_percent = 0.1;
+        mark_pareto(&mut q);
+        let flags: Vec<bool> = q.iter().map(|p| p.pareto).collect();
+        assert_eq!(flags, [true, true, false]);
     }
 }

@@ -81,8 +81,10 @@ fn loss_charts(models: &BTreeMap<String, ModelReport>) -> Vec<Chart> {
             series: vec![Series {
                 name: "train".into(),
                 points: points(&|e| (e.train_loss > 0.0).then(|| e.train_loss.log10())),
-                markers: false,
+                marker: None,
             }],
+            log_x: false,
+            legend_at_bottom: false,
         });
         charts.push(Chart {
             title: format!("{name}: validation error"),
@@ -91,8 +93,10 @@ fn loss_charts(models: &BTreeMap<String, ModelReport>) -> Vec<Chart> {
             series: vec![Series {
                 name: format!("{:?}", r.validation).to_lowercase(),
                 points: points(&|e| e.val_error_mm),
-                markers: false,
+                marker: None,
             }],
+            log_x: false,
+            legend_at_bottom: false,
         });
     }
     charts
