@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use sartor_cli::Env;
 use sartor_pipeline::DataDir;
 
+mod arm_clearance;
 mod check_retarget;
 mod gt_collisions;
 mod import_body;
@@ -47,6 +48,9 @@ enum Command {
     /// The ground truth's signed distance to the posed body (the one collision measure) of a
     /// sim folder or a shipped model's slice: percentiles, the share below 0 and -1 mm.
     GtCollisions(gt_collisions::GtCollisionsArgs),
+    /// How deep the posed body's forearms and hands pass into the rest of it, per sequence of
+    /// an experiment, beside whether its simulation failed.
+    ArmClearance(arm_clearance::ArmClearanceArgs),
     /// Build the try-on page into web/dist (WebAssembly runtime, f16 model, body, clips);
     /// `--serve` serves it on 127.0.0.1.
     Web(web::WebArgs),
@@ -69,6 +73,7 @@ fn main() -> anyhow::Result<()> {
         Command::Ship(args) => ship::ship(&args, &env),
         Command::CheckModel(args) => ship::check_model(&args, &env),
         Command::GtCollisions(args) => gt_collisions::gt_collisions(&args, &env),
+        Command::ArmClearance(args) => arm_clearance::arm_clearance(&args, &env),
         Command::Web(args) => web::web(&args, &root),
         Command::Sartor(command) => sartor_cli::run(&command, &env),
     }

@@ -1,0 +1,242 @@
+//! `cargo xtask arm-clearance`: how deep the forearms and hands of the posed body pass into the
+//! rest of it, per (shape, motion) sequence of an experiment, beside whether that sequence's
+//! simulation failed. Retargeted motion capture made for a slimmer actor can swing the arms
+//! through a wider body's hips; cloth caught there has no position outside the body, and the
+//! simulator's frame check fails the sequence. This measures the body alone, without cloth.
+//!
+//! For every motion frame of every planned sequence (the config's `max_frames` applied, no
+//! blend or rest frames), the body is posed and every forearm or hand vertex (dominant skinning
+//! joint `*ForeArm`, `*Hand`, `*Finger*`, `*Thumb*`) is tested against the torso, where a
+//! T-shirt is (triangles of the spine, hips and shoulder roots, none touching an arm vertex),
+//! by [`BodyDistance`]: the winding number of that open surface says whether it is inside, the
+//! distance how deep.
+
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use rayon::prelude::*;
+use sartor_cli::{Env, ExperimentArgs, motion_options};
+use sartor_core::{BodyDistance, BodyModel};
+use sartor_dataset::{failed_stems, sequence_stem};
+use sartor_eval::write_json;
+use sartor_motion::{UpAxis, load_motion};
+use serde::Serialize;
+
+/// Arguments of `arm-clearance`.
+#[derive(clap::Args, Debug)]
+pub struct ArmClearanceArgs {
+    #[command(flatten)]
+    pub experiment: ExperimentArgs,
+    /// Depth that counts a frame as intersecting, mm.
+    #[arg(long, default_value_t = 5.0)]
+    pub depth_mm: f64,
+    /// Only the sequences that were simulated (done or failed).
+    #[arg(long)]
+    pub simulated_only: bool,
+    /// Output JSON.
+    #[arg(long, default_value = "arm-clearance.json")]
+    pub out: PathBuf,
+}
+
+/// One sequence of the report.
+#[derive(Serialize)]
+struct SequenceClearance {
+    stem: String,
+    /// Deepest forearm or hand vertex inside the torso, mm (0: none inside).
+    max_depth_mm: f64,
+    /// Motion frames with a vertex deeper than `--depth-mm`.
+    frames_intersecting: usize,
+    frames: usize,
+    /// The sequence's simulation: `failed` (`sim/failed/`), `done` or `not simulated`.
+    simulation: &'static str,
+}
+
+#[derive(Serialize)]
+struct Report {
+    config: String,
+    depth_mm: f64,
+    sequences: Vec<SequenceClearance>,
+    /// Per simulation outcome (`failed`, `done`, `not simulated`): sequences that intersect
+    /// in some frame, of all.
+    intersecting: Vec<(&'static str, usize, usize)>,
+}
+
+/// Whether a joint name is of the forearm or the hand.
+fn distal_arm(name: &str) -> bool {
+    ["ForeArm", "Hand", "Finger", "Thumb"]
+        .iter()
+        .any(|k| name.contains(k))
+}
+
+/// The forearm and hand vertices of a body and its torso's triangles.
+struct ArmProbe {
+    test: Vec<usize>,
+    torso_faces: Vec<[u32; 3]>,
+}
+
+impl ArmProbe {
+    fn new(body: &BodyModel) -> anyhow::Result<Self> {
+        let names = body.skeleton().names();
+        let dominant: Vec<&str> = (0..body.n_vertices())
+            .map(|v| {
+                let j = body
+                    .skin_weights()
+                    .point(v)
+                    .max_by(|a, b| a.1.total_cmp(&b.1))
+                    .map_or(0, |(j, _)| j);
+                names[j].as_str()
+            })
+            .collect();
+        let test: Vec<usize> = (0..body.n_vertices())
+            .filter(|&v| distal_arm(dominant[v]))
+            .collect();
+        // The torso, where a T-shirt is: triangles of the spine, the hips and the shoulders'
+        // roots, none touching an arm vertex.
+        let torso = |v: u32| {
+            let name = dominant[v as usize];
+            let trunk = ["Hips", "HipJoint", "LowerBack", "Spine", "Neck", "Shoulder"]
+                .iter()
+                .any(|k| name.contains(k));
+            trunk && !name.contains("Arm") && !distal_arm(name)
+        };
+        let torso_faces: Vec<[u32; 3]> = body
+            .faces()
+            .iter()
+            .filter(|f| f.iter().all(|&v| torso(v)))
+            .copied()
+            .collect();
+        anyhow::ensure!(
+            !test.is_empty() && !torso_faces.is_empty(),
+            "the body has no forearm and hand vertices or no torso"
+        );
+        Ok(Self { test, torso_faces })
+    }
+
+    /// Per pose, the depth of the deepest forearm or hand vertex inside the torso, m (0: none).
+    fn depths(
+        &self,
+        body: &BodyModel,
+        betas: &[f64],
+        poses: &[sartor_core::Pose],
+    ) -> anyhow::Result<Vec<f64>> {
+        let mut distance: Option<BodyDistance> = None;
+        let mut out = Vec::with_capacity(poses.len());
+        for pose in poses {
+            let posed = body.posed_vertices(betas, pose)?;
+            let d = match &mut distance {
+                Some(d) => {
+                    d.update_positions(&posed)?;
+                    d
+                }
+                None => distance.insert(BodyDistance::new(&posed, &self.torso_faces)?),
+            };
+            out.push(
+                self.test
+                    .iter()
+                    .map(|&v| -d.signed_distance_m(&posed[v]))
+                    .fold(0.0f64, f64::max),
+            );
+        }
+        Ok(out)
+    }
+}
+
+/// Run `arm-clearance`.
+pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
+    let e = args.experiment.load(env)?;
+    let body = BodyModel::load(&e.body)?;
+    let probe = ArmProbe::new(&body)?;
+    let options = motion_options(&env.data, UpAxis::Y)?;
+    let plan = e.plan();
+    let failed: BTreeSet<String> = failed_stems(&e.sim_dir()).unwrap_or_default();
+    let depth_m = args.depth_mm * 1e-3;
+    let simulated = |q: &&sartor_dataset::SequencePlan| {
+        let stem = sequence_stem(&plan.shapes[q.shape].id, &q.motion);
+        failed.contains(&stem) || e.sim_dir().join(format!("{stem}.mcap")).exists()
+    };
+    let sequences: Vec<SequenceClearance> = plan
+        .sequences
+        .par_iter()
+        .filter(|q| !args.simulated_only || simulated(q))
+        .map(|q| -> anyhow::Result<SequenceClearance> {
+            let shape = &plan.shapes[q.shape];
+            let stem = sequence_stem(&shape.id, &q.motion);
+            let motion = load_motion(&q.motion, &options)
+                .with_context(|| format!("motion {:?}", q.motion))?;
+            let n = e
+                .motions
+                .max_frames
+                .map_or(motion.frames().len(), |m| m.min(motion.frames().len()));
+            let depths = probe.depths(&body, &shape.betas, &motion.frames()[..n])?;
+            let max_depth = depths.iter().copied().fold(0.0f64, f64::max);
+            let intersecting = depths.iter().filter(|&&d| d > depth_m).count();
+            let simulation = if failed.contains(&stem) {
+                "failed"
+            } else if e.sim_dir().join(format!("{stem}.mcap")).exists() {
+                "done"
+            } else {
+                "not simulated"
+            };
+            Ok(SequenceClearance {
+                simulation,
+                stem,
+                max_depth_mm: max_depth * 1e3,
+                frames_intersecting: intersecting,
+                frames: n,
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let intersecting: Vec<(&'static str, usize, usize)> = ["failed", "done", "not simulated"]
+        .into_iter()
+        .map(|outcome| {
+            let of = sequences.iter().filter(|s| s.simulation == outcome);
+            let hit = of.clone().filter(|s| s.frames_intersecting > 0).count();
+            (outcome, hit, of.count())
+        })
+        .collect();
+    println!(
+        "sequences whose forearm or hand goes deeper than {} mm into the torso:",
+        args.depth_mm
+    );
+    for (outcome, hit, of) in &intersecting {
+        println!("  simulation {outcome}: {hit} of {of}");
+    }
+    let report = Report {
+        config: args.experiment.name(&env.data),
+        depth_mm: args.depth_mm,
+        intersecting,
+        sequences,
+    };
+    write_json(&args.out, &report)?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_walk_on_a_wide_body_sinks_the_hands_into_the_hips_and_the_rest_pose_does_not() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let data = sartor_core_data(&root);
+        let body = BodyModel::load(&data.body_dir()).expect("body");
+        let probe = ArmProbe::new(&body).expect("probe");
+        let betas = [0.0, 2.0];
+        let rest = sartor_core::Pose::rest(body.skeleton().n_joints());
+        let at_rest = probe.depths(&body, &betas, &[rest]).expect("depths");
+        assert!(at_rest[0] < 1e-3, "rest pose: {:.1} mm", at_rest[0] * 1e3);
+        // CMU 02_02 (a walk, a failing sequence of the CMU experiment on this shape): the
+        // swinging forearm goes centimetres into the hips.
+        let options = motion_options(&data, UpAxis::Y).expect("options");
+        let walk = load_motion("cmu/02_02@8+60", &options).expect("clip");
+        let depths = probe.depths(&body, &betas, walk.frames()).expect("depths");
+        let deepest = depths.iter().copied().fold(0.0, f64::max);
+        assert!(deepest > 0.02, "deepest {:.1} mm", deepest * 1e3);
+    }
+
+    fn sartor_core_data(root: &std::path::Path) -> sartor_pipeline::DataDir {
+        sartor_pipeline::DataDir::new(root).expect("the workspace is a data folder")
+    }
+}
