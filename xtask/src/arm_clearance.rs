@@ -17,7 +17,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use rayon::prelude::*;
 use sartor_cli::{Env, ExperimentArgs, motion_options};
-use sartor_core::{BodyDistance, BodyModel};
+use sartor_core::{BodyDistance, BodyModel, Parallelism, skin_points};
 use sartor_dataset::{failed_stems, sequence_stem};
 use sartor_eval::write_json;
 use sartor_motion::{UpAxis, load_motion};
@@ -120,10 +120,21 @@ impl ArmProbe {
         betas: &[f64],
         poses: &[sartor_core::Pose],
     ) -> anyhow::Result<Vec<f64>> {
+        // The shape once per sequence; per pose only the skinning, into one buffer.
+        let rest = body.shaped_vertices(betas)?;
+        let joints = body.shaped_joints(betas)?;
+        let mut posed = rest.clone();
         let mut distance: Option<BodyDistance> = None;
         let mut out = Vec::with_capacity(poses.len());
         for pose in poses {
-            let posed = body.posed_vertices(betas, pose)?;
+            let (_, transforms) = body.skeleton().forward_kinematics(&joints, pose)?;
+            skin_points(
+                &rest,
+                body.skin_weights(),
+                &transforms,
+                &mut posed,
+                Parallelism::Sequential,
+            )?;
             let d = match &mut distance {
                 Some(d) => {
                     d.update_positions(&posed)?;
