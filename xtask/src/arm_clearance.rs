@@ -17,10 +17,10 @@ use std::path::PathBuf;
 use anyhow::Context;
 use rayon::prelude::*;
 use sartor_cli::{Env, ExperimentArgs, motion_options};
-use sartor_core::{BodyDistance, BodyModel, Parallelism, skin_points};
+use sartor_core::BodyModel;
 use sartor_dataset::{failed_stems, sequence_stem};
 use sartor_eval::write_json;
-use sartor_motion::{UpAxis, load_motion};
+use sartor_motion::{ArmClearance, ClearanceOptions, UpAxis, load_motion};
 use serde::Serialize;
 
 /// Arguments of `arm-clearance`.
@@ -34,6 +34,10 @@ pub struct ArmClearanceArgs {
     /// Only the sequences that were simulated (done or failed).
     #[arg(long)]
     pub simulated_only: bool,
+    /// Measure the motion after [`ArmClearance::apply`] (default options), as the simulator
+    /// gets it, and report what it changed.
+    #[arg(long)]
+    pub corrected: bool,
     /// Output JSON.
     #[arg(long, default_value = "arm-clearance.json")]
     pub out: PathBuf,
@@ -48,6 +52,13 @@ struct SequenceClearance {
     /// Motion frames with a vertex deeper than `--depth-mm`.
     frames_intersecting: usize,
     frames: usize,
+    /// With `--corrected`: frames changed, largest shoulder rotation (degrees), time taken (s).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frames_changed: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max_angle_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    correct_secs: Option<f64>,
     /// The sequence's simulation: `failed` (`sim/failed/`), `done` or `not simulated`.
     simulation: &'static str,
 }
@@ -62,102 +73,11 @@ struct Report {
     intersecting: Vec<(&'static str, usize, usize)>,
 }
 
-/// Whether a joint name is of the forearm or the hand.
-fn distal_arm(name: &str) -> bool {
-    ["ForeArm", "Hand", "Finger", "Thumb"]
-        .iter()
-        .any(|k| name.contains(k))
-}
-
-/// The forearm and hand vertices of a body and its torso's triangles.
-struct ArmProbe {
-    test: Vec<usize>,
-    torso_faces: Vec<[u32; 3]>,
-}
-
-impl ArmProbe {
-    fn new(body: &BodyModel) -> anyhow::Result<Self> {
-        let names = body.skeleton().names();
-        let dominant: Vec<&str> = (0..body.n_vertices())
-            .map(|v| {
-                let j = body
-                    .skin_weights()
-                    .point(v)
-                    .max_by(|a, b| a.1.total_cmp(&b.1))
-                    .map_or(0, |(j, _)| j);
-                names[j].as_str()
-            })
-            .collect();
-        let test: Vec<usize> = (0..body.n_vertices())
-            .filter(|&v| distal_arm(dominant[v]))
-            .collect();
-        // The torso, where a T-shirt is: triangles of the spine, the hips and the shoulders'
-        // roots, none touching an arm vertex.
-        let torso = |v: u32| {
-            let name = dominant[v as usize];
-            let trunk = ["Hips", "HipJoint", "LowerBack", "Spine", "Neck", "Shoulder"]
-                .iter()
-                .any(|k| name.contains(k));
-            trunk && !name.contains("Arm") && !distal_arm(name)
-        };
-        let torso_faces: Vec<[u32; 3]> = body
-            .faces()
-            .iter()
-            .filter(|f| f.iter().all(|&v| torso(v)))
-            .copied()
-            .collect();
-        anyhow::ensure!(
-            !test.is_empty() && !torso_faces.is_empty(),
-            "the body has no forearm and hand vertices or no torso"
-        );
-        Ok(Self { test, torso_faces })
-    }
-
-    /// Per pose, the depth of the deepest forearm or hand vertex inside the torso, m (0: none).
-    fn depths(
-        &self,
-        body: &BodyModel,
-        betas: &[f64],
-        poses: &[sartor_core::Pose],
-    ) -> anyhow::Result<Vec<f64>> {
-        // The shape once per sequence; per pose only the skinning, into one buffer.
-        let rest = body.shaped_vertices(betas)?;
-        let joints = body.shaped_joints(betas)?;
-        let mut posed = rest.clone();
-        let mut distance: Option<BodyDistance> = None;
-        let mut out = Vec::with_capacity(poses.len());
-        for pose in poses {
-            let (_, transforms) = body.skeleton().forward_kinematics(&joints, pose)?;
-            skin_points(
-                &rest,
-                body.skin_weights(),
-                &transforms,
-                &mut posed,
-                Parallelism::Sequential,
-            )?;
-            let d = match &mut distance {
-                Some(d) => {
-                    d.update_positions(&posed)?;
-                    d
-                }
-                None => distance.insert(BodyDistance::new(&posed, &self.torso_faces)?),
-            };
-            out.push(
-                self.test
-                    .iter()
-                    .map(|&v| -d.signed_distance_m(&posed[v]))
-                    .fold(0.0f64, f64::max),
-            );
-        }
-        Ok(out)
-    }
-}
-
 /// Run `arm-clearance`.
 pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
     let e = args.experiment.load(env)?;
     let body = BodyModel::load(&e.body)?;
-    let probe = ArmProbe::new(&body)?;
+    let probe = ArmClearance::new(&body)?;
     let options = motion_options(&env.data, UpAxis::Y)?;
     let plan = e.plan();
     let failed: BTreeSet<String> = failed_stems(&e.sim_dir()).unwrap_or_default();
@@ -179,7 +99,17 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
                 .motions
                 .max_frames
                 .map_or(motion.frames().len(), |m| m.min(motion.frames().len()));
-            let depths = probe.depths(&body, &shape.betas, &motion.frames()[..n])?;
+            let poses = &motion.frames()[..n];
+            let (depths, correction) = if args.corrected {
+                let started = std::time::Instant::now();
+                let (poses, r) =
+                    probe.apply(&body, &shape.betas, poses, &ClearanceOptions::default())?;
+                let secs = started.elapsed().as_secs_f64();
+                let depths = probe.depths(&body, &shape.betas, &poses)?;
+                (depths, Some((r, secs)))
+            } else {
+                (probe.depths(&body, &shape.betas, poses)?, None)
+            };
             let max_depth = depths.iter().copied().fold(0.0f64, f64::max);
             let intersecting = depths.iter().filter(|&&d| d > depth_m).count();
             let simulation = if failed.contains(&stem) {
@@ -195,6 +125,9 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
                 max_depth_mm: max_depth * 1e3,
                 frames_intersecting: intersecting,
                 frames: n,
+                frames_changed: correction.as_ref().map(|c| c.0.frames_changed),
+                max_angle_deg: correction.as_ref().map(|c| c.0.max_angle_rad.to_degrees()),
+                correct_secs: correction.as_ref().map(|c| c.1),
             })
         })
         .collect::<anyhow::Result<_>>()?;
@@ -233,7 +166,7 @@ mod tests {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let data = sartor_core_data(&root);
         let body = BodyModel::load(&data.body_dir()).expect("body");
-        let probe = ArmProbe::new(&body).expect("probe");
+        let probe = ArmClearance::new(&body).expect("probe");
         let betas = [0.0, 2.0];
         let rest = sartor_core::Pose::rest(body.skeleton().n_joints());
         let at_rest = probe.depths(&body, &betas, &[rest]).expect("depths");

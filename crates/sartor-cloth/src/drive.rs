@@ -57,7 +57,7 @@ use sartor_core::{
     BodyDistance, BodyModel, BoneTransform, MeshProximity, Parallelism, Pose, SurfaceAnchors,
     faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
 };
-use sartor_motion::Motion;
+use sartor_motion::{ArmClearance, ClearanceOptions, Motion};
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;
@@ -169,6 +169,14 @@ pub struct DriveConfig {
     pub preview: PreviewConfig,
     /// The simulator (defaults: ARCSim's body scenes).
     pub sim: SimConfig,
+    /// Keep the forearms and hands out of the torso of the simulated shape
+    /// ([`ArmClearance`]): the motion's poses are corrected before the simulation and the
+    /// sequence holds the corrected ones. Default `None` (the motion as given; a sequence
+    /// written without this field reads as `None`, its hash unchanged). Retargeted motion
+    /// capture needs it: a forearm through the hips leaves cloth caught there no position
+    /// outside the body.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub arm_clearance: Option<ClearanceOptions>,
 }
 
 impl Default for DriveConfig {
@@ -182,6 +190,7 @@ impl Default for DriveConfig {
             retry: RetryConfig::default(),
             preview: PreviewConfig::default(),
             sim: SimConfig::default(),
+            arm_clearance: None,
         }
     }
 }
@@ -194,6 +203,9 @@ impl DriveConfig {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::invalid("drive config", m));
         self.sim.validate()?;
+        if let Some(c) = &self.arm_clearance {
+            c.validate()?;
+        }
         if self.substeps_per_frame == 0 {
             return bad("substeps_per_frame must be at least 1".into());
         }
@@ -816,6 +828,7 @@ fn prepare_inputs(
     body: &BodyModel,
     betas: &[f64],
     motion: Option<&Motion>,
+    clearance: Option<&ClearanceOptions>,
 ) -> Result<(Vec<f64>, Option<Motion>)> {
     body.check_betas(betas)?;
     let mut padded = betas.to_vec();
@@ -838,6 +851,19 @@ fn prepare_inputs(
         motion.resample(sartor_core::FPS)?
     } else {
         motion.clone()
+    };
+    let motion = match clearance {
+        Some(options) => {
+            let (frames, _) =
+                ArmClearance::new(body)?.apply(body, &padded, motion.frames(), options)?;
+            Motion::new(
+                motion.name().to_string(),
+                motion.fps(),
+                motion.joint_names().to_vec(),
+                frames,
+            )?
+        }
+        None => motion,
     };
     Ok((padded, Some(motion)))
 }
@@ -872,7 +898,7 @@ pub fn simulate_sequence(
 ) -> Result<ClothSequence> {
     let started = Instant::now();
     config.validate()?;
-    let (betas, prepared) = prepare_inputs(body, betas, motion)?;
+    let (betas, prepared) = prepare_inputs(body, betas, motion, config.arm_clearance.as_ref())?;
     let betas = betas.as_slice();
     let motion_id = match motion {
         Some(m) => Some(MotionId {
@@ -944,7 +970,7 @@ pub fn contact_region(
     config: &DriveConfig,
 ) -> Result<Vec<u32>> {
     config.validate()?;
-    let (betas, prepared) = prepare_inputs(body, betas, motion)?;
+    let (betas, prepared) = prepare_inputs(body, betas, motion, config.arm_clearance.as_ref())?;
     let (start, keys) = schedule(
         body.skeleton().n_joints(),
         &betas,
@@ -1137,6 +1163,29 @@ mod tests {
             bad.validate().is_err(),
             "tolerance below the projection threshold"
         );
+    }
+
+    #[test]
+    fn arm_clearance_is_off_unless_asked_and_old_configs_keep_their_hash() {
+        // A sequence written before the option existed holds a config without it: it must
+        // read back as `None` with the hash it was written with.
+        let c = DriveConfig::default();
+        let json = serde_json::to_string(&c).expect("json");
+        assert!(!json.contains("arm_clearance"), "{json}");
+        let on: DriveConfig =
+            serde_json::from_str(&json.replace(r#""preview""#, r#""arm_clearance":{},"preview""#))
+                .expect("parse");
+        assert_eq!(on.arm_clearance, Some(ClearanceOptions::default()));
+        assert_ne!(on.sha256().expect("hash"), c.sha256().expect("hash"));
+        let bad = DriveConfig {
+            arm_clearance: Some(ClearanceOptions {
+                clearance_m: -0.01,
+                ..ClearanceOptions::default()
+            }),
+            ..DriveConfig::default()
+        };
+        let e = bad.validate().expect_err("negative clearance");
+        assert!(e.to_string().contains("clearance"), "{e}");
     }
 
     #[test]

@@ -16,6 +16,11 @@ fn motions_dir() -> PathBuf {
     workspace_root().join("datasets/motions")
 }
 
+/// The stored library with the built-in body.
+pub(crate) fn library_options() -> MotionSourceOptions {
+    options(motions_dir())
+}
+
 fn options(motions_dir: PathBuf) -> MotionSourceOptions {
     MotionSourceOptions {
         motions_dir,

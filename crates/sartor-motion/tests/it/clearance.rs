@@ -1,0 +1,115 @@
+//! Arm clearance on real motion capture: a CMU walk retargeted onto a wide body swings the
+//! forearms through the hips; [`ArmClearance::apply`] takes them out and changes nothing else.
+
+use sartor_core::{BodyModel, Pose};
+use sartor_motion::{ArmClearance, ClearanceOptions, load_motion};
+
+use crate::motion_library::library_options;
+use crate::motion_sources::builtin_model_dir;
+
+#[test]
+fn a_walk_on_a_wide_body_keeps_its_hands_out_of_the_hips_and_the_rest_as_it_was() {
+    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
+    let clearance = ArmClearance::new(&body).expect("arms and torso");
+    let betas = [0.0, 2.0];
+    // A sequence of the CMU experiment that failed to simulate on this shape.
+    let walk = load_motion("cmu/02_02@8+60", &library_options()).expect("clip");
+    let before = clearance
+        .depths(&body, &betas, walk.frames())
+        .expect("depths");
+    let deepest = before.iter().copied().fold(0.0, f64::max);
+    assert!(deepest > 0.02, "deepest {:.1} mm", deepest * 1e3);
+
+    let options = ClearanceOptions::default();
+    let (poses, report) = clearance
+        .apply(&body, &betas, walk.frames(), &options)
+        .expect("apply");
+    assert_eq!(poses.len(), walk.frames().len());
+    assert!((report.max_depth_before_m - deepest).abs() < 1e-9);
+    let after = clearance.depths(&body, &betas, &poses).expect("depths");
+    let deepest_after = after.iter().copied().fold(0.0, f64::max);
+    assert!(
+        deepest_after < 1e-3,
+        "still {:.1} mm inside",
+        deepest_after * 1e3
+    );
+    assert_eq!(report.max_depth_after_m, deepest_after);
+    assert!(report.max_angle_rad > 0.0 && report.max_angle_rad <= options.max_angle_rad);
+
+    // Only the upper arms turn, and only near frames that needed it.
+    let names = body.skeleton().names();
+    let mut changed = 0;
+    for (t, (got, was)) in poses.iter().zip(walk.frames()).enumerate() {
+        assert_eq!(got.root_translation_m, was.root_translation_m);
+        assert_eq!(got.root_orientation, was.root_orientation);
+        let mut moved = false;
+        for (j, (a, b)) in got
+            .local_rotations
+            .iter()
+            .zip(&was.local_rotations)
+            .enumerate()
+        {
+            if a != b {
+                assert!(
+                    names[j] == "LeftArm" || names[j] == "RightArm",
+                    "frame {t}: {} changed",
+                    names[j]
+                );
+                moved = true;
+            }
+        }
+        if moved {
+            changed += 1;
+            let near = (t.saturating_sub(options.ramp_frames)
+                ..(t + options.ramp_frames + 1).min(before.len()))
+                .any(|s| before[s] > 0.0);
+            assert!(near, "frame {t} changed, nothing within reach needed it");
+        }
+        if before[t] > 0.0 {
+            assert!(moved, "frame {t} was {:.1} mm inside", before[t] * 1e3);
+        }
+    }
+    assert_eq!(changed, report.frames_changed);
+
+    // The easing: neighbouring frames' upper arms differ by a bounded angle (no jump).
+    let arm = body.skeleton().index_of("LeftArm").expect("LeftArm");
+    for pair in poses.windows(2).zip(walk.frames().windows(2)) {
+        let turned = |p: &Pose, q: &Pose| p.local_rotations[arm].angle_to(&q.local_rotations[arm]);
+        let step = turned(&pair.0[1], &pair.0[0]);
+        let was = turned(&pair.1[1], &pair.1[0]);
+        assert!(
+            step <= was + report.max_angle_rad / options.ramp_frames as f64 * 2.0 + 1e-9,
+            "the upper arm jumps {:.1}° in a frame (the motion's own {:.1}°)",
+            step.to_degrees(),
+            was.to_degrees()
+        );
+    }
+}
+
+#[test]
+fn the_rest_pose_needs_nothing_and_bad_options_are_refused() {
+    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
+    let clearance = ArmClearance::new(&body).expect("arms and torso");
+    let rest = vec![Pose::rest(body.skeleton().n_joints()); 3];
+    let (poses, report) = clearance
+        .apply(&body, &[1.0, 1.0], &rest, &ClearanceOptions::default())
+        .expect("apply");
+    assert_eq!(poses, rest);
+    assert_eq!(report.frames_changed, 0);
+    assert_eq!(report.max_depth_before_m, 0.0);
+    for bad in [
+        ClearanceOptions {
+            clearance_m: f64::NAN,
+            ..ClearanceOptions::default()
+        },
+        ClearanceOptions {
+            max_angle_rad: 0.0,
+            ..ClearanceOptions::default()
+        },
+    ] {
+        let e = clearance
+            .apply(&body, &[0.0], &rest, &bad)
+            .expect_err("refused");
+        assert!(e.to_string().contains("arm clearance"), "{e}");
+    }
+}
