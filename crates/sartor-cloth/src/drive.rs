@@ -54,7 +54,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
-    BodyDistance, BodyModel, BoneTransform, MeshProximity, Parallelism, Pose, SurfaceAnchors,
+    BodyDistance, BodyModel, BodyPoser, MeshProximity, Parallelism, Pose, SurfaceAnchors,
     faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
 };
 use sartor_motion::{ArmClearance, ClearanceOptions, Motion};
@@ -316,68 +316,6 @@ fn schedule(
         });
     }
     (start, keys)
-}
-
-/// Poses the body into caller buffers, re-shaping only when β changes.
-pub(crate) struct BodyPoser<'a> {
-    body: &'a BodyModel,
-    betas: Option<Vec<f64>>,
-    shaped: Vec<Vector3<f64>>,
-    joints: Vec<Vector3<f64>>,
-    posed_joints: Vec<Vector3<f64>>,
-    transforms: Vec<BoneTransform<f64>>,
-}
-
-impl<'a> BodyPoser<'a> {
-    pub(crate) fn new(body: &'a BodyModel) -> Self {
-        let j = body.skeleton().n_joints();
-        Self {
-            body,
-            betas: None,
-            shaped: vec![Vector3::zeros(); body.n_vertices()],
-            joints: vec![Vector3::zeros(); j],
-            posed_joints: vec![Vector3::zeros(); j],
-            transforms: vec![BoneTransform::identity(); j],
-        }
-    }
-
-    /// `M_b(β, θ)` into `out`; afterwards [`BodyPoser::transforms`] are this pose's.
-    pub(crate) fn pose_into(
-        &mut self,
-        betas: &[f64],
-        pose: &Pose,
-        out: &mut [Vector3<f64>],
-    ) -> Result<()> {
-        if self.betas.as_deref() != Some(betas) {
-            self.body.shaped_vertices_into(betas, &mut self.shaped)?;
-            self.joints = self.body.shaped_joints(betas)?;
-            self.betas = Some(betas.to_vec());
-        }
-        self.body.skeleton().forward_kinematics_into(
-            &self.joints,
-            pose,
-            &mut self.posed_joints,
-            &mut self.transforms,
-        )?;
-        skin_points(
-            &self.shaped,
-            self.body.skin_weights(),
-            &self.transforms,
-            out,
-            Parallelism::Sequential,
-        )?;
-        Ok(())
-    }
-
-    /// The shaped rest body `T_b(β)` of the last [`BodyPoser::pose_into`].
-    fn shaped(&self) -> &[Vector3<f64>] {
-        &self.shaped
-    }
-
-    /// The skinning transforms of the last [`BodyPoser::pose_into`].
-    fn transforms(&self) -> &[BoneTransform<f64>] {
-        &self.transforms
-    }
 }
 
 /// The body region: which body triangles take part in contact.
@@ -1010,7 +948,9 @@ fn run(
     let mut poser = BodyPoser::new(body);
     let mut prev = vec![Vector3::zeros(); body.n_vertices()];
     let zeros = vec![0.0; body.n_betas()];
-    poser.pose_into(&zeros, start, &mut prev).map_err(hard)?;
+    poser
+        .pose_into(&zeros, start, &mut prev)
+        .map_err(|e| hard(e.into()))?;
     // The template moved rigidly with the start state (identity for a motion starting at the
     // origin): every joint has the root's transform in a rest pose.
     let rigid = poser.transforms()[0];
@@ -1039,7 +979,7 @@ fn run(
     for (i, key) in keys.iter().enumerate() {
         poser
             .pose_into(&key.betas, &key.pose, &mut next)
-            .map_err(hard)?;
+            .map_err(|e| hard(e.into()))?;
         let (substeps, _) = stepper
             .advance(&prev, &next)
             .map_err(|(e, attempts)| (e, i, attempts))?;

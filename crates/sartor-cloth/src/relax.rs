@@ -2,10 +2,10 @@
 //! garment *at rest* on the body (β = 0, rest pose), not the shape it was cut in.
 
 use nalgebra::Vector3;
-use sartor_core::{BodyModel, MeshProximity, Pose};
+use sartor_core::{BodyModel, BodyPoser, MeshProximity, Pose};
 use serde::{Deserialize, Serialize};
 
-use crate::drive::{BodyPoser, DriveConfig, FrameError, FrameStepper, Region};
+use crate::drive::{DriveConfig, FrameError, FrameStepper, Region};
 use crate::garment::{Garment, self_intersections};
 use crate::material::Material;
 use crate::{Error, Result};

@@ -404,3 +404,76 @@ impl BodyModel {
         .map_err(in_file)
     }
 }
+
+/// Poses the body into caller buffers, re-shaping only when β changes.
+pub struct BodyPoser<'a> {
+    body: &'a BodyModel,
+    betas: Option<Vec<f64>>,
+    shaped: Vec<Vector3<f64>>,
+    joints: Vec<Vector3<f64>>,
+    posed_joints: Vec<Vector3<f64>>,
+    transforms: Vec<BoneTransform<f64>>,
+}
+
+impl<'a> BodyPoser<'a> {
+    /// A poser of `body`; nothing is shaped until the first pose.
+    pub fn new(body: &'a BodyModel) -> Self {
+        let j = body.skeleton().n_joints();
+        Self {
+            body,
+            betas: None,
+            shaped: vec![Vector3::zeros(); body.n_vertices()],
+            joints: vec![Vector3::zeros(); j],
+            posed_joints: vec![Vector3::zeros(); j],
+            transforms: vec![BoneTransform::identity(); j],
+        }
+    }
+
+    /// `M_b(β, θ)` into `out`; afterwards [`BodyPoser::transforms`] are this pose's.
+    pub fn pose_into(
+        &mut self,
+        betas: &[f64],
+        pose: &Pose,
+        out: &mut [Vector3<f64>],
+    ) -> Result<()> {
+        if self.betas.as_deref() != Some(betas) {
+            self.body.shaped_vertices_into(betas, &mut self.shaped)?;
+            self.joints = self.body.shaped_joints(betas)?;
+            self.betas = Some(betas.to_vec());
+        }
+        self.body.skeleton().forward_kinematics_into(
+            &self.joints,
+            pose,
+            &mut self.posed_joints,
+            &mut self.transforms,
+        )?;
+        skin_points(
+            &self.shaped,
+            self.body.skin_weights(),
+            &self.transforms,
+            out,
+            Parallelism::Sequential,
+        )?;
+        Ok(())
+    }
+
+    /// The body it poses.
+    pub fn body(&self) -> &'a BodyModel {
+        self.body
+    }
+
+    /// The shaped rest body `T_b(β)` of the last [`BodyPoser::pose_into`].
+    pub fn shaped(&self) -> &[Vector3<f64>] {
+        &self.shaped
+    }
+
+    /// The posed joint positions of the last [`BodyPoser::pose_into`].
+    pub fn posed_joints(&self) -> &[Vector3<f64>] {
+        &self.posed_joints
+    }
+
+    /// The skinning transforms of the last [`BodyPoser::pose_into`].
+    pub fn transforms(&self) -> &[BoneTransform<f64>] {
+        &self.transforms
+    }
+}

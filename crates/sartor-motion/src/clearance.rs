@@ -16,9 +16,7 @@
 //! winding number of that open surface ([`BodyDistance`]).
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
-use sartor_core::{
-    BodyDistance, BodyModel, BoneTransform, Error, Parallelism, Pose, Result, skin_points,
-};
+use sartor_core::{BodyDistance, BodyModel, BodyPoser, Error, Pose, Result};
 use serde::{Deserialize, Serialize};
 
 /// Options of [`ArmClearance::apply`].
@@ -113,47 +111,28 @@ fn upper_arm(name: &str) -> bool {
     name.ends_with("Arm") && !name.ends_with("ForeArm")
 }
 
-/// A body posed once per frame: its shaped rest state and buffers.
+/// A body of one shape posed once per frame, with the torso's distance field.
 struct Posing<'a> {
-    body: &'a BodyModel,
-    rest: Vec<Vector3<f64>>,
-    joints: Vec<Vector3<f64>>,
-    posed_joints: Vec<Vector3<f64>>,
-    transforms: Vec<BoneTransform<f64>>,
+    poser: BodyPoser<'a>,
+    betas: Vec<f64>,
     posed: Vec<Vector3<f64>>,
     distance: Option<BodyDistance>,
 }
 
 impl<'a> Posing<'a> {
     fn new(body: &'a BodyModel, betas: &[f64]) -> Result<Self> {
-        let rest = body.shaped_vertices(betas)?;
-        let n = body.skeleton().n_joints();
+        body.check_betas(betas)?;
         Ok(Self {
-            body,
-            posed: rest.clone(),
-            rest,
-            joints: body.shaped_joints(betas)?,
-            posed_joints: vec![Vector3::zeros(); n],
-            transforms: vec![BoneTransform::identity(); n],
+            poser: BodyPoser::new(body),
+            betas: betas.to_vec(),
+            posed: vec![Vector3::zeros(); body.n_vertices()],
             distance: None,
         })
     }
 
     /// Pose the body and the torso's distance field.
     fn pose(&mut self, pose: &Pose, torso_faces: &[[u32; 3]]) -> Result<()> {
-        self.body.skeleton().forward_kinematics_into(
-            &self.joints,
-            pose,
-            &mut self.posed_joints,
-            &mut self.transforms,
-        )?;
-        skin_points(
-            &self.rest,
-            self.body.skin_weights(),
-            &self.transforms,
-            &mut self.posed,
-            Parallelism::Sequential,
-        )?;
+        self.poser.pose_into(&self.betas, pose, &mut self.posed)?;
         match &mut self.distance {
             Some(d) => d.update_positions(&self.posed)?,
             None => self.distance = Some(BodyDistance::new(&self.posed, torso_faces)?),
@@ -334,7 +313,7 @@ impl ArmClearance {
         options: &ClearanceOptions,
     ) -> Result<(Option<Vector3<f64>>, f64)> {
         let j = arm.shoulder;
-        let parent = posing.body.skeleton().parents()[j];
+        let parent = posing.poser.body().skeleton().parents()[j];
         let mut trial = pose.clone();
         let mut world = UnitQuaternion::identity();
         let mut local = UnitQuaternion::identity();
@@ -348,7 +327,7 @@ impl ArmClearance {
             if short <= 5e-4 {
                 break;
             }
-            let lever = posing.posed[v] - posing.posed_joints[j];
+            let lever = posing.posed[v] - posing.poser.posed_joints()[j];
             let axis = lever.cross(&out);
             let reach = axis.norm();
             if reach < 1e-3 {
@@ -384,7 +363,7 @@ impl ArmClearance {
 fn parent_rotation(posing: &Posing<'_>, pose: &Pose, parent: Option<usize>) -> UnitQuaternion<f64> {
     parent.map_or(pose.root_orientation, |p| {
         UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
-            posing.transforms[p].linear,
+            posing.poser.transforms()[p].linear,
         ))
     })
 }

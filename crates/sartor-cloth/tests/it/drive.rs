@@ -354,3 +354,72 @@ fn a_cloth_from_a_garment_keeps_its_rest_metric() {
         assert!((ma - mb).abs() < 1e-6 * mb);
     }
 }
+
+/// A few frames with the left arm swung down and into the torso: of the two directions about
+/// the forward axis, the one that takes the forearm through the belly.
+fn arm_through_torso() -> Motion {
+    use nalgebra::UnitQuaternion;
+    use sartor_core::Pose;
+    let skeleton = body().skeleton();
+    let arm = skeleton.index_of("LeftArm").expect("LeftArm");
+    let clearance = sartor_motion::ArmClearance::new(body()).expect("arms and torso");
+    let frames = |angle: f64| -> Vec<Pose> {
+        (0..4)
+            .map(|k| {
+                let mut p = Pose::rest(skeleton.n_joints());
+                p.local_rotations[arm] = UnitQuaternion::from_scaled_axis(
+                    Vector3::z() * angle * (0.9 + 0.05 * k as f64),
+                );
+                p
+            })
+            .collect()
+    };
+    let through = [1.4, -1.4]
+        .into_iter()
+        .map(frames)
+        .find(|f| {
+            let depths = clearance.depths(body(), &[0.0], f).expect("depths");
+            depths.iter().all(|&d| d > 0.02)
+        })
+        .expect("one direction takes the forearm 2 cm into the torso");
+    Motion::new(
+        "arm-through-torso".into(),
+        sartor_core::FPS,
+        skeleton.names().to_vec(),
+        through,
+    )
+    .expect("motion")
+}
+
+#[test]
+fn arm_clearance_simulates_the_corrected_poses_and_stores_them() {
+    let motion = arm_through_torso();
+    let arm = body().skeleton().index_of("LeftArm").expect("LeftArm");
+    let clearance = sartor_motion::ArmClearance::new(body()).expect("arms and torso");
+    let mut config = quick_config();
+    config.arm_clearance = Some(sartor_motion::ClearanceOptions::default());
+    let seq = simulate(&betas(0.0), Some(&motion), &config).expect("simulates");
+    let stored: Vec<_> = seq
+        .frames
+        .iter()
+        .filter(|f| f.phase == Phase::Motion)
+        .map(|f| f.pose.clone())
+        .collect();
+    assert_eq!(stored.len(), motion.n_frames());
+    for (got, was) in stored.iter().zip(motion.frames()) {
+        assert!(got.local_rotations[arm].angle_to(&was.local_rotations[arm]) > 0.05);
+        for j in (0..got.local_rotations.len()).filter(|&j| j != arm) {
+            assert_eq!(got.local_rotations[j], was.local_rotations[j]);
+        }
+    }
+    let depths = clearance
+        .depths(body(), &betas(0.0), &stored)
+        .expect("depths");
+    assert!(depths.iter().all(|&d| d == 0.0), "{depths:?}");
+    // The header keeps the motion's own identity and the option.
+    assert_eq!(
+        seq.header.motion.as_ref().map(|m| m.name.as_str()),
+        Some("arm-through-torso")
+    );
+    assert!(seq.header.drive_config.arm_clearance.is_some());
+}
