@@ -701,7 +701,7 @@ mod tests {
 
     #[test]
     fn committed_configs_are_valid_and_their_plans_do_not_leak() {
-        for name in ["tiny", "default", "cmu", "paper"] {
+        for name in ["tiny", "default", "procedural", "paper"] {
             let e = config(name);
             let plan = e.plan();
             plan.validate(10).expect("a valid plan");
@@ -722,7 +722,7 @@ mod tests {
         // The experiments on real motion: at least four test clips that no other split sees
         // any frame of, a validation split, and training shapes that vary all ten β.
         let clip = |m: &String| m.split('@').next().unwrap_or(m).to_string();
-        for name in ["cmu", "paper"] {
+        for name in ["default", "paper"] {
             let e = config(name);
             let test: BTreeSet<String> = e.motions.held_out.iter().map(clip).collect();
             assert!(test.len() >= 4, "{name}: {test:?}");
@@ -735,7 +735,7 @@ mod tests {
                 assert!(!test.contains(&clip(m)), "{name}: {m} is a test clip");
             }
         }
-        let e = config("cmu");
+        let e = config("default");
         for k in 0..10 {
             assert!(
                 e.shapes

@@ -461,7 +461,7 @@ mod tests {
     fn every_shape_gets_a_rest_job_and_file_names_are_unique() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
         let data = DataDir::new(&root).expect("data folder");
-        for name in ["default", "cmu"] {
+        for name in ["default", "procedural"] {
             let path = root.join(format!("configs/{name}.json"));
             let e = Experiment::load(&path, &data, Path::new("runs")).expect("valid");
             let all = jobs(&e);
