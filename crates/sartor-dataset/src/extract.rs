@@ -263,3 +263,48 @@ pub fn select_joints(body: &BodyModel, weights: &SkinWeights, min_weight: f32) -
         .map(|(n, _)| n.clone())
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Rotation3, Vector3};
+    use sartor_core::{BoneTransform, Parallelism, SkinWeights, unskin_points};
+
+    use super::*;
+
+    fn turned(angle: f64) -> BoneTransform<f64> {
+        BoneTransform {
+            linear: Rotation3::from_axis_angle(&Vector3::x_axis(), angle).into_inner(),
+            translation: Vector3::new(0.1, 0.0, 0.0),
+        }
+    }
+
+    #[test]
+    fn damped_unskinning_is_exact_where_well_conditioned_and_bounded_where_not() {
+        // Point 0 on one joint; point 1 split evenly between two joints 179.8° apart.
+        let weights = SkinWeights::new(vec![0, 1, 3], vec![0, 0, 1], vec![1.0, 0.5, 0.5], 2)
+            .expect("weights");
+        let transforms = [turned(0.0), turned(std::f64::consts::PI - 0.004)];
+        let posed = [Vector3::new(0.2, 0.3, -0.1), Vector3::new(0.15, 0.02, 0.01)];
+        let mut exact = [Vector3::zeros(); 2];
+        unskin_points(
+            &posed,
+            &weights,
+            &transforms,
+            &mut exact,
+            Parallelism::Sequential,
+        )
+        .expect("exact");
+        let mut damped = [Vector3::zeros(); 2];
+        unskin_points_damped(&posed, &weights, &transforms, &mut damped).expect("damped");
+        assert_eq!(damped[0], exact[0], "well conditioned: bit for bit");
+        // The exact inverse of the near-singular blend goes far; the damped one stays within
+        // |x − t| / s₀ and still maps back close to the posed point.
+        let offset = (posed[1] - weights.blend(1, &transforms).translation).norm();
+        assert!(exact[1].norm() > 5.0, "{}", exact[1].norm());
+        assert!(damped[1].norm() <= offset / UNSKIN_MIN_SINGULAR + 1e-12);
+        let back = weights.blend(1, &transforms).apply(&damped[1]);
+        assert!((back - posed[1]).norm() < offset, "{:?}", back - posed[1]);
+        // Sizes are checked.
+        assert!(unskin_points_damped(&posed[..1], &weights, &transforms, &mut damped).is_err());
+    }
+}

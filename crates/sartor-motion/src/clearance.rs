@@ -432,7 +432,7 @@ mod tests {
         // The average keeps most of the peak (the tent's mean over ±2 frames: 0.4 · 0.76).
         assert!((z[7] - 0.4 * 0.76).abs() < 1e-12, "{z:?}");
         assert!(
-            ease(&vec![Vector3::zeros(); 5], 4)
+            ease(&[Vector3::zeros(); 5], 4)
                 .iter()
                 .all(|r| *r == Vector3::zeros())
         );
