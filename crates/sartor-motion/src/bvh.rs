@@ -49,7 +49,7 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use sartor_core::io::read_file;
 
-use crate::bvh_tpose::{TposeFrame, detect_tpose_frame};
+use crate::bvh_tpose::{TposeFrame, detect_tpose_frame, first_performance_frame};
 use crate::rest_pose::SourceRest;
 use crate::retarget::{RetargetBody, hip_height};
 use crate::{Error, Motion, Result};
@@ -808,7 +808,8 @@ pub fn retarget_bvh_native_rate(
     let tpose_frame = detect_tpose_frame(bvh);
     let tpose_frame_dropped =
         !options.keep_tpose_frame && tpose_frame.as_ref().is_some_and(|t| t.is_added_tpose);
-    let start = usize::from(tpose_frame_dropped);
+    // After the T-pose, blank frames (every channel 0) go too.
+    let start = first_performance_frame(bvh, !options.keep_tpose_frame);
     let first = bvh.root_position(start);
     let mut frames = Vec::with_capacity(bvh.n_frames() - start);
     let mut source = vec![None; skeleton.n_joints()];

@@ -115,6 +115,27 @@ pub fn detect_tpose_frame(bvh: &Bvh) -> Option<TposeFrame> {
     })
 }
 
+/// The first frame of the performance: after the converter's T-pose frame when
+/// `drop_tpose` and it is one ([`detect_tpose_frame`]), and after any frames that follow whose
+/// channels are all exactly zero (the root at the file's origin in its rest pose: a blank a
+/// converter wrote, not a performer; CMU `07_12` has one after its T-pose, and playing it makes
+/// the body jump metres in one frame). The last frame is always kept.
+pub fn first_performance_frame(bvh: &Bvh, drop_tpose: bool) -> usize {
+    let tpose = drop_tpose && detect_tpose_frame(bvh).is_some_and(|t| t.is_added_tpose);
+    let mut first = usize::from(tpose);
+    if drop_tpose {
+        let c = bvh.n_channels();
+        while first + 1 < bvh.n_frames()
+            && bvh.values()[first * c..(first + 1) * c]
+                .iter()
+                .all(|&v| v == 0.0)
+        {
+            first += 1;
+        }
+    }
+    first
+}
+
 /// The largest turn (degrees) of any of [`LIMB_BONES`] between consecutive frames from frame
 /// `first` on: how fast the file's limbs move (glitches included).
 pub fn max_limb_step_deg(bvh: &Bvh, first: usize) -> Option<f64> {

@@ -50,7 +50,7 @@ pub use bvh::{
 };
 pub use bvh_tpose::{
     LIMB_BONES, TPOSE_ARM_TOLERANCE_DEG, TPOSE_LEG_TOLERANCE_DEG, TPOSE_MIN_JUMP_DEG, TposeFrame,
-    detect_tpose_frame, max_limb_step_deg,
+    detect_tpose_frame, first_performance_frame, max_limb_step_deg,
 };
 pub use clearance::{ArmClearance, ClearanceOptions, ClearanceReport};
 pub use motion::Motion;

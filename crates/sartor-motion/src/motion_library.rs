@@ -15,7 +15,8 @@
 //!   are zero in every frame of the clip (CMU's hip sockets and collars, the fingers' unused
 //!   axes) are not stored.
 //!
-//! The frames kept: the converter's T-pose frame is dropped ([`crate::detect_tpose_frame`]),
+//! The frames kept: the converter's T-pose frame and blank frames after it are dropped
+//! ([`crate::first_performance_frame`]),
 //! then every `k`-th frame from the first kept one, `k = source rate / 30` when that is a whole
 //! number (CMU's 120 fps → every 4th frame: exactly the frames resampling to [`crate::FPS`]
 //! lands on), else every frame at the source rate. f32 holds the files' 4-decimal values to
@@ -42,7 +43,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::bvh::{Bvh, BvhChannel, BvhJoint};
-use crate::bvh_tpose::detect_tpose_frame;
+use crate::bvh_tpose::{detect_tpose_frame, first_performance_frame};
 use crate::{Error, FPS, Motion, Result};
 use sartor_core::io::{
     OwnedTensor, TensorFile, read_file, serialize_tensors, sha256_hex, write_atomic,
@@ -147,7 +148,7 @@ impl StoredClip {
         };
         let fps = if step > 1 { FPS } else { snapped(source_fps) };
         let dropped = detect_tpose_frame(bvh).is_some_and(|t| t.is_added_tpose);
-        let first = usize::from(dropped);
+        let first = first_performance_frame(bvh, true);
         let kept: Vec<usize> = (first..bvh.n_frames()).step_by(step).collect();
         if kept.is_empty() {
             return Err(Error::format(
