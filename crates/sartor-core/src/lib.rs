@@ -76,4 +76,6 @@ pub use proximity::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace};
 pub use skeleton::{
     FPS, Pose, PosedSkeleton, Skeleton, canonical, interpolate_pose, split_heading,
 };
-pub use skinning::{BoneTransform, Parallelism, SkinWeights, skin_points, unskin_points};
+pub use skinning::{
+    BoneTransform, Parallelism, SkinWeights, skin_points, unskin_points, unskin_points_damped,
+};

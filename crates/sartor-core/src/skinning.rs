@@ -349,6 +349,43 @@ pub fn unskin_points<T: RealField + Copy>(
     }
 }
 
+/// [`unskin_points`], except where a point's blended transform `M` is nearly singular (smallest
+/// singular value σ below `min_singular` = s₀: weights split between joints turned far apart,
+/// the "candy wrapper" of linear blend skinning). There the exact inverse sends the rest position
+/// far away for a small posed offset; such points get the damped inverse
+/// `(MᵀM + λI)⁻¹ Mᵀ (x − t)` with `λ = s₀² − σ²`: λ is 0 at σ = s₀ (no jump) and the result stays
+/// within about `|x − t| / s₀`. Elsewhere it is [`unskin_points`]' exact inverse, bit for bit.
+/// Sequential.
+pub fn unskin_points_damped(
+    posed: &[Vector3<f64>],
+    weights: &SkinWeights,
+    transforms: &[BoneTransform<f64>],
+    min_singular: f64,
+    out: &mut [Vector3<f64>],
+) -> Result<()> {
+    weights.check_sizes(posed.len(), out.len(), transforms)?;
+    let s0 = min_singular;
+    for (i, o) in out.iter_mut().enumerate() {
+        let b = weights.blend(i, transforms);
+        let gram = b.linear.transpose() * b.linear;
+        let smallest = gram.symmetric_eigenvalues().min().max(0.0);
+        let inverse = if smallest >= s0 * s0 {
+            b.linear.try_inverse()
+        } else {
+            let damped = gram + Matrix3::identity() * (s0 * s0 - smallest);
+            damped.try_inverse().map(|d| d * b.linear.transpose())
+        };
+        let inverse = inverse.ok_or_else(|| {
+            Error::invalid(
+                "inverse skinning",
+                format!("blended transform of point {i} is singular"),
+            )
+        })?;
+        *o = inverse * (posed[i] - b.translation);
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,14 +13,14 @@
 //! `T̄_c + Δ_G + Δ_L` adds up to the smoothed simulation with no rounding of its own.
 //!
 //! `W⁻¹` is sartor-core's inverse skinning ([`sartor_core::unskin_points`]), damped where the
-//! blended transform is nearly singular ([`unskin_points_damped`]); the transforms
+//! blended transform is nearly singular ([`sartor_core::unskin_points_damped`]); the transforms
 //! are the body's for shape β and pose θ (root motion included), so the recovered displacement
 //! lives in the rest space of the template.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use sartor_core::{
-    BodyModel, BoneTransform, DEFAULT_REGION_MARGIN_MM, GarmentBinding, Pose, SkinWeights,
+    BodyModel, DEFAULT_REGION_MARGIN_MM, GarmentBinding, Pose, SkinWeights, unskin_points_damped,
 };
 
 use crate::data::DataSource;
@@ -173,6 +173,7 @@ impl<'a> WrinkleExtractor<'a> {
             cloth,
             self.binding.skin_weights(),
             &transforms,
+            UNSKIN_MIN_SINGULAR,
             &mut self.rest,
         )?;
         flatten(self.rest.iter().zip(&self.fitted).map(|(r, f)| r - f), out);
@@ -181,56 +182,9 @@ impl<'a> WrinkleExtractor<'a> {
 }
 
 /// Blended skinning transforms whose smallest singular value is below this are inverted with
-/// damping ([`unskin_points_damped`]).
+/// damping ([`unskin_points_damped`]): on the CMU data the exact inverse of such vertices gave
+/// rest positions up to 14.5 m away, targets that would dominate the networks' squared loss.
 pub const UNSKIN_MIN_SINGULAR: f64 = 0.25;
-
-/// [`sartor_core::unskin_points`], except where a vertex's blended transform `M` is nearly singular (smallest
-/// singular value σ below [`UNSKIN_MIN_SINGULAR`] = s₀: weights split between joints turned far
-/// apart, the "candy wrapper" of linear blend skinning). There the exact inverse sends the rest
-/// position metres away for a millimetre of posed offset, and a few such vertex-frames would
-/// dominate the networks' squared loss (measured on CMU dance clips: 14 m). Those vertices get
-/// the damped inverse `(MᵀM + λI)⁻¹ Mᵀ (x − t)` with `λ = s₀² − σ²`: λ is 0 at σ = s₀ (no
-/// jump) and the result stays within about `|x − t| / s₀`. Elsewhere the exact inverse, bit
-/// for bit.
-pub fn unskin_points_damped(
-    posed: &[Vector3<f64>],
-    weights: &SkinWeights,
-    transforms: &[BoneTransform<f64>],
-    out: &mut [Vector3<f64>],
-) -> Result<()> {
-    let s0 = UNSKIN_MIN_SINGULAR;
-    if posed.len() != out.len() || weights.n_points() != posed.len() {
-        return Err(Error::invalid(
-            "inverse skinning",
-            format!(
-                "{} posed points, {} outputs, {} weighted points",
-                posed.len(),
-                out.len(),
-                weights.n_points()
-            ),
-        ));
-    }
-    for (i, o) in out.iter_mut().enumerate() {
-        let b = weights.blend(i, transforms);
-        let gram = b.linear.transpose() * b.linear;
-        let smallest = gram.symmetric_eigenvalues().min().max(0.0);
-        let inverse = if smallest >= s0 * s0 {
-            // As unskin_points.
-            b.linear.try_inverse()
-        } else {
-            let damped = gram + Matrix3::identity() * (s0 * s0 - smallest);
-            damped.try_inverse().map(|d| d * b.linear.transpose())
-        };
-        let inverse = inverse.ok_or_else(|| {
-            Error::invalid(
-                "inverse skinning",
-                format!("blended transform of point {i} is singular"),
-            )
-        })?;
-        *o = inverse * (posed[i] - b.translation);
-    }
-    Ok(())
-}
 
 /// The joints whose rotations the wrinkle network sees: every joint that carries at least
 /// `min_weight` of some garment vertex's cloth skin weight, plus all their ancestors (a joint's
@@ -295,7 +249,14 @@ mod tests {
         )
         .expect("exact");
         let mut damped = [Vector3::zeros(); 2];
-        unskin_points_damped(&posed, &weights, &transforms, &mut damped).expect("damped");
+        unskin_points_damped(
+            &posed,
+            &weights,
+            &transforms,
+            UNSKIN_MIN_SINGULAR,
+            &mut damped,
+        )
+        .expect("damped");
         assert_eq!(damped[0], exact[0], "well conditioned: bit for bit");
         // The exact inverse of the near-singular blend goes far; the damped one stays within
         // |x − t| / s₀ and still maps back close to the posed point.
@@ -305,6 +266,15 @@ mod tests {
         let back = weights.blend(1, &transforms).apply(&damped[1]);
         assert!((back - posed[1]).norm() < offset, "{:?}", back - posed[1]);
         // Sizes are checked.
-        assert!(unskin_points_damped(&posed[..1], &weights, &transforms, &mut damped).is_err());
+        assert!(
+            unskin_points_damped(
+                &posed[..1],
+                &weights,
+                &transforms,
+                UNSKIN_MIN_SINGULAR,
+                &mut damped
+            )
+            .is_err()
+        );
     }
 }
