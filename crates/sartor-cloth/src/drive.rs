@@ -38,7 +38,8 @@
 //!
 //! A frame fails on a [`StepFailure`] (NaN, energy blow-up, solver non-convergence) or when a
 //! cloth vertex ends it more than [`DriveConfig::penetration_tolerance_m`] inside the body
-//! region. The frame is then redone from its start with [`RetryConfig::substep_factor`] times
+//! region, or the garment has moved more than [`LEFT_BODY_M`] away from the body (left behind
+//! by a jump in the motion). The frame is then redone from its start with [`RetryConfig::substep_factor`] times
 //! more substeps, up to [`RetryConfig::max_frame_retries`] times; the following frames go back
 //! to the configured substeps. A frame that still fails fails the sequence
 //! ([`Error::SequenceFailed`]); nothing is written.
@@ -470,6 +471,21 @@ pub(crate) struct FrameStepper {
     body_faces: Vec<[u32; 3]>,
     body_distance: Option<BodyDistance>,
     deep: Vec<usize>,
+    /// Distance between the cloth's centroid and the contact region's at the start, m.
+    start_offset_m: f64,
+}
+
+/// How far the garment's centroid may move away from the body's contact region during a
+/// sequence, beyond where it started, before the frame check says the cloth was left behind,
+/// m. Cloth that follows the body stays within centimetres (the largest mean wrinkle
+/// displacement of a CMU training sequence is 0.16 m); a body that jumps in the motion leaves
+/// it metres away.
+pub const LEFT_BODY_M: f64 = 0.5;
+
+/// The distance between the centroids of two point sets, m.
+fn centroid_distance(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+    let centroid = |p: &[Vector3<f64>]| p.iter().sum::<Vector3<f64>>() / p.len().max(1) as f64;
+    (centroid(a) - centroid(b)).norm()
 }
 
 impl FrameStepper {
@@ -504,6 +520,7 @@ impl FrameStepper {
         )?;
         sim.set_positions(cloth_start)?;
         let n = cloth_start.len();
+        let start_offset_m = centroid_distance(cloth_start, &region_start);
         Ok(Self {
             sim,
             collider,
@@ -536,6 +553,7 @@ impl FrameStepper {
             body_faces: body.faces().to_vec(),
             body_distance: None,
             deep: Vec::new(),
+            start_offset_m,
         })
     }
 
@@ -666,9 +684,9 @@ impl FrameStepper {
         checks
     }
 
-    /// The end-of-frame checks: penetration of the body (found by the region's closest points,
-    /// confirmed by [`BodyDistance`] beyond the tolerance) and distance to the excluded
-    /// triangles.
+    /// The end-of-frame checks: the cloth still with the body ([`LEFT_BODY_M`]), penetration
+    /// of the body (found by the region's closest points, confirmed by [`BodyDistance`] beyond
+    /// the tolerance) and distance to the excluded triangles.
     fn check(
         &mut self,
         next: &[Vector3<f64>],
@@ -680,6 +698,14 @@ impl FrameStepper {
             max_speed_m_per_s: last.max_speed_m_per_s,
             ..FrameChecks::default()
         };
+        let moved =
+            centroid_distance(self.sim.positions(), &self.region_next) - self.start_offset_m;
+        if moved > LEFT_BODY_M {
+            return Err(FrameError::Failure(SequenceFailure::LeftBody {
+                offset_mm: moved * 1e3,
+                limit_mm: LEFT_BODY_M * 1e3,
+            }));
+        }
         let mut deepest = None;
         self.deep.clear();
         for (i, (p, hint)) in self

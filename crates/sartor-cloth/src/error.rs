@@ -67,6 +67,19 @@ pub enum SequenceFailure {
         /// Its distance to the excluded triangle, mm.
         distance_mm: f64,
     },
+    /// After a frame, the garment's centroid had moved away from the body's contact region by
+    /// more than [`crate::LEFT_BODY_M`] since the first frame: the body jumped and left the
+    /// cloth behind (a jump in the motion, such as a blank frame in a BVH file).
+    #[error(
+        "the cloth was left behind: its centroid is {offset_mm:.0} mm farther from the body's \
+         contact region than at the start (limit {limit_mm:.0} mm)"
+    )]
+    LeftBody {
+        /// How much farther, mm.
+        offset_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
 }
 
 /// Everything that can go wrong in `sartor-cloth`. Each variant names the file (when there is

@@ -65,7 +65,8 @@ pub use benchmark::{SequenceBenchmark, benchmark_sequence};
 pub use cloth::{Cloth, rectangle_sheet};
 pub use collider::{Collider, Contact, Plane, Sphere};
 pub use drive::{
-    DriveConfig, PreviewConfig, RegionConfig, RetryConfig, contact_region, simulate_sequence,
+    DriveConfig, LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig, contact_region,
+    simulate_sequence,
 };
 pub use error::{Error, Result, SequenceFailure, StepFailure};
 pub use garment::{

@@ -423,3 +423,52 @@ fn arm_clearance_simulates_the_corrected_poses_and_stores_them() {
     );
     assert!(seq.header.drive_config.arm_clearance.is_some());
 }
+
+#[test]
+fn cloth_left_behind_by_a_jump_in_the_motion_fails_the_sequence() {
+    // Two frames at the origin, then the body 2 m to the side: the jump a blank frame after a
+    // BVH file's T-pose once made (cmu/07_12). The cloth cannot follow within the frame, and
+    // with nothing inside the body the other checks pass (the sequence simulates without this
+    // check).
+    use sartor_core::Pose;
+    let skeleton = body().skeleton();
+    let frames: Vec<Pose> = (0..5)
+        .map(|k| {
+            let mut p = Pose::rest(skeleton.n_joints());
+            if k >= 2 {
+                p.root_translation_m.x += 2.0;
+            }
+            p
+        })
+        .collect();
+    let motion = Motion::new(
+        "jump".into(),
+        sartor_core::FPS,
+        skeleton.names().to_vec(),
+        frames,
+    )
+    .expect("motion");
+    let mut config = quick_config();
+    config.retry.max_frame_retries = 0;
+    match simulate(&betas(0.0), Some(&motion), &config) {
+        Err(Error::SequenceFailed {
+            frame,
+            reason: SequenceFailure::LeftBody { offset_mm, .. },
+            ..
+        }) => {
+            // The jump is at the third motion frame, after the blend and rest frames.
+            assert_eq!(frame, config.blend_frames + config.rest_frames + 2);
+            assert!(offset_mm > sartor_cloth::LEFT_BODY_M * 1e3, "{offset_mm}");
+        }
+        other => panic!("expected the cloth to be left behind, got {other:?}"),
+    }
+    // The same body without the jump simulates.
+    let still = Motion::new(
+        "still".into(),
+        sartor_core::FPS,
+        skeleton.names().to_vec(),
+        vec![Pose::rest(skeleton.n_joints()); 5],
+    )
+    .expect("motion");
+    simulate(&betas(0.0), Some(&still), &config).expect("no jump, no failure");
+}
