@@ -12,6 +12,7 @@ mod arm_clearance;
 mod check_retarget;
 mod gt_collisions;
 mod import_body;
+mod limits;
 mod motions;
 mod ship;
 mod web;
@@ -51,6 +52,10 @@ enum Command {
     /// How deep the posed body's forearms and hands pass into the rest of it, per sequence of
     /// an experiment, beside whether its simulation failed.
     ArmClearance(arm_clearance::ArmClearanceArgs),
+    /// What limits the wrinkle GRU, measured on the validation split: learning curve over the
+    /// training motions, GRU size, the PCA output's floor, and the ground truth's dependence
+    /// on where a simulation starts: limits.json, limits.png.
+    Limits(limits::LimitsArgs),
     /// Build the try-on page into web/dist (WebAssembly runtime, f16 model, body, clips);
     /// `--serve` serves it on 127.0.0.1.
     Web(web::WebArgs),
@@ -74,6 +79,7 @@ fn main() -> anyhow::Result<()> {
         Command::CheckModel(args) => ship::check_model(&args, &env),
         Command::GtCollisions(args) => gt_collisions::gt_collisions(&args, &env),
         Command::ArmClearance(args) => arm_clearance::arm_clearance(&args, &env),
+        Command::Limits(args) => limits::limits(&args, &env),
         Command::Web(args) => web::web(&args, &root),
         Command::Sartor(command) => sartor_cli::run(&command, &env),
     }
