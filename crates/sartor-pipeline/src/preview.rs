@@ -262,7 +262,14 @@ pub fn write_png(
         })
         .collect();
     let refs: Vec<&[RenderMesh<'_>]> = bodies.iter().map(|b| b.as_slice()).collect();
-    let cameras = Camera::framing_strip(&refs, Vector3::new(0.35, 0.1, 1.0), true);
+    const PANEL_WIDTH: u32 = 240;
+    const PANEL_HEIGHT: u32 = 400;
+    let cameras = Camera::framing_strip(
+        &refs,
+        Vector3::new(0.35, 0.1, 1.0),
+        true,
+        PANEL_WIDTH as f32 / PANEL_HEIGHT as f32,
+    );
     // A 1.2 m ground square centred under each panel's body.
     let grounds: Vec<[Vector3<f32>; 4]> = cameras
         .iter()
@@ -298,6 +305,6 @@ pub fn write_png(
             camera: *camera,
         })
         .collect();
-    render_png(path, &panels, 240, 400, [1.0, 1.0, 1.0])?;
+    render_png(path, &panels, PANEL_WIDTH, PANEL_HEIGHT, [1.0, 1.0, 1.0])?;
     Ok(())
 }

@@ -90,16 +90,23 @@ impl Camera {
     }
 
     /// One camera per panel of a strip, each framing its own panel's meshes at one common
-    /// scale: every camera has the same projection and distance (the largest panel's, with 5 %
-    /// of room) and looks at the same height (the middle of the strip's overall vertical
-    /// extent), centred horizontally on its own panel's meshes. A body that travels stays in
-    /// every panel, and heights (a jump, a crouch) read the same in all panels. Looks along
-    /// `-direction`, +Y up, as [`Self::framing`].
+    /// scale: every camera has the same projection and distance (the least at which every
+    /// panel's box fits its `aspect` = width / height view, with 5 % of room) and looks at the
+    /// same height (the middle of the strip's overall vertical extent), centred horizontally
+    /// on its own panel's meshes. A body that travels stays in every panel, arms spread wide
+    /// stay inside a narrow panel, and heights (a jump, a crouch) read the same in all panels.
+    /// Looks along `-direction`, +Y up, as [`Self::framing`].
     pub fn framing_strip(
         panels: &[&[RenderMesh<'_>]],
         direction: Vector3<f32>,
         perspective: bool,
+        aspect: f32,
     ) -> Vec<Self> {
+        let aspect = if aspect.is_finite() && aspect > 0.0 {
+            aspect
+        } else {
+            1.0
+        };
         let bounds: Vec<(Vector3<f32>, Vector3<f32>)> =
             panels.iter().map(|meshes| bounds(meshes)).collect();
         let y_lo = bounds.iter().map(|b| b.0.y).fold(f32::INFINITY, f32::min);
@@ -116,34 +123,77 @@ impl Camera {
                 )
             })
             .collect();
-        let radius = boxes
+        // Camera axes (as `framing` and `view` make them).
+        let back = direction.try_normalize(1e-9).unwrap_or_else(Vector3::z);
+        let world_up = if back.cross(&Vector3::y()).norm() < 1e-3 {
+            Vector3::z()
+        } else {
+            Vector3::y()
+        };
+        let right = world_up
+            .cross(&back)
+            .try_normalize(1e-12)
+            .unwrap_or_else(Vector3::x);
+        let up = back.cross(&right);
+        let fov_y_rad = 30f32.to_radians();
+        let tan_y = (fov_y_rad / 2.0).tan();
+        let tan_x = tan_y * aspect;
+        // Per box corner, offsets from the box centre along right, up and towards the camera,
+        // with 5 % of room.
+        let corners = |&(lo, hi): &(Vector3<f32>, Vector3<f32>)| {
+            let centre = (lo + hi) / 2.0;
+            (0..8).map(move |k| {
+                let c = Vector3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                ) - centre;
+                (
+                    1.05 * c.dot(&right).abs(),
+                    1.05 * c.dot(&up).abs(),
+                    c.dot(&back),
+                )
+            })
+        };
+        // Perspective: a corner at (x, y) that is z nearer the camera is seen at x / (d − z):
+        // d ≥ x / tan(fov_x / 2) + z and likewise for y. Orthographic: half the view's height
+        // covers every corner's height and its width over the aspect.
+        let (distance, half_height) =
+            boxes
+                .iter()
+                .flat_map(corners)
+                .fold((1e-3f32, 1e-3f32), |(d, h), (x, y, z)| {
+                    (
+                        d.max(x / tan_x + z).max(y / tan_y + z),
+                        h.max(y).max(x / aspect),
+                    )
+                });
+        // Orthographic: far enough back that every box is in front of the camera.
+        let depth = boxes
             .iter()
-            .map(|(lo, hi)| (hi - lo).norm() / 2.0)
-            .fold(1e-3, f32::max)
-            * 1.05;
+            .flat_map(corners)
+            .fold(half_height, |m, (_, _, z)| m.max(z.abs()));
         boxes
             .iter()
             .map(|(lo, hi)| {
-                let corners = [*lo, *hi];
-                let points = RenderMesh {
-                    positions: &corners,
-                    faces: &[],
-                    color: [0.0; 3],
-                };
-                let mut camera = Self::framing(&[points], direction, perspective);
-                // The same scale in every panel: the common radius.
-                let dir = (camera.eye - camera.target)
-                    .try_normalize(1e-12)
-                    .unwrap_or_else(Vector3::z);
-                let distance = match &mut camera.projection {
-                    Projection::Perspective { fov_y_rad } => radius / (*fov_y_rad / 2.0).sin(),
-                    Projection::Orthographic { half_height_m } => {
-                        *half_height_m = radius;
-                        3.0 * radius
+                let target = (lo + hi) / 2.0;
+                if perspective {
+                    Self {
+                        eye: target + back * distance,
+                        target,
+                        up: world_up,
+                        projection: Projection::Perspective { fov_y_rad },
                     }
-                };
-                camera.eye = camera.target + dir * distance;
-                camera
+                } else {
+                    Self {
+                        eye: target + back * (3.0 * depth),
+                        target,
+                        up: world_up,
+                        projection: Projection::Orthographic {
+                            half_height_m: half_height,
+                        },
+                    }
+                }
             })
             .collect()
     }

@@ -232,7 +232,7 @@ fn strip_cameras_follow_each_panel_at_one_scale() {
         .collect();
     let refs: Vec<&[RenderMesh]> = meshes.iter().map(Vec::as_slice).collect();
     for perspective in [false, true] {
-        let cameras = Camera::framing_strip(&refs, Vector3::z(), perspective);
+        let cameras = Camera::framing_strip(&refs, Vector3::z(), perspective, 1.0);
         assert_eq!(cameras.len(), 3);
         // One scale: the same projection and distance everywhere.
         for c in &cameras[1..] {
@@ -264,5 +264,58 @@ fn strip_cameras_follow_each_panel_at_one_scale() {
             "{boxes:?}"
         );
         assert!(boxes[2].1 + 2 <= boxes[0].1, "{boxes:?}");
+    }
+}
+
+#[test]
+fn strip_cameras_keep_a_wide_shape_inside_a_narrow_panel() {
+    // Arms spread: 1.8 m wide, 1.7 m tall, 0.3 m deep, in a panel 0.6 times as wide as tall
+    // (the PNG previews' 240 × 400). A camera that fits a sphere to the vertical field of view
+    // alone cut the hands off.
+    let positions: Vec<Vector3<f32>> = (0..8)
+        .map(|k| {
+            Vector3::new(
+                if k & 1 == 0 { -0.9 } else { 0.9 },
+                if k & 2 == 0 { 0.0 } else { 1.7 },
+                if k & 4 == 0 { -0.15 } else { 0.15 },
+            )
+        })
+        .collect();
+    // The box's six sides.
+    let faces: Vec<[u32; 3]> = [
+        [0, 1, 3, 2],
+        [4, 6, 7, 5],
+        [0, 4, 5, 1],
+        [2, 3, 7, 6],
+        [0, 2, 6, 4],
+        [1, 5, 7, 3],
+    ]
+    .iter()
+    .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+    .collect();
+    let mesh = [RenderMesh {
+        positions: &positions,
+        faces: &faces,
+        color: [1.0, 0.0, 0.0],
+    }];
+    let (w, h) = (60, 100);
+    for direction in [Vector3::z(), Vector3::new(0.35, 0.1, 1.0)] {
+        for perspective in [false, true] {
+            let cameras = Camera::framing_strip(&[&mesh], direction, perspective, 0.6);
+            let panels = [Panel {
+                meshes: mesh.to_vec(),
+                camera: cameras[0],
+            }];
+            let image = render(&panels, w, h, [1.0; 3]).expect("render");
+            let (x0, y0, x1, y1) = drawn_box(&image, 0, w).expect("drawn");
+            let case = format!(
+                "{direction:?}, perspective {perspective}: {:?}",
+                (x0, y0, x1, y1)
+            );
+            assert!(x0 > 0 && x1 < w - 1, "touches the side: {case}");
+            assert!(y0 > 0 && y1 < h - 1, "touches the top or bottom: {case}");
+            // Framed, not lost in the middle: the width nearly fills the panel.
+            assert!(x1 - x0 >= w * 3 / 4, "too small: {case}");
+        }
     }
 }
