@@ -632,16 +632,16 @@ fn charts(r: &Report) -> Vec<Chart> {
                 line(&format!("GRU {hidden}"), curve("gru", Some(hidden))),
                 line("ridge", curve("ridge", None)),
             ],
-            log_x: true,
-            legend_at_bottom: false,
+            log_x: false,
+            legend_at_bottom: true,
         },
         Chart {
             title: "GRU size, all training data (validation)".into(),
             x_label: "hidden units".into(),
             y_label: "mean vertex error (mm)".into(),
             series: vec![line("GRU", sizes)],
-            log_x: true,
-            legend_at_bottom: false,
+            log_x: false,
+            legend_at_bottom: true,
         },
         Chart {
             title: "output basis floor (validation)".into(),
@@ -654,8 +654,8 @@ fn charts(r: &Report) -> Vec<Chart> {
                     .map(|b| (b.components as f64, b.val_error_mm))
                     .collect(),
             )],
-            log_x: true,
-            legend_at_bottom: false,
+            log_x: false,
+            legend_at_bottom: true,
         },
     ];
     if !r.history.is_empty() {
@@ -678,7 +678,7 @@ fn charts(r: &Report) -> Vec<Chart> {
                 })
                 .collect(),
             log_x: false,
-            legend_at_bottom: false,
+            legend_at_bottom: true,
         });
     }
     charts
