@@ -272,27 +272,9 @@ fn strip_cameras_keep_a_wide_shape_inside_a_narrow_panel() {
     // Arms spread: 1.8 m wide, 1.7 m tall, 0.3 m deep, in a panel 0.6 times as wide as tall
     // (the PNG previews' 240 × 400). A camera that fits a sphere to the vertical field of view
     // alone cut the hands off.
-    let positions: Vec<Vector3<f32>> = (0..8)
-        .map(|k| {
-            Vector3::new(
-                if k & 1 == 0 { -0.9 } else { 0.9 },
-                if k & 2 == 0 { 0.0 } else { 1.7 },
-                if k & 4 == 0 { -0.15 } else { 0.15 },
-            )
-        })
-        .collect();
-    // The box's six sides.
-    let faces: Vec<[u32; 3]> = [
-        [0, 1, 3, 2],
-        [4, 6, 7, 5],
-        [0, 4, 5, 1],
-        [2, 3, 7, 6],
-        [0, 2, 6, 4],
-        [1, 5, 7, 3],
-    ]
-    .iter()
-    .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-    .collect();
+    let (corners, faces) =
+        sartor_core::box_mesh(Vector3::new(-0.9, 0.0, -0.15), Vector3::new(0.9, 1.7, 0.15));
+    let positions: Vec<Vector3<f32>> = corners.iter().map(|c| c.cast::<f32>()).collect();
     let mesh = [RenderMesh {
         positions: &positions,
         faces: &faces,
