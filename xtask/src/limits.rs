@@ -29,7 +29,9 @@ use sartor_dataset::{
     compute_stats, load_dataset,
 };
 use sartor_eval::{Chart, Machine, Marker, Series, write_charts, write_json};
-use sartor_model::{ModelKind, ModelReport, TrainOptions, TrainingConfig, train_model};
+use sartor_model::{
+    ModelKind, ModelReport, TrainOptions, TrainingConfig, train_model, vertex_error_mm,
+};
 use sartor_motion::{Motion, MotionWindow};
 use sartor_pipeline::{Experiment, SimInputs, device};
 use serde::{Deserialize, Serialize};
@@ -420,46 +422,43 @@ fn basis_error(data: &TrainingData, pca: Option<(&PcaBasis, usize)>) -> anyhow::
     let norm = &data.stats().wrinkle_out;
     let n3 = data.n_outputs();
     let (mut sum, mut count) = (0.0f64, 0usize);
-    let mut row = vec![0f32; n3];
-    let mut recon = vec![0f32; n3];
+    let mut target = Vec::new();
+    let mut recon = Vec::new();
+    let mut coef = Vec::new();
     for q in data
         .sequences()
         .iter()
         .filter(|q| q.split == Split::Validation)
     {
-        for t in 0..q.n_frames {
-            row.copy_from_slice(&q.wrinkle_delta[t * n3..(t + 1) * n3]);
-            norm.normalize(&mut row);
-            match pca {
-                None => recon.iter_mut().for_each(|r| *r = 0.0),
-                Some((p, k)) => {
-                    let kk = p.n_components();
-                    let mut coef = vec![0f64; k];
-                    for (i, (x, m)) in row.iter().zip(&p.mean).enumerate() {
-                        let c = f64::from(x - m);
-                        let b = &p.basis[i * kk..i * kk + k];
-                        for (a, &w) in coef.iter_mut().zip(b) {
-                            *a += c * f64::from(w);
-                        }
-                    }
-                    for (i, (r, m)) in recon.iter_mut().zip(&p.mean).enumerate() {
-                        let b = &p.basis[i * kk..i * kk + k];
-                        let s: f64 = coef.iter().zip(b).map(|(a, &w)| a * f64::from(w)).sum();
-                        *r = m + s as f32;
+        target.clear();
+        target.extend_from_slice(&q.wrinkle_delta);
+        recon.clear();
+        recon.resize(target.len(), 0f32);
+        for (row, out) in target.chunks_exact_mut(n3).zip(recon.chunks_exact_mut(n3)) {
+            norm.normalize(row);
+            // Through the basis: mean + B_k B_kᵀ (row − mean); `None`: zero (the mean of the
+            // normalised training displacements).
+            if let Some((p, k)) = pca {
+                let kk = p.n_components();
+                coef.clear();
+                coef.resize(k, 0f64);
+                for (i, (x, m)) in row.iter().zip(&p.mean).enumerate() {
+                    let c = f64::from(x - m);
+                    for (a, &w) in coef.iter_mut().zip(&p.basis[i * kk..i * kk + k]) {
+                        *a += c * f64::from(w);
                     }
                 }
-            }
-            for v in 0..n3 / 3 {
-                let d2: f64 = (0..3)
-                    .map(|c| {
-                        let i = 3 * v + c;
-                        f64::from((recon[i] - row[i]) * norm.std[i]).powi(2)
-                    })
-                    .sum();
-                sum += d2.sqrt() * 1e3;
-                count += 1;
+                for (i, (r, m)) in out.iter_mut().zip(&p.mean).enumerate() {
+                    let b = &p.basis[i * kk..i * kk + k];
+                    let s: f64 = coef.iter().zip(b).map(|(a, &w)| a * f64::from(w)).sum();
+                    *r = m + s as f32;
+                }
             }
         }
+        // The measure training reports (`best_val_error_mm`).
+        let (s, c) = vertex_error_mm(&recon, &target, &norm.std, None);
+        sum += s;
+        count += c;
     }
     if count == 0 {
         bail!("the dataset has no validation frames");

@@ -53,7 +53,7 @@ impl PcaTensors {
 /// Mean per-vertex Euclidean error in millimetres between normalised predictions and targets
 /// (`[N, 3V]` each, row-major), denormalised with `std` (`[3V]`), over the rows where `mask`
 /// (`[N]`, if given) is positive. Returns `(sum of per-vertex errors in mm, vertices counted)`.
-pub(crate) fn vertex_error_mm(
+pub fn vertex_error_mm(
     prediction: &[f32],
     target: &[f32],
     std: &[f32],

@@ -47,7 +47,7 @@ mod model;
 mod ridge;
 mod training;
 
-pub use data::to_vec;
+pub use data::{to_vec, vertex_error_mm};
 pub use error::{Error, Result};
 pub use inference::{Predictor, export_model};
 pub use model::{
