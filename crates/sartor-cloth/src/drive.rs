@@ -39,16 +39,17 @@
 //! A frame fails on a [`StepFailure`] (NaN, energy blow-up, solver non-convergence) or when a
 //! cloth vertex ends it more than [`DriveConfig::penetration_tolerance_m`] inside the body
 //! region, or the garment has moved more than [`LEFT_BODY_M`] away from the body (left behind
-//! by a jump in the motion). The frame is then redone from its start with [`RetryConfig::substep_factor`] times
-//! more substeps, up to [`RetryConfig::max_frame_retries`] times; the following frames go back
-//! to the configured substeps. A frame that still fails fails the sequence
+//! by a jump in the motion). The frame is then redone from its start with
+//! [`RetryConfig::substep_factor`] times more substeps, up to
+//! [`RetryConfig::max_frame_retries`] times; the following frames go back to the configured
+//! substeps. A frame that still fails fails the sequence
 //! ([`Error::SequenceFailed`]); nothing is written.
 //!
 //! # Determinism
 //!
-//! With [`SimConfig::parallelism`] = [`Parallelism::Sequential`] (the default; callers parallelise across
-//! sequences) the same inputs give bit-identical outputs, retries included: a retry restarts
-//! from the saved state of the frame and depends on nothing else.
+//! With [`SimConfig::parallelism`] = [`Parallelism::Sequential`] (the default; callers
+//! parallelise across sequences) the same inputs give bit-identical outputs, retries included:
+//! a retry restarts from the saved state of the frame and depends on nothing else.
 
 use std::time::Instant;
 
