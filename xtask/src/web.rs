@@ -134,8 +134,8 @@ fn run(command: &mut Command) -> anyhow::Result<()> {
 
 /// `<target>/tools/bin/wasm-bindgen` at `version`, installed by cargo when missing. It is
 /// built without optimisation (`--debug`): that halves the install on a fresh machine (91 s
-/// against 176 s on the 2-core development machine), and the glue it then writes for our 13 MB module
-/// is byte for byte the same, in 1.4 s instead of 0.3 s.
+/// against 176 s on the 2-core development machine), and the glue it then writes for our 13 MB
+/// module is byte for byte the same, in 1.4 s instead of 0.3 s.
 fn wasm_bindgen_cli(root: &Path, version: &str) -> anyhow::Result<PathBuf> {
     let tools = target_dir(root).join("tools");
     let exe = tools.join("bin").join("wasm-bindgen");
