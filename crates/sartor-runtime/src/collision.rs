@@ -33,9 +33,11 @@
 //! default, finds the buried faces each frame (by default only beyond the training shapes:
 //! [`Interpenetration`]) (a ray along each face's normal, counted by the
 //! winding number along it) and answers from the exposed surface only; a vertex whose closest
-//! exposed face touches a buried one ("crease") is checked by the same ray test and, inside,
-//! pushed out through the nearest exposed face it lies behind (within 5 cm). A body part
-//! outside the region (a hand sunk into the belly) stays invisible to the post-process.
+//! exposed face touches a buried one ("crease") is checked by the same ray test (three rays,
+//! with the region's cuts capped) and, inside, pushed out through the nearest exposed face
+//! within 8 cm whose far side the ray test reads as outside: a push along the crease's
+//! pseudo-normal often ends in the other part. A body part outside the region (a hand sunk into
+//! the belly) stays invisible to the post-process.
 //!
 //! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking
 //! (`docs/reports/bench-runtime.json`: int8 network, one thread, CPU time, 2-core AMD EPYC;

@@ -25,7 +25,12 @@
 //! through the grid) is taken out of the grid, so no candidate set holds it; the fans keep it
 //! (the pseudo-normals are those of the whole region). A vertex with a crease face (exposed,
 //! sharing a vertex with a buried one) among its candidates is never certified, and its answer
-//! is checked by the same ray test (`Frame::settle`).
+//! is checked by the same ray test (`Frame::settle`): inside, it gets the nearest way out whose
+//! landing point the ray test reads as outside.
+//!
+//! The region is open where the garment's body region is cut (neck, waist, arms); for the ray
+//! tests each cut is closed by a fan of triangles from its boundary loop to the loop's centre,
+//! so that a ray leaving through a cut still counts its crossing.
 //!
 //! # The work
 //!
@@ -59,7 +64,9 @@ const GROUP: usize = 8;
 const BURIED_RAY_M: f32 = 0.5;
 /// How far from a cloth vertex inside another part [`Frame::settle`] looks for the surface
 /// that takes it out, metres.
-const SETTLE_M: f32 = 0.05;
+const SETTLE_M: f32 = 0.08;
+/// [`Frame::settle`] checks that the point this far beyond an exit lies outside, metres.
+const EXIT_CHECK_M: f64 = 1e-3;
 /// The buried-face test's ray starts this far in front of the face's centroid, metres (off the
 /// face itself).
 const BURIED_START_M: f32 = 1e-4;
@@ -106,6 +113,8 @@ pub(crate) struct Scratch {
     face_mask: Vec<u8>,
     /// The fan faces to test.
     fan_faces: Vec<u32>,
+    /// [`Frame::settle`]'s exits to try: squared distance and face.
+    exits: Vec<(f64, u32)>,
 }
 
 impl Scratch {
@@ -124,6 +133,7 @@ impl Scratch {
             gathered_mask: Vec::with_capacity(n_faces),
             face_mask: vec![0; n_faces],
             fan_faces: Vec::with_capacity(n_faces),
+            exits: Vec::with_capacity(n_faces),
         }
     }
 
@@ -182,6 +192,18 @@ pub(crate) struct Frame {
     /// whether a buried face uses it.
     ray_seen: Vec<u32>,
     vertex_touches_buried: Vec<bool>,
+    /// The region's cuts closed for the ray tests: per boundary edge `(a, b, loop)`, the cap
+    /// triangle `(b, a, centre of loop)` (oriented as the face it borders).
+    caps: Vec<[u32; 3]>,
+    /// Per boundary loop, its vertices (CSR).
+    loop_offsets: Vec<u32>,
+    loop_vertices: Vec<u32>,
+    /// Per boundary loop, the mean of its vertices and the box of its caps (relative, this
+    /// frame).
+    loop_centre: Vec<[f32; 3]>,
+    loop_box: Vec<([f32; 3], [f32; 3])>,
+    /// Per boundary loop, its range of `caps` (`caps` is sorted by loop).
+    loop_caps: Vec<u32>,
 }
 
 /// The certified query's state (see the module docs).
@@ -227,6 +249,15 @@ impl Certifier {
             }
         }
         let n_f = faces.len();
+        let (caps, loop_offsets, loop_vertices) = caps(n_vertices, faces);
+        let n_loops = loop_offsets.len() - 1;
+        let mut loop_caps = vec![0u32; n_loops + 1];
+        for c in &caps {
+            loop_caps[c[2] as usize + 1] += 1;
+        }
+        for l in 0..n_loops {
+            loop_caps[l + 1] += loop_caps[l];
+        }
         Self {
             frame: Frame {
                 faces: faces.to_vec(),
@@ -258,6 +289,12 @@ impl Certifier {
                 crease: vec![false; n_f],
                 ray_seen: vec![0; n_f],
                 vertex_touches_buried: vec![false; n_vertices],
+                caps,
+                loop_offsets,
+                loop_vertices,
+                loop_centre: vec![[0.0; 3]; n_loops],
+                loop_box: vec![([0.0; 3], [0.0; 3]); n_loops],
+                loop_caps,
             },
             warm: vec![u32::MAX; slots.len()],
             scratch: (0..tasks.max(1))
@@ -312,6 +349,28 @@ impl Frame {
         for (r, p) in self.rel.iter_mut().zip(posed) {
             let d = p - grid.origin;
             *r = [d.x as f32, d.y as f32, d.z as f32];
+        }
+        for (l, (centre, bounds)) in self
+            .loop_centre
+            .iter_mut()
+            .zip(&mut self.loop_box)
+            .enumerate()
+        {
+            let vs = &self.loop_vertices
+                [self.loop_offsets[l] as usize..self.loop_offsets[l + 1] as usize];
+            let mut sum = [0.0f32; 3];
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for &v in vs {
+                let r = self.rel[v as usize];
+                sum = [0, 1, 2].map(|k| sum[k] + r[k]);
+                lo = [0, 1, 2].map(|k| lo[k].min(r[k]));
+                hi = [0, 1, 2].map(|k| hi[k].max(r[k]));
+            }
+            *centre = sum.map(|x| x / vs.len().max(1) as f32);
+            *bounds = (
+                [0, 1, 2].map(|k| lo[k].min(centre[k])),
+                [0, 1, 2].map(|k| hi[k].max(centre[k])),
+            );
         }
         let data = &mut self.data;
         for (f, t) in self.faces.iter().enumerate() {
@@ -425,8 +484,7 @@ impl Frame {
     ///
     /// A face is buried when the ray from its centroid along its outward normal leaves the
     /// region through more faces than it enters it by ([`Frame::ray_starts_inside`]): it started
-    /// inside a part. Where the ray passes through the region's open cut, a crossing is missing
-    /// and the face reads as exposed, as before.
+    /// inside a part. The region's cuts are closed for the rays (see the module docs).
     fn mark_buried(&mut self) {
         self.n_buried = 0;
         let mut seen = std::mem::take(&mut self.ray_seen);
@@ -540,8 +598,23 @@ impl Frame {
                 t_delta[k] = -cell / d[k];
             }
         }
-        let [nx, ny, nz] = grid.dims.map(|n| n as i64);
         let inv = d.map(|x| 1.0 / x);
+        for (l, (lo, hi)) in self.loop_box.iter().enumerate() {
+            if !ray_meets_box(&o, &inv, lo, hi) {
+                continue;
+            }
+            let centre = self.loop_centre[l];
+            let caps = &self.caps[self.loop_caps[l] as usize..self.loop_caps[l + 1] as usize];
+            for &[a, b, _] in caps {
+                let (pa, pb) = (self.rel[a as usize], self.rel[b as usize]);
+                if let Some((t, leaves)) = ray_triangle(o, d, pb, pa, centre)
+                    && t < BURIED_RAY_M
+                {
+                    cross(leaves);
+                }
+            }
+        }
+        let [nx, ny, nz] = grid.dims.map(|n| n as i64);
         let mut t_enter = 0.0f32;
         while t_enter < BURIED_RAY_M
             && (0..nx).contains(&idx[0])
@@ -681,10 +754,28 @@ impl Frame {
             .map(|c| self.settle(proximity, q, c, s))
     }
 
-    /// The answer `c` for `q`, unless `c` reads `q` as outside from a crease face (exposed, next
-    /// to a buried one) while `q` lies inside another part, by the winding number along `c`'s
-    /// normal: then the nearest exposed face within [`SETTLE_M`] that `q` lies behind, whose
-    /// push takes it out of that part (`c` if none reads it as inside).
+    /// Whether `x` (relative) lies inside the region by a vote of three rays (along `d`, and
+    /// towards the front and the back): one ray through the region's open cut, or grazing an
+    /// edge, misses a crossing.
+    fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3], s: &mut Scratch) -> bool {
+        let mut votes = 0;
+        for dir in [d, [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
+            let mark = s.next();
+            votes += usize::from(self.ray_winding(x, dir, u32::MAX, &mut s.face_stamp, mark) > 0);
+        }
+        votes >= 2
+    }
+
+    /// The answer `c` for `q`, unless `c`'s face is a crease face (exposed, next to a buried
+    /// one) and `q` lies inside a body part by the winding number along `c`'s normal: then the
+    /// way out, the nearest point of an exposed face within [`SETTLE_M`] whose landing point
+    /// ([`EXIT_CHECK_M`] beyond it, away from `q`) lies outside by the same ray test. Its
+    /// answer reads `q` as inside by that distance, along the direction to it. `c` if no exit
+    /// is found.
+    ///
+    /// A crease face's pseudo-normal reads the sign wrongly in either way there (a vertex in
+    /// the overlap of two parts is "outside" one of them), and a push along it can end inside
+    /// the other part: the exit is checked, not assumed.
     fn settle(
         &self,
         proximity: &MeshProximity,
@@ -692,43 +783,69 @@ impl Frame {
         c: ClosestPoint,
         s: &mut Scratch,
     ) -> ClosestPoint {
-        if !self.crease[c.face as usize] || c.signed_distance_m < 0.0 {
+        if !self.crease[c.face as usize] {
             return c;
         }
-
         let d = q - self.grid.origin;
         let x = [d.x as f32, d.y as f32, d.z as f32];
         let n = [c.normal.x as f32, c.normal.y as f32, c.normal.z as f32];
-        let mark = s.next();
-        if self.ray_winding(x, n, u32::MAX, &mut s.face_stamp, mark) <= 0 {
+        if !self.inside_by_rays(x, n, s) {
             return c;
         }
-
-        // Growing balls: most such vertices are within a centimetre of the way out.
-        let mut reach = SETTLE_M / 4.0;
+        // Growing balls: most such vertices are within a few centimetres of the way out. The
+        // exposed faces within `reach`, nearest first; the first whose landing point is outside.
+        let mut reach = SETTLE_M / 8.0;
+        let mut tested = 0.0f32;
         loop {
             let stamp = s.next();
-            s.candidates.clear();
+            s.exits.clear();
             self.scan(&x, reach, |f, _| {
-                let fi = f as usize;
-                if s.face_stamp[fi] != stamp {
-                    s.face_stamp[fi] = stamp;
-                    let [nx, ny, nz, o] = self.data.plane[fi];
-                    if nx * x[0] + ny * x[1] + nz * x[2] - o < 0.0 {
-                        s.candidates.push(f);
+                if s.face_stamp[f as usize] != stamp {
+                    s.face_stamp[f as usize] = stamp;
+                    if let Some(near) = proximity.nearest_among(q, &[f])
+                        && near.distance_sq.sqrt() <= f64::from(reach)
+                        && near.distance_sq.sqrt() >= f64::from(tested)
+                    {
+                        s.exits.push((near.distance_sq, f));
                     }
                 }
             });
-            match proximity.closest_among(q, &s.candidates) {
-                Some(behind)
-                    if behind.signed_distance_m < 0.0
-                        && -behind.signed_distance_m <= f64::from(reach) =>
-                {
-                    return behind;
+            s.exits
+                .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            for k in 0..s.exits.len() {
+                let f = s.exits[k].1;
+                let Some(near) = proximity.nearest_among(q, &[f]) else {
+                    continue;
+                };
+                let dist = near.distance_sq.sqrt();
+                let out = if dist > 1e-9 {
+                    (near.point - q) / dist
+                } else {
+                    proximity.signed(q, &near).normal
+                };
+                // An exit leaves through the face: from behind its plane to in front of it.
+                let [nx, ny, nz, _] = self.data.plane[f as usize];
+                if (out.x as f32) * nx + (out.y as f32) * ny + (out.z as f32) * nz <= 0.0 {
+                    continue;
                 }
-                _ if reach >= SETTLE_M => return c,
-                _ => reach = (reach * 2.0).min(SETTLE_M),
+                let land = near.point + out * EXIT_CHECK_M - self.grid.origin;
+                let l = [land.x as f32, land.y as f32, land.z as f32];
+                let o = [out.x as f32, out.y as f32, out.z as f32];
+                if !self.inside_by_rays(l, o, s) {
+                    return ClosestPoint {
+                        face: f,
+                        point: near.point,
+                        barycentric: near.barycentric,
+                        signed_distance_m: -dist,
+                        normal: out,
+                    };
+                }
             }
+            if reach >= SETTLE_M {
+                return c;
+            }
+            tested = reach;
+            reach = (reach * 2.0).min(SETTLE_M);
         }
     }
 }
@@ -1123,6 +1240,63 @@ impl Frame {
     }
 }
 
+/// The boundary of the region (`faces` over `n_vertices`), to close its cuts: per boundary edge
+/// `(a, b, loop)` as its face orders it, and the vertices of each loop (CSR offsets and
+/// vertices). Edges that meet at a vertex share a loop.
+fn caps(n_vertices: usize, faces: &[[u32; 3]]) -> (Vec<[u32; 3]>, Vec<u32>, Vec<u32>) {
+    let mut count = std::collections::HashMap::<(u32, u32), i32>::new();
+    for t in faces {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *count.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    let mut edges: Vec<[u32; 2]> = faces
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| [t[k], t[(k + 1) % 3]]))
+        .filter(|&[a, b]| count[&(a.min(b), a.max(b))] == 1)
+        .collect();
+    edges.sort_unstable();
+    // Loops: components of the boundary edges (union–find over their vertices).
+    let mut parent: Vec<u32> = (0..n_vertices as u32).collect();
+    fn root(parent: &mut [u32], mut v: u32) -> u32 {
+        while parent[v as usize] != v {
+            parent[v as usize] = parent[parent[v as usize] as usize];
+            v = parent[v as usize];
+        }
+        v
+    }
+    for &[a, b] in &edges {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        parent[ra.max(rb) as usize] = ra.min(rb);
+    }
+    let mut loop_of = vec![u32::MAX; n_vertices];
+    let mut members: Vec<Vec<u32>> = Vec::new();
+    let mut on_boundary: Vec<u32> = edges.iter().flatten().copied().collect();
+    on_boundary.sort_unstable();
+    on_boundary.dedup();
+    for v in on_boundary {
+        let r = root(&mut parent, v) as usize;
+        if loop_of[r] == u32::MAX {
+            loop_of[r] = members.len() as u32;
+            members.push(Vec::new());
+        }
+        members[loop_of[r] as usize].push(v);
+    }
+    let mut caps: Vec<[u32; 3]> = edges
+        .iter()
+        .map(|&[a, b]| [a, b, loop_of[root(&mut parent, a) as usize]])
+        .collect();
+    caps.sort_by_key(|c| c[2]);
+    let mut offsets = vec![0u32];
+    let mut vertices = Vec::new();
+    for m in members {
+        vertices.extend(m);
+        offsets.push(vertices.len() as u32);
+    }
+    (caps, offsets, vertices)
+}
+
 /// The `LANES` values of `v` from `e` (the grid arrays are padded by `LANES`).
 #[inline(always)]
 fn lanes(v: &[f32], e: usize) -> &[f32; LANES] {
@@ -1298,5 +1472,64 @@ mod tests {
             proximity.closest(&q).signed_distance_m > 0.0,
             "the full surface reads outside"
         );
+    }
+
+    #[test]
+    fn a_cut_region_is_closed_for_the_ray_tests_and_the_way_out_is_checked() {
+        // Part A, a 6 cm box open at x = 0 (its −x side removed: the region's cut); part B sunk
+        // 3 cm into its +x side.
+        let (mut v, mut f) = (Vec::new(), Vec::new());
+        cuboid([0.0, 0.0, 0.0], [0.06, 0.06, 0.06], &mut v, &mut f);
+        let centroid = |v: &[Vector3<f64>], t: &[u32; 3]| {
+            t.iter().map(|&i| v[i as usize]).sum::<Vector3<f64>>() / 3.0
+        };
+        f.retain(|t| centroid(&v, t).x > 1e-9);
+        assert_eq!(f.len(), 10);
+        cuboid([0.03, 0.01, 0.01], [0.10, 0.05, 0.05], &mut v, &mut f);
+        let mut certifier = Certifier::new(v.len(), &f, &[Vector3::zeros()], 1, true);
+        certifier.update(&v);
+        let frame = certifier.frame();
+        // B's −x side faces A's cut: its rays leave through the cap.
+        let minus_x: Vec<usize> = (10..f.len())
+            .filter(|&i| (centroid(&v, &f[i]).x - 0.03).abs() < 1e-9)
+            .collect();
+        assert_eq!(minus_x.len(), 2);
+        assert!(minus_x.iter().all(|&i| frame.buried[i]));
+        // Every point of A or B, pushed by its answer, lands outside both.
+        let proximity = MeshProximity::new(&v, &f).expect("mesh");
+        let mut scratch = Scratch::for_frame(frame);
+        let margin = 0.002;
+        let in_box = |p: &Vector3<f64>, lo: [f64; 3], hi: [f64; 3]| {
+            (0..3).all(|k| p[k] > lo[k] && p[k] < hi[k])
+        };
+        let (a, b) = (
+            ([0.0; 3], [0.06; 3]),
+            ([0.03, 0.01, 0.01], [0.10, 0.05, 0.05]),
+        );
+        let mut tested = 0;
+        for i in 0..12 {
+            for j in 0..6 {
+                for k in 0..6 {
+                    let q = Vector3::new(
+                        0.036 + 0.005 * i as f64,
+                        0.012 + 0.007 * j as f64,
+                        0.012 + 0.007 * k as f64,
+                    );
+                    if !(in_box(&q, a.0, a.1) || in_box(&q, b.0, b.1)) {
+                        continue;
+                    }
+                    tested += 1;
+                    let c = frame
+                        .exact(&proximity, &q, u32::MAX, &mut scratch)
+                        .expect("an answer");
+                    let landed = q + c.normal * (margin - c.signed_distance_m);
+                    assert!(
+                        !in_box(&landed, a.0, a.1) && !in_box(&landed, b.0, b.1),
+                        "{q:?} lands at {landed:?} ({c:?})"
+                    );
+                }
+            }
+        }
+        assert!(tested > 300, "{tested}");
     }
 }
