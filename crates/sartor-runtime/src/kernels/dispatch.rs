@@ -1,19 +1,22 @@
 //! Run-time instruction-set dispatch for the row kernels — the crate's only `unsafe` code.
 //!
 //! [`super::rows::rows`] is generic over an engine. This module instantiates it with the
-//! portable engines and, on x86-64, a second time inside `#[target_feature(enable =
-//! "avx2,fma,f16c")]` functions with engines written with AVX2 and F16C intrinsics (LLVM's
-//! auto-vectoriser proved unreliable for the 32-lane accumulators: inside the crate it chose
-//! 2-wide vectors and ran 5–10× slower). One is picked at run time with `is_x86_feature_detected!`.
+//! portable engines and, on x86-64, inside `#[target_feature(enable = "avx2,fma,f16c")]` and
+//! `#[target_feature(enable = "avx512f,avx2,fma,f16c")]` functions with engines written with
+//! AVX2 / AVX-512 and F16C intrinsics (LLVM's auto-vectoriser proved unreliable for the 32-lane
+//! accumulators: inside the crate it chose 2-wide vectors and ran 5–10× slower). The kernels
+//! are written once (`isa_kernels!`) over each module's vector type. One instruction set is
+//! picked at run time with `is_x86_feature_detected!`: the widest.
 //!
 //! Unsafe operations, each with its `SAFETY` comment: the unaligned loads and stores of the
 //! intrinsics (from references of exactly the size they touch), and calls of
 //! `#[target_feature]` functions, which are sound exactly when the CPU has those features. An
 //! [`Isa`] other than the portable one can only be made after detection succeeded, and the
-//! AVX2 engines are private to this module and only instantiated inside the AVX2 wrappers.
-//! The intrinsic engines follow the lane rule of `rows.rs` (4 registers × 8 lanes, separate
-//! multiply and add, the same padded tail and reduction tree), so every [`Isa`] gives bitwise
-//! the same results; the tests below check that against the portable engines.
+//! SIMD engines are private to this module and only instantiated inside the wrappers with
+//! their features. The intrinsic engines follow the lane rule of `rows.rs` (32 lanes: 4
+//! registers × 8 on AVX2, 2 × 16 on AVX-512; separate multiply and add, the same padded tail
+//! and reduction tree), so every [`Isa`] gives bitwise the same results; the tests below check
+//! that against the portable engines.
 #![allow(unsafe_code)]
 
 use std::sync::OnceLock;
@@ -25,6 +28,8 @@ enum Level {
     Portable,
     #[cfg(target_arch = "x86_64")]
     Avx2,
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
 }
 
 /// An instruction set the kernels may use; only constructible after run-time detection.
@@ -36,6 +41,11 @@ fn has_avx2() -> bool {
     is_x86_feature_detected!("avx2")
         && is_x86_feature_detected!("fma")
         && is_x86_feature_detected!("f16c")
+}
+
+#[cfg(target_arch = "x86_64")]
+fn has_avx512() -> bool {
+    has_avx2() && is_x86_feature_detected!("avx512f")
 }
 
 impl Isa {
@@ -53,13 +63,17 @@ impl Isa {
             if has_avx2() {
                 all.push(Self(Level::Avx2));
             }
+            if has_avx512() {
+                all.push(Self(Level::Avx512));
+            }
         }
         all
     }
 
     /// The instruction set the kernels use, detected once: the widest available. The
-    /// environment variable `SARTOR_RUNTIME_ISA` (`portable`, `avx2`) picks another one for
-    /// benchmarking; a choice this CPU does not support, or an unknown name, is ignored.
+    /// environment variable `SARTOR_RUNTIME_ISA` (`portable`, `avx2`, `avx512`) picks another
+    /// one for benchmarking; a choice this CPU does not support, or an unknown name, is
+    /// ignored.
     pub(crate) fn best() -> Self {
         static BEST: OnceLock<Isa> = OnceLock::new();
         *BEST.get_or_init(|| {
@@ -79,13 +93,181 @@ impl Isa {
             Level::Portable => "portable",
             #[cfg(target_arch = "x86_64")]
             Level::Avx2 => "avx2",
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx512 => "avx512",
         }
     }
 }
 
-/// AVX2 + F16C kernels with explicit intrinsics. Every function has
-/// `#[target_feature(enable = "avx2,fma,f16c")]`; they are only reached through the engines
-/// below, inside the `avx2` wrappers of `dispatched_rows!`.
+/// The kernels of one instruction set, written once for its vector type: each ISA module
+/// defines `V` (a vector of `W` f32 lanes), `R = LANES / W` vectors per lane sum, `add`, `mul`,
+/// `load_f32`, `load_i8`, `load_f16` (exact conversions) and `store`, all with the module's
+/// target features; `$feat` repeats them for the functions made here.
+#[cfg(target_arch = "x86_64")]
+macro_rules! isa_kernels {
+    ($feat:literal, $add:ident, $mul:ident, $loadu:ident, $storeu:ident) => {
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn add(a: V, b: V) -> V {
+            $add(a, b)
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn mul(a: V, b: V) -> V {
+            $mul(a, b)
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn load_f32(a: &[f32; W]) -> V {
+            // SAFETY: `a` is W f32, exactly the vector's width; the load needs no alignment.
+            unsafe { $loadu(a.as_ptr()) }
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn store(v: V, out: &mut [f32; W]) {
+            // SAFETY: `out` is W writable f32, exactly the vector's width; no alignment needed.
+            unsafe { $storeu(out.as_mut_ptr(), v) }
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn load_acc(s: &[f32; LANES]) -> [V; R] {
+            let (sw, _) = s.as_chunks::<W>();
+            std::array::from_fn(|r| load_f32(&sw[r]))
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn store_acc(acc: [V; R], s: &mut [f32; LANES]) {
+            let (sw, _) = s.as_chunks_mut::<W>();
+            for r in 0..R {
+                store(acc[r], &mut sw[r]);
+            }
+        }
+
+        isa_kernels!(@one $feat, f32, load_f32, dot_f32, dot4_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, i8, load_i8, dot_i8, dot4_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, F16Bits, load_f16, dot_f16, dot4_f16, madd1_f16, madd2_f16);
+    };
+    (@one $feat:literal, $t:ty, $load:ident,
+        $dot:ident, $dot4:ident, $madd1:ident, $madd2:ident) => {
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
+            // The same sums as `madd1` from zero, lane for lane.
+            let mut s = [0.0f32; LANES];
+            $madd1(w, x, &mut s);
+            reduce(s)
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
+            // Per row the same sums as `dot`, lane for lane; the four rows interleaved.
+            #[inline]
+            #[target_feature(enable = $feat)]
+            fn step(acc: &mut [[V; R]; 4], w: [&[$t; LANES]; 4], x: &[f32; LANES]) {
+                let (xw, _) = x.as_chunks::<W>();
+                for r in 0..R {
+                    let xv = load_f32(&xw[r]);
+                    for k in 0..4 {
+                        let (ww, _) = w[k].as_chunks::<W>();
+                        acc[k][r] = add(acc[k][r], mul($load(&ww[r]), xv));
+                    }
+                }
+            }
+            let zero = [0.0f32; LANES];
+            let mut acc = [load_acc(&zero); 4];
+            let (xc, xt) = x.as_chunks::<LANES>();
+            let wc = w.map(|row| row.as_chunks::<LANES>());
+            for (i, b) in xc.iter().enumerate() {
+                step(
+                    &mut acc,
+                    [&wc[0].0[i], &wc[1].0[i], &wc[2].0[i], &wc[3].0[i]],
+                    b,
+                );
+            }
+            if !xt.is_empty() {
+                let pw = wc.map(|(_, tail)| padded(tail));
+                step(&mut acc, [&pw[0], &pw[1], &pw[2], &pw[3]], &padded(xt));
+            }
+            acc.map(|a| {
+                let mut s = [0.0f32; LANES];
+                store_acc(a, &mut s);
+                reduce(s)
+            })
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
+            #[inline]
+            #[target_feature(enable = $feat)]
+            fn step(acc: &mut [V; R], w: &[$t; LANES], x: &[f32; LANES]) {
+                let (ww, _) = w.as_chunks::<W>();
+                let (xw, _) = x.as_chunks::<W>();
+                for r in 0..R {
+                    acc[r] = add(acc[r], mul($load(&ww[r]), load_f32(&xw[r])));
+                }
+            }
+            let mut acc = load_acc(s);
+            let (wc, wt) = w.as_chunks::<LANES>();
+            let (xc, xt) = x.as_chunks::<LANES>();
+            for (a, b) in wc.iter().zip(xc) {
+                step(&mut acc, a, b);
+            }
+            if !wt.is_empty() {
+                step(&mut acc, &padded(wt), &padded(xt));
+            }
+            store_acc(acc, s);
+        }
+
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $madd2(
+            w: &[$t],
+            x0: &[f32],
+            x1: &[f32],
+            s0: &mut [f32; LANES],
+            s1: &mut [f32; LANES],
+        ) {
+            #[inline]
+            #[target_feature(enable = $feat)]
+            fn step(acc: [&mut [V; R]; 2], w: &[$t; LANES], x: [&[f32; LANES]; 2]) {
+                let (ww, _) = w.as_chunks::<W>();
+                let (x0w, _) = x[0].as_chunks::<W>();
+                let (x1w, _) = x[1].as_chunks::<W>();
+                let [acc0, acc1] = acc;
+                for r in 0..R {
+                    let wv = $load(&ww[r]);
+                    acc0[r] = add(acc0[r], mul(wv, load_f32(&x0w[r])));
+                    acc1[r] = add(acc1[r], mul(wv, load_f32(&x1w[r])));
+                }
+            }
+            let mut acc0 = load_acc(s0);
+            let mut acc1 = load_acc(s1);
+            let (wc, wt) = w.as_chunks::<LANES>();
+            let (x0c, x0t) = x0.as_chunks::<LANES>();
+            let (x1c, x1t) = x1.as_chunks::<LANES>();
+            for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
+                step([&mut acc0, &mut acc1], a, [b0, b1]);
+            }
+            if !wt.is_empty() {
+                let (a, b0, b1) = (padded(wt), padded(x0t), padded(x1t));
+                step([&mut acc0, &mut acc1], &a, [&b0, &b1]);
+            }
+            store_acc(acc0, s0);
+            store_acc(acc1, s1);
+        }
+    };
+}
+
+/// AVX2 + F16C kernels with explicit intrinsics: 4 registers of 8 lanes per lane sum. Every
+/// function has `#[target_feature(enable = "avx2,fma,f16c")]`; they are only reached through
+/// the engines below, inside the `avx2` wrappers of `dispatched_rows!`.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::{
@@ -95,16 +277,13 @@ mod avx2 {
 
     use super::super::rows::{F16Bits, LANES, padded, reduce};
 
-    #[inline]
-    #[target_feature(enable = "avx2,fma,f16c")]
-    fn load_f32(a: &[f32; 8]) -> __m256 {
-        // SAFETY: `a` is 8 f32 = 32 readable bytes; `_mm256_loadu_ps` needs no alignment.
-        unsafe { _mm256_loadu_ps(a.as_ptr()) }
-    }
+    type V = __m256;
+    const W: usize = 8;
+    const R: usize = LANES / W;
 
     #[inline]
     #[target_feature(enable = "avx2,fma,f16c")]
-    fn load_i8(a: &[i8; 8]) -> __m256 {
+    fn load_i8(a: &[i8; W]) -> V {
         // SAFETY: `a` is 8 readable bytes; `_mm_loadl_epi64` reads exactly 8 bytes, unaligned.
         let q = unsafe { _mm_loadl_epi64(a.as_ptr().cast::<__m128i>()) };
         _mm256_cvtepi32_ps(_mm256_cvtepi8_epi32(q))
@@ -112,168 +291,74 @@ mod avx2 {
 
     #[inline]
     #[target_feature(enable = "avx2,fma,f16c")]
-    fn load_f16(a: &[F16Bits; 8]) -> __m256 {
+    fn load_f16(a: &[F16Bits; W]) -> V {
         // SAFETY: `a` is 8 `F16Bits` = 16 readable bytes (`repr(transparent)` over u16);
         // `_mm_loadu_si128` needs no alignment.
         let h = unsafe { _mm_loadu_si128(a.as_ptr().cast::<__m128i>()) };
         _mm256_cvtph_ps(h)
     }
 
-    #[inline]
-    #[target_feature(enable = "avx2,fma,f16c")]
-    fn store(v: __m256, out: &mut [f32; 8]) {
-        // SAFETY: `out` is 8 f32 = 32 writable bytes; `_mm256_storeu_ps` needs no alignment.
-        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) }
-    }
-
-    #[inline]
-    #[target_feature(enable = "avx2,fma,f16c")]
-    fn load_acc(s: &[f32; LANES]) -> [__m256; 4] {
-        let (s8, _) = s.as_chunks::<8>();
-        [
-            load_f32(&s8[0]),
-            load_f32(&s8[1]),
-            load_f32(&s8[2]),
-            load_f32(&s8[3]),
-        ]
-    }
-
-    #[inline]
-    #[target_feature(enable = "avx2,fma,f16c")]
-    fn store_acc(acc: [__m256; 4], s: &mut [f32; LANES]) {
-        let (s8, _) = s.as_chunks_mut::<8>();
-        for r in 0..4 {
-            store(acc[r], &mut s8[r]);
-        }
-    }
-
-    macro_rules! kernels {
-        ($t:ty, $load:ident, $dot:ident, $dot4:ident, $madd1:ident, $madd2:ident) => {
-            #[inline]
-            #[target_feature(enable = "avx2,fma,f16c")]
-            pub(super) fn $dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
-                // Per row the same sums as `dot`, lane for lane; the four rows interleaved.
-                #[inline]
-                #[target_feature(enable = "avx2,fma,f16c")]
-                fn step(acc: &mut [[__m256; 4]; 4], w: [&[$t; LANES]; 4], x: &[f32; LANES]) {
-                    let (x8, _) = x.as_chunks::<8>();
-                    for r in 0..4 {
-                        let xv = load_f32(&x8[r]);
-                        for k in 0..4 {
-                            let (w8, _) = w[k].as_chunks::<8>();
-                            acc[k][r] = _mm256_add_ps(acc[k][r], _mm256_mul_ps($load(&w8[r]), xv));
-                        }
-                    }
-                }
-                let zero = [0.0f32; LANES];
-                let mut acc = [load_acc(&zero); 4];
-                let (xc, xt) = x.as_chunks::<LANES>();
-                let wc = w.map(|row| row.as_chunks::<LANES>());
-                for (i, b) in xc.iter().enumerate() {
-                    step(
-                        &mut acc,
-                        [&wc[0].0[i], &wc[1].0[i], &wc[2].0[i], &wc[3].0[i]],
-                        b,
-                    );
-                }
-                if !xt.is_empty() {
-                    let pw = wc.map(|(_, tail)| padded(tail));
-                    step(&mut acc, [&pw[0], &pw[1], &pw[2], &pw[3]], &padded(xt));
-                }
-                acc.map(|a| {
-                    let mut s = [0.0f32; LANES];
-                    store_acc(a, &mut s);
-                    reduce(s)
-                })
-            }
-
-            #[inline]
-            #[target_feature(enable = "avx2,fma,f16c")]
-            pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
-                // The same sums as `madd1` from zero, lane for lane.
-                let mut s = [0.0f32; LANES];
-                $madd1(w, x, &mut s);
-                reduce(s)
-            }
-
-            #[inline]
-            #[target_feature(enable = "avx2,fma,f16c")]
-            pub(super) fn $madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
-                #[inline]
-                #[target_feature(enable = "avx2,fma,f16c")]
-                fn step(acc: &mut [__m256; 4], w: &[$t; LANES], x: &[f32; LANES]) {
-                    let (w8, _) = w.as_chunks::<8>();
-                    let (x8, _) = x.as_chunks::<8>();
-                    for r in 0..4 {
-                        acc[r] =
-                            _mm256_add_ps(acc[r], _mm256_mul_ps($load(&w8[r]), load_f32(&x8[r])));
-                    }
-                }
-                let mut acc = load_acc(s);
-                let (wc, wt) = w.as_chunks::<LANES>();
-                let (xc, xt) = x.as_chunks::<LANES>();
-                for (a, b) in wc.iter().zip(xc) {
-                    step(&mut acc, a, b);
-                }
-                if !wt.is_empty() {
-                    step(&mut acc, &padded(wt), &padded(xt));
-                }
-                store_acc(acc, s);
-            }
-
-            #[inline]
-            #[target_feature(enable = "avx2,fma,f16c")]
-            pub(super) fn $madd2(
-                w: &[$t],
-                x0: &[f32],
-                x1: &[f32],
-                s0: &mut [f32; LANES],
-                s1: &mut [f32; LANES],
-            ) {
-                #[inline]
-                #[target_feature(enable = "avx2,fma,f16c")]
-                fn step(acc: [&mut [__m256; 4]; 2], w: &[$t; LANES], x: [&[f32; LANES]; 2]) {
-                    let (w8, _) = w.as_chunks::<8>();
-                    let (x08, _) = x[0].as_chunks::<8>();
-                    let (x18, _) = x[1].as_chunks::<8>();
-                    let [acc0, acc1] = acc;
-                    for r in 0..4 {
-                        let wv = $load(&w8[r]);
-                        acc0[r] = _mm256_add_ps(acc0[r], _mm256_mul_ps(wv, load_f32(&x08[r])));
-                        acc1[r] = _mm256_add_ps(acc1[r], _mm256_mul_ps(wv, load_f32(&x18[r])));
-                    }
-                }
-                let mut acc0 = load_acc(s0);
-                let mut acc1 = load_acc(s1);
-                let (wc, wt) = w.as_chunks::<LANES>();
-                let (x0c, x0t) = x0.as_chunks::<LANES>();
-                let (x1c, x1t) = x1.as_chunks::<LANES>();
-                for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
-                    step([&mut acc0, &mut acc1], a, [b0, b1]);
-                }
-                if !wt.is_empty() {
-                    let (a, b0, b1) = (padded(wt), padded(x0t), padded(x1t));
-                    step([&mut acc0, &mut acc1], &a, [&b0, &b1]);
-                }
-                store_acc(acc0, s0);
-                store_acc(acc1, s1);
-            }
-        };
-    }
-
-    kernels!(f32, load_f32, dot_f32, dot4_f32, madd1_f32, madd2_f32);
-    kernels!(i8, load_i8, dot_i8, dot4_i8, madd1_i8, madd2_i8);
-    kernels!(F16Bits, load_f16, dot_f16, dot4_f16, madd1_f16, madd2_f16);
+    isa_kernels!(
+        "avx2,fma,f16c",
+        _mm256_add_ps,
+        _mm256_mul_ps,
+        _mm256_loadu_ps,
+        _mm256_storeu_ps
+    );
 }
 
-/// The AVX2 engines: private, and only instantiated inside the `avx2` wrappers below.
+/// AVX-512 kernels: 2 registers of 16 lanes per lane sum, the same lane rule. Every function
+/// has `#[target_feature(enable = "avx512f,avx2,fma,f16c")]`; reached only through the engines
+/// below, inside the `avx512` wrappers of `dispatched_rows!`.
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::{
+        __m128i, __m256i, __m512, _mm_loadu_si128, _mm256_loadu_si256, _mm512_add_ps,
+        _mm512_cvtepi8_epi32, _mm512_cvtepi32_ps, _mm512_cvtph_ps, _mm512_loadu_ps, _mm512_mul_ps,
+        _mm512_storeu_ps,
+    };
+
+    use super::super::rows::{F16Bits, LANES, padded, reduce};
+
+    type V = __m512;
+    const W: usize = 16;
+    const R: usize = LANES / W;
+
+    #[inline]
+    #[target_feature(enable = "avx512f,avx2,fma,f16c")]
+    fn load_i8(a: &[i8; W]) -> V {
+        // SAFETY: `a` is 16 readable bytes; `_mm_loadu_si128` reads exactly 16, unaligned.
+        let q = unsafe { _mm_loadu_si128(a.as_ptr().cast::<__m128i>()) };
+        _mm512_cvtepi32_ps(_mm512_cvtepi8_epi32(q))
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx512f,avx2,fma,f16c")]
+    fn load_f16(a: &[F16Bits; W]) -> V {
+        // SAFETY: `a` is 16 `F16Bits` = 32 readable bytes (`repr(transparent)` over u16);
+        // `_mm256_loadu_si256` needs no alignment.
+        let h = unsafe { _mm256_loadu_si256(a.as_ptr().cast::<__m256i>()) };
+        _mm512_cvtph_ps(h)
+    }
+
+    isa_kernels!(
+        "avx512f,avx2,fma,f16c",
+        _mm512_add_ps,
+        _mm512_mul_ps,
+        _mm512_loadu_ps,
+        _mm512_storeu_ps
+    );
+}
+
+/// The SIMD engines: private, and only instantiated inside the wrappers of `dispatched_rows!`
+/// with their module's target features.
 #[cfg(target_arch = "x86_64")]
 mod engines {
     use super::super::rows::{Engine, F16Bits, LANES};
-    use super::avx2;
+    use super::{avx2, avx512};
 
     macro_rules! engine {
-        ($name:ident, $t:ty, $dot:ident, $dot4:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -281,22 +366,22 @@ mod engines {
 
                 #[inline(always)]
                 fn dot(w: &[$t], x: &[f32]) -> f32 {
-                    // SAFETY: this engine is only used inside `#[target_feature(enable =
-                    // "avx2,fma,f16c")]` wrappers, which are only called for an `Isa` made
-                    // after `has_avx2()` found those features.
-                    unsafe { avx2::$dot(w, x) }
+                    // SAFETY: this engine is only used inside wrappers with its module's
+                    // `#[target_feature]`, which are only called for an `Isa` made after
+                    // detection found those features.
+                    unsafe { $m::$dot(w, x) }
                 }
 
                 #[inline(always)]
                 fn dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
                     // SAFETY: as for `dot`.
-                    unsafe { avx2::$dot4(w, x) }
+                    unsafe { $m::$dot4(w, x) }
                 }
 
                 #[inline(always)]
                 fn madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
                     // SAFETY: as for `dot`.
-                    unsafe { avx2::$madd1(w, x, s) }
+                    unsafe { $m::$madd1(w, x, s) }
                 }
 
                 #[inline(always)]
@@ -308,19 +393,28 @@ mod engines {
                     s1: &mut [f32; LANES],
                 ) {
                     // SAFETY: as for `dot`.
-                    unsafe { avx2::$madd2(w, x0, x1, s0, s1) }
+                    unsafe { $m::$madd2(w, x0, x1, s0, s1) }
                 }
             }
         };
     }
 
-    engine!(Avx2F32, f32, dot_f32, dot4_f32, madd1_f32, madd2_f32);
-    engine!(Avx2I8, i8, dot_i8, dot4_i8, madd1_i8, madd2_i8);
-    engine!(Avx2F16, F16Bits, dot_f16, dot4_f16, madd1_f16, madd2_f16);
+    engine!(Avx2F32, avx2, f32, dot_f32, dot4_f32, madd1_f32, madd2_f32);
+    engine!(Avx2I8, avx2, i8, dot_i8, dot4_i8, madd1_i8, madd2_i8);
+    engine!(
+        Avx2F16, avx2, F16Bits, dot_f16, dot4_f16, madd1_f16, madd2_f16
+    );
+    engine!(
+        Avx512F32, avx512, f32, dot_f32, dot4_f32, madd1_f32, madd2_f32
+    );
+    engine!(Avx512I8, avx512, i8, dot_i8, dot4_i8, madd1_i8, madd2_i8);
+    engine!(
+        Avx512F16, avx512, F16Bits, dot_f16, dot4_f16, madd1_f16, madd2_f16
+    );
 }
 
 macro_rules! dispatched_rows {
-    ($(#[$doc:meta])* $name:ident, $t:ty, $portable:ty, $simd:ident) => {
+    ($(#[$doc:meta])* $name:ident, $t:ty, $portable:ty, $simd:ident, $simd512:ident) => {
         $(#[$doc])*
         pub(crate) fn $name(
             isa: Isa,
@@ -334,22 +428,34 @@ macro_rules! dispatched_rows {
         ) {
             #[cfg(target_arch = "x86_64")]
             {
-                #[target_feature(enable = "avx2,fma,f16c")]
-                fn avx2(
-                    w: &[$t],
-                    cols: usize,
-                    xs: &[f32],
-                    batch: usize,
-                    scales: Option<&[f32]>,
-                    bias: Option<&[f32]>,
-                    ys_t: &mut [f32],
-                ) {
-                    rows::<engines::$simd>(w, cols, xs, batch, scales, bias, ys_t)
+                macro_rules! wrapper {
+                    ($wrap:ident, $feat:literal, $engine:ident) => {
+                        #[target_feature(enable = $feat)]
+                        fn $wrap(
+                            w: &[$t],
+                            cols: usize,
+                            xs: &[f32],
+                            batch: usize,
+                            scales: Option<&[f32]>,
+                            bias: Option<&[f32]>,
+                            ys_t: &mut [f32],
+                        ) {
+                            rows::<engines::$engine>(w, cols, xs, batch, scales, bias, ys_t)
+                        }
+                    };
                 }
-                if isa.0 == Level::Avx2 {
+                wrapper!(avx2, "avx2,fma,f16c", $simd);
+                wrapper!(avx512, "avx512f,avx2,fma,f16c", $simd512);
+                match isa.0 {
                     // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
                     // fma and f16c on this CPU.
-                    return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) };
+                    Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
+                    // SAFETY: `Isa(Level::Avx512)` is only built after `has_avx512()` found
+                    // avx512f as well.
+                    Level::Avx512 => {
+                        return unsafe { avx512(w, cols, xs, batch, scales, bias, ys_t) };
+                    }
+                    Level::Portable => {}
                 }
             }
             let _ = isa;
@@ -363,21 +469,24 @@ dispatched_rows!(
     rows_f32,
     f32,
     Portable<F32Codec>,
-    Avx2F32
+    Avx2F32,
+    Avx512F32
 );
 dispatched_rows!(
     /// f16 rows (bits), converted exactly to f32 on the fly (F16C on x86-64 when present).
     rows_f16,
     F16Bits,
     Portable<F16Codec>,
-    Avx2F16
+    Avx2F16,
+    Avx512F16
 );
 dispatched_rows!(
     /// int8 rows with a per-row scale.
     rows_i8,
     i8,
     Portable<I8Codec>,
-    Avx2I8
+    Avx2I8,
+    Avx512I8
 );
 
 #[cfg(test)]

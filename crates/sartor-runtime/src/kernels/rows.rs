@@ -20,7 +20,8 @@
 //!
 //! The single-vector path streams each weight row once with the conversion fused into the dot
 //! product, four rows at a time (four concurrent memory streams, each input chunk loaded once:
-//! one stream per row left a third of the memory bandwidth unused on an Intel Xeon). The batched path tiles the work so that everything but the weights stays in L1:
+//! one stream per row left a third of the memory bandwidth unused on an Intel Xeon). The
+//! batched path tiles the work so that everything but the weights stays in L1:
 //! blocks of [`ROW_BLOCK`] rows × [`COL_BLOCK`] columns × up to [`GROUP`] inputs, inputs taken
 //! two at a time (one weight load feeds two products), lane sums carried across column
 //! blocks. `B` avatars thus share one pass over the weights in memory.
