@@ -43,7 +43,9 @@
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace, Parallelism};
+use sartor_core::{
+    ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace, Parallelism,
+};
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
@@ -113,8 +115,8 @@ pub(crate) struct Scratch {
     face_mask: Vec<u8>,
     /// The fan faces to test.
     fan_faces: Vec<u32>,
-    /// [`Frame::settle`]'s exits to try: squared distance and face.
-    exits: Vec<(f64, u32)>,
+    /// [`Frame::settle`]'s exits to try: each face's nearest point.
+    exits: Vec<NearestFace>,
 }
 
 impl Scratch {
@@ -806,17 +808,18 @@ impl Frame {
                         && near.distance_sq.sqrt() <= f64::from(reach)
                         && near.distance_sq.sqrt() >= f64::from(tested)
                     {
-                        s.exits.push((near.distance_sq, f));
+                        s.exits.push(near);
                     }
                 }
             });
-            s.exits
-                .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            s.exits.sort_unstable_by(|a, b| {
+                a.distance_sq
+                    .total_cmp(&b.distance_sq)
+                    .then(a.face.cmp(&b.face))
+            });
             for k in 0..s.exits.len() {
-                let f = s.exits[k].1;
-                let Some(near) = proximity.nearest_among(q, &[f]) else {
-                    continue;
-                };
+                let near = s.exits[k];
+                let f = near.face;
                 let dist = near.distance_sq.sqrt();
                 let out = if dist > 1e-9 {
                     (near.point - q) / dist
@@ -1241,57 +1244,18 @@ impl Frame {
 }
 
 /// The boundary of the region (`faces` over `n_vertices`), to close its cuts: per boundary edge
-/// `(a, b, loop)` as its face orders it, and the vertices of each loop (CSR offsets and
-/// vertices). Edges that meet at a vertex share a loop.
+/// `(a, b, loop)` as its face orders it, sorted by loop, and the vertices of each loop (CSR
+/// offsets and vertices), from sartor-core's `MeshTopology::boundary_loops`.
 fn caps(n_vertices: usize, faces: &[[u32; 3]]) -> (Vec<[u32; 3]>, Vec<u32>, Vec<u32>) {
-    let mut count = std::collections::HashMap::<(u32, u32), i32>::new();
-    for t in faces {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            *count.entry((a.min(b), a.max(b))).or_default() += 1;
-        }
-    }
-    let mut edges: Vec<[u32; 2]> = faces
-        .iter()
-        .flat_map(|t| (0..3).map(move |k| [t[k], t[(k + 1) % 3]]))
-        .filter(|&[a, b]| count[&(a.min(b), a.max(b))] == 1)
-        .collect();
-    edges.sort_unstable();
-    // Loops: components of the boundary edges (union–find over their vertices).
-    let mut parent: Vec<u32> = (0..n_vertices as u32).collect();
-    fn root(parent: &mut [u32], mut v: u32) -> u32 {
-        while parent[v as usize] != v {
-            parent[v as usize] = parent[parent[v as usize] as usize];
-            v = parent[v as usize];
-        }
-        v
-    }
-    for &[a, b] in &edges {
-        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-        parent[ra.max(rb) as usize] = ra.min(rb);
-    }
-    let mut loop_of = vec![u32::MAX; n_vertices];
-    let mut members: Vec<Vec<u32>> = Vec::new();
-    let mut on_boundary: Vec<u32> = edges.iter().flatten().copied().collect();
-    on_boundary.sort_unstable();
-    on_boundary.dedup();
-    for v in on_boundary {
-        let r = root(&mut parent, v) as usize;
-        if loop_of[r] == u32::MAX {
-            loop_of[r] = members.len() as u32;
-            members.push(Vec::new());
-        }
-        members[loop_of[r] as usize].push(v);
-    }
-    let mut caps: Vec<[u32; 3]> = edges
-        .iter()
-        .map(|&[a, b]| [a, b, loop_of[root(&mut parent, a) as usize]])
-        .collect();
-    caps.sort_by_key(|c| c[2]);
+    let loops = MeshTopology::new(n_vertices, faces).boundary_loops();
+    let mut caps = Vec::new();
     let mut offsets = vec![0u32];
     let mut vertices = Vec::new();
-    for m in members {
-        vertices.extend(m);
+    for (l, cycle) in loops.iter().enumerate() {
+        for (k, &a) in cycle.iter().enumerate() {
+            caps.push([a, cycle[(k + 1) % cycle.len()], l as u32]);
+        }
+        vertices.extend_from_slice(cycle);
         offsets.push(vertices.len() as u32);
     }
     (caps, offsets, vertices)
