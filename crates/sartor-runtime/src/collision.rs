@@ -56,7 +56,7 @@ use crate::error::{Error, Result};
 mod certify;
 
 pub use certify::CertifyStats;
-use certify::{Certifier, Outcome, Scratch};
+use certify::{Certifier, Outcome};
 
 /// Distance kept between cloth and body, metres: the paper's 2 mm.
 pub const DEFAULT_MARGIN_M: f64 = 0.002;
@@ -376,6 +376,10 @@ pub(crate) struct Collider {
     certifier: Option<Certifier>,
     /// What the certified query did in the last frame.
     stats: CertifyStats,
+    /// A later pass's moved vertices, their positions and warm faces (scratch).
+    moved: Vec<u32>,
+    moved_points: Vec<Vector3<f32>>,
+    moved_warm: Vec<u32>,
 }
 
 /// What the post-process remembers of a cloth vertex.
@@ -487,6 +491,14 @@ impl Collider {
             CollisionQuery::Bvh { radius_m } => radius_m,
             _ => f64::INFINITY,
         };
+        let certifier = (options.query == CollisionQuery::Certified).then(|| {
+            let buried = match options.interpenetration {
+                Interpenetration::Ignore => false,
+                Interpenetration::BeyondTrainingShapes => beyond_training,
+                Interpenetration::Always => true,
+            };
+            Certifier::new(&rest, &region.faces, cloth_rest, tasks, buried)
+        });
         Ok(Self {
             margin_m: options.margin_m,
             passes: options.passes,
@@ -501,21 +513,11 @@ impl Collider {
             candidates,
             own_parts,
             part_boxes,
-            certifier: (options.query == CollisionQuery::Certified).then(|| {
-                let buried = match options.interpenetration {
-                    Interpenetration::Ignore => false,
-                    Interpenetration::BeyondTrainingShapes => beyond_training,
-                    Interpenetration::Always => true,
-                };
-                Certifier::new(
-                    region.vertices.len(),
-                    &region.faces,
-                    cloth_rest,
-                    tasks,
-                    buried,
-                )
-            }),
+            certifier,
             stats: CertifyStats::default(),
+            moved: Vec::with_capacity(cloth_rest.len()),
+            moved_points: Vec::with_capacity(cloth_rest.len()),
+            moved_warm: Vec::with_capacity(cloth_rest.len()),
         })
     }
 
@@ -704,31 +706,46 @@ impl Collider {
     }
 
     /// A later pass of the certified query: the exact answer for each vertex the previous pass
-    /// moved (from the grid's candidate faces), pushed as the BVH query's later passes push.
+    /// moved (all at once: see `certify.rs`), pushed as the BVH query's later passes push.
     fn certified_later_pass(&mut self, cloth: &mut [Vector3<f32>]) -> usize {
         let Some(certifier) = self.certifier.as_mut() else {
             return 0;
         };
-        let (frame, scratch) = certifier.frame_and_scratch();
         let margin = self.margin_m;
-        let mut pushed = 0;
-        for (p, state) in cloth.iter_mut().zip(&mut self.vertices) {
-            if !state.moved {
-                continue;
-            }
-            state.moved = false;
-            let q = p.cast::<f64>();
-            if let Some(c) = frame.exact(&self.proximity, &q, state.last_face, scratch) {
-                state.last_face = c.face;
-                if c.signed_distance_m < margin - REPUSH_SLACK_M {
-                    let b = c.normal.dot(&q) + margin - c.signed_distance_m;
-                    *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
-                    state.plane = Some((c.normal, b));
-                    state.moved = true;
-                    pushed += 1;
-                }
+        let (moved, points, warm) = (
+            &mut self.moved,
+            &mut self.moved_points,
+            &mut self.moved_warm,
+        );
+        moved.clear();
+        points.clear();
+        warm.clear();
+        for (i, (p, state)) in cloth.iter().zip(&mut self.vertices).enumerate() {
+            if state.moved {
+                state.moved = false;
+                moved.push(i as u32);
+                points.push(*p);
+                warm.push(state.last_face);
             }
         }
+        let mut pushed = 0;
+        let states = &mut self.vertices;
+        certifier.exact_points(&self.proximity, points, warm, |k, hit| {
+            let i = moved[k] as usize;
+            let (p, state) = (&mut cloth[i], &mut states[i]);
+            let Some(c) = hit else {
+                return;
+            };
+            state.last_face = c.face;
+            if c.signed_distance_m < margin - REPUSH_SLACK_M {
+                let q = p.cast::<f64>();
+                let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
+                state.plane = Some((c.normal, b));
+                state.moved = true;
+                pushed += 1;
+            }
+        });
         pushed
     }
 
@@ -809,17 +826,11 @@ impl Collider {
         mut visit: impl FnMut(&sartor_core::ClosestPoint),
     ) {
         match &self.certifier {
-            Some(certifier) => {
-                let region = certifier.frame();
-                let mut scratch = Scratch::for_frame(region);
-                for p in points {
-                    if let Some(c) =
-                        region.exact(&self.proximity, &p.cast::<f64>(), u32::MAX, &mut scratch)
-                    {
-                        visit(&c);
-                    }
+            Some(certifier) => certifier.exact_each(&self.proximity, points, |_, hit| {
+                if let Some(c) = hit {
+                    visit(&c);
                 }
-            }
+            }),
             None => {
                 for p in points {
                     visit(&self.proximity.closest(&p.cast::<f64>()));

@@ -34,18 +34,37 @@
 //!
 //! # The work
 //!
-//! Per frame, the posed region is put in a uniform grid (each face in every cell its box
-//! overlaps; a counting sort) with f32 boxes and planes relative to the grid's corner. Per
-//! vertex: `U` from the face it was nearest last frame (exact distance), the grid cells within
-//! `U`, the faces there, the fans of their vertices. The f32 arithmetic is covered by a 10 µm
-//! guard on every comparison (coordinates relative to the grid, within metres; f32 rounding of
-//! the planes is below a micrometre for faces that are not slivers, and slivers never pass).
+//! Per frame, the posed region's faces get f32 boxes, planes and corners relative to a corner
+//! of its box. Then one of two ways:
+//!
+//! - **The sweep** (`sweep.rs`; whenever buried faces are not sought, so at every training
+//!   shape): the faces, in spatial clusters of 16, visit a grid of the cloth vertices and keep
+//!   per vertex its f32 nearest distance and every face within it plus 10 µm, started from the
+//!   face it was nearest last frame. That list holds the exact query's face; the certificate is
+//!   the one above over the list's faces, and a vertex that fails it gets
+//!   `MeshProximity::nearest_among` of the list. The later passes and reports sweep the points
+//!   they ask about the same way.
+//! - **The grid** (with buried faces): the region in a uniform grid (each face in every cell its
+//!   box overlaps; a counting sort); per group of 8 nearby vertices, `U` from the face each was
+//!   nearest last frame (exact distance), the grid cells within `U`, the faces there, the fans of
+//!   their vertices.
+//!
+//! The f32 arithmetic is covered by a 10 µm guard on every comparison (coordinates relative to
+//! the region's box, within metres; f32 rounding of the planes and distances is below a
+//! micrometre for faces that are not slivers, and slivers never pass a certificate nor end a
+//! search).
+//!
+//! The sweep runs on one thread (`Parallelism` does not split it); its cost on the shipped
+//! model: `cargo bench -p sartor-runtime --bench postprocess`.
+
+mod sweep;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{
     ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace, Parallelism,
 };
+use sweep::Sweep;
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
@@ -177,6 +196,12 @@ pub struct CertifyStats {
 #[derive(Clone, Debug)]
 pub(crate) struct Frame {
     faces: Vec<[u32; 3]>,
+    /// The faces in spatial clusters of [`sweep::CLUSTER`] (the last one shorter), and each
+    /// cluster's box this frame (relative).
+    cluster_faces: Vec<u32>,
+    cluster_box: Vec<([f32; 3], [f32; 3])>,
+    /// Per face in cluster order, what the sweep reads of it this frame (contiguous).
+    sweep_faces: Vec<sweep::SweepFace>,
     /// Per region vertex, the faces around it (CSR).
     fan_offsets: Vec<u32>,
     fan: Vec<u32>,
@@ -219,20 +244,43 @@ pub(crate) struct Certifier {
     scratch: Vec<Scratch>,
     /// Per slot.
     outcomes: Vec<Option<Outcome>>,
+    /// Whether the sweep answers (without buried faces: see `sweep.rs`) instead of the groups
+    /// and the face grid.
+    use_sweep: bool,
+    sweep: Sweep,
+    /// The sweep's per cloth vertex warm faces and outcomes, and its points (relative).
+    vertex_warm: Vec<u32>,
+    vertex_outcomes: Vec<Option<Outcome>>,
+    points: Vec<[f32; 3]>,
 }
 
 impl Certifier {
-    /// For a region of `n_vertices` vertices and `faces`, and a garment whose rest shape is
+    /// For a region of `faces` over vertices at `region_rest`, and a garment whose rest shape is
     /// `cloth_rest` (it groups nearby vertices), with scratch for `tasks` parallel tasks.
     /// `buried`: find the faces buried inside another part each frame (see the module docs).
     pub(crate) fn new(
-        n_vertices: usize,
+        region_rest: &[Vector3<f64>],
         faces: &[[u32; 3]],
         cloth_rest: &[Vector3<f32>],
         tasks: usize,
         buried: bool,
     ) -> Self {
-        let slots = groups(cloth_rest);
+        let n_vertices = region_rest.len();
+        let slots = groups(cloth_rest, GROUP);
+        // The faces in spatial clusters of the sweep, by their centroids at rest.
+        let centroids: Vec<Vector3<f32>> = faces
+            .iter()
+            .map(|t| {
+                (t.iter()
+                    .map(|&v| region_rest[v as usize])
+                    .sum::<Vector3<f64>>()
+                    / 3.0)
+                    .cast()
+            })
+            .collect();
+        let mut cluster_faces = groups(&centroids, sweep::CLUSTER);
+        cluster_faces.retain(|&f| f != u32::MAX);
+        let n_clusters = faces.len().div_ceil(sweep::CLUSTER);
         let mut fan_offsets = vec![0u32; n_vertices + 1];
         for t in faces {
             for &v in t {
@@ -263,6 +311,9 @@ impl Certifier {
         Self {
             frame: Frame {
                 faces: faces.to_vec(),
+                cluster_faces,
+                cluster_box: vec![([0.0; 3], [0.0; 3]); n_clusters],
+                sweep_faces: vec![sweep::SweepFace::default(); faces.len()],
                 fan_offsets,
                 fan,
                 rel: vec![[0.0; 3]; n_vertices],
@@ -304,33 +355,34 @@ impl Certifier {
                 .collect(),
             outcomes: vec![None; slots.len()],
             slots,
+            use_sweep: !buried,
+            sweep: Sweep::default(),
+            vertex_warm: vec![u32::MAX; cloth_rest.len()],
+            vertex_outcomes: vec![None; cloth_rest.len()],
+            points: Vec::with_capacity(cloth_rest.len()),
         }
     }
 
     /// Rebuild the face data and the grid from the posed region. Allocation-free.
     pub(crate) fn update(&mut self, posed: &[Vector3<f64>]) {
         let mut cell = CELL_M;
-        while !self.frame.try_update(posed, cell) {
+        while !self.frame.try_update(posed, cell, !self.use_sweep) {
             cell *= 1.5;
         }
     }
 
     /// The posed region.
+    #[cfg(test)]
     pub(crate) fn frame(&self) -> &Frame {
         &self.frame
-    }
-
-    /// The frame and a scratch, for callers outside [`Certifier::run`] (the later passes,
-    /// reports).
-    pub(crate) fn frame_and_scratch(&mut self) -> (&Frame, &mut Scratch) {
-        (&self.frame, &mut self.scratch[0])
     }
 }
 
 impl Frame {
     /// [`Certifier::update`] with cells of `cell` metres; `false` (and nothing usable) when the
     /// grid would need more cells or entries than it has room for.
-    fn try_update(&mut self, posed: &[Vector3<f64>], cell: f32) -> bool {
+    /// Without `with_grid` only the face data (the sweep's input) is rebuilt.
+    fn try_update(&mut self, posed: &[Vector3<f64>], cell: f32, with_grid: bool) -> bool {
         let (mut lo, mut hi) = (
             Vector3::repeat(f64::INFINITY),
             Vector3::repeat(f64::NEG_INFINITY),
@@ -406,6 +458,28 @@ impl Frame {
             } else {
                 [0.0, 0.0, 0.0, f32::INFINITY]
             };
+        }
+        for (c, bounds) in self.cluster_box.iter_mut().enumerate() {
+            let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            let end = ((c + 1) * sweep::CLUSTER).min(self.cluster_faces.len());
+            for k in c * sweep::CLUSTER..end {
+                let f = self.cluster_faces[k];
+                let fi = f as usize;
+                let (a, b) = (data.lo[fi], data.hi[fi]);
+                l = [0, 1, 2].map(|k| l[k].min(a[k]));
+                h = [0, 1, 2].map(|k| h[k].max(b[k]));
+                self.sweep_faces[k] = sweep::SweepFace {
+                    lo: a,
+                    hi: b,
+                    plane: data.plane[fi],
+                    tri: self.faces[fi].map(|v| self.rel[v as usize]),
+                    face: f,
+                };
+            }
+            *bounds = (l, h);
+        }
+        if !with_grid {
+            return true;
         }
         // Counting sort of the face–cell entries.
         let [nx, ny, _] = grid.dims;
@@ -690,6 +764,20 @@ impl Frame {
         }
     }
 
+    /// Whether `x` (relative) is in front of every face around a vertex of face `g` by more
+    /// than `front` (a sliver never is).
+    fn fans_in_front(&self, g: u32, x: &[f32; 3], front: f32) -> bool {
+        self.faces[g as usize].iter().all(|&v| {
+            let v = v as usize;
+            self.fan[self.fan_offsets[v] as usize..self.fan_offsets[v + 1] as usize]
+                .iter()
+                .all(|&k| {
+                    let [nx, ny, nz, o] = self.data.plane[k as usize];
+                    nx * x[0] + ny * x[1] + nz * x[2] - o > front
+                })
+        })
+    }
+
     /// An upper bound of the distance from `q` to the region: its distance to face `hint` if
     /// that is a face, else to the first face found in the nearest non-empty cells.
     fn upper_bound(&self, proximity: &MeshProximity, q: &Vector3<f64>, hint: u32) -> (f64, u32) {
@@ -862,12 +950,16 @@ impl Certifier {
         margin_m: f64,
         par: Parallelism,
     ) -> CertifyStats {
+        if self.use_sweep {
+            return self.run_sweep(proximity, cloth, margin_m);
+        }
         let Self {
             frame,
             slots,
             warm,
             scratch,
             outcomes,
+            ..
         } = self;
         let frame = &*frame;
         let slots = &*slots;
@@ -920,10 +1012,160 @@ impl Certifier {
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
     /// fixed order.
     pub(crate) fn for_each_outcome(&self, mut visit: impl FnMut(usize, Option<Outcome>)) {
+        if self.use_sweep {
+            for (v, &o) in self.vertex_outcomes.iter().enumerate() {
+                visit(v, o);
+            }
+            return;
+        }
         for (&v, &o) in self.slots.iter().zip(&self.outcomes) {
             if v != u32::MAX {
                 visit(v as usize, o);
             }
+        }
+    }
+}
+
+impl Certifier {
+    /// [`Certifier::run`] by the sweep: every cloth vertex's faces within its nearest distance
+    /// (plus the slack) from one sweep of the region's faces, then the same certificate as a
+    /// group's (the vertex beyond the margin, in front of every face around a vertex of those
+    /// faces) or the exact answer from those faces.
+    fn run_sweep(
+        &mut self,
+        proximity: &MeshProximity,
+        cloth: &[Vector3<f32>],
+        margin_m: f64,
+    ) -> CertifyStats {
+        let frame = &self.frame;
+        self.points.clear();
+        self.points.extend(cloth.iter().map(|p| frame.relative(p)));
+        self.sweep.run(frame, &self.points, &self.vertex_warm);
+        let s = &mut self.scratch[0];
+        let front2 = (margin_m as f32 + GUARD_M).powi(2);
+        let margin2 = margin_m * margin_m;
+        let mut stats = CertifyStats::default();
+        for (i, (out, warm)) in self
+            .vertex_outcomes
+            .iter_mut()
+            .zip(&mut self.vertex_warm)
+            .enumerate()
+        {
+            let x = &self.points[i];
+            let (best2, best_face) = self.sweep.best(i);
+            stats.candidates += self.sweep.faces(i).count();
+            if best2 >= front2
+                && self
+                    .sweep
+                    .faces(i)
+                    .all(|g| frame.fans_in_front(g, x, GUARD_M))
+            {
+                *out = Some(Outcome::Certified);
+                *warm = best_face;
+                stats.certified += 1;
+                continue;
+            }
+            s.candidates.clear();
+            s.candidates.extend(self.sweep.faces(i));
+            let q = cloth[i].cast::<f64>();
+            *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
+                *warm = nearest.face;
+                if !frame.crease[nearest.face as usize]
+                    && nearest.distance_sq >= margin2
+                    && frame.feature_in_front(x, &nearest, GUARD_M)
+                {
+                    stats.certified += 1;
+                    Outcome::Certified
+                } else {
+                    stats.exact += 1;
+                    Outcome::Exact(proximity.signed(&q, &nearest))
+                }
+            });
+        }
+        stats
+    }
+
+    /// The exact query's answer for each of `points` (`warm`: a face to start from per point,
+    /// `u32::MAX` for none), visited in order; for the later passes. Allocation-free.
+    pub(crate) fn exact_points(
+        &mut self,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        warm: &[u32],
+        visit: impl FnMut(usize, Option<ClosestPoint>),
+    ) {
+        let state = AnswerState {
+            sweep: self.use_sweep.then_some(&mut self.sweep),
+            points: &mut self.points,
+            scratch: &mut self.scratch[0],
+        };
+        self.frame
+            .answer_points(state, proximity, points, warm, visit);
+    }
+
+    /// [`Certifier::exact_points`] without a starting face, with scratch of its own (for
+    /// reports).
+    pub(crate) fn exact_each(
+        &self,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        visit: impl FnMut(usize, Option<ClosestPoint>),
+    ) {
+        let mut sweep = Sweep::default();
+        let state = AnswerState {
+            sweep: self.use_sweep.then_some(&mut sweep),
+            points: &mut Vec::new(),
+            scratch: &mut Scratch::for_frame(&self.frame),
+        };
+        let warm = vec![u32::MAX; points.len()];
+        self.frame
+            .answer_points(state, proximity, points, &warm, visit);
+    }
+}
+
+/// What [`Frame::answer_points`] works in: the sweep (`None`: the grid answers), the relative
+/// points, scratch.
+struct AnswerState<'a> {
+    sweep: Option<&'a mut Sweep>,
+    points: &'a mut Vec<[f32; 3]>,
+    scratch: &'a mut Scratch,
+}
+
+impl Frame {
+    /// The exact query's answer for each of `points` from `warm` faces, by the sweep or the
+    /// grid.
+    fn answer_points(
+        &self,
+        state: AnswerState<'_>,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        warm: &[u32],
+        mut visit: impl FnMut(usize, Option<ClosestPoint>),
+    ) {
+        let AnswerState {
+            sweep,
+            points: rel,
+            scratch: s,
+        } = state;
+        let Some(sweep) = sweep else {
+            for (k, (p, &w)) in points.iter().zip(warm).enumerate() {
+                visit(k, self.exact(proximity, &p.cast::<f64>(), w, s));
+            }
+            return;
+        };
+        rel.clear();
+        rel.extend(points.iter().map(|p| self.relative(p)));
+        sweep.run(self, rel, warm);
+        for (k, p) in points.iter().enumerate() {
+            s.candidates.clear();
+            s.candidates.extend(sweep.faces(k));
+            let q = p.cast::<f64>();
+            visit(
+                k,
+                proximity
+                    .nearest_among(&q, &s.candidates)
+                    .map(|nearest| proximity.signed(&q, &nearest)),
+            );
         }
     }
 }
@@ -937,12 +1179,12 @@ fn add(a: &mut CertifyStats, b: CertifyStats) {
 /// Cloth vertices in groups of up to [`GROUP`], spatially compact (median splits along the
 /// longest axis of the rest shape, at multiples of [`GROUP`]); [`GROUP`] slots per group,
 /// `u32::MAX` for an empty one. Deterministic.
-fn groups(rest: &[Vector3<f32>]) -> Vec<u32> {
-    fn split(idx: &mut [u32], rest: &[Vector3<f32>], out: &mut Vec<u32>) {
+fn groups(rest: &[Vector3<f32>], size: usize) -> Vec<u32> {
+    fn split(idx: &mut [u32], rest: &[Vector3<f32>], size: usize, out: &mut Vec<u32>) {
         let n = idx.len();
-        if n <= GROUP {
+        if n <= size {
             out.extend_from_slice(idx);
-            out.extend(std::iter::repeat_n(u32::MAX, GROUP - n));
+            out.extend(std::iter::repeat_n(u32::MAX, size - n));
             return;
         }
         let (mut lo, mut hi) = (
@@ -954,19 +1196,19 @@ fn groups(rest: &[Vector3<f32>]) -> Vec<u32> {
             hi = hi.sup(&rest[i as usize]);
         }
         let axis = (hi - lo).imax();
-        let mid = (n.div_ceil(GROUP) / 2) * GROUP;
+        let mid = (n.div_ceil(size) / 2) * size;
         idx.select_nth_unstable_by(mid, |&a, &b| {
             rest[a as usize][axis]
                 .total_cmp(&rest[b as usize][axis])
                 .then(a.cmp(&b))
         });
         let (left, right) = idx.split_at_mut(mid);
-        split(left, rest, out);
-        split(right, rest, out);
+        split(left, rest, size, out);
+        split(right, rest, size, out);
     }
     let mut idx: Vec<u32> = (0..rest.len() as u32).collect();
-    let mut out = Vec::with_capacity(rest.len() + GROUP);
-    split(&mut idx, rest, &mut out);
+    let mut out = Vec::with_capacity(rest.len() + size);
+    split(&mut idx, rest, size, &mut out);
     out
 }
 
@@ -1040,16 +1282,19 @@ impl Frame {
                 });
             centre[k] = 0.5 * (lo + hi);
         }
-        let radius = x[..n]
+        // Every member's ball of candidates lies within the group's.
+        let reach = x[..n]
             .iter()
-            .map(|p| {
+            .zip(&upper[..n])
+            .map(|(p, &u)| {
                 ((p[0] - centre[0]).powi(2)
                     + (p[1] - centre[1]).powi(2)
                     + (p[2] - centre[2]).powi(2))
                 .sqrt()
+                    + u
             })
-            .fold(0.0f32, f32::max);
-        let reach = upper[..n].iter().fold(0.0f32, |a, &b| a.max(b)) + radius + GUARD_M;
+            .fold(0.0f32, f32::max)
+            + GUARD_M;
         let stamp = s.next();
         s.gathered.clear();
         for &f in &seed[..n] {
@@ -1408,7 +1653,7 @@ mod tests {
         let inside = |p: Vector3<f64>, lo: [f64; 3], hi: [f64; 3]| {
             (0..3).all(|k| p[k] > lo[k] && p[k] < hi[k])
         };
-        let mut certifier = Certifier::new(v.len(), &f, &[Vector3::zeros()], 1, true);
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], 1, true);
         certifier.update(&v);
         let frame = certifier.frame();
         let mut n_buried = 0;
@@ -1450,7 +1695,7 @@ mod tests {
         f.retain(|t| centroid(&v, t).x > 1e-9);
         assert_eq!(f.len(), 10);
         cuboid([0.03, 0.01, 0.01], [0.10, 0.05, 0.05], &mut v, &mut f);
-        let mut certifier = Certifier::new(v.len(), &f, &[Vector3::zeros()], 1, true);
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], 1, true);
         certifier.update(&v);
         let frame = certifier.frame();
         // B's −x side faces A's cut: its rays leave through the cap.

@@ -1,0 +1,84 @@
+//! The collision post-process of the shipped model (the 4,210-triangle T-shirt on the built-in
+//! body, nominal shape) on the procedural walk, one thread: milliseconds per frame of the
+//! post-process alone (posing the body region and pushing the cloth out), per query, and the
+//! whole frame with the default query. Each iteration is the next frame of the clip, so the
+//! temporal caches see real motion.
+//!
+//! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
+
+use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use sartor_core::{BodyModel, Pose};
+use sartor_runtime::{
+    AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
+    GarmentNetwork, GarmentRig, NetworkOptions,
+};
+
+fn data(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../datasets")
+        .join(path)
+}
+
+fn clock_ms() -> f64 {
+    static START: OnceLock<Instant> = OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
+}
+
+fn animator(query: CollisionQuery) -> GarmentAnimator {
+    let dir = data("models/default");
+    let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
+    let network =
+        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    let options = AnimatorOptions {
+        collision: Some(CollisionOptions {
+            query,
+            ..CollisionOptions::default()
+        }),
+        ..AnimatorOptions::default()
+    };
+    let rig = GarmentRig::new(network, binding, body, options).expect("rig");
+    let mut avatar = GarmentAnimator::new(Arc::new(rig)).expect("avatar");
+    avatar.set_stage_clock(Some(clock_ms));
+    avatar
+}
+
+fn post_process(c: &mut Criterion) {
+    let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
+    let poses: Vec<Pose> = walk.frames().to_vec();
+    let mut group = c.benchmark_group("post-process/shipped-4210");
+    for (name, query) in [
+        ("certified", CollisionQuery::Certified),
+        ("bvh", CollisionQuery::EXACT_BVH),
+    ] {
+        let mut avatar = animator(query);
+        let mut k = 0;
+        group.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                let mut total = 0.0;
+                for _ in 0..iters {
+                    avatar.frame(&poses[k % poses.len()]).expect("frame");
+                    k += 1;
+                    total += avatar.stage_times().expect("clock").post_process_ms;
+                }
+                Duration::from_secs_f64(total * 1e-3)
+            })
+        });
+    }
+    group.finish();
+    let mut avatar = animator(CollisionQuery::Certified);
+    let mut k = 0;
+    c.bench_function("frame/shipped-4210-certified", |b| {
+        b.iter(|| {
+            avatar.frame(&poses[k % poses.len()]).expect("frame");
+            k += 1;
+        })
+    });
+}
+
+criterion_group!(benches, post_process);
+criterion_main!(benches);
