@@ -404,11 +404,18 @@ impl Frame {
             let d = p - grid.origin;
             *r = [d.x as f32, d.y as f32, d.z as f32];
         }
+        // The cuts' caps serve the ray tests of buried faces only.
+        let loops = if self.find_buried {
+            self.loop_centre.len()
+        } else {
+            0
+        };
         for (l, (centre, bounds)) in self
             .loop_centre
             .iter_mut()
             .zip(&mut self.loop_box)
             .enumerate()
+            .take(loops)
         {
             let vs = &self.loop_vertices
                 [self.loop_offsets[l] as usize..self.loop_offsets[l + 1] as usize];

@@ -23,7 +23,7 @@ use super::{Frame, GUARD_M, LANES, fmax, lanes};
 /// The sweep's reaches, metres: every point is swept within the first; a point with no face
 /// that close is swept again within the second (few are), and one with none within that is
 /// searched against every face.
-const SWEEP_M: [f32; 4] = [0.01, 0.015, 0.02, 0.03];
+const SWEEP_M: [f32; 2] = [0.02, 0.04];
 /// Faces per cluster of the sweep (see [`Frame`]'s `cluster_faces`).
 pub(super) const CLUSTER: usize = 16;
 /// Smallest cell edge of the cloth grid, metres.
