@@ -40,12 +40,15 @@
 //! the belly) stays invisible to the post-process.
 //!
 //! `cargo xtask bench runtime` compares them on the 8,710-triangle T-shirt walking
-//! (`docs/reports/bench-runtime.json`: int8 network, one thread, CPU time, 2-core AMD EPYC;
-//! "inside" counts cloth vertex-frames left inside the body, of 533,640, 10,057 before the
-//! post-process). Post-process cost per frame and inside after: exact BVH 5.5 ms, 0; guarded
-//! candidates (2 cm, 8) 3.2 ms, 277; band (5 mm, refresh 16) 2.4 ms, 2,176; plain candidates
-//! 1.7 ms, 9,942. Posing and refitting the region alone costs 0.27 ms. The exact BVH stays the
-//! default; the others are there for levels of detail that trade contact accuracy for time.
+//! (`docs/reports/bench-runtime.json`: int8 network, one thread, CPU time, the 2-core Intel Xeon
+//! VM; "inside" counts cloth vertex-frames left inside the body, of 533,640, 16,179 before the
+//! post-process). Post-process cost per frame and inside after: certified (the default) 5.6 ms,
+//! 0, the same garment as the exact BVH's vertex for vertex; exact BVH 11.0 ms, 0; guarded
+//! candidates (2 cm, 8) 10.9 ms, 92; band (5 mm, refresh 16) 8.3 ms, 2,692; plain candidates
+//! (2 cm, 8) 4.2 ms, 16,179 (none pushed out). Posing and refitting the region alone costs
+//! 1.8 ms there. A run minutes earlier measured 4.8 and 11.2 ms for the first two: this machine
+//! is noisy. The approximate queries are there for levels of detail that trade contact accuracy
+//! for time; on this garment none of them beats the certified query.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
