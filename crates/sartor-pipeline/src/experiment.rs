@@ -701,7 +701,7 @@ mod tests {
 
     #[test]
     fn committed_configs_are_valid_and_their_plans_do_not_leak() {
-        for name in ["tiny", "default", "procedural", "paper"] {
+        for name in ["tiny", "default", "default-8710", "procedural", "paper"] {
             let e = config(name);
             let plan = e.plan();
             plan.validate(10).expect("a valid plan");
@@ -735,6 +735,22 @@ mod tests {
                 assert!(!test.contains(&clip(m)), "{name}: {m} is a test clip");
             }
         }
+        // The garment-resolution axis: the same experiment on another garment, so that the two
+        // models see the same shapes, motions, simulation and training.
+        let (a, b) = (config("default"), config("default-8710"));
+        let ids = |e: &Experiment| {
+            let plan = e.plan();
+            plan.sequences
+                .iter()
+                .map(|q| (q.id(&plan.shapes), q.split))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(ids(&a), ids(&b));
+        assert_eq!(
+            serde_json::to_value(&a.training).expect("json"),
+            serde_json::to_value(&b.training).expect("json")
+        );
+        assert_ne!(a.garment, b.garment);
         let e = config("default");
         for k in 0..10 {
             assert!(
