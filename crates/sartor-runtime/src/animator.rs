@@ -460,16 +460,11 @@ impl Avatar {
         let collider = match &rig.options.collision {
             Some(options) => {
                 let shaped = rig.body.shaped_vertices(&betas64)?;
-                let tasks = match rig.options.parallelism {
-                    Parallelism::Sequential => 1,
-                    Parallelism::Rayon => rayon::current_num_threads(),
-                };
                 Some(Collider::new(
                     &rig.region,
                     &shaped,
                     &cloth_rest,
                     options,
-                    tasks,
                     beyond_training,
                 )?)
             }

@@ -74,9 +74,9 @@ const REPUSH_SLACK_M: f64 = 1e-6;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CollisionQuery {
     /// Exact, and the default: the same pushes as [`CollisionQuery::EXACT_BVH`], with most
-    /// cloth vertices proven to need none by a test on the faces near them, shared by groups of
-    /// nearby vertices; the others get the exact closest point from the faces gathered for
-    /// their group (see the module docs). Where body parts interpenetrate it also leaves out the
+    /// cloth vertices proven to need none by a test on the faces near them; the others get the
+    /// exact closest point from those faces, found by one sweep of the region's faces over the
+    /// cloth (see the module docs); one thread whatever the [`Parallelism`]. Where body parts interpenetrate it also leaves out the
     /// faces buried inside another part, and takes a vertex that lies inside a part out of it
     /// (see the module docs): there it pushes more than the BVH query.
     Certified,
@@ -450,15 +450,13 @@ const CHUNK: usize = 256;
 
 impl Collider {
     /// Set up for a body of shape `shaped_body` (`T_b(β)`, every body vertex) and a garment whose
-    /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`); `tasks` parallel tasks at most (1 for
-    /// sequential frames); `beyond_training` says whether the shape lies outside the model's
-    /// training shapes ([`Interpenetration`]).
+    /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`); `beyond_training` says whether the
+    /// shape lies outside the model's training shapes ([`Interpenetration`]).
     pub(crate) fn new(
         region: &BodyRegion,
         shaped_body: &[Vector3<f64>],
         cloth_rest: &[Vector3<f32>],
         options: &CollisionOptions,
-        tasks: usize,
         beyond_training: bool,
     ) -> Result<Self> {
         let rest: Vec<Vector3<f64>> = region
@@ -500,7 +498,7 @@ impl Collider {
                 Interpenetration::BeyondTrainingShapes => beyond_training,
                 Interpenetration::Always => true,
             };
-            Certifier::new(&rest, &region.faces, cloth_rest, tasks, buried)
+            Certifier::new(&rest, &region.faces, cloth_rest, buried)
         });
         Ok(Self {
             margin_m: options.margin_m,
@@ -609,7 +607,7 @@ impl Collider {
     fn pass(&mut self, first: bool, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         if self.certifier.is_some() {
             return if first {
-                self.certified_pass(cloth, par)
+                self.certified_pass(cloth)
             } else {
                 self.certified_later_pass(cloth)
             };
@@ -681,11 +679,11 @@ impl Collider {
     /// The first pass of the certified query: every vertex certified or answered exactly (see
     /// `certify.rs`) from the unpushed cloth, then the pushes, as the BVH query's first pass
     /// makes them.
-    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
+    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>]) -> usize {
         let Some(certifier) = self.certifier.as_mut() else {
             return 0;
         };
-        self.stats = certifier.run(&self.proximity, cloth, self.margin_m, par);
+        self.stats = certifier.run(&self.proximity, cloth, self.margin_m);
         let margin = self.margin_m;
         let mut pushed = 0;
         let states = &mut self.vertices;

@@ -22,7 +22,7 @@
 //!
 //! The region the proof and the answers read is the *exposed* surface: per frame, a face whose
 //! centroid lies inside another part (the winding number along a ray on its normal, walked
-//! through the grid) is taken out of the grid, so no candidate set holds it; the fans keep it
+//! through the grid) is taken out of the sweep, so no candidate list holds it; the fans keep it
 //! (the pseudo-normals are those of the whole region). A vertex with a crease face (exposed,
 //! sharing a vertex with a buried one) among its candidates is never certified, and its answer
 //! is checked by the same ray test (`Frame::settle`): inside, it gets the nearest way out whose
@@ -35,19 +35,14 @@
 //! # The work
 //!
 //! Per frame, the posed region's faces get f32 boxes, planes and corners relative to a corner
-//! of its box. Then one of two ways:
-//!
-//! - **The sweep** (`sweep.rs`; whenever buried faces are not sought, so at every training
-//!   shape): the faces, in spatial clusters of 16, visit a grid of the cloth vertices and keep
-//!   per vertex its f32 nearest distance and every face within it plus 10 µm, started from the
-//!   face it was nearest last frame. That list holds the exact query's face; the certificate is
-//!   the one above over the list's faces, and a vertex that fails it gets
-//!   `MeshProximity::nearest_among` of the list. The later passes and reports sweep the points
-//!   they ask about the same way.
-//! - **The grid** (with buried faces): the region in a uniform grid (each face in every cell its
-//!   box overlaps; a counting sort); per group of 8 nearby vertices, `U` from the face each was
-//!   nearest last frame (exact distance), the grid cells within `U`, the faces there, the fans of
-//!   their vertices.
+//! of its box. The faces, in spatial clusters of 16, then sweep a grid of the cloth vertices
+//! (`sweep.rs`): each vertex keeps its f32 nearest distance, started from the face it was
+//! nearest last frame, and every face within it plus 10 µm. That list is `C` above with `U` the
+//! nearest distance: it holds the exact query's face. The certificate is tested over the list's
+//! faces, and a vertex that fails it gets `MeshProximity::nearest_among` of the list. The later
+//! passes and the reports sweep the points they ask about the same way. Only where buried faces
+//! are sought is the region also put in a uniform grid (each face in every cell its box
+//! overlaps; a counting sort): the rays and the way out of a part walk it.
 //!
 //! The f32 arithmetic is covered by a 10 µm guard on every comparison (coordinates relative to
 //! the region's box, within metres; f32 rounding of the planes and distances is below a
@@ -60,10 +55,7 @@
 mod sweep;
 
 use nalgebra::Vector3;
-use rayon::prelude::*;
-use sartor_core::{
-    ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace, Parallelism,
-};
+use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace};
 use sweep::Sweep;
 
 /// Slack on every f32 comparison of the certificates, metres.
@@ -79,8 +71,6 @@ const ENTRIES_PER_FACE: usize = 32;
 const MIN_SINE: f32 = 0.05;
 /// Lanes of the entry scan.
 const LANES: usize = 8;
-/// Cloth vertices certified together, in lanes (at most 8: a byte of flags).
-const GROUP: usize = 8;
 /// How far the buried-face test follows a face's normal, metres (at most to the grid's edge).
 const BURIED_RAY_M: f32 = 0.5;
 /// How far from a cloth vertex inside another part [`Frame::settle`] looks for the surface
@@ -127,13 +117,6 @@ pub(crate) struct Scratch {
     vertex_stamp: Vec<u32>,
     stamp: u32,
     candidates: Vec<u32>,
-    /// A group's gathered faces, with the members that have each as a candidate (bit `j`).
-    gathered: Vec<u32>,
-    gathered_mask: Vec<u8>,
-    /// Per face, the members that must be in front of it (valid where stamped).
-    face_mask: Vec<u8>,
-    /// The fan faces to test.
-    fan_faces: Vec<u32>,
     /// [`Frame::settle`]'s exits to try: each face's nearest point.
     exits: Vec<NearestFace>,
 }
@@ -150,10 +133,6 @@ impl Scratch {
             vertex_stamp: vec![0; n_vertices],
             stamp: 0,
             candidates: Vec::with_capacity(n_faces),
-            gathered: Vec::with_capacity(n_faces),
-            gathered_mask: Vec::with_capacity(n_faces),
-            face_mask: vec![0; n_faces],
-            fan_faces: Vec::with_capacity(n_faces),
             exits: Vec::with_capacity(n_faces),
         }
     }
@@ -237,16 +216,7 @@ pub(crate) struct Frame {
 #[derive(Clone, Debug)]
 pub(crate) struct Certifier {
     frame: Frame,
-    /// [`GROUP`] slots per group of nearby cloth vertices: a vertex, or `u32::MAX`.
-    slots: Vec<u32>,
-    /// Per slot, the face its vertex was nearest last frame (`u32::MAX`: none yet).
-    warm: Vec<u32>,
-    scratch: Vec<Scratch>,
-    /// Per slot.
-    outcomes: Vec<Option<Outcome>>,
-    /// Whether the sweep answers (without buried faces: see `sweep.rs`) instead of the groups
-    /// and the face grid.
-    use_sweep: bool,
+    scratch: Scratch,
     sweep: Sweep,
     /// The sweep's per cloth vertex warm faces and outcomes, and its points (relative).
     vertex_warm: Vec<u32>,
@@ -256,17 +226,15 @@ pub(crate) struct Certifier {
 
 impl Certifier {
     /// For a region of `faces` over vertices at `region_rest`, and a garment whose rest shape is
-    /// `cloth_rest` (it groups nearby vertices), with scratch for `tasks` parallel tasks.
-    /// `buried`: find the faces buried inside another part each frame (see the module docs).
+    /// `cloth_rest`. `buried`: find the faces buried inside another part each frame (see the
+    /// module docs).
     pub(crate) fn new(
         region_rest: &[Vector3<f64>],
         faces: &[[u32; 3]],
         cloth_rest: &[Vector3<f32>],
-        tasks: usize,
         buried: bool,
     ) -> Self {
         let n_vertices = region_rest.len();
-        let slots = groups(cloth_rest, GROUP);
         // The faces in spatial clusters of the sweep, by their centroids at rest.
         let centroids: Vec<Vector3<f32>> = faces
             .iter()
@@ -349,13 +317,7 @@ impl Certifier {
                 loop_box: vec![([0.0; 3], [0.0; 3]); n_loops],
                 loop_caps,
             },
-            warm: vec![u32::MAX; slots.len()],
-            scratch: (0..tasks.max(1))
-                .map(|_| Scratch::new(n_f, n_vertices))
-                .collect(),
-            outcomes: vec![None; slots.len()],
-            slots,
-            use_sweep: !buried,
+            scratch: Scratch::new(n_f, n_vertices),
             sweep: Sweep::default(),
             vertex_warm: vec![u32::MAX; cloth_rest.len()],
             vertex_outcomes: vec![None; cloth_rest.len()],
@@ -366,7 +328,9 @@ impl Certifier {
     /// Rebuild the face data and the grid from the posed region. Allocation-free.
     pub(crate) fn update(&mut self, posed: &[Vector3<f64>]) {
         let mut cell = CELL_M;
-        while !self.frame.try_update(posed, cell, !self.use_sweep) {
+        // The grid serves the buried-face rays and the way out of a part (`settle`) only.
+        let with_grid = self.frame.find_buried;
+        while !self.frame.try_update(posed, cell, with_grid) {
             cell *= 1.5;
         }
     }
@@ -554,6 +518,13 @@ impl Frame {
         grid.start[0] = 0;
         if self.find_buried {
             self.mark_buried();
+            // The sweep never reaches a buried face (a box at infinity).
+            for sf in &mut self.sweep_faces {
+                if self.buried[sf.face as usize] {
+                    sf.lo = [f32::INFINITY; 3];
+                    sf.hi = [f32::INFINITY; 3];
+                }
+            }
         }
         true
     }
@@ -785,72 +756,6 @@ impl Frame {
         })
     }
 
-    /// An upper bound of the distance from `q` to the region: its distance to face `hint` if
-    /// that is a face, else to the first face found in the nearest non-empty cells.
-    fn upper_bound(&self, proximity: &MeshProximity, q: &Vector3<f64>, hint: u32) -> (f64, u32) {
-        if (hint as usize) < self.faces.len() && !self.buried[hint as usize] {
-            return (proximity.distance_to_face(q, hint), hint);
-        }
-        // Shells of cells around q's cell until one holds a face.
-        let d = q - self.grid.origin;
-        let x = [d.x as f32, d.y as f32, d.z as f32];
-        let (c, _) = self.grid.range(&x, &x);
-        let [nx, ny, nz] = self.grid.dims;
-        for ring in 0..nx.max(ny).max(nz) {
-            let lo = c.map(|v| v.saturating_sub(ring));
-            let hi = [
-                (c[0] + ring).min(nx - 1),
-                (c[1] + ring).min(ny - 1),
-                (c[2] + ring).min(nz - 1),
-            ];
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    let row = (z * ny + y) * nx;
-                    let (c0, c1) = (
-                        self.grid.start[row + lo[0]] as usize,
-                        self.grid.start[row + hi[0] + 1] as usize,
-                    );
-                    if let Some(&f) = self.grid.entries[c0..c1]
-                        .iter()
-                        .find(|&&f| !self.buried[f as usize])
-                    {
-                        return (proximity.distance_to_face(q, f), f);
-                    }
-                }
-            }
-        }
-        // Every face buried cannot happen (a closed part has an outside); any face bounds the
-        // distance.
-        (proximity.distance_to_face(q, 0), 0)
-    }
-
-    /// The exact query's answer at `q` (the closest face, among those within the distance to
-    /// `hint` or to a face found near `q`).
-    pub(crate) fn exact(
-        &self,
-        proximity: &MeshProximity,
-        q: &Vector3<f64>,
-        hint: u32,
-        s: &mut Scratch,
-    ) -> Option<ClosestPoint> {
-        let (upper, face) = self.upper_bound(proximity, q, hint);
-        let d = q - self.grid.origin;
-        let x = [d.x as f32, d.y as f32, d.z as f32];
-        let stamp = s.next();
-        s.candidates.clear();
-        s.candidates.push(face);
-        s.face_stamp[face as usize] = stamp;
-        self.scan(&x, upper as f32 + GUARD_M, |f, _| {
-            if s.face_stamp[f as usize] != stamp {
-                s.face_stamp[f as usize] = stamp;
-                s.candidates.push(f);
-            }
-        });
-        proximity
-            .closest_among(q, &s.candidates)
-            .map(|c| self.settle(proximity, q, c, s))
-    }
-
     /// Whether `x` (relative) lies inside the region by a vote of three rays (along `d`, and
     /// towards the front and the back): one ray through the region's open cut, or grazing an
     /// edge, misses a crossing.
@@ -949,95 +854,31 @@ impl Frame {
 }
 
 impl Certifier {
-    /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]).
+    /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]):
+    /// one sweep of the region's faces (see `sweep.rs`), on one thread.
     pub(crate) fn run(
         &mut self,
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
         margin_m: f64,
-        par: Parallelism,
     ) -> CertifyStats {
-        if self.use_sweep {
-            return self.run_sweep(proximity, cloth, margin_m);
-        }
-        let Self {
-            frame,
-            slots,
-            warm,
-            scratch,
-            outcomes,
-            ..
-        } = self;
-        let frame = &*frame;
-        let slots = &*slots;
-        let query = Query {
-            proximity,
-            cloth,
-            margin_m,
-        };
-        let task =
-            |first: usize, outs: &mut [Option<Outcome>], warms: &mut [u32], s: &mut Scratch| {
-                let mut stats = CertifyStats::default();
-                for (g, (out, w)) in outs
-                    .chunks_mut(GROUP)
-                    .zip(warms.chunks_mut(GROUP))
-                    .enumerate()
-                {
-                    let start = (first + g) * GROUP;
-                    let work = GroupWork {
-                        members: &slots[start..start + GROUP],
-                        warm: w,
-                        out,
-                    };
-                    add(&mut stats, frame.group(&query, work, s));
-                }
-                stats
-            };
-        let stats = match par {
-            Parallelism::Sequential => task(0, outcomes, warm, &mut scratch[0]),
-            Parallelism::Rayon => {
-                let n_groups = slots.len() / GROUP;
-                let per_task = n_groups.div_ceil(scratch.len()).max(1);
-                outcomes
-                    .par_chunks_mut(per_task * GROUP)
-                    .zip(warm.par_chunks_mut(per_task * GROUP))
-                    .zip(scratch.par_iter_mut())
-                    .enumerate()
-                    .map(|(t, ((outs, warms), s))| task(t * per_task, outs, warms, s))
-                    .reduce(CertifyStats::default, |mut a, b| {
-                        add(&mut a, b);
-                        a
-                    })
-            }
-        };
-        CertifyStats {
-            buried_faces: frame.n_buried,
-            ..stats
-        }
+        self.run_sweep(proximity, cloth, margin_m)
     }
 
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
     /// fixed order.
     pub(crate) fn for_each_outcome(&self, mut visit: impl FnMut(usize, Option<Outcome>)) {
-        if self.use_sweep {
-            for (v, &o) in self.vertex_outcomes.iter().enumerate() {
-                visit(v, o);
-            }
-            return;
-        }
-        for (&v, &o) in self.slots.iter().zip(&self.outcomes) {
-            if v != u32::MAX {
-                visit(v as usize, o);
-            }
+        for (v, &o) in self.vertex_outcomes.iter().enumerate() {
+            visit(v, o);
         }
     }
 }
 
 impl Certifier {
     /// [`Certifier::run`] by the sweep: every cloth vertex's faces within its nearest distance
-    /// (plus the slack) from one sweep of the region's faces, then the same certificate as a
-    /// group's (the vertex beyond the margin, in front of every face around a vertex of those
-    /// faces) or the exact answer from those faces.
+    /// (plus the slack) from one sweep of the region's faces, then the certificate (the vertex
+    /// beyond the margin, in front of every face around a vertex of those faces, none of them a
+    /// crease) or the exact answer from those faces.
     fn run_sweep(
         &mut self,
         proximity: &MeshProximity,
@@ -1048,7 +889,7 @@ impl Certifier {
         self.points.clear();
         self.points.extend(cloth.iter().map(|p| frame.relative(p)));
         self.sweep.run(frame, &self.points, &self.vertex_warm);
-        let s = &mut self.scratch[0];
+        let s = &mut self.scratch;
         let front2 = (margin_m as f32 + GUARD_M).powi(2);
         let margin2 = margin_m * margin_m;
         let mut stats = CertifyStats::default();
@@ -1061,7 +902,10 @@ impl Certifier {
             let x = &self.points[i];
             let (best2, best_face) = self.sweep.best(i);
             stats.candidates += self.sweep.faces(i).count();
-            if best2 >= front2
+            // A vertex with a crease face among its candidates is never certified (`settle`).
+            let crease = self.sweep.faces(i).any(|g| frame.crease[g as usize]);
+            if !crease
+                && best2 >= front2
                 && self
                     .sweep
                     .faces(i)
@@ -1077,7 +921,7 @@ impl Certifier {
             let q = cloth[i].cast::<f64>();
             *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 *warm = nearest.face;
-                if !frame.crease[nearest.face as usize]
+                if !crease
                     && nearest.distance_sq >= margin2
                     && frame.feature_in_front(x, &nearest, GUARD_M)
                 {
@@ -1085,11 +929,15 @@ impl Certifier {
                     Outcome::Certified
                 } else {
                     stats.exact += 1;
-                    Outcome::Exact(proximity.signed(&q, &nearest))
+                    let c = proximity.signed(&q, &nearest);
+                    Outcome::Exact(frame.settle(proximity, &q, c, s))
                 }
             });
         }
-        stats
+        CertifyStats {
+            buried_faces: frame.n_buried,
+            ..stats
+        }
     }
 
     /// The exact query's answer for each of `points` (`warm`: a face to start from per point,
@@ -1102,9 +950,9 @@ impl Certifier {
         visit: impl FnMut(usize, Option<ClosestPoint>),
     ) {
         let state = AnswerState {
-            sweep: self.use_sweep.then_some(&mut self.sweep),
+            sweep: &mut self.sweep,
             points: &mut self.points,
-            scratch: &mut self.scratch[0],
+            scratch: &mut self.scratch,
         };
         self.frame
             .answer_points(state, proximity, points, warm, visit);
@@ -1120,7 +968,7 @@ impl Certifier {
     ) {
         let mut sweep = Sweep::default();
         let state = AnswerState {
-            sweep: self.use_sweep.then_some(&mut sweep),
+            sweep: &mut sweep,
             points: &mut Vec::new(),
             scratch: &mut Scratch::for_frame(&self.frame),
         };
@@ -1130,17 +978,15 @@ impl Certifier {
     }
 }
 
-/// What [`Frame::answer_points`] works in: the sweep (`None`: the grid answers), the relative
-/// points, scratch.
+/// What [`Frame::answer_points`] works in: the sweep, the relative points, scratch.
 struct AnswerState<'a> {
-    sweep: Option<&'a mut Sweep>,
+    sweep: &'a mut Sweep,
     points: &'a mut Vec<[f32; 3]>,
     scratch: &'a mut Scratch,
 }
 
 impl Frame {
-    /// The exact query's answer for each of `points` from `warm` faces, by the sweep or the
-    /// grid.
+    /// The exact query's answer for each of `points` from `warm` faces, by the sweep.
     fn answer_points(
         &self,
         state: AnswerState<'_>,
@@ -1154,12 +1000,6 @@ impl Frame {
             points: rel,
             scratch: s,
         } = state;
-        let Some(sweep) = sweep else {
-            for (k, (p, &w)) in points.iter().zip(warm).enumerate() {
-                visit(k, self.exact(proximity, &p.cast::<f64>(), w, s));
-            }
-            return;
-        };
         rel.clear();
         rel.extend(points.iter().map(|p| self.relative(p)));
         sweep.run(self, rel, warm);
@@ -1167,24 +1007,17 @@ impl Frame {
             s.candidates.clear();
             s.candidates.extend(sweep.faces(k));
             let q = p.cast::<f64>();
-            visit(
-                k,
-                proximity
-                    .nearest_among(&q, &s.candidates)
-                    .map(|nearest| proximity.signed(&q, &nearest)),
-            );
+            let hit = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
+                let c = proximity.signed(&q, &nearest);
+                self.settle(proximity, &q, c, s)
+            });
+            visit(k, hit);
         }
     }
 }
 
-fn add(a: &mut CertifyStats, b: CertifyStats) {
-    a.certified += b.certified;
-    a.exact += b.exact;
-    a.candidates += b.candidates;
-}
-
-/// Cloth vertices in groups of up to [`GROUP`], spatially compact (median splits along the
-/// longest axis of the rest shape, at multiples of [`GROUP`]); [`GROUP`] slots per group,
+/// Points in groups of up to `size`, spatially compact (median splits along the longest axis,
+/// at multiples of `size`); `size` slots per group,
 /// `u32::MAX` for an empty one. Deterministic.
 fn groups(rest: &[Vector3<f32>], size: usize) -> Vec<u32> {
     fn split(idx: &mut [u32], rest: &[Vector3<f32>], size: usize, out: &mut Vec<u32>) {
@@ -1219,223 +1052,7 @@ fn groups(rest: &[Vector3<f32>], size: usize) -> Vec<u32> {
     out
 }
 
-/// What every group of one frame's query reads.
-#[derive(Clone, Copy)]
-struct Query<'a> {
-    proximity: &'a MeshProximity,
-    cloth: &'a [Vector3<f32>],
-    margin_m: f64,
-}
-
-/// One group of cloth vertices (`members`: [`GROUP`] slots) with their warm faces and outcomes.
-struct GroupWork<'a> {
-    members: &'a [u32],
-    warm: &'a mut [u32],
-    out: &'a mut [Option<Outcome>],
-}
-
 impl Frame {
-    /// [`Frame::group_impl`], compiled for AVX2 when the CPU has it (the same arithmetic: the
-    /// outcome never depends on it).
-    #[allow(unsafe_code)]
-    fn group(&self, query: &Query<'_>, work: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
-        #[cfg(target_arch = "x86_64")]
-        {
-            #[target_feature(enable = "avx2")]
-            fn avx2(f: &Frame, q: &Query<'_>, w: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
-                f.group_impl(q, w, s)
-            }
-            if is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 (checked just above).
-                return unsafe { avx2(self, query, work, s) };
-            }
-        }
-        self.group_impl(query, work, s)
-    }
-
-    /// Certify or answer one group of cloth vertices, updating their warm faces and outcomes.
-    #[inline(always)]
-    fn group_impl(&self, query: &Query<'_>, work: GroupWork<'_>, s: &mut Scratch) -> CertifyStats {
-        let Query {
-            proximity,
-            cloth,
-            margin_m,
-        } = *query;
-        let GroupWork { members, warm, out } = work;
-        let mut stats = CertifyStats::default();
-        let n = members.iter().take_while(|&&v| v != u32::MAX).count();
-        if n == 0 {
-            return stats;
-        }
-        // Members in lanes (the empty ones repeat the first), their upper bounds.
-        let mut x = [[0.0f32; 3]; GROUP];
-        let mut upper = [0.0f32; GROUP];
-        let mut seed = [0u32; GROUP];
-        for j in 0..GROUP {
-            let v = members[j.min(n - 1)] as usize;
-            let q = cloth[v].cast::<f64>();
-            let (u, f) = self.upper_bound(proximity, &q, warm[j.min(n - 1)]);
-            x[j] = self.relative(&cloth[v]);
-            upper[j] = u as f32 + GUARD_M;
-            seed[j] = f;
-        }
-        // The group's ball, and every face whose lower bound is within reach of a member.
-        let mut centre = [0.0f32; 3];
-        for k in 0..3 {
-            let (lo, hi) = x[..n]
-                .iter()
-                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| {
-                    (a.min(p[k]), b.max(p[k]))
-                });
-            centre[k] = 0.5 * (lo + hi);
-        }
-        // Every member's ball of candidates lies within the group's.
-        let reach = x[..n]
-            .iter()
-            .zip(&upper[..n])
-            .map(|(p, &u)| {
-                ((p[0] - centre[0]).powi(2)
-                    + (p[1] - centre[1]).powi(2)
-                    + (p[2] - centre[2]).powi(2))
-                .sqrt()
-                    + u
-            })
-            .fold(0.0f32, f32::max)
-            + GUARD_M;
-        let stamp = s.next();
-        s.gathered.clear();
-        for &f in &seed[..n] {
-            if s.face_stamp[f as usize] != stamp {
-                s.face_stamp[f as usize] = stamp;
-                s.gathered.push(f);
-            }
-        }
-        self.scan(&centre, reach, |f, _| {
-            if s.face_stamp[f as usize] != stamp {
-                s.face_stamp[f as usize] = stamp;
-                s.gathered.push(f);
-            }
-        });
-        // Lanes: per gathered face, the members that have it as a candidate (lower bound within
-        // their upper bound); per member, the smallest lower bound and the nearest centroid.
-        let (xs, ys, zs) = (x.map(|p| p[0]), x.map(|p| p[1]), x.map(|p| p[2]));
-        let upper2 = upper.map(|u| u * u);
-        let mut min_lb2 = [f32::INFINITY; GROUP];
-        let mut best_c2 = [f32::INFINITY; GROUP];
-        let mut best_face = seed;
-        // Members with a crease face among their candidates: never certified (see `settle`).
-        let mut crease_members = 0u8;
-        s.gathered_mask.clear();
-        for &f in &s.gathered {
-            let fi = f as usize;
-            let (lo, hi) = (self.data.lo[fi], self.data.hi[fi]);
-            let [nx, ny, nz, o] = self.data.plane[fi];
-            let mut lb2 = [0.0f32; GROUP];
-            for j in 0..GROUP {
-                let dx = fmax(fmax(lo[0] - xs[j], xs[j] - hi[0]), 0.0);
-                let dy = fmax(fmax(lo[1] - ys[j], ys[j] - hi[1]), 0.0);
-                let dz = fmax(fmax(lo[2] - zs[j], zs[j] - hi[2]), 0.0);
-                let h = fmax(nx * xs[j] + ny * ys[j] + nz * zs[j] - o, 0.0);
-                lb2[j] = fmax(dx * dx + dy * dy + dz * dz, h * h);
-            }
-            let mut hit = [false; GROUP];
-            for j in 0..GROUP {
-                hit[j] = lb2[j] <= upper2[j];
-            }
-            let mask = pack(hit);
-            if self.crease[fi] {
-                crease_members |= mask;
-            }
-            if mask != 0 {
-                let c = self.data.centroid[fi];
-                for j in 0..GROUP {
-                    if hit[j] {
-                        min_lb2[j] = min_lb2[j].min(lb2[j]);
-                        let c2 = (c[0] - xs[j]).powi(2)
-                            + (c[1] - ys[j]).powi(2)
-                            + (c[2] - zs[j]).powi(2);
-                        if c2 < best_c2[j] {
-                            best_c2[j] = c2;
-                            best_face[j] = f;
-                        }
-                    }
-                }
-            }
-            s.gathered_mask.push(mask);
-        }
-        // The fans of the candidates' vertices: every member must be in front of each face
-        // around a vertex of one of its candidates. Per such face, the members concerned.
-        s.fan_faces.clear();
-        let fan_stamp = s.next();
-        for (&f, &mask) in s.gathered.iter().zip(&s.gathered_mask) {
-            if mask == 0 {
-                continue;
-            }
-            for &v in &self.faces[f as usize] {
-                let vi = v as usize;
-                for &k in
-                    &self.fan[self.fan_offsets[vi] as usize..self.fan_offsets[vi + 1] as usize]
-                {
-                    let ki = k as usize;
-                    if s.face_stamp[ki] != fan_stamp {
-                        s.face_stamp[ki] = fan_stamp;
-                        s.face_mask[ki] = 0;
-                        s.fan_faces.push(k);
-                    }
-                    s.face_mask[ki] |= mask;
-                }
-            }
-        }
-        let mut behind = 0u8;
-        for &k in &s.fan_faces {
-            let [nx, ny, nz, o] = self.data.plane[k as usize];
-            let mut front = [false; GROUP];
-            for j in 0..GROUP {
-                front[j] = nx * xs[j] + ny * ys[j] + nz * zs[j] - o > GUARD_M;
-            }
-            behind |= s.face_mask[k as usize] & !pack(front);
-        }
-        let front2 = (margin_m as f32 + GUARD_M).powi(2);
-        let margin2 = margin_m * margin_m;
-        for j in 0..n {
-            let v = members[j] as usize;
-            stats.candidates += s.gathered_mask.iter().filter(|&&m| m >> j & 1 == 1).count();
-            let crease = crease_members >> j & 1 == 1;
-            if min_lb2[j] >= front2 && behind >> j & 1 == 0 && !crease {
-                out[j] = Some(Outcome::Certified);
-                warm[j] = best_face[j];
-                stats.certified += 1;
-                continue;
-            }
-            // The closest face is a candidate of this member: the exact answer.
-            s.candidates.clear();
-            s.candidates.push(seed[j]);
-            s.candidates.extend(
-                s.gathered
-                    .iter()
-                    .zip(&s.gathered_mask)
-                    .filter(|&(&f, &m)| m >> j & 1 == 1 && f != seed[j])
-                    .map(|(&f, _)| f),
-            );
-            let q = cloth[v].cast::<f64>();
-            out[j] = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
-                warm[j] = nearest.face;
-                if !crease
-                    && nearest.distance_sq >= margin2
-                    && self.feature_in_front(&x[j], &nearest, GUARD_M)
-                {
-                    stats.certified += 1;
-                    Outcome::Certified
-                } else {
-                    stats.exact += 1;
-                    let c = proximity.signed(&q, &nearest);
-                    Outcome::Exact(self.settle(proximity, &q, c, s))
-                }
-            });
-        }
-        stats
-    }
-
     /// Visit `(face, lower bound²)` for every grid entry within `reach` of `x` (a face may
     /// come several times; every face whose box and plane bound are within `reach` comes).
     #[inline(always)]
@@ -1519,15 +1136,6 @@ fn lanes(v: &[f32], e: usize) -> &[f32; LANES] {
     v[e..e + LANES]
         .try_into()
         .expect("a slice of LANES values is an array of LANES")
-}
-
-/// Lane flags as bits.
-#[inline(always)]
-fn pack(flags: [bool; GROUP]) -> u8 {
-    flags
-        .iter()
-        .enumerate()
-        .fold(0u8, |m, (j, &b)| m | (u8::from(b) << j))
 }
 
 fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
@@ -1634,6 +1242,19 @@ impl Grid {
 mod tests {
     use super::*;
 
+    /// The certified query's exact answer at `q` (as a cloth vertex, in f32).
+    fn answer(
+        certifier: &mut Certifier,
+        proximity: &MeshProximity,
+        q: &Vector3<f64>,
+    ) -> ClosestPoint {
+        let mut out = None;
+        certifier.exact_points(proximity, &[q.cast::<f32>()], &[u32::MAX], |_, hit| {
+            out = hit;
+        });
+        out.expect("an answer")
+    }
+
     /// An axis-aligned box (sartor-core's `box_mesh`), appended to `vertices` and `faces`.
     fn cuboid(
         lo: [f64; 3],
@@ -1660,7 +1281,7 @@ mod tests {
         let inside = |p: Vector3<f64>, lo: [f64; 3], hi: [f64; 3]| {
             (0..3).all(|k| p[k] > lo[k] && p[k] < hi[k])
         };
-        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], 1, true);
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], true);
         certifier.update(&v);
         let frame = certifier.frame();
         let mut n_buried = 0;
@@ -1678,11 +1299,8 @@ mod tests {
         // The query answers from the exposed surface: a point inside B, just in front of A's
         // buried +x side, is inside (the closest exposed face is B's), not 1 mm outside A.
         let proximity = MeshProximity::new(&v, &f).expect("mesh");
-        let mut scratch = Scratch::for_frame(frame);
         let q = Vector3::new(0.061, 0.03, 0.03);
-        let c = frame
-            .exact(&proximity, &q, u32::MAX, &mut scratch)
-            .expect("an answer");
+        let c = answer(&mut certifier, &proximity, &q);
         assert!(c.signed_distance_m < -0.015, "{c:?}");
         assert!(
             proximity.closest(&q).signed_distance_m > 0.0,
@@ -1702,7 +1320,7 @@ mod tests {
         f.retain(|t| centroid(&v, t).x > 1e-9);
         assert_eq!(f.len(), 10);
         cuboid([0.03, 0.01, 0.01], [0.10, 0.05, 0.05], &mut v, &mut f);
-        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], 1, true);
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], true);
         certifier.update(&v);
         let frame = certifier.frame();
         // B's −x side faces A's cut: its rays leave through the cap.
@@ -1713,7 +1331,6 @@ mod tests {
         assert!(minus_x.iter().all(|&i| frame.buried[i]));
         // Every point of A or B, pushed by its answer, lands outside both.
         let proximity = MeshProximity::new(&v, &f).expect("mesh");
-        let mut scratch = Scratch::for_frame(frame);
         let margin = 0.002;
         let in_box = |p: &Vector3<f64>, lo: [f64; 3], hi: [f64; 3]| {
             (0..3).all(|k| p[k] > lo[k] && p[k] < hi[k])
@@ -1735,9 +1352,7 @@ mod tests {
                         continue;
                     }
                     tested += 1;
-                    let c = frame
-                        .exact(&proximity, &q, u32::MAX, &mut scratch)
-                        .expect("an answer");
+                    let c = answer(&mut certifier, &proximity, &q);
                     let landed = q + c.normal * (margin - c.signed_distance_m);
                     assert!(
                         !in_box(&landed, a.0, a.1) && !in_box(&landed, b.0, b.1),

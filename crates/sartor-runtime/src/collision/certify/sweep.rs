@@ -178,7 +178,7 @@ impl Sweep {
             for &i in &self.subset {
                 let (i, w) = (i as usize, warm[i as usize]);
                 let mut near = Near::new(radius * radius);
-                if (w as usize) < frame.faces.len() {
+                if (w as usize) < frame.faces.len() && !frame.buried[w as usize] {
                     let (d2, exact) = frame.distance2(w, &self.x[i]);
                     near.offer(w, d2, exact);
                     near.warm = w;
@@ -217,7 +217,9 @@ impl Sweep {
                     // valence): every face within reach, unbounded.
                     let start = self.spill.len() as u32;
                     for f in 0..frame.faces.len() as u32 {
-                        if frame.distance2(f, &self.x[i]).0 <= near.reach2 {
+                        if !frame.buried[f as usize]
+                            && frame.distance2(f, &self.x[i]).0 <= near.reach2
+                        {
                             self.spill.push(f);
                         }
                     }
@@ -449,14 +451,14 @@ impl Sweep {
 /// [`Near`] for `x` against every face of `frame` (started from face `warm`, if any).
 fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
     let mut near = Near::new(f32::INFINITY);
-    if (warm as usize) < frame.faces.len() {
+    if (warm as usize) < frame.faces.len() && !frame.buried[warm as usize] {
         let (d2, exact) = frame.distance2(warm, x);
         near.offer(warm, d2, exact);
     }
     let data = &frame.data;
     // A bounded list cannot overflow here by more than exact ties: when it does, every face
     // within reach is kept in a second, unbounded pass below.
-    for f in 0..frame.faces.len() {
+    for f in (0..frame.faces.len()).filter(|&f| !frame.buried[f]) {
         let (lo, hi) = (data.lo[f], data.hi[f]);
         let dx = fmax(fmax(lo[0] - x[0], x[0] - hi[0]), 0.0);
         let dy = fmax(fmax(lo[1] - x[1], x[1] - hi[1]), 0.0);
