@@ -568,29 +568,6 @@ impl Frame {
             self.crease[f] = !self.buried[f] && t.iter().any(|&v| touches[v as usize]);
         }
         self.vertex_touches_buried = touches;
-
-        let grid = &mut self.grid;
-        let [nx, ny, _] = grid.dims;
-        for f in (0..self.faces.len()).filter(|&f| self.buried[f]) {
-            let (a, b) = grid.ranges[f];
-            for z in a[2]..=b[2] {
-                for y in a[1]..=b[1] {
-                    let row = (z as usize * ny + y as usize) * nx;
-                    let (c0, c1) = (
-                        grid.start[row + a[0] as usize] as usize,
-                        grid.start[row + b[0] as usize + 1] as usize,
-                    );
-                    for slot in c0..c1 {
-                        if grid.entries[slot] == f as u32 {
-                            for k in 0..3 {
-                                grid.lo[k][slot] = f32::INFINITY;
-                                grid.hi[k][slot] = f32::INFINITY;
-                            }
-                        }
-                    }
-                }
-            }
-        }
     }
 
     /// Whether the ray from face `f`'s centroid along its normal starts inside another part
@@ -653,6 +630,7 @@ impl Frame {
             }
         }
         let inv = d.map(|x| 1.0 / x);
+        let parallel = inv.map(f32::is_infinite);
         for (l, (lo, hi)) in self.loop_box.iter().enumerate() {
             if !ray_meets_box(&o, &inv, lo, hi) {
                 continue;
@@ -676,26 +654,62 @@ impl Frame {
             && (0..nz).contains(&idx[2])
         {
             let c = ((idx[2] * ny + idx[1]) * nx + idx[0]) as usize;
-            for slot in grid.start[c] as usize..grid.start[c + 1] as usize {
-                let g = grid.entries[slot];
-                if g == skip || seen[g as usize] == mark {
-                    continue;
+            let (c0, c1) = (grid.start[c] as usize, grid.start[c + 1] as usize);
+            let mut e = c0;
+            while e < c1 {
+                // The boxes of eight entries at once (the padding and the next cell's entries
+                // are masked off); then each face met, once per ray.
+                let mut hit = 0u32;
+                let (lx, ly, lz) = (
+                    lanes(&grid.lo[0], e),
+                    lanes(&grid.lo[1], e),
+                    lanes(&grid.lo[2], e),
+                );
+                let (hx, hy, hz) = (
+                    lanes(&grid.hi[0], e),
+                    lanes(&grid.hi[1], e),
+                    lanes(&grid.hi[2], e),
+                );
+                for l in 0..LANES {
+                    // Per axis, the ray's interval within the slab; an axis the ray is parallel
+                    // to allows everything or nothing (as `ray_meets_box`).
+                    let slab = |lo: f32, hi: f32, k: usize| {
+                        if parallel[k] {
+                            let inside = o[k] >= lo && o[k] <= hi;
+                            if inside {
+                                (f32::NEG_INFINITY, f32::INFINITY)
+                            } else {
+                                (f32::INFINITY, f32::NEG_INFINITY)
+                            }
+                        } else {
+                            let (a, b) = ((lo - o[k]) * inv[k], (hi - o[k]) * inv[k]);
+                            (a.min(b), a.max(b))
+                        }
+                    };
+                    let (ax, bx) = slab(lx[l], hx[l], 0);
+                    let (ay, by) = slab(ly[l], hy[l], 1);
+                    let (az, bz) = slab(lz[l], hz[l], 2);
+                    let t0 = fmax(fmax(ax, ay), fmax(az, 0.0));
+                    let t1 = bx.min(by).min(bz).min(BURIED_RAY_M);
+                    hit |= u32::from(t0 <= t1) << l;
                 }
-                seen[g as usize] = mark;
-                if !ray_meets_box(
-                    &o,
-                    &inv,
-                    &self.data.lo[g as usize],
-                    &self.data.hi[g as usize],
-                ) {
-                    continue;
+                hit &= (1u32 << (c1 - e).min(LANES)) - 1;
+                while hit != 0 {
+                    let l = hit.trailing_zeros() as usize;
+                    hit &= hit - 1;
+                    let g = grid.entries[e + l];
+                    if g == skip || seen[g as usize] == mark {
+                        continue;
+                    }
+                    seen[g as usize] = mark;
+                    let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
+                    if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
+                        && t < BURIED_RAY_M
+                    {
+                        cross(leaves);
+                    }
                 }
-                let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
-                if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
-                    && t < BURIED_RAY_M
-                {
-                    cross(leaves);
-                }
+                e += LANES;
             }
             let k = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
                 0
@@ -802,7 +816,7 @@ impl Frame {
             let stamp = s.next();
             s.exits.clear();
             self.scan(&x, reach, |f, _| {
-                if s.face_stamp[f as usize] != stamp {
+                if s.face_stamp[f as usize] != stamp && !self.buried[f as usize] {
                     s.face_stamp[f as usize] = stamp;
                     if let Some(near) = proximity.nearest_among(q, &[f])
                         && near.distance_sq.sqrt() <= f64::from(reach)
