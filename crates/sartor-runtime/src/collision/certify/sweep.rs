@@ -2,21 +2,22 @@
 //! vertices instead (see the parent module's docs for the proof the answers feed).
 //!
 //! A cloth frame is a thin shell around the body: every vertex of the shipped T-shirt on its
-//! walk lies within 4 cm of the region and most within 1 cm. So instead of each vertex (or
-//! group) scanning a ball of face-grid cells as large as its distance, each face visits the
-//! cloth vertices within [`SWEEP_M`] of its box, in a grid of the vertices rebuilt per call
-//! (one entry per vertex: a counting sort of a few thousand points). Per vertex the sweep keeps
-//! its nearest distance `b` in f32 (started from the face it was nearest last frame) and every
-//! face within `b` + [`SLACK_M`]: the f32 distances are within a micrometre of the f64 ones, so
-//! that list holds every face the f64 query could return, and [`MeshProximity::nearest_among`]
-//! on it is the exact query's answer (same faces, same arithmetic, same tie rule). A vertex with
-//! no face within [`SWEEP_M`], or more near-ties than a list holds, is searched against every
-//! face. A face is looked at only where its box and plane bound are within a vertex's reach.
+//! walk lies within 4 cm of the region and most within 1 cm. So instead of each vertex scanning
+//! a ball of face-grid cells as large as its distance, the faces visit the cloth vertices: a
+//! cluster of [`CLUSTER`] faces gathers the vertices within the sweep's reach ([`SWEEP_M`]) of
+//! its box from a grid of the vertices rebuilt per call (one entry per vertex: a counting sort
+//! of a few thousand points), then each of its faces tests them eight at a time, by box and
+//! plane bound against each vertex's own reach. Per vertex the sweep keeps its nearest distance
+//! `b` in f32 (started from the face it was nearest last frame) and every face within
+//! `b` + [`SLACK_M`]: the f32 distances are within a micrometre of the f64 ones, so that list
+//! holds every face the f64 query could return, and [`MeshProximity::nearest_among`] on it is
+//! the exact query's answer (same faces, same arithmetic, same tie rule). A vertex with no face
+//! within the last reach, or more near-ties than a list holds, is searched against every face.
 //!
 //! The sweep serves the vertices of one frame (the first pass), the vertices a pass moved (the
-//! later ones), and any points a report asks about; it reads the face data of
-//! [`Frame`] (relative f32 corners, boxes, planes) but never its grid, which it does not need.
-//! It does not handle buried faces: with [`Frame`]'s buried-face test on, the grid path runs.
+//! later ones), and any points a report asks about; it reads the face data of [`Frame`]
+//! (relative f32 corners, boxes, planes, in cluster order) but never its grid. Buried faces
+//! (where [`Frame`] seeks them) have a box at infinity there and are never on a list.
 
 use super::{Frame, GUARD_M, LANES, fmax, lanes};
 
