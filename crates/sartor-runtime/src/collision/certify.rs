@@ -1283,6 +1283,46 @@ mod tests {
     }
 
     #[test]
+    fn the_sweep_answers_as_the_exact_query_near_and_far() {
+        // Two boxes; points from inside them to 30 cm away: every reach of the sweep, and the
+        // search of every face beyond the last, give the exact query's closest point.
+        let (mut v, mut f) = (Vec::new(), Vec::new());
+        cuboid([0.0, 0.0, 0.0], [0.2, 0.1, 0.3], &mut v, &mut f);
+        cuboid([0.25, 0.0, 0.0], [0.3, 0.05, 0.1], &mut v, &mut f);
+        let proximity = MeshProximity::new(&v, &f).expect("mesh");
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], false);
+        certifier.update(&v);
+        let mut points = Vec::new();
+        for i in 0..23 {
+            for j in 0..17 {
+                for k in 0..19 {
+                    let p = Vector3::new(
+                        -0.3 + 0.041 * f64::from(i),
+                        -0.3 + 0.043 * f64::from(j),
+                        -0.3 + 0.047 * f64::from(k),
+                    );
+                    points.push(p.cast::<f32>());
+                }
+            }
+        }
+        let warm = vec![u32::MAX; points.len()];
+        let mut checked = [0usize; 3];
+        certifier.exact_points(&proximity, &points, &warm, |k, hit| {
+            let c = hit.expect("an answer");
+            let exact = proximity.closest(&points[k].cast::<f64>());
+            assert_eq!(
+                (c.face, c.signed_distance_m),
+                (exact.face, exact.signed_distance_m),
+                "{:?}",
+                points[k]
+            );
+            let d = c.signed_distance_m.abs();
+            checked[usize::from(d > 0.02) + usize::from(d > 0.1)] += 1;
+        });
+        assert!(checked.iter().all(|&n| n > 100), "{checked:?}");
+    }
+
+    #[test]
     fn faces_inside_another_part_are_buried_and_left_out() {
         // Part A, a 6 cm box; part B sunk 3 cm into its +x side; part C, a box inside both
         // (three layers); part D apart.

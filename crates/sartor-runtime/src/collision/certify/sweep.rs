@@ -22,9 +22,9 @@
 use super::{Frame, GUARD_M, LANES, fmax, lanes};
 
 /// The sweep's reaches, metres: every point is swept within the first; a point with no face
-/// that close is swept again within the second (few are), and one with none within that is
-/// searched against every face.
-const SWEEP_M: [f32; 2] = [0.02, 0.04];
+/// that close is swept again within the next (few are: a loose garment's), and one with none
+/// within the last is searched against every face.
+const SWEEP_M: [f32; 3] = [0.02, 0.04, 0.15];
 /// Faces per cluster of the sweep (see [`Frame`]'s `cluster_faces`).
 pub(super) const CLUSTER: usize = 16;
 /// Smallest cell edge of the cloth grid, metres.
