@@ -490,7 +490,10 @@ impl Frame {
 }
 
 /// Distance² from `p` to the triangle `[a, b, c]`, f32 (Ericson's closest point by regions,
-/// as sartor-core's f64 one).
+/// as sartor-core's f64 `closest_on_triangle`). It only chooses which faces go on a list: every
+/// answer the post-process uses still comes from `MeshProximity` in f64 on that list, so the
+/// workspace keeps one closest-point query. A copy in f32 because the sweep's lanes are f32 and
+/// sartor-core's is f64 and private; making that one generic is the cleaner fix, not done.
 #[inline(always)]
 fn distance2(p: &[f32; 3], [a, b, c]: &[[f32; 3]; 3]) -> f32 {
     let sub = |u: &[f32; 3], v: &[f32; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
