@@ -25,7 +25,8 @@ pub enum LinearSolver {
     #[default]
     Cholesky,
     /// Block-Jacobi preconditioned conjugate gradients, warm-started from the current velocity
-    /// (from zero when that guess is worse than none).
+    /// continued by the last step's acceleration (from zero when that guess is worse than
+    /// none).
     ConjugateGradient {
         /// Iteration cap.
         max_iterations: usize,

