@@ -240,6 +240,21 @@ fn bending_gradient_hessian_and_arcsim_gradient() {
         assert!(is_psd(&psd.hessian));
         let gn = hinge.derivatives(&x, c, BendingHessian::GaussNewton);
         assert!(is_psd(&gn.hessian));
+        // Gauss–Newton: the exact gradient, and the Hessian 2c ∇θ ∇θᵀ with ARCSim's ∇θ.
+        let gn_scale = max_abs_hessian(&gn.hessian);
+        for a in 0..4 {
+            let err = (gn.gradient[a] - d.gradient[a]).norm();
+            assert!(
+                err <= 1e-10 * max_abs(&d.gradient),
+                "GN gradient {a}: {err:.3e}"
+            );
+            for b in 0..4 {
+                let expected = arcsim[a] * arcsim[b].transpose() * (2.0 * c);
+                let err = (gn.hessian[a][b] - expected).amax();
+                assert!(err <= 1e-8 * gn_scale, "GN block ({a}, {b}): {err:.3e}");
+                assert_eq!(gn.hessian[a][b], gn.hessian[b][a].transpose());
+            }
+        }
     }
     // The sign convention: folding x3 towards face A's normal side gives θ > 0.
     let x = [
