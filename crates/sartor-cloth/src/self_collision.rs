@@ -205,3 +205,97 @@ impl SelfCollisionGrid {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every vertex against every triangle, by the rule of the module docs.
+    fn brute_force(
+        x: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        topology: &MeshTopology,
+        radius_m: f64,
+    ) -> Vec<(u32, u8, u32)> {
+        let mut found = Vec::new();
+        for (v, p) in x.iter().enumerate() {
+            let ring = topology.neighbours(v);
+            let mut best: [Option<(f64, u32)>; 2] = [None, None];
+            for (f, t) in faces.iter().enumerate() {
+                if t.iter().any(|&w| w as usize == v || ring.contains(&w)) {
+                    continue;
+                }
+                let Some(d) = vertex_triangle(p, &t.map(|i| x[i as usize])) else {
+                    continue;
+                };
+                let side = usize::from(d < 0.0);
+                if d.abs() < radius_m && best[side].is_none_or(|(b, _)| d.abs() < b) {
+                    best[side] = Some((d.abs(), f as u32));
+                }
+            }
+            for (side, b) in best.iter().enumerate() {
+                if let Some((_, f)) = b {
+                    found.push((v as u32, side as u8, *f));
+                }
+            }
+        }
+        found
+    }
+
+    #[test]
+    fn the_grid_finds_what_testing_every_pair_finds() {
+        // A sheet folded over itself into three layers 4 mm apart, crumpled a little: many
+        // pairs within the radius, on both sides, near cell boundaries and at ties.
+        let (nu, nv) = (24usize, 9usize);
+        let mut x = Vec::new();
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut jitter = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3
+        };
+        for j in 0..nv {
+            for i in 0..nu {
+                // Along u: three 8-column layers, each reversed, stacked 4 mm apart.
+                let (layer, k) = (i / 8, i % 8);
+                let u = if layer % 2 == 0 { k } else { 7 - k } as f64 * 0.01;
+                x.push(Vector3::new(
+                    u + jitter(),
+                    0.004 * layer as f64 + jitter(),
+                    j as f64 * 0.01 + jitter(),
+                ));
+            }
+        }
+        let mut faces = Vec::new();
+        for j in 0..nv - 1 {
+            for i in 0..nu - 1 {
+                let a = (j * nu + i) as u32;
+                faces.push([a, a + 1, a + nu as u32]);
+                faces.push([a + 1, a + nu as u32 + 1, a + nu as u32]);
+            }
+        }
+        let topology = MeshTopology::new(x.len(), &faces);
+        let areas = vec![1e-4; x.len()];
+        let tri_areas = vec![5e-5; faces.len()];
+        let mut grid = SelfCollisionGrid::default();
+        for radius in [0.0045, 0.006, 0.0101] {
+            let expected = brute_force(&x, &faces, &topology, radius);
+            assert!(expected.len() > 50, "{} pairs at {radius}", expected.len());
+            for par in [Parallelism::Sequential, Parallelism::Rayon] {
+                let mut out = Vec::new();
+                grid.detect(
+                    &x, &faces, &topology, &areas, &tri_areas, radius, par, &mut out,
+                );
+                let got: Vec<(u32, u8, u32)> = out
+                    .iter()
+                    .map(|c| {
+                        let f = faces.iter().position(|t| *t == c.triangle).expect("a face");
+                        (c.vertex, u8::from(c.side < 0.0), f as u32)
+                    })
+                    .collect();
+                assert_eq!(got, expected, "radius {radius}, {par:?}");
+            }
+        }
+    }
+}
