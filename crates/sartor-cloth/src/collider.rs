@@ -52,12 +52,30 @@ pub trait Collider: Sync {
     }
 
     /// A bound on the obstacle's motion, for callers that skip the queries of points known to
-    /// be far from it: `(identity, travel_m)`, where `identity` names this obstacle (no other
-    /// obstacle reports the same) and `travel_m` grows, at every move, by at least the largest
-    /// displacement of any point of its surface. `None` (the default): unknown, query always.
-    fn motion_bound(&self) -> Option<(u64, f64)> {
+    /// be far from it (see [`MotionBound`]). `None` (the default): unknown, query always.
+    fn motion_bound(&self) -> Option<MotionBound> {
         None
     }
+}
+
+/// How far an obstacle's surface has moved since it was made, as a translation and what the
+/// translation leaves out: at every move, `translation_m` grows by a translation `T` of the
+/// move's choosing and `travel_m` by at least the largest `|Δq − T|` over the points `q` of the
+/// surface.
+///
+/// The distance from a point to the surface is 1-Lipschitz in the point and does not change
+/// when point and surface translate together. So if a point was at distance `d` when the bound
+/// read `(T₀, R₀)` and the point has since moved by `Δx`, it is now at least
+/// `d − |Δx − (T − T₀)| − (R − R₀)` from the surface: a point that moves with the obstacle (a
+/// shirt on a walking body) keeps its clearance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionBound {
+    /// Names this obstacle: no other obstacle reports the same.
+    pub identity: u64,
+    /// The sum of the moves' translations, m.
+    pub translation_m: Vector3<f64>,
+    /// The sum of the moves' largest departures from their translation, m.
+    pub travel_m: f64,
 }
 
 /// A plane (half-space below it is solid), optionally moving with a constant velocity.

@@ -63,7 +63,7 @@ mod solver;
 
 pub use benchmark::{SequenceBenchmark, benchmark_sequence};
 pub use cloth::{Cloth, rectangle_sheet};
-pub use collider::{Collider, Contact, Plane, Sphere};
+pub use collider::{Collider, Contact, MotionBound, Plane, Sphere};
 pub use drive::{
     DriveConfig, LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig, contact_region,
     simulate_sequence,

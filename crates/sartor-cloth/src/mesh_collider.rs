@@ -3,7 +3,7 @@
 use nalgebra::Vector3;
 use sartor_core::MeshProximity;
 
-use crate::collider::{Collider, Contact};
+use crate::collider::{Collider, Contact, MotionBound};
 use crate::{Error, Result};
 
 /// A triangle-mesh obstacle, typically the posed body. Closest points and the inside/outside
@@ -21,7 +21,9 @@ pub struct MeshCollider {
     search_depth_m: f64,
     /// This collider's identity for [`Collider::motion_bound`] (a clone gets a new one).
     identity: u64,
-    /// The sum over every move of the largest vertex displacement, m.
+    /// The sum over every move of the mean vertex displacement, m.
+    translation_m: Vector3<f64>,
+    /// The sum over every move of the largest vertex displacement from the mean, m.
     travel_m: f64,
 }
 
@@ -39,6 +41,7 @@ impl Clone for MeshCollider {
             velocities: self.velocities.clone(),
             search_depth_m: self.search_depth_m,
             identity: new_identity(),
+            translation_m: self.translation_m,
             travel_m: self.travel_m,
         }
     }
@@ -64,6 +67,7 @@ impl MeshCollider {
             velocities: vec![Vector3::zeros(); positions.len()],
             search_depth_m,
             identity: new_identity(),
+            translation_m: Vector3::zeros(),
             travel_m: 0.0,
         })
     }
@@ -86,7 +90,7 @@ impl MeshCollider {
                 ),
             ));
         }
-        let mut largest2: f64 = 0.0;
+        let mut mean = Vector3::zeros();
         for ((v, new), old) in self
             .velocities
             .iter_mut()
@@ -94,12 +98,21 @@ impl MeshCollider {
             .zip(self.proximity.positions())
         {
             let step = new - old;
-            largest2 = largest2.max(step.norm_squared());
+            mean += step;
             *v = step / dt_secs;
         }
+        mean /= positions.len().max(1) as f64;
+        let largest2 = positions
+            .iter()
+            .zip(self.proximity.positions())
+            .map(|(new, old)| (new - old - mean).norm_squared())
+            .fold(0.0, f64::max);
         self.proximity.update_positions(positions)?;
-        // A point of a triangle moves by a convex combination of its vertices' moves.
-        self.travel_m += largest2.sqrt();
+        // A point of a triangle moves by a convex combination of its vertices' moves, so it
+        // departs from the mean move by at most the largest vertex departure (with a margin
+        // for rounding).
+        self.translation_m += mean;
+        self.travel_m += largest2.sqrt() * (1.0 + 1e-9) + 1e-12;
         Ok(())
     }
 
@@ -162,7 +175,11 @@ impl Collider for MeshCollider {
         self.contact(p, max_distance_m, hint)
     }
 
-    fn motion_bound(&self) -> Option<(u64, f64)> {
-        Some((self.identity, self.travel_m))
+    fn motion_bound(&self) -> Option<MotionBound> {
+        Some(MotionBound {
+            identity: self.identity,
+            translation_m: self.translation_m,
+            travel_m: self.travel_m,
+        })
     }
 }

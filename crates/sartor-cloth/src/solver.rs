@@ -57,7 +57,7 @@ use sartor_core::Parallelism;
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;
-use crate::collider::{Collider, Contact};
+use crate::collider::{Collider, Contact, MotionBound};
 use crate::energy::{
     BendingHessian, ElementDerivatives, ObstacleContact, Penalty, Projection, SelfContact,
     friction_velocity_change,
@@ -241,9 +241,8 @@ struct Workspace {
     query: Vec<Option<Contact>>,
     /// Per collider and vertex, what the last queries left (see [`QueryState`]).
     query_state: Vec<QueryState>,
-    /// Per collider, the identity and travel of [`Collider::motion_bound`] when the clearances
-    /// were last updated.
-    collider_motion: Vec<Option<(u64, f64)>>,
+    /// Per collider, the identity of its [`Collider::motion_bound`] the clearances refer to.
+    collider_identity: Vec<Option<u64>>,
     self_contacts: Vec<SelfContact>,
     grid: SelfCollisionGrid,
     stiffness: Vec<Matrix3<f64>>,
@@ -364,29 +363,55 @@ const CLEARANCE_LOOKAHEAD_M: f64 = 0.02;
 ///
 /// - `hint`: the collider's hint ([`Collider::closest_within_hinted`]): work saved, answers
 ///   unchanged.
-/// - `clearance_m`: a lower bound on the distance from the vertex's current position to the
-///   collider's surface, on its outside (0: unknown, or inside). The distance to a surface is
-///   1-Lipschitz in the point and in the surface's motion, and the side cannot change while it
-///   stays positive; so while `clearance − (vertex and surface motion since)` stays above the
-///   contact thickness the vertex cannot be a contact, and while it stays positive it cannot
-///   be inside: its queries are skipped. The same contacts and projections as querying every
-///   vertex every time, except for a vertex deeper inside than the collider looks (which the
+/// - `clearance_m`: a lower bound on the distance from the vertex to the collider's surface,
+///   on its outside, when the vertex was at `anchor_m + T` and the collider's [`MotionBound`]
+///   read `(T, anchor_travel_m)` (0: unknown, or inside). The distance is 1-Lipschitz in the
+///   point, unchanged when point and surface translate together, and its side cannot change
+///   while it stays positive; so with [`QueryState::bound`] (the clearance less the vertex's
+///   motion relative to the collider's translation and the collider's travel beyond it) above
+///   the contact thickness the vertex cannot be a contact, and above 0 it cannot be inside:
+///   its queries are skipped. The same contacts and projections as querying every vertex
+///   every time, except for a vertex deeper inside than the collider looks (which the
 ///   end-of-frame check rejects) and where the collider's own sign is not a true inside test.
 #[derive(Clone, Copy, Debug)]
 struct QueryState {
     hint: u32,
     clearance_m: f64,
+    anchor_m: Vector3<f64>,
+    anchor_travel_m: f64,
 }
 
 impl QueryState {
     const UNKNOWN: Self = Self {
         hint: u32::MAX,
         clearance_m: 0.0,
+        anchor_m: Vector3::new(0.0, 0.0, 0.0),
+        anchor_travel_m: 0.0,
     };
 
-    /// Record the answer of a query made with `lookahead_m` as its distance.
-    fn record(&mut self, contact: Option<&Contact>, lookahead_m: f64) {
+    /// The clearance of the vertex at `x` now, with the collider's motion `motion` (`None`:
+    /// unknown, 0).
+    fn bound(&self, x: &Vector3<f64>, motion: Option<&MotionBound>) -> f64 {
+        motion.map_or(0.0, |m| {
+            self.clearance_m
+                - (x - m.translation_m - self.anchor_m).norm()
+                - (m.travel_m - self.anchor_travel_m)
+        })
+    }
+
+    /// Record the answer of a query at `x` made with `lookahead_m` as its distance.
+    fn record(
+        &mut self,
+        contact: Option<&Contact>,
+        lookahead_m: f64,
+        x: &Vector3<f64>,
+        motion: Option<&MotionBound>,
+    ) {
         self.clearance_m = contact.map_or(lookahead_m, |c| c.distance_m.max(0.0));
+        if let Some(m) = motion {
+            self.anchor_m = x - m.translation_m;
+            self.anchor_travel_m = m.travel_m;
+        }
     }
 }
 
@@ -491,7 +516,7 @@ impl Simulator {
             obstacle_contacts: Vec::new(),
             query: vec![None; n],
             query_state: Vec::new(),
-            collider_motion: Vec::new(),
+            collider_identity: Vec::new(),
             self_contacts: Vec::new(),
             grid: SelfCollisionGrid::default(),
             stiffness: vec![Matrix3::zeros(); n_blocks],
@@ -867,29 +892,28 @@ impl Simulator {
             self.ws
                 .query_state
                 .resize(n * colliders.len(), QueryState::UNKNOWN);
-            self.ws.collider_motion.clear();
-            self.ws.collider_motion.resize(colliders.len(), None);
+            self.ws.collider_identity.clear();
+            self.ws.collider_identity.resize(colliders.len(), None);
         }
         let thickness = penalty.thickness_m;
         let lookahead = thickness + CLEARANCE_LOOKAHEAD_M;
         for (ci, collider) in colliders.iter().enumerate() {
             let states = &mut self.ws.query_state[ci * n..(ci + 1) * n];
-            // How far the collider's surface moved since the clearances were recorded.
-            let now = collider.motion_bound();
-            let moved = match (self.ws.collider_motion[ci], now) {
-                (Some((a, then)), Some((b, travel))) if a == b => travel - then,
-                _ => f64::INFINITY,
-            };
-            self.ws.collider_motion[ci] = now;
+            // Clearances measured against another collider say nothing about this one.
+            let motion = collider.motion_bound();
+            let identity = motion.map(|m| m.identity);
+            if self.ws.collider_identity[ci] != identity {
+                states.iter_mut().for_each(|s| s.clearance_m = 0.0);
+                self.ws.collider_identity[ci] = identity;
+            }
+            let motion = motion.as_ref();
             for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
-                let bound = state.clearance_m - moved;
-                if bound >= thickness {
-                    state.clearance_m = bound;
+                if state.bound(&x[i], motion) >= thickness {
                     *q = None;
                     return;
                 }
                 let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
-                state.record(c.as_ref(), lookahead);
+                state.record(c.as_ref(), lookahead, &x[i], motion);
                 *q = c.filter(|c| c.distance_m < thickness);
             });
             for (i, q) in self.ws.query.iter().enumerate() {
@@ -1123,18 +1147,18 @@ impl Simulator {
         let mut moved = 0;
         let n = self.ws.x_new.len();
         for (ci, collider) in colliders.iter().enumerate() {
-            let (x, start) = (&self.ws.x_new, &self.positions);
+            let x = &self.ws.x_new;
             let states = &mut self.ws.query_state[ci * n..(ci + 1) * n];
+            // The same collider pose as the contact query: only the vertex moved.
+            let motion = collider.motion_bound();
+            let motion = motion.as_ref();
             for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
-                // The same collider pose as the contact query: only the vertex moved.
-                let bound = state.clearance_m - (x[i] - start[i]).norm();
-                if bound > 0.0 {
-                    state.clearance_m = bound;
+                if state.bound(&x[i], motion) > 0.0 {
                     *q = None;
                     return;
                 }
                 let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
-                state.record(c.as_ref(), lookahead);
+                state.record(c.as_ref(), lookahead, &x[i], motion);
                 *q = c.filter(|c| c.distance_m < -tolerance);
             });
             for (i, q) in self.ws.query.iter().enumerate() {

@@ -3,7 +3,8 @@
 
 use nalgebra::Vector3;
 use sartor_cloth::{
-    Cloth, Collider, Material, MeshCollider, Plane, SimConfig, Sphere, rectangle_sheet,
+    Cloth, Collider, Contact, Material, MeshCollider, MotionBound, Plane, SimConfig, Sphere,
+    rectangle_sheet,
 };
 
 use crate::common::{horizontal_sheet, simulator, uv_sphere};
@@ -205,5 +206,81 @@ fn moving_mesh_body_lifts_the_sheet() {
         gap > 3e-3 && gap < 6e-3,
         "centre vertex {:.2} mm above the top",
         gap * 1e3
+    );
+}
+
+/// A collider that forwards to another and counts its queries; with `forward_motion` false it
+/// reports no motion bound, so the simulator queries every vertex every time.
+struct Counting<'a> {
+    inner: &'a MeshCollider,
+    forward_motion: bool,
+    queries: std::sync::atomic::AtomicUsize,
+}
+
+impl Collider for Counting<'_> {
+    fn closest(&self, p: Vector3<f64>) -> Option<Contact> {
+        self.queries
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.inner.closest(p)
+    }
+
+    fn closest_within_hinted(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+    ) -> Option<Contact> {
+        self.queries
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.inner.closest_within_hinted(p, max_distance_m, hint)
+    }
+
+    fn motion_bound(&self) -> Option<MotionBound> {
+        self.forward_motion
+            .then(|| self.inner.motion_bound())
+            .flatten()
+    }
+}
+
+#[test]
+fn skipping_the_queries_of_far_vertices_changes_no_step() {
+    // A sheet draped over a sphere that travels sideways and breathes (its radius changes, so
+    // the motion is not a pure translation): the steps with queries skipped by the collider's
+    // motion bound equal, bit for bit, the steps that query every vertex every time.
+    let (center, radius) = (Vector3::zeros(), 0.08);
+    let (p, f) = uv_sphere(center, radius, 16);
+    let mut body = MeshCollider::new(&p, &f, 0.05).expect("valid mesh");
+    let cloth = horizontal_sheet(0.3, 16, radius + 0.004, Material::gray_interlock());
+    let mut skipping = simulator(cloth.clone(), SimConfig::default());
+    let mut querying = simulator(cloth, SimConfig::default());
+    let (mut skipped_queries, mut all_queries) = (0, 0);
+    for step in 0..120 {
+        let t = step as f64 * DT;
+        let shift = Vector3::new(0.3 * t, 0.0, 0.1 * t);
+        let scale = 1.0 + 0.05 * (20.0 * t).sin();
+        let moved: Vec<_> = p
+            .iter()
+            .map(|q| (q - center) * scale + center + shift)
+            .collect();
+        body.move_to(&moved, DT).expect("valid");
+        for (sim, forward_motion, count) in [
+            (&mut skipping, true, &mut skipped_queries),
+            (&mut querying, false, &mut all_queries),
+        ] {
+            let collider = Counting {
+                inner: &body,
+                forward_motion,
+                queries: 0.into(),
+            };
+            sim.step(DT, &[&collider as &dyn Collider]).expect("stable");
+            *count += collider.queries.into_inner();
+        }
+        assert_eq!(skipping.positions(), querying.positions(), "step {step}");
+        assert_eq!(skipping.velocities(), querying.velocities(), "step {step}");
+    }
+    // The bound skipped most queries of the vertices hanging away from the sphere.
+    assert!(
+        (skipped_queries as f64) < 0.3 * all_queries as f64,
+        "{skipped_queries} of {all_queries} queries made"
     );
 }
