@@ -630,7 +630,6 @@ impl Frame {
             }
         }
         let inv = d.map(|x| 1.0 / x);
-        let parallel = inv.map(f32::is_infinite);
         for (l, (lo, hi)) in self.loop_box.iter().enumerate() {
             if !ray_meets_box(&o, &inv, lo, hi) {
                 continue;
@@ -671,24 +670,9 @@ impl Frame {
                     lanes(&grid.hi[2], e),
                 );
                 for l in 0..LANES {
-                    // Per axis, the ray's interval within the slab; an axis the ray is parallel
-                    // to allows everything or nothing (as `ray_meets_box`).
-                    let slab = |lo: f32, hi: f32, k: usize| {
-                        if parallel[k] {
-                            let inside = o[k] >= lo && o[k] <= hi;
-                            if inside {
-                                (f32::NEG_INFINITY, f32::INFINITY)
-                            } else {
-                                (f32::INFINITY, f32::NEG_INFINITY)
-                            }
-                        } else {
-                            let (a, b) = ((lo - o[k]) * inv[k], (hi - o[k]) * inv[k]);
-                            (a.min(b), a.max(b))
-                        }
-                    };
-                    let (ax, bx) = slab(lx[l], hx[l], 0);
-                    let (ay, by) = slab(ly[l], hy[l], 1);
-                    let (az, bz) = slab(lz[l], hz[l], 2);
+                    let (ax, bx) = slab(o[0], inv[0], lx[l], hx[l]);
+                    let (ay, by) = slab(o[1], inv[1], ly[l], hy[l]);
+                    let (az, bz) = slab(o[2], inv[2], lz[l], hz[l]);
                     let t0 = fmax(fmax(ax, ay), fmax(az, 0.0));
                     let t1 = bx.min(by).min(bz).min(BURIED_RAY_M);
                     hit |= u32::from(t0 <= t1) << l;
@@ -1174,17 +1158,27 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 fn ray_meets_box(o: &[f32; 3], inv: &[f32; 3], lo: &[f32; 3], hi: &[f32; 3]) -> bool {
     let (mut t0, mut t1) = (0.0f32, BURIED_RAY_M);
     for k in 0..3 {
-        if inv[k].is_infinite() {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return false;
-            }
-            continue;
-        }
-        let (a, b) = ((lo[k] - o[k]) * inv[k], (hi[k] - o[k]) * inv[k]);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
+        let (a, b) = slab(o[k], inv[k], lo[k], hi[k]);
+        t0 = t0.max(a);
+        t1 = t1.min(b);
     }
     t0 <= t1
+}
+
+/// The interval of `t` where the ray `o + t d` (`inv` = 1 / d, per axis) lies within the slab
+/// `lo ..= hi`: an axis the ray is parallel to (`inv` infinite) allows every `t` or none.
+#[inline(always)]
+fn slab(o: f32, inv: f32, lo: f32, hi: f32) -> (f32, f32) {
+    if inv.is_infinite() {
+        if o >= lo && o <= hi {
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            (f32::INFINITY, f32::NEG_INFINITY)
+        }
+    } else {
+        let (a, b) = ((lo - o) * inv, (hi - o) * inv);
+        (a.min(b), a.max(b))
+    }
 }
 
 /// Where the ray `o + t d` (t > 0) meets triangle `(a, b, c)` (Möller and Trumbore), and
