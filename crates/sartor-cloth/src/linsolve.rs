@@ -266,6 +266,12 @@ mod simd {
 }
 
 /// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic).
+/// Chunks per rayon task: the chunks spread over the pool's threads, one task each (a CG pass
+/// is too short to gain from splitting further; every split costs a hand-off between threads).
+fn per_thread(chunks: usize) -> usize {
+    chunks.div_ceil(rayon::current_num_threads()).max(1)
+}
+
 fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Parallelism) -> f64 {
     let chunk_dot = |(ca, cb): (&[Vector3<f64>], &[Vector3<f64>])| -> f64 {
         ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum()
@@ -572,10 +578,12 @@ impl LinearWorkspace {
                 .map(|(c, out)| chunk(c, out))
                 .sum(),
             Parallelism::Rayon => {
+                let tasks = per_thread(self.partial.len());
                 self.product
                     .par_chunks_mut(CHUNK)
                     .zip(self.partial.par_iter_mut())
                     .enumerate()
+                    .with_min_len(tasks)
                     .for_each(|(c, (out, p))| *p = chunk(c, out));
                 self.partial.iter().sum()
             }
@@ -591,6 +599,7 @@ impl LinearWorkspace {
     ) -> (f64, f64) {
         let (direction, product, inverse_diagonal) =
             (&self.direction, &self.product, &self.inverse_diagonal);
+        let tasks = per_thread(self.pair_partial.len());
         let chunk = |c: usize,
                      x: &mut [Vector3<f64>],
                      r: &mut [Vector3<f64>],
@@ -621,6 +630,7 @@ impl LinearWorkspace {
                 .zip(self.preconditioned.par_chunks_mut(CHUNK))
                 .zip(self.pair_partial.par_iter_mut())
                 .enumerate()
+                .with_min_len(tasks)
                 .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
         }
         (
@@ -644,11 +654,14 @@ impl LinearWorkspace {
                 .chunks_mut(CHUNK)
                 .enumerate()
                 .for_each(|(c, p)| chunk(c, p)),
-            Parallelism::Rayon => self
-                .direction
-                .par_chunks_mut(CHUNK)
-                .enumerate()
-                .for_each(|(c, p)| chunk(c, p)),
+            Parallelism::Rayon => {
+                let tasks = per_thread(self.direction.len().div_ceil(CHUNK));
+                self.direction
+                    .par_chunks_mut(CHUNK)
+                    .enumerate()
+                    .with_min_len(tasks)
+                    .for_each(|(c, p)| chunk(c, p))
+            }
         }
     }
 }

@@ -29,9 +29,9 @@
 //! # System
 //!
 //! The block pattern (vertex × vertex 3 × 3 blocks over mesh edges and hinge diagonals) is built
-//! once; element contributions are computed per element (in parallel when
-//! [`SimConfig::parallelism`] is `Rayon`) into per-element buffers, then added in a fixed order
-//! (deterministic). Obstacle contacts add diagonal blocks; self-contacts add only the diagonal
+//! once; element contributions are added element by element in index order (triangles, then
+//! hinges). When [`SimConfig::parallelism`] is `Rayon`, each thread fills a contiguous range of
+//! rows from the elements that touch it, in the same order: the same sums, bit for bit. Obstacle contacts add diagonal blocks; self-contacts add only the diagonal
 //! blocks of their (PSD) Hessian, which keeps the pattern fixed (a principal block of a PSD
 //! matrix is PSD). Pinned vertices are eliminated symmetrically (their velocity is prescribed).
 //!
@@ -234,8 +234,6 @@ impl EnergyReport {
 struct Workspace {
     tri_stiffness: Vec<StrainStiffness>,
     hinge_coefficient: Vec<f64>,
-    tri_out: Vec<ElementDerivatives<3>>,
-    hinge_out: Vec<ElementDerivatives<4>>,
     self_out: Vec<ElementDerivatives<4>>,
     obstacle_contacts: Vec<ObstacleContact>,
     query: Vec<Option<Contact>>,
@@ -263,69 +261,259 @@ struct Workspace {
     linear: LinearWorkspace,
 }
 
-/// One element contribution: a triangle's or a hinge's local block (`k` = row · size + column)
-/// or local vertex, packed in a `u32` (bit 31: hinge; bits 4..31: element; bits 0..4: `k`).
-#[derive(Clone, Copy, Debug)]
-struct Source(u32);
-
-enum Element {
-    Triangle(usize, usize),
-    Hinge(usize, usize),
-}
-
-impl Source {
-    const HINGE: u32 = 1 << 31;
-
-    fn triangle(t: usize, k: usize) -> Self {
-        Self(((t as u32) << 4) | k as u32)
-    }
-
-    fn hinge(e: usize, k: usize) -> Self {
-        Self(Self::HINGE | ((e as u32) << 4) | k as u32)
-    }
-
-    fn element(self) -> Element {
-        let (index, k) = (
-            ((self.0 & !Self::HINGE) >> 4) as usize,
-            (self.0 & 15) as usize,
-        );
-        if self.0 & Self::HINGE != 0 {
-            Element::Hinge(index, k)
-        } else {
-            Element::Triangle(index, k)
-        }
-    }
-}
-
-/// For every target (a block or a vertex), the element contributions it sums, in a fixed
-/// order (CSR): assembly as a gather, parallel over targets and deterministic.
+/// A share of the assembly: a set of vertices (rows of the system; in the parallel assembly a
+/// spatially compact part of the cloth, one per thread) and every element with a vertex among
+/// them, in index order. Each share sums its own rows' contributions in the order of a
+/// sequential scatter (triangles, then hinges, by index; then the contacts in list order): bit
+/// for bit the same sums, on any number of shares. An element across two shares is computed by
+/// both.
 #[derive(Clone, Debug)]
-struct Gather {
-    offsets: Vec<u32>,
-    sources: Vec<Source>,
+struct Share {
+    /// Its rows, ascending.
+    rows: Vec<u32>,
+    /// Per vertex of the cloth, its place in `rows` (`u32::MAX`: another share's).
+    local: Vec<u32>,
+    triangles: Vec<u32>,
+    hinges: Vec<u32>,
 }
 
-impl Gather {
-    /// From `(target, source)` pairs; each target keeps its sources in the pairs' order.
-    fn new(n_targets: usize, pairs: impl Iterator<Item = (u32, Source)> + Clone) -> Self {
-        let mut offsets = vec![0u32; n_targets + 1];
-        for (t, _) in pairs.clone() {
-            offsets[t as usize + 1] += 1;
+impl Share {
+    /// `count` shares of about equal work (element-vertex incidences): recursive halving of
+    /// the cloth at rest along its longest axis, so that few elements straddle two shares.
+    fn split(cloth: &Cloth, count: usize) -> Vec<Self> {
+        let rest = cloth.rest_mesh().positions();
+        let n = rest.len();
+        let mut weight = vec![0usize; n];
+        for f in cloth.faces() {
+            for &v in f {
+                weight[v as usize] += 1;
+            }
         }
-        for i in 0..n_targets {
-            offsets[i + 1] += offsets[i];
+        for h in cloth.hinges() {
+            for &v in &h.vertices {
+                weight[v as usize] += 1;
+            }
         }
-        let mut next: Vec<u32> = offsets[..n_targets].to_vec();
-        let mut sources = vec![Source(0); offsets[n_targets] as usize];
-        for (t, source) in pairs {
-            sources[next[t as usize] as usize] = source;
-            next[t as usize] += 1;
+        fn halve(
+            idx: &mut [u32],
+            parts: usize,
+            rest: &[Vector3<f64>],
+            weight: &[usize],
+            out: &mut Vec<Vec<u32>>,
+        ) {
+            if parts <= 1 || idx.len() <= 1 {
+                let mut rows = idx.to_vec();
+                rows.sort_unstable();
+                out.push(rows);
+                return;
+            }
+            let (mut lo, mut hi) = (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            );
+            for &i in idx.iter() {
+                lo = lo.inf(&rest[i as usize]);
+                hi = hi.sup(&rest[i as usize]);
+            }
+            let axis = (hi - lo).imax();
+            idx.sort_unstable_by(|&a, &b| {
+                rest[a as usize][axis]
+                    .total_cmp(&rest[b as usize][axis])
+                    .then(a.cmp(&b))
+            });
+            let left_parts = parts / 2;
+            let total: usize = idx.iter().map(|&i| weight[i as usize]).sum();
+            let (mut acc, mut cut) = (0usize, idx.len());
+            for (k, &i) in idx.iter().enumerate() {
+                if acc * parts >= total * left_parts {
+                    cut = k;
+                    break;
+                }
+                acc += weight[i as usize];
+            }
+            let cut = cut.clamp(1, idx.len() - 1);
+            let (left, right) = idx.split_at_mut(cut);
+            halve(left, left_parts, rest, weight, out);
+            halve(right, parts - left_parts, rest, weight, out);
         }
-        Self { offsets, sources }
+        let mut idx: Vec<u32> = (0..n as u32).collect();
+        let mut groups = Vec::new();
+        halve(&mut idx, count.max(1), rest, &weight, &mut groups);
+        groups
+            .into_iter()
+            .map(|rows| {
+                let mut local = vec![u32::MAX; n];
+                for (k, &i) in rows.iter().enumerate() {
+                    local[i as usize] = k as u32;
+                }
+                let touches = |vs: &[u32]| vs.iter().any(|&v| local[v as usize] != u32::MAX);
+                Self {
+                    triangles: (0..cloth.faces().len() as u32)
+                        .filter(|&t| touches(&cloth.faces()[t as usize]))
+                        .collect(),
+                    hinges: (0..cloth.hinges().len() as u32)
+                        .filter(|&e| touches(&cloth.hinges()[e as usize].vertices))
+                        .collect(),
+                    rows,
+                    local,
+                }
+            })
+            .collect()
     }
+}
 
-    fn sources(&self, target: usize) -> &[Source] {
-        &self.sources[self.offsets[target] as usize..self.offsets[target + 1] as usize]
+/// What every share of the assembly reads.
+struct Shared<'a> {
+    cloth: &'a Cloth,
+    config: &'a SimConfig,
+    pattern: &'a BlockPattern,
+    tri_slots: &'a [[u32; 9]],
+    hinge_slots: &'a [[u32; 16]],
+    stiffness: &'a [StrainStiffness],
+    coefficient: &'a [f64],
+    x: &'a [Vector3<f64>],
+    v_plus: &'a [Vector3<f64>],
+    velocities: &'a [Vector3<f64>],
+    pinned: &'a [bool],
+    pin_velocity: &'a [Vector3<f64>],
+    obstacle_contacts: &'a [ObstacleContact],
+    self_contacts: &'a [SelfContact],
+    self_out: &'a [ElementDerivatives<4>],
+    h: f64,
+}
+
+/// One row of the system being filled: its vertex, its stiffness and system blocks (its slots
+/// of the pattern), its gradient and right-hand side.
+struct RowMut<'a> {
+    vertex: usize,
+    stiffness: &'a mut [Matrix3<f64>],
+    system: &'a mut [Matrix3<f64>],
+    gradient: &'a mut Vector3<f64>,
+    rhs: &'a mut Vector3<f64>,
+}
+
+impl Shared<'_> {
+    /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness and gradient
+    /// summed over its elements (triangles, then hinges, by index), then the obstacle contacts
+    /// and the self-contacts (in list order), then the system and right-hand side of those rows.
+    fn fill(&self, share: &Share, out: &mut [RowMut<'_>]) {
+        let (faces, membranes, hinges) = (
+            self.cloth.faces(),
+            self.cloth.membranes(),
+            self.cloth.hinges(),
+        );
+        let masses = self.cloth.masses_kg();
+        let gravity = self.config.gravity_m_per_s2;
+        let pattern = self.pattern;
+        for row in out.iter_mut() {
+            row.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
+            *row.gradient = -gravity * masses[row.vertex];
+        }
+        // Row `i`'s entry, if this share's, and the first slot of its row.
+        let mine = |i: u32| {
+            let k = share.local[i as usize];
+            (k != u32::MAX).then(|| (k as usize, pattern.row(i as usize).start))
+        };
+        for &t in &share.triangles {
+            let (t, f) = (t as usize, faces[t as usize]);
+            let d =
+                membranes[t].derivatives(&gather(self.x, f), &self.stiffness[t], Projection::Psd);
+            let slots = &self.tri_slots[t];
+            for a in 0..3 {
+                if let Some((k, first)) = mine(f[a]) {
+                    let row = &mut out[k];
+                    *row.gradient += d.gradient[a];
+                    for b in 0..3 {
+                        row.stiffness[slots[3 * a + b] as usize - first] += d.hessian[a][b];
+                    }
+                }
+            }
+        }
+        let bending_hessian = self.config.bending_hessian;
+        for &e in &share.hinges {
+            let (e, h) = (e as usize, &hinges[e as usize]);
+            let d = h.derivatives(
+                &gather(self.x, h.vertices),
+                self.coefficient[e],
+                bending_hessian,
+            );
+            let slots = &self.hinge_slots[e];
+            for a in 0..4 {
+                if let Some((k, first)) = mine(h.vertices[a]) {
+                    let row = &mut out[k];
+                    *row.gradient += d.gradient[a];
+                    for b in 0..4 {
+                        row.stiffness[slots[4 * a + b] as usize - first] += d.hessian[a][b];
+                    }
+                }
+            }
+        }
+        let penalty = self.config.contact_penalty;
+        let diag = |i: usize| pattern.diag_slot(i) - pattern.row(i).start;
+        for c in self.obstacle_contacts {
+            if let Some((k, _)) = mine(c.vertex) {
+                let i = c.vertex as usize;
+                let d = c.derivatives(&self.x[i], &penalty);
+                let row = &mut out[k];
+                *row.gradient += d.gradient[0];
+                row.stiffness[diag(i)] += d.hessian[0][0];
+            }
+        }
+        for (c, d) in self.self_contacts.iter().zip(self.self_out) {
+            let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
+            for a in 0..4 {
+                if let Some((k, _)) = mine(idx[a]) {
+                    let row = &mut out[k];
+                    *row.gradient += d.gradient[a];
+                    row.stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
+                }
+            }
+        }
+        // `A = M (1 + h α) + h (h + β) K`, `−r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺`.
+        let (h, beta, alpha) = (
+            self.h,
+            self.config.stiffness_damping_s,
+            self.config.mass_damping_per_s,
+        );
+        let scale = h * (h + beta);
+        let cols = pattern.cols();
+        let any_pinned = self.pinned.iter().any(|&p| p);
+        for row in out.iter_mut() {
+            let i = row.vertex;
+            for (a, k) in row.system.iter_mut().zip(row.stiffness.iter()) {
+                *a = k * scale;
+            }
+            row.system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
+            let mut kv = Vector3::zeros();
+            if beta != 0.0 {
+                for (k, s) in row.stiffness.iter().zip(pattern.row(i)) {
+                    kv += k * self.v_plus[cols[s] as usize];
+                }
+            }
+            *row.rhs = -(self.v_plus[i] - self.velocities[i]) * masses[i]
+                - *row.gradient * h
+                - kv * (h * beta)
+                - self.v_plus[i] * (h * alpha * masses[i]);
+            if !any_pinned {
+                continue;
+            }
+            // Pins: the update of a pinned vertex is known, δ_i = u_i − v⁺_i. Move its column
+            // to the right-hand side and replace its row by M_i δ_i = M_i (u_i − v⁺_i).
+            if self.pinned[i] {
+                row.system.iter_mut().for_each(|b| *b = Matrix3::zeros());
+                row.system[diag(i)] = Matrix3::identity() * masses[i];
+                *row.rhs = (self.pin_velocity[i] - self.v_plus[i]) * masses[i];
+            } else {
+                for (a, s) in row.system.iter_mut().zip(pattern.row(i)) {
+                    let j = cols[s] as usize;
+                    if self.pinned[j] {
+                        let known = self.pin_velocity[j] - self.v_plus[j];
+                        *row.rhs -= *a * known;
+                        *a = Matrix3::zeros();
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -340,10 +528,10 @@ pub struct Simulator {
     pin_targets: Vec<Vector3<f64>>,
     time_secs: f64,
     pattern: BlockPattern,
-    /// Where each block of the stiffness and each vertex's gradient gather their element
-    /// contributions from (see [`Gather`]).
-    block_gather: Gather,
-    gradient_gather: Gather,
+    /// The shares of the parallel assembly (see [`Share`]): one per thread of rayon's pool;
+    /// and the one share of the sequential assembly.
+    shares: Vec<Share>,
+    everything: Share,
     /// The block of each (row, column) vertex pair of each triangle and hinge.
     tri_slots: Vec<[u32; 9]>,
     hinge_slots: Vec<[u32; 16]>,
@@ -472,46 +660,16 @@ impl Simulator {
             .iter()
             .map(|h| std::array::from_fn(|k| slot(h.vertices[k / 4], h.vertices[k % 4])))
             .collect();
-        // Triangles first, then hinges, each in index order: every block and every gradient
-        // sums its contributions in the order of a sequential scatter over the elements.
-        let block_gather = Gather::new(
-            pattern.n_blocks(),
-            tri_slots
-                .iter()
-                .enumerate()
-                .flat_map(|(t, slots)| {
-                    slots
-                        .iter()
-                        .enumerate()
-                        .map(move |(k, &s)| (s, Source::triangle(t, k)))
-                })
-                .chain(hinge_slots.iter().enumerate().flat_map(|(e, slots)| {
-                    slots
-                        .iter()
-                        .enumerate()
-                        .map(move |(k, &s)| (s, Source::hinge(e, k)))
-                })),
-        );
-        let gradient_gather =
-            Gather::new(
-                n,
-                cloth
-                    .faces()
-                    .iter()
-                    .enumerate()
-                    .flat_map(|(t, f)| (0..3).map(move |a| (f[a], Source::triangle(t, a))))
-                    .chain(cloth.hinges().iter().enumerate().flat_map(|(e, h)| {
-                        (0..4).map(move |a| (h.vertices[a], Source::hinge(e, a)))
-                    })),
-            );
+        let everything = Share::split(&cloth, 1).remove(0);
+        let shares = match config.parallelism {
+            Parallelism::Sequential => Vec::new(),
+            Parallelism::Rayon => Share::split(&cloth, rayon::current_num_threads()),
+        };
         let n_blocks = pattern.n_blocks();
         let zeros = vec![Vector3::zeros(); n];
         let ws = Workspace {
             tri_stiffness: vec![StrainStiffness::default(); cloth.faces().len()],
             hinge_coefficient: vec![0.0; cloth.hinges().len()],
-            // Element buffers of the parallel assembly, sized on its first use.
-            tri_out: Vec::new(),
-            hinge_out: Vec::new(),
             self_out: Vec::new(),
             obstacle_contacts: Vec::new(),
             query: vec![None; n],
@@ -540,8 +698,8 @@ impl Simulator {
             time_secs: 0.0,
             triangle_area_m2: cloth.membranes().iter().map(|m| m.area_m2).collect(),
             pattern,
-            block_gather,
-            gradient_gather,
+            shares,
+            everything,
             tri_slots,
             hinge_slots,
             cloth,
@@ -563,6 +721,9 @@ impl Simulator {
     /// Replace the settings (validated).
     pub fn set_config(&mut self, config: SimConfig) -> Result<()> {
         config.validate()?;
+        if matches!(config.parallelism, Parallelism::Rayon) && self.shares.is_empty() {
+            self.shares = Share::split(&self.cloth, rayon::current_num_threads());
+        }
         self.config = config;
         Ok(())
     }
@@ -743,8 +904,7 @@ impl Simulator {
             for i in 0..n {
                 self.ws.x_iter[i] = self.positions[i] + self.ws.v_plus[i] * h;
             }
-            self.assemble();
-            self.build_system(h);
+            self.assemble_system(h);
             stats.assemble_secs += t_assemble.elapsed().as_secs_f64();
             // Warm start: the current velocity continued by the last step's acceleration,
             // v + a h, as the guess for v⁺ (Δ = v + a h − v⁺). The system and its tolerance
@@ -949,171 +1109,75 @@ impl Simulator {
             .resize(self.ws.self_contacts.len(), ElementDerivatives::default());
     }
 
-    /// Gradient of the potential and its PSD Hessian at `x_iter`.
-    fn assemble(&mut self) {
+    /// The gradient of the potential and its PSD Hessian at `x_iter`, then the system
+    /// `A = M (1 + h α) + h (h + β) K` and `rhs = −r(v⁺)` with pinned vertices eliminated: row
+    /// by row, in shares of the rows (see [`Share`]; one share when sequential).
+    fn assemble_system(&mut self, h: f64) {
         let par = self.config.parallelism;
-        let bending_hessian = self.config.bending_hessian;
         let penalty = self.config.contact_penalty;
         let ws = &mut self.ws;
         let x = &ws.x_iter;
-        let membranes = self.cloth.membranes();
-        let faces = self.cloth.faces();
-        let hinges = self.cloth.hinges();
-        let masses = self.cloth.masses_kg();
-        let gravity = self.config.gravity_m_per_s2;
-        let stiffness = &ws.tri_stiffness;
-        let coefficient = &ws.hinge_coefficient;
-        match par {
-            Parallelism::Sequential => {
-                // Each element is added as soon as it is computed (no element buffers), in
-                // the order of the parallel gather below: the same sums, bit for bit.
-                ws.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
-                for (g, m) in ws.gradient.iter_mut().zip(masses) {
-                    *g = -gravity * *m;
-                }
-                for (t, slots) in self.tri_slots.iter().enumerate() {
-                    let f = faces[t];
-                    let d = membranes[t].derivatives(&gather(x, f), &stiffness[t], Projection::Psd);
-                    for a in 0..3 {
-                        ws.gradient[f[a] as usize] += d.gradient[a];
-                        for b in 0..3 {
-                            ws.stiffness[slots[3 * a + b] as usize] += d.hessian[a][b];
-                        }
-                    }
-                }
-                for (e, slots) in self.hinge_slots.iter().enumerate() {
-                    let h = &hinges[e];
-                    let d = h.derivatives(&gather(x, h.vertices), coefficient[e], bending_hessian);
-                    for a in 0..4 {
-                        ws.gradient[h.vertices[a] as usize] += d.gradient[a];
-                        for b in 0..4 {
-                            ws.stiffness[slots[4 * a + b] as usize] += d.hessian[a][b];
-                        }
-                    }
-                }
-            }
-            Parallelism::Rayon => {
-                ws.tri_out
-                    .resize(faces.len(), ElementDerivatives::default());
-                ws.hinge_out
-                    .resize(hinges.len(), ElementDerivatives::default());
-                for_each_indexed(&mut ws.tri_out, par, |t, out| {
-                    *out = membranes[t].derivatives(
-                        &gather(x, faces[t]),
-                        &stiffness[t],
-                        Projection::Psd,
-                    );
-                });
-                for_each_indexed(&mut ws.hinge_out, par, |e, out| {
-                    *out = hinges[e].derivatives(
-                        &gather(x, hinges[e].vertices),
-                        coefficient[e],
-                        bending_hessian,
-                    );
-                });
-                // Gather in a fixed order (each block and gradient sums its elements'
-                // contributions triangles first, then hinges, by index).
-                let (tri_out, hinge_out) = (&ws.tri_out, &ws.hinge_out);
-                let block_gather = &self.block_gather;
-                for_each_indexed(&mut ws.stiffness, par, |s, block| {
-                    let mut acc = Matrix3::zeros();
-                    for source in block_gather.sources(s) {
-                        acc += match source.element() {
-                            Element::Triangle(t, k) => tri_out[t].hessian[k / 3][k % 3],
-                            Element::Hinge(e, k) => hinge_out[e].hessian[k / 4][k % 4],
-                        };
-                    }
-                    *block = acc;
-                });
-                let gradient_gather = &self.gradient_gather;
-                for_each_indexed(&mut ws.gradient, par, |i, g| {
-                    let mut acc = -gravity * masses[i];
-                    for source in gradient_gather.sources(i) {
-                        acc += match source.element() {
-                            Element::Triangle(t, a) => tri_out[t].gradient[a],
-                            Element::Hinge(e, a) => hinge_out[e].gradient[a],
-                        };
-                    }
-                    *g = acc;
-                });
-            }
-        }
+        // The self-contacts' derivatives first (each touches four rows).
         let self_contacts = &ws.self_contacts;
         for_each_indexed(&mut ws.self_out, par, |s, out| {
             let c = &self_contacts[s];
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             *out = c.derivatives(&gather(x, idx), &penalty, Projection::Psd);
         });
-        for c in &ws.obstacle_contacts {
-            let i = c.vertex as usize;
-            let d = c.derivatives(&x[i], &penalty);
-            ws.gradient[i] += d.gradient[0];
-            ws.stiffness[self.pattern.diag_slot(i)] += d.hessian[0][0];
+        let shared = Shared {
+            cloth: &self.cloth,
+            config: &self.config,
+            pattern: &self.pattern,
+            tri_slots: &self.tri_slots,
+            hinge_slots: &self.hinge_slots,
+            stiffness: &ws.tri_stiffness,
+            coefficient: &ws.hinge_coefficient,
+            x,
+            v_plus: &ws.v_plus,
+            velocities: &self.velocities,
+            pinned: &self.pinned,
+            pin_velocity: &ws.pin_velocity,
+            obstacle_contacts: &ws.obstacle_contacts,
+            self_contacts: &ws.self_contacts,
+            self_out: &ws.self_out,
+            h,
+        };
+        let shares: &[Share] = match par {
+            Parallelism::Sequential => std::slice::from_ref(&self.everything),
+            Parallelism::Rayon => &self.shares,
+        };
+        // Each row's blocks and vectors, handed to the share that owns the row.
+        let mut work: Vec<Vec<RowMut<'_>>> = shares
+            .iter()
+            .map(|s| Vec::with_capacity(s.rows.len()))
+            .collect();
+        let (mut k, mut a) = (&mut ws.stiffness[..], &mut ws.system[..]);
+        for (i, (gradient, rhs)) in ws.gradient.iter_mut().zip(ws.rhs.iter_mut()).enumerate() {
+            let len = self.pattern.row(i).len();
+            let (stiffness, k_rest) = std::mem::take(&mut k).split_at_mut(len);
+            let (system, a_rest) = std::mem::take(&mut a).split_at_mut(len);
+            (k, a) = (k_rest, a_rest);
+            let owner = shares
+                .iter()
+                .position(|s| s.local[i] != u32::MAX)
+                .expect("every row has a share");
+            work[owner].push(RowMut {
+                vertex: i,
+                stiffness,
+                system,
+                gradient,
+                rhs,
+            });
         }
-        for (c, out) in ws.self_contacts.iter().zip(&ws.self_out) {
-            let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
-            for a in 0..4 {
-                let i = idx[a] as usize;
-                ws.gradient[i] += out.gradient[a];
-                ws.stiffness[self.pattern.diag_slot(i)] += out.hessian[a][a];
-            }
-        }
-    }
-
-    /// `A = M (1 + h α) + h (h + β) K` and `rhs = −r(v⁺)`, with pinned vertices eliminated.
-    fn build_system(&mut self, h: f64) {
-        let beta = self.config.stiffness_damping_s;
-        let alpha = self.config.mass_damping_per_s;
-        let masses = self.cloth.masses_kg();
-        let n = self.positions.len();
-        let ws = &mut self.ws;
-        let scale = h * (h + beta);
-        for (a, k) in ws.system.iter_mut().zip(&ws.stiffness) {
-            *a = k * scale;
-        }
-        for i in 0..n {
-            ws.system[self.pattern.diag_slot(i)] +=
-                Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
-        }
-        // −r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺.
-        for i in 0..n {
-            let mut kv = Vector3::zeros();
-            if beta != 0.0 {
-                for s in self.pattern.row(i) {
-                    kv += ws.stiffness[s] * ws.v_plus[self.pattern.cols()[s] as usize];
-                }
-            }
-            ws.rhs[i] = -(ws.v_plus[i] - self.velocities[i]) * masses[i]
-                - ws.gradient[i] * h
-                - kv * (h * beta)
-                - ws.v_plus[i] * (h * alpha * masses[i]);
-        }
-        // Pins: the update of a pinned vertex is known, δ_i = u_i − v⁺_i. Move its column to
-        // the right-hand side and replace its row by M_i δ_i = M_i (u_i − v⁺_i).
-        if self.pinned.iter().any(|&p| p) {
-            for i in 0..n {
-                if self.pinned[i] {
-                    continue;
-                }
-                for s in self.pattern.row(i) {
-                    let j = self.pattern.cols()[s] as usize;
-                    if self.pinned[j] {
-                        let known = ws.pin_velocity[j] - ws.v_plus[j];
-                        ws.rhs[i] -= ws.system[s] * known;
-                        ws.system[s] = Matrix3::zeros();
-                    }
-                }
-            }
-            for i in 0..n {
-                if !self.pinned[i] {
-                    continue;
-                }
-                for s in self.pattern.row(i) {
-                    ws.system[s] = Matrix3::zeros();
-                }
-                ws.system[self.pattern.diag_slot(i)] = Matrix3::identity() * masses[i];
-                ws.rhs[i] = (ws.pin_velocity[i] - ws.v_plus[i]) * masses[i];
-            }
+        match par {
+            Parallelism::Sequential => work
+                .iter_mut()
+                .zip(shares)
+                .for_each(|(rows, share)| shared.fill(share, rows)),
+            Parallelism::Rayon => work
+                .par_iter_mut()
+                .zip(shares)
+                .for_each(|(rows, share)| shared.fill(share, rows)),
         }
     }
 

@@ -244,5 +244,19 @@ fn parallel_runs_are_identical() {
         }
         sim.positions().to_vec()
     };
-    assert_eq!(run(Parallelism::Sequential), run(Parallelism::Rayon));
+    let sequential = run(Parallelism::Sequential);
+    assert_eq!(sequential, run(Parallelism::Rayon));
+    // The parallel assembly splits the rows into one share per thread of the pool the
+    // simulator is made in: any split sums the same numbers in the same order.
+    for threads in [1, 3, 5] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        assert_eq!(
+            sequential,
+            pool.install(|| run(Parallelism::Rayon)),
+            "{threads} threads"
+        );
+    }
 }
