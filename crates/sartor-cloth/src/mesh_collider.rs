@@ -107,7 +107,9 @@ impl MeshCollider {
             .zip(self.proximity.positions())
             .map(|(new, old)| (new - old - mean).norm_squared())
             .fold(0.0, f64::max);
-        self.proximity.update_positions(positions)?;
+        // Normals with each answer: a substep asks about a few thousand cloth vertices, and the
+        // body region has about ten thousand triangles.
+        self.proximity.update_positions_refit(positions)?;
         // A point of a triangle moves by a convex combination of its vertices' moves, so it
         // departs from the mean move by at most the largest vertex departure (with a margin
         // for rounding).

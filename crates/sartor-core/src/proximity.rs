@@ -249,6 +249,16 @@ impl MeshProximity {
         Ok(())
     }
 
+    /// Move the vertices and refit the tree, but leave the pseudo-normals to be computed with
+    /// each answer (bitwise equal to the ones [`Self::update_positions`] would store, as with
+    /// [`Self::update_positions_lazy`]): for callers asking a few answers per move, such as a
+    /// simulator's substep over a body of many more triangles than contacts. No allocation.
+    pub fn update_positions_refit(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.refit(positions)?;
+        self.normals_current = false;
+        Ok(())
+    }
+
     /// Move the vertices without refitting the tree or recomputing the pseudo-normals: for
     /// callers that find their candidate triangles themselves and ask [`Self::closest_among`] /
     /// [`Self::distance_to_face`], which answer for the new positions at once (each answer
@@ -781,6 +791,37 @@ mod tests {
             assert_eq!(c.signed_distance_m < 0.0, inside, "{q}");
         }
         assert!(m.update_positions(&p[..4]).is_err());
+    }
+
+    #[test]
+    fn normals_with_each_answer_are_the_stored_ones() {
+        let (p, f) = cube();
+        let moved: Vec<Vector3<f64>> = p
+            .iter()
+            .map(|v| Vector3::new(v.x * 1.5 + 0.1 * v.y, v.y - 0.2 * v.z, v.z * 0.7))
+            .collect();
+        let (mut eager, mut refit) = (
+            MeshProximity::new(&p, &f).expect("valid"),
+            MeshProximity::new(&p, &f).expect("valid"),
+        );
+        eager.update_positions(&moved).expect("same size");
+        refit.update_positions_refit(&moved).expect("same size");
+        let all: Vec<u32> = (0..f.len() as u32).collect();
+        let mut features = [0usize; 3];
+        for i in 0..400 {
+            let x = i as f64 * 0.29;
+            let q = Vector3::new(x.sin() * 2.0, (1.3 * x).cos() * 1.5, (0.7 * x).sin() * 1.2);
+            let (a, b) = (eager.closest(&q), refit.closest(&q));
+            assert_eq!(a, b, "{q}");
+            let nearest = eager.nearest_among(&q, &all).expect("faces");
+            features[match nearest.feature {
+                ClosestFeature::Face => 0,
+                ClosestFeature::Edge(_) => 1,
+                ClosestFeature::Vertex(_) => 2,
+            }] += 1;
+            assert_eq!(eager.closest_within(&q, 0.3), refit.closest_within(&q, 0.3));
+        }
+        assert!(features.iter().all(|&n| n > 0), "{features:?}");
     }
 
     #[test]
