@@ -392,11 +392,95 @@ struct RowMut<'a> {
     rhs: &'a mut Vector3<f64>,
 }
 
+/// A row's stiffness and system blocks, gradient and right-hand side.
+type RowParts<'a> = (
+    &'a mut [Matrix3<f64>],
+    &'a mut [Matrix3<f64>],
+    &'a mut Vector3<f64>,
+    &'a mut Vector3<f64>,
+);
+
+/// How a share reaches its rows: its vertices in order, the place of a vertex among them, and
+/// a row's blocks and vectors. [`Whole`] is every row of the system in place (the sequential
+/// assembly); a `[RowMut]` is a share's rows handed out one by one (the parallel one).
+trait RowAccess {
+    /// Rows this share fills.
+    fn count(&self) -> usize;
+    /// The vertex of its `k`-th row.
+    fn vertex(&self, k: usize) -> usize;
+    /// The place of vertex `i` among its rows, if it is this share's.
+    fn place(&self, share: &Share, i: u32) -> Option<usize>;
+    /// The `k`-th row's stiffness and system blocks, gradient and right-hand side.
+    fn row(&mut self, k: usize) -> RowParts<'_>;
+}
+
+/// Every row of the system, in place.
+struct Whole<'a> {
+    pattern: &'a BlockPattern,
+    stiffness: &'a mut [Matrix3<f64>],
+    system: &'a mut [Matrix3<f64>],
+    gradient: &'a mut [Vector3<f64>],
+    rhs: &'a mut [Vector3<f64>],
+}
+
+impl RowAccess for Whole<'_> {
+    fn count(&self) -> usize {
+        self.gradient.len()
+    }
+
+    fn vertex(&self, k: usize) -> usize {
+        k
+    }
+
+    #[inline(always)]
+    fn place(&self, _: &Share, i: u32) -> Option<usize> {
+        Some(i as usize)
+    }
+
+    #[inline(always)]
+    fn row(&mut self, k: usize) -> RowParts<'_> {
+        let slots = self.pattern.row(k);
+        (
+            &mut self.stiffness[slots.clone()],
+            &mut self.system[slots],
+            &mut self.gradient[k],
+            &mut self.rhs[k],
+        )
+    }
+}
+
+impl RowAccess for [RowMut<'_>] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+
+    fn vertex(&self, k: usize) -> usize {
+        self[k].vertex
+    }
+
+    #[inline(always)]
+    fn place(&self, share: &Share, i: u32) -> Option<usize> {
+        let k = share.local[i as usize];
+        (k != u32::MAX).then_some(k as usize)
+    }
+
+    #[inline(always)]
+    fn row(&mut self, k: usize) -> RowParts<'_> {
+        let r = &mut self[k];
+        (
+            &mut *r.stiffness,
+            &mut *r.system,
+            &mut *r.gradient,
+            &mut *r.rhs,
+        )
+    }
+}
+
 impl Shared<'_> {
     /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness and gradient
     /// summed over its elements (triangles, then hinges, by index), then the obstacle contacts
     /// and the self-contacts (in list order), then the system and right-hand side of those rows.
-    fn fill(&self, share: &Share, out: &mut [RowMut<'_>]) {
+    fn fill<R: RowAccess + ?Sized>(&self, share: &Share, out: &mut R) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
             self.cloth.membranes(),
@@ -405,26 +489,26 @@ impl Shared<'_> {
         let masses = self.cloth.masses_kg();
         let gravity = self.config.gravity_m_per_s2;
         let pattern = self.pattern;
-        for row in out.iter_mut() {
-            row.stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
-            *row.gradient = -gravity * masses[row.vertex];
+        for k in 0..out.count() {
+            let i = out.vertex(k);
+            let (stiffness, _, gradient, _) = out.row(k);
+            stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
+            *gradient = -gravity * masses[i];
         }
-        // Row `i`'s entry, if this share's, and the first slot of its row.
-        let mine = |i: u32| {
-            let k = share.local[i as usize];
-            (k != u32::MAX).then(|| (k as usize, pattern.row(i as usize).start))
-        };
+        // The first slot of vertex `i`'s row.
+        let first = |i: u32| pattern.row(i as usize).start;
         for &t in &share.triangles {
             let (t, f) = (t as usize, faces[t as usize]);
             let d =
                 membranes[t].derivatives(&gather(self.x, f), &self.stiffness[t], Projection::Psd);
             let slots = &self.tri_slots[t];
             for a in 0..3 {
-                if let Some((k, first)) = mine(f[a]) {
-                    let row = &mut out[k];
-                    *row.gradient += d.gradient[a];
+                if let Some(k) = out.place(share, f[a]) {
+                    let (stiffness, _, gradient, _) = out.row(k);
+                    *gradient += d.gradient[a];
+                    let first = first(f[a]);
                     for b in 0..3 {
-                        row.stiffness[slots[3 * a + b] as usize - first] += d.hessian[a][b];
+                        stiffness[slots[3 * a + b] as usize - first] += d.hessian[a][b];
                     }
                 }
             }
@@ -439,11 +523,12 @@ impl Shared<'_> {
             );
             let slots = &self.hinge_slots[e];
             for a in 0..4 {
-                if let Some((k, first)) = mine(h.vertices[a]) {
-                    let row = &mut out[k];
-                    *row.gradient += d.gradient[a];
+                if let Some(k) = out.place(share, h.vertices[a]) {
+                    let (stiffness, _, gradient, _) = out.row(k);
+                    *gradient += d.gradient[a];
+                    let first = first(h.vertices[a]);
                     for b in 0..4 {
-                        row.stiffness[slots[4 * a + b] as usize - first] += d.hessian[a][b];
+                        stiffness[slots[4 * a + b] as usize - first] += d.hessian[a][b];
                     }
                 }
             }
@@ -451,21 +536,21 @@ impl Shared<'_> {
         let penalty = self.config.contact_penalty;
         let diag = |i: usize| pattern.diag_slot(i) - pattern.row(i).start;
         for c in self.obstacle_contacts {
-            if let Some((k, _)) = mine(c.vertex) {
+            if let Some(k) = out.place(share, c.vertex) {
                 let i = c.vertex as usize;
                 let d = c.derivatives(&self.x[i], &penalty);
-                let row = &mut out[k];
-                *row.gradient += d.gradient[0];
-                row.stiffness[diag(i)] += d.hessian[0][0];
+                let (stiffness, _, gradient, _) = out.row(k);
+                *gradient += d.gradient[0];
+                stiffness[diag(i)] += d.hessian[0][0];
             }
         }
         for (c, d) in self.self_contacts.iter().zip(self.self_out) {
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             for a in 0..4 {
-                if let Some((k, _)) = mine(idx[a]) {
-                    let row = &mut out[k];
-                    *row.gradient += d.gradient[a];
-                    row.stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
+                if let Some(k) = out.place(share, idx[a]) {
+                    let (stiffness, _, gradient, _) = out.row(k);
+                    *gradient += d.gradient[a];
+                    stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
                 }
             }
         }
@@ -478,20 +563,21 @@ impl Shared<'_> {
         let scale = h * (h + beta);
         let cols = pattern.cols();
         let any_pinned = self.pinned.iter().any(|&p| p);
-        for row in out.iter_mut() {
-            let i = row.vertex;
-            for (a, k) in row.system.iter_mut().zip(row.stiffness.iter()) {
+        for k in 0..out.count() {
+            let i = out.vertex(k);
+            let (stiffness, system, gradient, rhs) = out.row(k);
+            for (a, k) in system.iter_mut().zip(stiffness.iter()) {
                 *a = k * scale;
             }
-            row.system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
+            system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
             let mut kv = Vector3::zeros();
             if beta != 0.0 {
-                for (k, s) in row.stiffness.iter().zip(pattern.row(i)) {
+                for (k, s) in stiffness.iter().zip(pattern.row(i)) {
                     kv += k * self.v_plus[cols[s] as usize];
                 }
             }
-            *row.rhs = -(self.v_plus[i] - self.velocities[i]) * masses[i]
-                - *row.gradient * h
+            *rhs = -(self.v_plus[i] - self.velocities[i]) * masses[i]
+                - *gradient * h
                 - kv * (h * beta)
                 - self.v_plus[i] * (h * alpha * masses[i]);
             if !any_pinned {
@@ -500,15 +586,15 @@ impl Shared<'_> {
             // Pins: the update of a pinned vertex is known, δ_i = u_i − v⁺_i. Move its column
             // to the right-hand side and replace its row by M_i δ_i = M_i (u_i − v⁺_i).
             if self.pinned[i] {
-                row.system.iter_mut().for_each(|b| *b = Matrix3::zeros());
-                row.system[diag(i)] = Matrix3::identity() * masses[i];
-                *row.rhs = (self.pin_velocity[i] - self.v_plus[i]) * masses[i];
+                system.iter_mut().for_each(|b| *b = Matrix3::zeros());
+                system[diag(i)] = Matrix3::identity() * masses[i];
+                *rhs = (self.pin_velocity[i] - self.v_plus[i]) * masses[i];
             } else {
-                for (a, s) in row.system.iter_mut().zip(pattern.row(i)) {
+                for (a, s) in system.iter_mut().zip(pattern.row(i)) {
                     let j = cols[s] as usize;
                     if self.pinned[j] {
                         let known = self.pin_velocity[j] - self.v_plus[j];
-                        *row.rhs -= *a * known;
+                        *rhs -= *a * known;
                         *a = Matrix3::zeros();
                     }
                 }
@@ -1142,11 +1228,19 @@ impl Simulator {
             self_out: &ws.self_out,
             h,
         };
-        let shares: &[Share] = match par {
-            Parallelism::Sequential => std::slice::from_ref(&self.everything),
-            Parallelism::Rayon => &self.shares,
-        };
+        if let Parallelism::Sequential = par {
+            let mut whole = Whole {
+                pattern: &self.pattern,
+                stiffness: &mut ws.stiffness,
+                system: &mut ws.system,
+                gradient: &mut ws.gradient,
+                rhs: &mut ws.rhs,
+            };
+            shared.fill(&self.everything, &mut whole);
+            return;
+        }
         // Each row's blocks and vectors, handed to the share that owns the row.
+        let shares = &self.shares;
         let mut work: Vec<Vec<RowMut<'_>>> = shares
             .iter()
             .map(|s| Vec::with_capacity(s.rows.len()))
@@ -1169,16 +1263,9 @@ impl Simulator {
                 rhs,
             });
         }
-        match par {
-            Parallelism::Sequential => work
-                .iter_mut()
-                .zip(shares)
-                .for_each(|(rows, share)| shared.fill(share, rows)),
-            Parallelism::Rayon => work
-                .par_iter_mut()
-                .zip(shares)
-                .for_each(|(rows, share)| shared.fill(share, rows)),
-        }
+        work.par_iter_mut()
+            .zip(shares)
+            .for_each(|(rows, share)| shared.fill(share, rows.as_mut_slice()));
     }
 
     /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]).
