@@ -284,3 +284,53 @@ fn skipping_the_queries_of_far_vertices_changes_no_step() {
         "{skipped_queries} of {all_queries} queries made"
     );
 }
+
+#[test]
+fn a_vertex_inside_one_part_but_nearest_another_is_projected_at_the_frame_end() {
+    // Two overlapping boxes as one body, as a forearm pressed into a torso: B's top face at
+    // y = 0, A reaching up to `a_top`. A sheet 2 cm above B's top is inside A; at first A's top
+    // is 3 cm above it and B's top, 2 cm below, is the nearest: the query reads it outside.
+    // A then sinks to 1.6 cm above the sheet: A's top becomes the nearest and the query reads
+    // the sheet 1.6 cm inside, although no surface came within 1.6 cm of it. The clearance
+    // bound (2 cm less the motion) skips its queries; a step told to query every vertex
+    // projects it out, as the drive does at every frame's last substep.
+    let body = |a_top: f64| {
+        let (mut p, mut f) =
+            sartor_core::box_mesh(Vector3::new(-0.5, -0.5, -0.5), Vector3::new(0.5, 0.0, 0.5));
+        let (pa, fa) = sartor_core::box_mesh(
+            Vector3::new(-0.4, -0.3, -0.4),
+            Vector3::new(0.4, a_top, 0.4),
+        );
+        let offset = p.len() as u32;
+        p.extend(pa);
+        f.extend(fa.iter().map(|t| t.map(|v| v + offset)));
+        (p, f)
+    };
+    let (start, faces) = body(0.05);
+    let (sunk, _) = body(0.036);
+    for every in [false, true] {
+        let mut collider = MeshCollider::new(&start, &faces, 0.05).expect("valid mesh");
+        let cloth = horizontal_sheet(0.01, 2, 0.02, Material::gray_interlock());
+        let mut sim = simulator(cloth, SimConfig::default());
+        sim.step(DT, &[&collider as &dyn Collider]).expect("stable");
+        assert!(
+            min_distance(sim.positions(), &collider) > 0.019,
+            "read outside at first"
+        );
+        collider.move_to(&sunk, DT).expect("valid");
+        if every {
+            sim.query_every_vertex_next_step();
+        }
+        let stats = sim.step(DT, &[&collider as &dyn Collider]).expect("stable");
+        let depth = -min_distance(sim.positions(), &collider);
+        if every {
+            assert!(
+                stats.projected_vertices > 0 && depth <= 1e-3 + 1e-9,
+                "{depth}"
+            );
+        } else {
+            // The bound's blind spot, which the frame's last substep closes.
+            assert!(depth > 0.015, "{depth}");
+        }
+    }
+}
