@@ -30,9 +30,10 @@
 //!
 //! The block pattern (vertex × vertex 3 × 3 blocks over mesh edges and hinge diagonals) is built
 //! once; element contributions are added element by element in index order (triangles, then
-//! hinges). When [`SimConfig::parallelism`] is `Rayon`, each thread fills a contiguous range of
-//! rows from the elements that touch it, in the same order: the same sums, bit for bit. Obstacle contacts add diagonal blocks; self-contacts add only the diagonal
-//! blocks of their (PSD) Hessian, which keeps the pattern fixed (a principal block of a PSD
+//! hinges). When [`SimConfig::parallelism`] is `Rayon`, each thread fills a spatially compact
+//! set of rows from the elements that touch it, in the same order: the same sums, bit for bit.
+//! Obstacle contacts add diagonal blocks; self-contacts add only the diagonal blocks of their
+//! (PSD) Hessian, which keeps the pattern fixed (a principal block of a PSD
 //! matrix is PSD). Pinned vertices are eliminated symmetrically (their velocity is prescribed).
 //!
 //! # After the solve
@@ -880,7 +881,7 @@ impl Simulator {
     }
 
     /// Make the next step's projection fallback query every vertex instead of skipping those
-    /// whose clearance bound proves them outside (see [`QueryState`]). The bound holds for the
+    /// whose clearance bound (the collider's [`MotionBound`]) proves them outside. The bound holds for the
     /// distance to an obstacle, not for the side a mesh obstacle's query reads: where a body
     /// region is open or intersects itself (a forearm pressed into the torso), a vertex inside
     /// one part whose nearest point lies on another reads as outside, and turns inside when
