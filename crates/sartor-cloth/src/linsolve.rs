@@ -18,6 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::StepFailure;
 
+mod team;
+
 /// Which linear solver the implicit step uses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub enum LinearSolver {
@@ -266,12 +268,6 @@ mod simd {
 }
 
 /// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic).
-/// Chunks per rayon task: the chunks spread over the pool's threads, one task each (a CG pass
-/// is too short to gain from splitting further; every split costs a hand-off between threads).
-fn per_thread(chunks: usize) -> usize {
-    chunks.div_ceil(rayon::current_num_threads()).max(1)
-}
-
 fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Parallelism) -> f64 {
     let chunk_dot = |(ca, cb): (&[Vector3<f64>], &[Vector3<f64>])| -> f64 {
         ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum()
@@ -520,11 +516,37 @@ impl LinearWorkspace {
         let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
         let mut relative = r_norm / b_norm;
         let mut iterations = 0;
-        // Each iteration is three passes over the vertices in chunks of `CHUNK` (in parallel
-        // with rayon): (1) q = A p with the chunk's share of p·q; (2) the x and r updates,
-        // z = P⁻¹ r, with the chunk's shares of r·z and r·r; (3) p = z + β p. Every dot
-        // product is summed per chunk and then over the chunks in order: the same numbers on
-        // any thread count, and the same as separate dot products.
+        // Each iteration is three passes over the vertices in chunks of `CHUNK`: (1) q = A p
+        // with the chunk's share of p·q; (2) the x and r updates, z = P⁻¹ r, with the chunk's
+        // shares of r·z and r·r; (3) p = z + β p. Every dot product is summed per chunk and
+        // then over the chunks in order: the same numbers on any thread count, and the same as
+        // separate dot products. With rayon the loop runs on a team of threads, one range of
+        // chunks each ([`team`]).
+        let threads = match par {
+            Parallelism::Sequential => 1,
+            Parallelism::Rayon => rayon::current_num_threads().min(n.div_ceil(CHUNK)),
+        };
+        if threads > 1 {
+            let problem = team::Problem {
+                pattern,
+                values,
+                inverse_diagonal: &self.inverse_diagonal,
+                rz,
+                relative,
+                b_norm,
+                max_iterations,
+                relative_tolerance,
+            };
+            let state = team::State {
+                x,
+                residual: &mut self.residual,
+                preconditioned: &mut self.preconditioned,
+                product: &mut self.product,
+                direction: &mut self.direction,
+            };
+            let (iterations, relative) = team::iterate(threads, &problem, state)?;
+            return Ok(stats(iterations, relative));
+        }
         while relative > relative_tolerance {
             if iterations == max_iterations || !relative.is_finite() {
                 return Err(StepFailure::SolverNotConverged {
@@ -532,7 +554,7 @@ impl LinearWorkspace {
                     relative_residual: relative,
                 });
             }
-            let p_ap = self.product_and_dot(pattern, values, par);
+            let p_ap = self.product_and_dot(pattern, values);
             if p_ap.is_nan() || p_ap <= 0.0 {
                 return Err(StepFailure::SolverNotConverged {
                     iterations,
@@ -540,10 +562,10 @@ impl LinearWorkspace {
                 });
             }
             let alpha = rz / p_ap;
-            let (rz_new, rr) = self.update_and_precondition(x, alpha, par);
+            let (rz_new, rr) = self.update_and_precondition(x, alpha);
             let beta = rz_new / rz;
             rz = rz_new;
-            self.update_direction(beta, par);
+            self.update_direction(beta);
             relative = rr.sqrt() / b_norm;
             iterations += 1;
         }
@@ -553,86 +575,45 @@ impl LinearWorkspace {
 
 impl LinearWorkspace {
     /// `product = A direction`; returns `direction · product` (per chunk, then in order).
-    fn product_and_dot(
-        &mut self,
-        pattern: &BlockPattern,
-        values: &[Matrix3<f64>],
-        par: Parallelism,
-    ) -> f64 {
+    fn product_and_dot(&mut self, pattern: &BlockPattern, values: &[Matrix3<f64>]) -> f64 {
         let direction = &self.direction;
-        let chunk = |c: usize, out: &mut [Vector3<f64>]| -> f64 {
-            row_products(pattern, values, direction, c * CHUNK, out);
-            // The chunk's share of p·q, summed in vertex order as `dot` does.
-            let start = c * CHUNK;
-            direction[start..start + out.len()]
-                .iter()
-                .zip(out.iter())
-                .map(|(a, b)| a.dot(b))
-                .sum()
-        };
-        match par {
-            Parallelism::Sequential => self
-                .product
-                .chunks_mut(CHUNK)
-                .enumerate()
-                .map(|(c, out)| chunk(c, out))
-                .sum(),
-            Parallelism::Rayon => {
-                let tasks = per_thread(self.partial.len());
-                self.product
-                    .par_chunks_mut(CHUNK)
-                    .zip(self.partial.par_iter_mut())
-                    .enumerate()
-                    .with_min_len(tasks)
-                    .for_each(|(c, (out, p))| *p = chunk(c, out));
-                self.partial.iter().sum()
-            }
-        }
+        self.product
+            .chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(c, out)| {
+                let start = c * CHUNK;
+                row_products(pattern, values, direction, start, out);
+                // The chunk's share of p·q, summed in vertex order as `dot` does.
+                direction[start..start + out.len()]
+                    .iter()
+                    .zip(out.iter())
+                    .map(|(a, b)| a.dot(b))
+                    .sum::<f64>()
+            })
+            .sum()
     }
 
     /// `x += α p`, `r −= α q`, `z = P⁻¹ r`; returns `(r · z, r · r)` (per chunk, in order).
-    fn update_and_precondition(
-        &mut self,
-        x: &mut [Vector3<f64>],
-        alpha: f64,
-        par: Parallelism,
-    ) -> (f64, f64) {
+    fn update_and_precondition(&mut self, x: &mut [Vector3<f64>], alpha: f64) -> (f64, f64) {
         let (direction, product, inverse_diagonal) =
             (&self.direction, &self.product, &self.inverse_diagonal);
-        let tasks = per_thread(self.pair_partial.len());
-        let chunk = |c: usize,
-                     x: &mut [Vector3<f64>],
-                     r: &mut [Vector3<f64>],
-                     z: &mut [Vector3<f64>]|
-         -> (f64, f64) {
-            let start = c * CHUNK;
-            for k in 0..x.len() {
-                let i = start + k;
-                x[k] += direction[i] * alpha;
-                r[k] -= product[i] * alpha;
-                z[k] = inverse_diagonal[i] * r[k];
-            }
-            let rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a.dot(b)).sum();
-            let rr: f64 = r.iter().map(|a| a.dot(a)).sum();
-            (rz, rr)
-        };
-        match par {
-            Parallelism::Sequential => x
-                .chunks_mut(CHUNK)
-                .zip(self.residual.chunks_mut(CHUNK))
-                .zip(self.preconditioned.chunks_mut(CHUNK))
-                .zip(self.pair_partial.iter_mut())
-                .enumerate()
-                .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
-            Parallelism::Rayon => x
-                .par_chunks_mut(CHUNK)
-                .zip(self.residual.par_chunks_mut(CHUNK))
-                .zip(self.preconditioned.par_chunks_mut(CHUNK))
-                .zip(self.pair_partial.par_iter_mut())
-                .enumerate()
-                .with_min_len(tasks)
-                .for_each(|(c, (((xc, rc), zc), p))| *p = chunk(c, xc, rc, zc)),
-        }
+        x.chunks_mut(CHUNK)
+            .zip(self.residual.chunks_mut(CHUNK))
+            .zip(self.preconditioned.chunks_mut(CHUNK))
+            .zip(self.pair_partial.iter_mut())
+            .enumerate()
+            .for_each(|(c, (((x, r), z), p))| {
+                let start = c * CHUNK;
+                for k in 0..x.len() {
+                    let i = start + k;
+                    x[k] += direction[i] * alpha;
+                    r[k] -= product[i] * alpha;
+                    z[k] = inverse_diagonal[i] * r[k];
+                }
+                let rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a.dot(b)).sum();
+                let rr: f64 = r.iter().map(|a| a.dot(a)).sum();
+                *p = (rz, rr);
+            });
         (
             self.pair_partial.iter().map(|p| p.0).sum(),
             self.pair_partial.iter().map(|p| p.1).sum(),
@@ -640,28 +621,9 @@ impl LinearWorkspace {
     }
 
     /// `p = z + β p`.
-    fn update_direction(&mut self, beta: f64, par: Parallelism) {
-        let z = &self.preconditioned;
-        let chunk = |c: usize, p: &mut [Vector3<f64>]| {
-            let start = c * CHUNK;
-            for (k, pi) in p.iter_mut().enumerate() {
-                *pi = z[start + k] + *pi * beta;
-            }
-        };
-        match par {
-            Parallelism::Sequential => self
-                .direction
-                .chunks_mut(CHUNK)
-                .enumerate()
-                .for_each(|(c, p)| chunk(c, p)),
-            Parallelism::Rayon => {
-                let tasks = per_thread(self.direction.len().div_ceil(CHUNK));
-                self.direction
-                    .par_chunks_mut(CHUNK)
-                    .enumerate()
-                    .with_min_len(tasks)
-                    .for_each(|(c, p)| chunk(c, p))
-            }
+    fn update_direction(&mut self, beta: f64) {
+        for (pi, zi) in self.direction.iter_mut().zip(&self.preconditioned) {
+            *pi = zi + *pi * beta;
         }
     }
 }
@@ -755,6 +717,65 @@ mod tests {
             // A chunk that starts inside the matrix.
             simd::row_products_avx2(&pattern, &values, &x, 100, &mut avx2[..57]);
             assert_eq!(avx2[..57], portable[100..157]);
+        }
+    }
+
+    #[test]
+    fn cg_gives_the_same_bits_on_any_number_of_threads() {
+        // Six chunks, the last one short; a chain with long-range couplings so that every
+        // thread's rows read other threads' rows of p.
+        let n = 5 * CHUNK + 77;
+        let mut pairs: Vec<[u32; 2]> = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
+        pairs.extend((0..n as u32).map(|i| [i, (i * 613 + 29) % n as u32]));
+        pairs.retain(|[a, b]| a != b);
+        let pattern = BlockPattern::new(n, &pairs);
+        let mut values = vec![Matrix3::zeros(); pattern.n_blocks()];
+        for i in 0..n {
+            let row = pattern.row(i);
+            let degree = row.len() as f64;
+            for s in row {
+                let j = pattern.cols()[s] as usize;
+                values[s] = if i == j {
+                    Matrix3::new(3.0, 0.1, 0.0, 0.1, 2.5, 0.2, 0.0, 0.2, 3.0) * degree
+                } else {
+                    Matrix3::identity() * -(1.0 + 0.1 * ((i + j) % 5) as f64)
+                };
+            }
+        }
+        let b: Vec<Vector3<f64>> = (0..n)
+            .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
+            .collect();
+        let solve = |par, max_iterations| {
+            let mut ws = LinearWorkspace::new(&pattern);
+            let mut x = vec![Vector3::new(0.01, 0.0, -0.02); n];
+            let stats = ws.solve_cg(&pattern, &values, &b, &mut x, max_iterations, 1e-11, par);
+            (
+                stats.map(|s| (s.iterations, s.relative_residual.to_bits())),
+                x,
+            )
+        };
+        let (sequential, x_sequential) = solve(Parallelism::Sequential, 500);
+        assert!(sequential.as_ref().is_ok_and(|s| s.0 > 5), "{sequential:?}");
+        let (short, _) = solve(Parallelism::Sequential, 3);
+        for threads in 1..=7 {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            let (stats, x) = pool.install(|| solve(Parallelism::Rayon, 500));
+            assert_eq!(stats, sequential, "{threads} threads");
+            assert!(x == x_sequential, "{threads} threads: another x");
+            // The same failure, at the same iteration, when the cap is hit.
+            let (failed, _) = pool.install(|| solve(Parallelism::Rayon, 3));
+            assert!(
+                matches!(
+                    (&failed, &short),
+                    (Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: a }),
+                     Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: b }))
+                    if a.to_bits() == b.to_bits()
+                ),
+                "{threads} threads: {failed:?} against {short:?}"
+            );
         }
     }
 

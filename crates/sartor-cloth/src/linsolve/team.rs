@@ -1,0 +1,367 @@
+//! The CG loop of [`super::LinearWorkspace::solve_cg`] on several threads: the threads of the
+//! current rayon pool, each owning a fixed range of rows for the whole solve.
+//!
+//! A CG iteration is three short passes over the vertices, each ended by a global sum. As rayon
+//! fork-joins each pass paid a hand-off between threads (16 µs measured on the 2-core VM)
+//! against 20–40 µs of work at 8,710 triangles, and the two-thread solve was no faster than one
+//! thread's. Here one `rayon::broadcast` starts the loop on every thread of the pool, each runs
+//! it over its own rows, and the passes are separated by a spinning barrier (well under a
+//! microsecond when both threads have a core). The broadcast waits for every thread of the
+//! pool: the simulator calls it from its step, when the pool has no other work. (Threads
+//! spawned per solve instead cost 60 µs each and ran beside the pool's idle threads: slower.)
+//! The one thing a thread reads of another's rows, the search direction `p` of the matrix
+//! product, it copies after each iteration from the owner's published rows into its own full
+//! copy.
+//!
+//! Bitwise the same as the sequential loop, on any number of threads: the rows are split on
+//! [`CHUNK`] boundaries, every chunk's share of each dot product is computed as the sequential
+//! loop computes it, and every thread sums the shares in chunk order, so that all threads hold
+//! the same scalars and take the same branches.
+
+use std::ops::Range;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::{BlockPattern, CHUNK, row_products};
+use crate::error::StepFailure;
+
+/// Spins of a thread waiting at the barrier before it starts yielding its core (when the team
+/// has more threads than free cores, e.g. tests running side by side). The spin is a plain
+/// load, without `std::hint::spin_loop` (PAUSE). On the 2-core VM, two threads solving a
+/// 4,500-row test system took 52 µs per iteration in about half of the solves with PAUSE and
+/// 2–7× that in the others (a hypervisor may take away a vCPU that spins on PAUSE); without it,
+/// 55–175 µs, against 88 µs for one thread.
+const SPINS: u32 = 4_000;
+
+/// What the caller has set up: the matrix, and the CG state after its first preconditioning.
+pub(super) struct Problem<'a> {
+    pub pattern: &'a BlockPattern,
+    pub values: &'a [Matrix3<f64>],
+    pub inverse_diagonal: &'a [Matrix3<f64>],
+    /// `r · z` of the starting residual.
+    pub rz: f64,
+    /// `|r| / |b|` of the starting residual.
+    pub relative: f64,
+    pub b_norm: f64,
+    pub max_iterations: usize,
+    pub relative_tolerance: f64,
+}
+
+/// The CG state, all rows: `x`, the residual `r`, the preconditioned residual `z`, the product
+/// `q = A p` and the search direction `p` (holding `z` on entry).
+pub(super) struct State<'a> {
+    pub x: &'a mut [Vector3<f64>],
+    pub residual: &'a mut [Vector3<f64>],
+    pub preconditioned: &'a mut [Vector3<f64>],
+    pub product: &'a mut [Vector3<f64>],
+    pub direction: &'a mut [Vector3<f64>],
+}
+
+/// Iterate CG on the first `threads` threads of the current rayon pool until the
+/// relative residual is within the tolerance: `(iterations, relative residual)`, exactly as the
+/// sequential loop returns them. On return `x` holds the solution; the other buffers are
+/// scratch.
+pub(super) fn iterate(
+    threads: usize,
+    problem: &Problem<'_>,
+    state: State<'_>,
+) -> Result<(usize, f64), StepFailure> {
+    let n = state.x.len();
+    let ranges = split_rows(n, threads);
+    let chunks = n.div_ceil(CHUNK);
+    let shares = || (0..chunks).map(|_| AtomicU64::new(0)).collect::<Vec<_>>();
+    let shared = Shared {
+        problem,
+        published: ranges
+            .iter()
+            .map(|r| Mutex::new(state.direction[r.clone()].to_vec()))
+            .collect(),
+        ranges: ranges.clone(),
+        p_q: shares(),
+        r_z: shares(),
+        r_r: shares(),
+        barrier: Barrier::new(threads),
+    };
+    let State {
+        x,
+        residual,
+        preconditioned,
+        product,
+        direction,
+    } = state;
+    // Thread 0 works in `direction`; every other thread in its own copy.
+    let mut copies: Vec<Vec<Vector3<f64>>> = (1..threads).map(|_| direction.to_vec()).collect();
+    let mut ps: Vec<&mut [Vector3<f64>]> = vec![direction];
+    ps.extend(copies.iter_mut().map(|c| c.as_mut_slice()));
+    let slots: Vec<Mutex<Option<Own<'_>>>> = split(x, &ranges)
+        .into_iter()
+        .zip(split(residual, &ranges))
+        .zip(split(preconditioned, &ranges))
+        .zip(split(product, &ranges))
+        .zip(ps)
+        .enumerate()
+        .map(|(t, ((((x, r), z), q), p))| {
+            Mutex::new(Some(Own {
+                thread: t,
+                x,
+                r,
+                z,
+                q,
+                p,
+            }))
+        })
+        .collect();
+    let results = rayon::broadcast(|ctx| {
+        let taken = slots
+            .get(ctx.index())
+            .and_then(|slot| slot.lock().expect("unpoisoned").take());
+        taken.map(|own| shared.work(own))
+    });
+    let mut results = results.into_iter().flatten();
+    results.next().expect("thread 0 ran")
+}
+
+/// One thread's rows of the state, and its full copy of the search direction `p`.
+struct Own<'a> {
+    thread: usize,
+    x: &'a mut [Vector3<f64>],
+    r: &'a mut [Vector3<f64>],
+    z: &'a mut [Vector3<f64>],
+    q: &'a mut [Vector3<f64>],
+    p: &'a mut [Vector3<f64>],
+}
+
+/// What the team shares.
+struct Shared<'a> {
+    problem: &'a Problem<'a>,
+    /// Per thread, its rows.
+    ranges: Vec<Range<usize>>,
+    /// Per thread, its rows of `p` as of the last iteration.
+    published: Vec<Mutex<Vec<Vector3<f64>>>>,
+    /// Per chunk, its share of `p · q`, `r · z` and `r · r` (f64 bits).
+    p_q: Vec<AtomicU64>,
+    r_z: Vec<AtomicU64>,
+    r_r: Vec<AtomicU64>,
+    barrier: Barrier,
+}
+
+impl Shared<'_> {
+    /// The CG loop over `own`'s rows, in step with the other threads.
+    fn work(&self, own: Own<'_>) -> Result<(usize, f64), StepFailure> {
+        let _poison = PoisonOnPanic(&self.barrier.poisoned);
+        let Problem {
+            pattern,
+            values,
+            inverse_diagonal,
+            b_norm,
+            max_iterations,
+            relative_tolerance,
+            ..
+        } = *self.problem;
+        let Own {
+            thread,
+            x,
+            r,
+            z,
+            q,
+            p,
+        } = own;
+        let rows = self.ranges[thread].clone();
+        let n = p.len();
+        // Each chunk as (its index, its rows relative to this thread's first row).
+        let chunks: Vec<(usize, Range<usize>)> = (rows.start / CHUNK..rows.end.div_ceil(CHUNK))
+            .map(|c| {
+                (
+                    c,
+                    c * CHUNK - rows.start..((c + 1) * CHUNK).min(n) - rows.start,
+                )
+            })
+            .collect();
+        let sum = |shares: &[AtomicU64]| -> f64 {
+            shares
+                .iter()
+                .map(|s| f64::from_bits(s.load(Ordering::Relaxed)))
+                .sum()
+        };
+        let mut round = 0;
+        let (mut rz, mut relative) = (self.problem.rz, self.problem.relative);
+        let mut iterations = 0;
+        while relative > relative_tolerance {
+            if iterations == max_iterations || !relative.is_finite() {
+                return Err(StepFailure::SolverNotConverged {
+                    iterations,
+                    relative_residual: relative,
+                });
+            }
+            // (1) q = A p over this thread's rows, with each chunk's share of p · q.
+            for (c, local) in &chunks {
+                let first = rows.start + local.start;
+                let out = &mut q[local.clone()];
+                row_products(pattern, values, p, first, out);
+                let share: f64 = p[first..first + out.len()]
+                    .iter()
+                    .zip(out.iter())
+                    .map(|(a, b)| a.dot(b))
+                    .sum();
+                self.p_q[*c].store(share.to_bits(), Ordering::Relaxed);
+            }
+            self.barrier.wait(&mut round);
+            let p_ap = sum(&self.p_q);
+            if p_ap.is_nan() || p_ap <= 0.0 {
+                return Err(StepFailure::SolverNotConverged {
+                    iterations,
+                    relative_residual: relative,
+                });
+            }
+            let alpha = rz / p_ap;
+            // (2) x += α p, r −= α q, z = P⁻¹ r, with each chunk's shares of r · z and r · r.
+            for (c, local) in &chunks {
+                for k in local.clone() {
+                    let i = rows.start + k;
+                    x[k] += p[i] * alpha;
+                    r[k] -= q[k] * alpha;
+                    z[k] = inverse_diagonal[i] * r[k];
+                }
+                let (rc, zc) = (&r[local.clone()], &z[local.clone()]);
+                let r_z: f64 = rc.iter().zip(zc.iter()).map(|(a, b)| a.dot(b)).sum();
+                let r_r: f64 = rc.iter().map(|a| a.dot(a)).sum();
+                self.r_z[*c].store(r_z.to_bits(), Ordering::Relaxed);
+                self.r_r[*c].store(r_r.to_bits(), Ordering::Relaxed);
+            }
+            self.barrier.wait(&mut round);
+            let (rz_new, rr) = (sum(&self.r_z), sum(&self.r_r));
+            let beta = rz_new / rz;
+            rz = rz_new;
+            // (3) p = z + β p over this thread's rows, published for the others.
+            for (k, pi) in p[rows.clone()].iter_mut().enumerate() {
+                *pi = z[k] + *pi * beta;
+            }
+            self.published[thread]
+                .lock()
+                .expect("no thread of the team panicked")
+                .copy_from_slice(&p[rows.clone()]);
+            self.barrier.wait(&mut round);
+            for (u, range) in self.ranges.iter().enumerate() {
+                if u != thread {
+                    p[range.clone()].copy_from_slice(
+                        &self.published[u]
+                            .lock()
+                            .expect("no thread of the team panicked"),
+                    );
+                }
+            }
+            relative = rr.sqrt() / b_norm;
+            iterations += 1;
+        }
+        Ok((iterations, relative))
+    }
+}
+
+/// `n` rows in `threads` ranges of whole chunks (the last may end short), as even as chunks
+/// allow; `threads` must not exceed the number of chunks.
+fn split_rows(n: usize, threads: usize) -> Vec<Range<usize>> {
+    let chunks = n.div_ceil(CHUNK);
+    assert!(
+        threads >= 1 && threads <= chunks,
+        "{threads} threads for {chunks} chunks"
+    );
+    let mut bounds = vec![0usize];
+    for t in 1..threads {
+        let previous = bounds[t - 1] / CHUNK;
+        let nearest = (n * t / threads + CHUNK / 2) / CHUNK;
+        let c = nearest.clamp(previous + 1, chunks - (threads - t));
+        bounds.push(c * CHUNK);
+    }
+    bounds.push(n);
+    bounds.windows(2).map(|w| w[0]..w[1]).collect()
+}
+
+/// `s` cut into the consecutive `ranges` (which cover it).
+fn split<'a, T>(mut s: &'a mut [T], ranges: &[Range<usize>]) -> Vec<&'a mut [T]> {
+    let mut parts = Vec::with_capacity(ranges.len());
+    for r in ranges {
+        let (head, tail) = s.split_at_mut(r.len());
+        parts.push(head);
+        s = tail;
+    }
+    parts
+}
+
+/// A reusable spinning barrier for a fixed number of threads.
+struct Barrier {
+    threads: usize,
+    arrived: AtomicUsize,
+    /// A thread of the team panicked: the others stop waiting for it.
+    poisoned: AtomicBool,
+}
+
+impl Barrier {
+    fn new(threads: usize) -> Self {
+        Self {
+            threads,
+            arrived: AtomicUsize::new(0),
+            poisoned: AtomicBool::new(false),
+        }
+    }
+
+    /// Wait until every thread has arrived for the `round`-th time (counted by the caller).
+    /// What each thread wrote before arriving is visible to every thread after.
+    fn wait(&self, round: &mut usize) {
+        *round += 1;
+        let target = *round * self.threads;
+        self.arrived.fetch_add(1, Ordering::AcqRel);
+        let mut spins = 0;
+        while self.arrived.load(Ordering::Acquire) < target {
+            assert!(
+                !self.poisoned.load(Ordering::Relaxed),
+                "another thread of the CG team panicked"
+            );
+            if spins < SPINS {
+                // No `spin_loop` (PAUSE) here: see [`SPINS`].
+                spins += 1;
+            } else {
+                std::thread::yield_now();
+            }
+        }
+    }
+}
+
+/// Poisons the barrier when its thread unwinds, so that the others do not wait for it forever.
+struct PoisonOnPanic<'a>(&'a AtomicBool);
+
+impl Drop for PoisonOnPanic<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_split_on_chunk_boundaries_as_evenly_as_chunks_allow() {
+        assert_eq!(split_rows(4_500, 2), vec![0..2_048, 2_048..4_500]);
+        assert_eq!(split_rows(700, 2), vec![0..512, 512..700]);
+        assert_eq!(split_rows(2_200, 3), vec![0..512, 512..1_536, 1_536..2_200]);
+        for n in [1usize, 511, 512, 513, 2_200, 4_500, 9_001, 13_100] {
+            let chunks = n.div_ceil(CHUNK);
+            for threads in 1..=chunks.min(7) {
+                let ranges = split_rows(n, threads);
+                assert_eq!(ranges.len(), threads);
+                assert_eq!(ranges[0].start, 0);
+                assert_eq!(ranges[threads - 1].end, n);
+                for w in ranges.windows(2) {
+                    assert_eq!(w[0].end, w[1].start);
+                    assert_eq!(w[0].end % CHUNK, 0);
+                    assert!(!w[0].is_empty());
+                }
+                assert!(!ranges[threads - 1].is_empty());
+            }
+        }
+    }
+}
