@@ -64,6 +64,10 @@ pub struct SimulateArgs {
     /// is deterministic, so the same inputs fail the same way; retry after changing settings).
     #[arg(long)]
     pub retry_failed: bool,
+    /// Only the jobs whose file stem (`<shape>__<motion>`) starts with this prefix (repeat for
+    /// several), e.g. `--only s00__` for the nominal shape's sequences.
+    #[arg(long, value_name = "PREFIX")]
+    pub only: Vec<String>,
 }
 
 /// Run `simulate`.
@@ -76,6 +80,7 @@ pub fn simulate_cmd(args: &SimulateArgs, env: &Env) -> anyhow::Result<()> {
         shard,
         jobs: args.jobs,
         retry_failed: args.retry_failed,
+        only: args.only.clone(),
     };
     let config = args.experiment.name(&env.data);
     match simulate(&e, &env.data, &options, &config, &Bar::new())? {

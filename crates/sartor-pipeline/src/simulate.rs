@@ -14,6 +14,8 @@
 //! - A sequence that fails (NaN, blow-up, penetration, non-convergence, even after the
 //!   simulator's retries) is never written as ground truth: a `failed/<stem>.json` note records
 //!   why, and the dataset step leaves it out.
+//! - `--only PREFIX` keeps the jobs whose file stem starts with one of the prefixes (e.g.
+//!   `s00__`: the nominal shape's sequences, enough for `tradeoff`).
 //! - Writes `simulate.json` (or `simulate-shard-I-of-N.json`): jobs done, skipped and failed,
 //!   frames, wall time, ms per frame.
 
@@ -44,6 +46,9 @@ pub struct SimulateOptions {
     /// Simulate again the jobs that failed before (by default they are skipped: a simulation
     /// is deterministic, so the same inputs fail the same way; retry after changing settings).
     pub retry_failed: bool,
+    /// Only the jobs whose file stem (`<shape>__<motion>`) starts with one of these (all jobs
+    /// when empty), e.g. `s00__` for the nominal shape's sequences.
+    pub only: Vec<String>,
 }
 
 impl Default for SimulateOptions {
@@ -52,6 +57,7 @@ impl Default for SimulateOptions {
             shard: (0, 1),
             jobs: None,
             retry_failed: false,
+            only: Vec::new(),
         }
     }
 }
@@ -253,6 +259,23 @@ pub enum SimulateOutcome {
     },
 }
 
+/// This shard's jobs of `e`, those `only` keeps (an error when it keeps none).
+fn selected_jobs(e: &Experiment, options: &SimulateOptions) -> Result<Vec<Job>> {
+    let (index, count) = options.shard;
+    let only = &options.only;
+    let mine: Vec<Job> = jobs(e)
+        .into_iter()
+        .enumerate()
+        .filter(|(k, _)| k % count == index)
+        .map(|(_, j)| j)
+        .filter(|j| only.is_empty() || only.iter().any(|p| j.stem.starts_with(p)))
+        .collect();
+    if mine.is_empty() && !only.is_empty() {
+        bail!("no job of {} starts with {}", e.name, only.join(" or "));
+    }
+    Ok(mine)
+}
+
 /// Simulate this shard's jobs of `e` (see the module docs). `config` names the config file in
 /// the report.
 pub fn simulate(
@@ -274,12 +297,7 @@ pub fn simulate(
         .with_context(|| format!("creating {}", out.display()))?;
     write_json(&out.join("config.json"), e)?;
     let plan = e.plan();
-    let mine: Vec<Job> = jobs(e)
-        .into_iter()
-        .enumerate()
-        .filter(|(k, _)| k % count == index)
-        .map(|(_, j)| j)
-        .collect();
+    let mine = selected_jobs(e, options)?;
     let failed_before = |j: &Job| {
         out.join(FAILED_DIR)
             .join(format!("{}.json", j.stem))
@@ -455,6 +473,51 @@ mod tests {
             _ => None,
         };
         assert_eq!(resolve_shard(None, None, &slurm).expect("ok"), (5, 8));
+    }
+
+    #[test]
+    fn only_keeps_the_jobs_with_a_prefix_and_names_one_that_matches_none() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let data = DataDir::new(&root).expect("data folder");
+        let path = root.join("configs/default.json");
+        let e = Experiment::load(&path, &data, Path::new("runs")).expect("valid");
+        let stems = |options: &SimulateOptions| -> Vec<String> {
+            selected_jobs(&e, options)
+                .expect("jobs")
+                .into_iter()
+                .map(|j| j.stem)
+                .collect()
+        };
+        let all = stems(&SimulateOptions::default());
+        let only = |prefixes: &[&str], shard| SimulateOptions {
+            only: prefixes.iter().map(|p| p.to_string()).collect(),
+            shard,
+            ..SimulateOptions::default()
+        };
+        let nominal = stems(&only(&["s00__"], (0, 1)));
+        let expected: Vec<String> = all
+            .iter()
+            .filter(|s| s.starts_with("s00__"))
+            .cloned()
+            .collect();
+        assert!(nominal.len() > 4 && nominal.len() < all.len() / 4);
+        assert_eq!(nominal, expected);
+        let two = stems(&only(&["s00__", "h00__"], (0, 1)));
+        assert!(two.len() > nominal.len());
+        assert!(
+            two.iter()
+                .all(|s| s.starts_with("s00__") || s.starts_with("h00__"))
+        );
+        // Within a shard: the shard's jobs, then the prefix.
+        let shard = stems(&only(&["s00__"], (1, 3)));
+        let shard_all = stems(&only(&[], (1, 3)));
+        assert!(
+            shard
+                .iter()
+                .all(|s| s.starts_with("s00__") && shard_all.contains(s))
+        );
+        let err = selected_jobs(&e, &only(&["s99__"], (0, 1))).expect_err("no such shape");
+        assert!(err.to_string().contains("s99__"), "{err}");
     }
 
     #[test]
