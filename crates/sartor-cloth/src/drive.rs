@@ -54,6 +54,7 @@
 use std::time::Instant;
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
     BodyDistance, BodyModel, BodyPoser, MeshProximity, Parallelism, Pose, SurfaceAnchors,
@@ -466,6 +467,8 @@ pub(crate) struct FrameStepper {
     /// the excluded triangles (hints: work saved, answers unchanged).
     check_hints: Vec<u32>,
     guard_hints: Vec<u32>,
+    /// Per cloth vertex, the answer of the check's current query (scratch).
+    found: Vec<Option<f64>>,
     /// The whole body's triangles, and its signed distance ([`BodyDistance`], built on first
     /// need): the check confirms every vertex the region finds deeper than the tolerance with
     /// the one collision measure before it rejects a frame.
@@ -551,6 +554,7 @@ impl FrameStepper {
             min_excluded_distance_m: f64::INFINITY,
             check_hints: vec![u32::MAX; n],
             guard_hints: vec![u32::MAX; n],
+            found: vec![None; n],
             body_faces: body.faces().to_vec(),
             body_distance: None,
             deep: Vec::new(),
@@ -714,18 +718,25 @@ impl FrameStepper {
         }
         let mut deepest = None;
         self.deep.clear();
-        for (i, (p, hint)) in self
-            .sim
-            .positions()
-            .iter()
-            .zip(&mut self.check_hints)
-            .enumerate()
-        {
-            if let Some(c) = self.collider.closest_within_hinted(*p, 0.0, hint) {
-                if -c.distance_m > self.tolerance_m {
+        let par = self.sim.config().parallelism;
+        let collider = &self.collider;
+        query_every_vertex(
+            self.sim.positions(),
+            &mut self.check_hints,
+            &mut self.found,
+            par,
+            |p, hint| {
+                collider
+                    .closest_within_hinted(*p, 0.0, hint)
+                    .map(|c| c.distance_m)
+            },
+        );
+        for (i, d) in self.found.iter().enumerate() {
+            if let Some(d) = *d {
+                if -d > self.tolerance_m {
                     self.deep.push(i);
-                } else if -c.distance_m > checks.max_penetration_m {
-                    checks.max_penetration_m = -c.distance_m;
+                } else if -d > checks.max_penetration_m {
+                    checks.max_penetration_m = -d;
                     deepest = Some(i);
                 }
             }
@@ -764,17 +775,23 @@ impl FrameStepper {
         if let Some(guard) = &mut self.guard {
             guard.update_positions(next).map_err(Error::from)?;
             let mut closest = None;
-            for (i, (p, hint)) in self
-                .sim
-                .positions()
-                .iter()
-                .zip(&mut self.guard_hints)
-                .enumerate()
-            {
-                if let Some(c) = guard.closest_within_hinted(p, self.guard_radius_m, hint)
-                    && c.signed_distance_m.abs() < checks.min_excluded_distance_m
+            let (guard, radius) = (&*guard, self.guard_radius_m);
+            query_every_vertex(
+                self.sim.positions(),
+                &mut self.guard_hints,
+                &mut self.found,
+                par,
+                |p, hint| {
+                    guard
+                        .closest_within_hinted(p, radius, hint)
+                        .map(|c| c.signed_distance_m.abs())
+                },
+            );
+            for (i, d) in self.found.iter().enumerate() {
+                if let Some(d) = *d
+                    && d < checks.min_excluded_distance_m
                 {
-                    checks.min_excluded_distance_m = c.signed_distance_m.abs();
+                    checks.min_excluded_distance_m = d;
                     closest = Some(i);
                 }
             }
@@ -789,6 +806,28 @@ impl FrameStepper {
             }
         }
         Ok(checks)
+    }
+}
+
+/// `out[i] = query(positions[i], hints[i])` for every cloth vertex, on the simulator's threads
+/// (each answer depends on its own vertex and hint only: the same on any thread count).
+fn query_every_vertex(
+    positions: &[Vector3<f64>],
+    hints: &mut [u32],
+    out: &mut [Option<f64>],
+    par: Parallelism,
+    query: impl Fn(&Vector3<f64>, &mut u32) -> Option<f64> + Sync,
+) {
+    let one = |((p, hint), o): ((&Vector3<f64>, &mut u32), &mut Option<f64>)| {
+        *o = query(p, hint);
+    };
+    match par {
+        Parallelism::Sequential => positions.iter().zip(hints).zip(out).for_each(one),
+        Parallelism::Rayon => positions
+            .par_iter()
+            .zip(hints.par_iter_mut())
+            .zip(out.par_iter_mut())
+            .for_each(one),
     }
 }
 

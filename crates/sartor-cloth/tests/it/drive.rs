@@ -203,14 +203,31 @@ fn sequence_files_round_trip_and_bad_files_are_named() {
 fn reruns_give_byte_identical_files() {
     let motion = clip().slice(0..3).expect("frames");
     let path = Path::new("same.mcap");
-    let run = || {
-        simulate(&betas(0.5), Some(&motion), &quick_config())
+    let run = |config: &DriveConfig| {
+        simulate(&betas(0.5), Some(&motion), config)
             .expect("simulates")
             .to_bytes(path)
             .expect("bytes")
     };
-    let (a, b) = (run(), run());
+    let (a, b) = (run(&quick_config()), run(&quick_config()));
     assert!(a == b, "two runs differ ({} vs {} bytes)", a.len(), b.len());
+    // On threads (the assembly's shares and the frame checks; this shirt is one CG chunk, so
+    // the CG team is left to linsolve's tests): the same bytes.
+    let mut parallel = quick_config();
+    parallel.sim.parallelism = sartor_core::Parallelism::Rayon;
+    for threads in [2, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        let c = pool.install(|| run(&parallel));
+        assert!(
+            a == c,
+            "{threads} threads differ ({} vs {} bytes)",
+            a.len(),
+            c.len()
+        );
+    }
 }
 
 #[test]
