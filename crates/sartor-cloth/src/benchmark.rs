@@ -3,6 +3,7 @@
 use std::time::Instant;
 
 use sartor_core::BodyModel;
+use sartor_core::io::sha256_hex;
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
 
@@ -57,6 +58,9 @@ pub struct SequenceBenchmark {
     pub check_ms_per_frame: f64,
     /// Region selection (once per sequence), ms.
     pub region_ms: f64,
+    /// SHA-256 of every frame's cloth positions (f32, little-endian, in order): two runs with
+    /// the same hash simulated the same cloth, bit for bit.
+    pub cloth_sha256: String,
 }
 
 /// Simulate `garment` on the body at rest shape through `motion` with `config` and time every
@@ -132,6 +136,14 @@ pub fn benchmark_sequence(
         body_ms_per_frame: per_frame(timing.body_secs),
         check_ms_per_frame: per_frame(timing.check_secs),
         region_ms: timing.region_secs * 1e3,
+        cloth_sha256: sha256_hex(
+            &sequence
+                .frames
+                .iter()
+                .flat_map(|f| f.positions.iter().flatten())
+                .flat_map(|c| c.to_le_bytes())
+                .collect::<Vec<u8>>(),
+        ),
     })
 }
 

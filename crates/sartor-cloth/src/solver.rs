@@ -98,9 +98,9 @@ pub struct SimConfig {
     /// Kinetic-energy bound as a speed: the step fails if `KE > ½ M_total max_speed²`, m/s.
     pub max_speed_m_per_s: f64,
     /// Run element loops, contact queries, CG and faer's Cholesky on rayon's pool. Element
-    /// loops, queries and CG give bit-identical results either way (fixed chunking, fixed
-    /// summation order); faer's parallel Cholesky may differ in the last bits. On a busy 2-core
-    /// machine the calling thread was faster (see the `step` benchmark).
+    /// loops, queries and CG (with its Cholesky fallback, which stays on one thread) give
+    /// bit-identical results either way (fixed chunking, fixed summation order); faer's
+    /// parallel Cholesky, the `Cholesky` solver's, may differ in the last bits.
     #[serde(skip)]
     pub parallelism: Parallelism,
 }
@@ -1041,7 +1041,11 @@ impl Simulator {
                     par,
                 ) {
                     // CG stopped short on a badly conditioned system (stiff contacts in a fast
-                    // motion): the direct solve of the same system rescues the step.
+                    // motion): the direct solve of the same system rescues the step. On one
+                    // thread whatever `par`: faer's parallel factorisation differs in the last
+                    // bits, and with it the two-thread 26,066-triangle walk drifted from the
+                    // one-thread run (202 against 199 CG iterations per substep over 25
+                    // frames); CG on threads is bit for bit the sequential CG, and so is this.
                     Err(StepFailure::SolverNotConverged { .. }) if fallback_to_cholesky => {
                         stats.cholesky_fallbacks += 1;
                         self.ws.linear.solve_cholesky(
@@ -1049,7 +1053,7 @@ impl Simulator {
                             &self.ws.system,
                             &self.ws.rhs,
                             &mut self.ws.update,
-                            par,
+                            Parallelism::Sequential,
                         )
                     }
                     other => other,

@@ -95,6 +95,9 @@ pub struct SizeEntry {
     pub single_thread: SequenceBenchmark,
     /// The all-threads run in detail.
     pub all_threads: Option<SequenceBenchmark>,
+    /// Whether the all-threads run simulated the same cloth as the one-thread run, bit for bit
+    /// (the same `cloth_sha256`): the speed-up is then for the same physics.
+    pub same_cloth_on_all_threads: Option<bool>,
 }
 
 /// `bench-sim.json`.
@@ -165,6 +168,9 @@ pub fn bench_sim(
             let all = benchmark_sequence(body, &garment, &material, motion, &parallel)
                 .with_context(|| format!("simulating {} on all threads", garment.name()))?;
             progress.println(&format!("  all threads: {:.1} ms/frame", all.ms_per_frame));
+            if all.cloth_sha256 != single.cloth_sha256 {
+                progress.println("  all threads: the cloth differs from the one-thread run's");
+            }
             Some(all)
         };
         sizes.push(SizeEntry {
@@ -174,6 +180,7 @@ pub fn bench_sim(
             vertices: garment.positions().len(),
             ms_per_frame: single.ms_per_frame,
             ms_per_frame_all_threads: all.as_ref().map(|a| a.ms_per_frame),
+            same_cloth_on_all_threads: all.as_ref().map(|a| a.cloth_sha256 == single.cloth_sha256),
             single_thread: single,
             all_threads: all,
         });
