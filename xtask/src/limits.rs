@@ -633,6 +633,7 @@ fn charts(r: &Report) -> Vec<Chart> {
             ],
             log_x: false,
             legend_at_bottom: true,
+            ranges: None,
         },
         Chart {
             title: "GRU size, all training data (validation)".into(),
@@ -641,6 +642,7 @@ fn charts(r: &Report) -> Vec<Chart> {
             series: vec![line("GRU", sizes)],
             log_x: false,
             legend_at_bottom: true,
+            ranges: None,
         },
         Chart {
             title: "output basis floor (validation)".into(),
@@ -655,6 +657,7 @@ fn charts(r: &Report) -> Vec<Chart> {
             )],
             log_x: false,
             legend_at_bottom: true,
+            ranges: None,
         },
     ];
     if !r.history.is_empty() {
@@ -678,6 +681,7 @@ fn charts(r: &Report) -> Vec<Chart> {
                 .collect(),
             log_x: false,
             legend_at_bottom: true,
+            ranges: None,
         });
     }
     charts

@@ -688,6 +688,7 @@ fn plot_errors(
             series,
             log_x: false,
             legend_at_bottom: false,
+            ranges: None,
         });
     }
     if !charts.is_empty() {
@@ -712,6 +713,7 @@ fn plot_errors(
             series,
             log_x: false,
             legend_at_bottom: false,
+            ranges: None,
         };
         write_charts(&dir.join("error_vs_shape"), &[chart], 1, (640, 420))?;
     }

@@ -54,6 +54,9 @@ pub struct Chart {
     pub log_x: bool,
     /// The legend in the lower right corner (default: upper right).
     pub legend_at_bottom: bool,
+    /// Fixed axis ranges `(x, y)` (default: fitted to the points), e.g. to compare the charts
+    /// of a grid.
+    pub ranges: Option<(std::ops::Range<f64>, std::ops::Range<f64>)>,
 }
 
 /// Colours by series index (colour-blind safe, Okabe–Ito); rings are always black.
@@ -162,14 +165,26 @@ fn draw_chart<DB: DrawingBackend>(
     chart: &Chart,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     let points = || chart.series.iter().flat_map(|s| s.points.iter());
-    let ys = padded(points().map(|p| p.1), true);
+    let ys = match &chart.ranges {
+        Some((_, y)) => y.clone(),
+        None => padded(points().map(|p| p.1), true),
+    };
     let mut builder = ChartBuilder::on(area);
     builder
         .caption(&chart.title, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(36)
         .y_label_area_size(56);
-    if chart.log_x {
+    if let Some((x, _)) = &chart.ranges {
+        if chart.log_x {
+            draw_series(
+                builder.build_cartesian_2d(x.clone().log_scale(), ys)?,
+                chart,
+            )
+        } else {
+            draw_series(builder.build_cartesian_2d(x.clone(), ys)?, chart)
+        }
+    } else if chart.log_x {
         // A fifth of a decade of room on each side.
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         for x in points().map(|p| p.0).filter(|x| x.is_finite() && *x > 0.0) {
@@ -284,6 +299,7 @@ mod tests {
             ],
             log_x: false,
             legend_at_bottom: false,
+            ranges: None,
         };
         let stem = dir.path().join("sub/plot");
         let log = Chart {

@@ -17,8 +17,8 @@
 //! time of `GarmentAnimator::frame` on one thread over one held-out clip, measured sequentially
 //! after a warm-up, and the bytes of its weights. A point is in the Pareto set when no other
 //! point is at least as good in error, collisions and time and better in one. Writes
-//! `runs/<name>/tradeoff/tradeoff.json` and `pareto.{png,svg}` (log time axis, one marker shape
-//! per precision, the Pareto set ringed).
+//! `runs/<name>/tradeoff/tradeoff.json` and `pareto.{png,svg}` (one chart per garment resolution
+//! on shared axes, log time axis, one marker shape per precision, the Pareto set ringed).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -251,54 +251,76 @@ pub fn sweep_model(
     Ok(points)
 }
 
-/// `pareto.{png,svg}` in `dir`: error against ms per frame on a log axis, one series per
-/// precision (its marker shape) and post-process setting, the Pareto set ringed.
+/// `pareto.{png,svg}` in `dir`: one chart per garment resolution, side by side on the same
+/// axes, of error against ms per frame on a log axis, one series per precision (its marker
+/// shape) and post-process setting, the Pareto set (over every size) ringed.
 pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
-    let mut series: Vec<Series> = Vec::new();
-    for p in points {
-        let (kind, marker) = if p.fit_only {
-            ("fit-only", Marker::Square)
-        } else {
-            match p.precision.as_str() {
-                "f32" => ("f32", Marker::Circle),
-                "f16" => ("f16", Marker::Triangle),
-                _ => ("int8", Marker::Cross),
+    // One chart per garment resolution, side by side on the same axes.
+    let mut sizes: Vec<usize> = points.iter().map(|p| p.garment_triangles).collect();
+    sizes.sort_unstable();
+    sizes.dedup();
+    let x = |p: &TradeoffPoint| p.ms_per_frame;
+    let y = |p: &TradeoffPoint| p.mean_vertex_error_mm;
+    let (x_lo, x_hi) = points
+        .iter()
+        .map(x)
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    let y_hi = points
+        .iter()
+        .map(y)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    // A fifth of a decade of room on each side of the time axis; errors from zero.
+    let ranges =
+        (x_lo.is_finite() && x_hi > 0.0).then(|| (x_lo / 1.6..x_hi * 1.6, 0.0..y_hi * 1.05));
+    let mut charts = Vec::new();
+    for &size in &sizes {
+        let mut series: Vec<Series> = Vec::new();
+        for p in points.iter().filter(|p| p.garment_triangles == size) {
+            let (kind, marker) = if p.fit_only {
+                ("fit-only", Marker::Square)
+            } else {
+                match p.precision.as_str() {
+                    "f32" => ("f32", Marker::Circle),
+                    "f16" => ("f16", Marker::Triangle),
+                    _ => ("int8", Marker::Cross),
+                }
+            };
+            let name = format!("{kind}{}", if p.post_process { " + pp" } else { "" });
+            let point = (x(p), y(p));
+            match series.iter_mut().find(|s| s.name == name) {
+                Some(s) => s.points.push(point),
+                None => series.push(Series {
+                    name,
+                    points: vec![point],
+                    marker: Some(marker),
+                }),
             }
-        };
-        let name = format!("{kind}{}", if p.post_process { " + pp" } else { "" });
-        let point = (p.ms_per_frame, p.mean_vertex_error_mm);
-        match series.iter_mut().find(|s| s.name == name) {
-            Some(s) => s.points.push(point),
-            None => series.push(Series {
-                name,
-                points: vec![point],
-                marker: Some(marker),
-            }),
         }
-    }
-    series.push(Series {
-        name: "Pareto set (error, collisions, time)".into(),
-        points: points
-            .iter()
-            .filter(|p| p.pareto)
-            .map(|p| (p.ms_per_frame, p.mean_vertex_error_mm))
-            .collect(),
-        marker: Some(Marker::Ring),
-    });
-    write_charts(
-        &dir.join("pareto"),
-        &[Chart {
-            title: "Error against cost per frame (one thread)".into(),
+        series.push(Series {
+            name: "Pareto set of all sizes (error, collisions, time)".into(),
+            points: points
+                .iter()
+                .filter(|p| p.pareto && p.garment_triangles == size)
+                .map(|p| (x(p), y(p)))
+                .collect(),
+            marker: Some(Marker::Ring),
+        });
+        charts.push(Chart {
+            title: format!("{size}-triangle garment: error against cost per frame (one thread)"),
             x_label: "ms per frame (log)".into(),
             y_label: "mean vertex error (mm)".into(),
             series,
             log_x: true,
             // Errors sit well above zero: the bottom of the chart is empty.
             legend_at_bottom: true,
-        }],
-        1,
-        (900, 600),
-    )?;
+            ranges: ranges.clone(),
+        });
+    }
+    write_charts(&dir.join("pareto"), &charts, charts.len(), (900, 600))?;
     Ok(())
 }
 

@@ -85,6 +85,7 @@ fn loss_charts(models: &BTreeMap<String, ModelReport>) -> Vec<Chart> {
             }],
             log_x: false,
             legend_at_bottom: false,
+            ranges: None,
         });
         charts.push(Chart {
             title: format!("{name}: validation error"),
@@ -97,6 +98,7 @@ fn loss_charts(models: &BTreeMap<String, ModelReport>) -> Vec<Chart> {
             }],
             log_x: false,
             legend_at_bottom: false,
+            ranges: None,
         });
     }
     charts
