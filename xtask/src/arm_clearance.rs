@@ -1,5 +1,6 @@
-//! `cargo xtask arm-clearance`: how deep the forearms and hands of the posed body pass into the
-//! rest of it, per (shape, motion) sequence of an experiment, beside whether that sequence's
+//! `cargo xtask arm-clearance`: how deep the forearms and hands of the posed body (and its upper
+//! arms beyond the armpit, when the config's `simulation.arm_clearance` holds them out too) pass
+//! into the rest of it, per (shape, motion) sequence of an experiment, beside whether that sequence's
 //! simulation failed. Retargeted motion capture made for a slimmer actor can swing the arms
 //! through a wider body's hips; cloth caught there has no position outside the body, and the
 //! simulator's frame check fails the sequence. This measures the body alone, without cloth.
@@ -20,7 +21,7 @@ use sartor_cli::{Env, ExperimentArgs, motion_options};
 use sartor_core::BodyModel;
 use sartor_dataset::{failed_stems, sequence_stem};
 use sartor_eval::write_json;
-use sartor_motion::{ArmClearance, ClearanceOptions, UpAxis, load_motion};
+use sartor_motion::{ArmClearance, UpAxis, load_motion};
 use serde::Serialize;
 
 /// Arguments of `arm-clearance`.
@@ -34,7 +35,8 @@ pub struct ArmClearanceArgs {
     /// Only the sequences that were simulated (done or failed).
     #[arg(long)]
     pub simulated_only: bool,
-    /// Measure the motion after [`ArmClearance::apply`] (default options), as the simulator
+    /// Measure the motion after [`ArmClearance::apply`] (with the config's
+    /// `simulation.arm_clearance` options, the defaults when it has none), as the simulator
     /// gets it, and report what it changed.
     #[arg(long)]
     pub corrected: bool,
@@ -47,7 +49,8 @@ pub struct ArmClearanceArgs {
 #[derive(Serialize)]
 struct SequenceClearance {
     stem: String,
-    /// Deepest forearm or hand vertex inside the torso, mm (0: none inside).
+    /// Deepest held vertex (forearm, hand, upper arm when the config holds it) inside the
+    /// torso, mm (0: none inside).
     max_depth_mm: f64,
     /// Motion frames with a vertex deeper than `--depth-mm`.
     frames_intersecting: usize,
@@ -78,6 +81,7 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
     let e = args.experiment.load(env)?;
     let body = BodyModel::load(&e.body)?;
     let probe = ArmClearance::new(&body)?;
+    let clearance = e.simulation.arm_clearance.clone().unwrap_or_default();
     let options = motion_options(&env.data, UpAxis::Y)?;
     let plan = e.plan();
     let failed: BTreeSet<String> = failed_stems(&e.sim_dir()).unwrap_or_default();
@@ -102,13 +106,12 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
             let poses = &motion.frames()[..n];
             let (depths, correction) = if args.corrected {
                 let started = std::time::Instant::now();
-                let (poses, r) =
-                    probe.apply(&body, &shape.betas, poses, &ClearanceOptions::default())?;
+                let (poses, r) = probe.apply(&body, &shape.betas, poses, &clearance)?;
                 let secs = started.elapsed().as_secs_f64();
-                let depths = probe.depths(&body, &shape.betas, &poses)?;
+                let depths = probe.depths(&body, &shape.betas, &poses, &clearance)?;
                 (depths, Some((r, secs)))
             } else {
-                (probe.depths(&body, &shape.betas, poses)?, None)
+                (probe.depths(&body, &shape.betas, poses, &clearance)?, None)
             };
             let max_depth = depths.iter().copied().fold(0.0f64, f64::max);
             let intersecting = depths.iter().filter(|&&d| d > depth_m).count();
@@ -140,7 +143,7 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
         })
         .collect();
     println!(
-        "sequences whose forearm or hand goes deeper than {} mm into the torso:",
+        "sequences whose held arm vertices go deeper than {} mm into the torso:",
         args.depth_mm
     );
     for (outcome, hit, of) in &intersecting {
@@ -160,6 +163,7 @@ pub fn arm_clearance(args: &ArmClearanceArgs, env: &Env) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sartor_motion::ClearanceOptions;
 
     #[test]
     fn a_walk_on_a_wide_body_sinks_the_hands_into_the_hips_and_the_rest_pose_does_not() {
@@ -169,13 +173,18 @@ mod tests {
         let probe = ArmClearance::new(&body).expect("probe");
         let betas = [0.0, 2.0];
         let rest = sartor_core::Pose::rest(body.skeleton().n_joints());
-        let at_rest = probe.depths(&body, &betas, &[rest]).expect("depths");
+        let options = ClearanceOptions::default();
+        let at_rest = probe
+            .depths(&body, &betas, &[rest], &options)
+            .expect("depths");
         assert!(at_rest[0] < 1e-3, "rest pose: {:.1} mm", at_rest[0] * 1e3);
         // CMU 02_02 (a walk, a failing sequence of the CMU experiment on this shape): the
         // swinging forearm goes centimetres into the hips.
-        let options = motion_options(&data, UpAxis::Y).expect("options");
-        let walk = load_motion("cmu/02_02@8+60", &options).expect("clip");
-        let depths = probe.depths(&body, &betas, walk.frames()).expect("depths");
+        let motion = motion_options(&data, UpAxis::Y).expect("options");
+        let walk = load_motion("cmu/02_02@8+60", &motion).expect("clip");
+        let depths = probe
+            .depths(&body, &betas, walk.frames(), &options)
+            .expect("depths");
         let deepest = depths.iter().copied().fold(0.0, f64::max);
         assert!(deepest > 0.02, "deepest {:.1} mm", deepest * 1e3);
     }

@@ -11,6 +11,14 @@
 //! over neighbouring frames so that the arm does not jump. Frames that need nothing in reach of
 //! a frame that does keep their pose bit for bit.
 //!
+//! With [`ClearanceOptions::upper_arm_clearance_m`] the upper arm is held out of the torso too.
+//! Skinning sinks a hanging upper arm into the side of a heavy torso (by up to 40 mm on the CMU
+//! clips): a shirt's side caught there has no position outside the body either, and the
+//! simulator's contacts, which see only the closest surface, leave it inside the arm. The
+//! upper arm's vertices at least [`UPPER_ARM_MIN_LEVER`] of its length from the shoulder, and
+//! outside the torso by the clearance in the rest pose, are then held at that clearance; the
+//! armpit itself, where arm and torso meet, cannot be and is not.
+//!
 //! The torso is the body's triangles whose vertices are all dominated (largest skin weight) by
 //! the spine, hips, neck or shoulder roots — where a T-shirt is. Inside is decided by the
 //! winding number of that open surface ([`BodyDistance`]).
@@ -28,6 +36,11 @@ pub struct ClearanceOptions {
     /// two CMU sequences measured, 10 mm still let a dancing hand catch the shirt at the hip,
     /// 25 mm did not.
     pub clearance_m: f64,
+    /// How far outside the torso the upper arm must be, m, or `None` (the default, and the
+    /// behaviour of configurations written before it): the upper arm is left where the motion
+    /// puts it. See the [module docs](self).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub upper_arm_clearance_m: Option<f64>,
     /// Over how many frames before and after a corrected frame its rotation is eased in and
     /// out (linearly). Default 8 (0.27 s at 30 fps).
     pub ramp_frames: usize,
@@ -45,6 +58,7 @@ impl Default for ClearanceOptions {
     fn default() -> Self {
         Self {
             clearance_m: 0.025,
+            upper_arm_clearance_m: None,
             ramp_frames: 8,
             max_iterations: 8,
             max_passes: 3,
@@ -56,14 +70,18 @@ impl Default for ClearanceOptions {
 impl ClearanceOptions {
     /// Check the options: a finite clearance ≥ 0, a finite largest angle > 0.
     pub fn validate(&self) -> Result<()> {
-        let clearance_ok = self.clearance_m.is_finite() && self.clearance_m >= 0.0;
+        let clearance_ok = [Some(self.clearance_m), self.upper_arm_clearance_m]
+            .into_iter()
+            .flatten()
+            .all(|c| c.is_finite() && c >= 0.0);
         let angle_ok = self.max_angle_rad.is_finite() && self.max_angle_rad > 0.0;
         if !(clearance_ok && angle_ok) {
             return Err(Error::invalid(
                 "arm clearance",
                 format!(
-                    "clearance_m {} must be finite and ≥ 0, max_angle_rad {} finite and > 0",
-                    self.clearance_m, self.max_angle_rad
+                    "clearance_m {} and upper_arm_clearance_m {:?} must be finite and ≥ 0, \
+                     max_angle_rad {} finite and > 0",
+                    self.clearance_m, self.upper_arm_clearance_m, self.max_angle_rad
                 ),
             ));
         }
@@ -78,18 +96,34 @@ pub struct ClearanceReport {
     pub frames_changed: usize,
     /// The largest shoulder rotation added, radians.
     pub max_angle_rad: f64,
-    /// Deepest forearm or hand vertex inside the torso before and after, m (0: none inside).
+    /// Deepest held vertex (forearm, hand, and the upper arm's with
+    /// [`ClearanceOptions::upper_arm_clearance_m`]) inside the torso before and after, m (0:
+    /// none inside).
     pub max_depth_before_m: f64,
     /// See `max_depth_before_m`.
     pub max_depth_after_m: f64,
 }
 
-/// One arm: its upper-arm joint (the pivot) and the forearm and hand vertices it carries.
+/// One arm: its upper-arm joint (the pivot), the forearm and hand vertices it carries, and the
+/// upper arm's own vertices.
 #[derive(Clone, Debug)]
 struct Arm {
     shoulder: usize,
     vertices: Vec<usize>,
+    upper: Vec<usize>,
 }
+
+/// An upper-arm vertex is held out of the torso only this share of the upper arm's length
+/// (shoulder to elbow joint) or farther from the shoulder: nearer, turning the arm hardly moves
+/// it, and the armpit is where arm and torso meet.
+pub const UPPER_ARM_MIN_LEVER: f64 = 0.4;
+
+/// An upper-arm vertex is held at the clearance only if the rest pose has it this much farther
+/// out, m.
+const UPPER_ARM_REST_SLACK_M: f64 = 5e-3;
+
+/// Per arm, the vertices held out of the torso and how far, m.
+type Targets = Vec<Vec<(usize, f64)>>;
 
 /// The body's arms and torso, for measuring and removing arm–torso intersection (see the
 /// [module docs](self)).
@@ -140,20 +174,24 @@ impl<'a> Posing<'a> {
         Ok(())
     }
 
-    /// The worst vertex of an arm in the last pose: its signed distance to the torso (negative
-    /// inside), the unit direction that takes it out (or farther out), and its index.
-    fn worst(&self, arm: &Arm) -> (f64, Vector3<f64>, usize) {
+    /// The worst of an arm's held vertices `targets` in the last pose: how far short of its
+    /// clearance it is (negative when clear), the unit direction that takes it out (or farther
+    /// out), its index, and the depth of the deepest one inside the torso (0: none inside), m.
+    fn worst(&self, targets: &[(usize, f64)]) -> (f64, Vector3<f64>, usize, f64) {
         let d = self.distance.as_ref().expect("posed before");
-        let mut best = (f64::INFINITY, Vector3::zeros(), 0);
-        for &v in &arm.vertices {
+        let mut best = (f64::NEG_INFINITY, Vector3::zeros(), 0, 0.0f64);
+        for &(v, clearance) in targets {
             let q = d.query(&self.posed[v]);
-            if q.signed_distance_m < best.0 {
+            best.3 = best.3.max(-q.signed_distance_m);
+            let short = clearance - q.signed_distance_m;
+            if short > best.0 {
                 let to_surface = q.closest.point - self.posed[v];
                 let out = if q.inside() { to_surface } else { -to_surface };
                 best = (
-                    q.signed_distance_m,
+                    short,
                     out.try_normalize(1e-12).unwrap_or(q.closest.normal),
                     v,
+                    best.3,
                 );
             }
         }
@@ -183,18 +221,29 @@ impl ArmClearance {
         };
         let mut arms: Vec<Arm> = Vec::new();
         for (v, &j) in dominant.iter().enumerate() {
-            if !distal_arm(&names[j]) {
+            let distal = distal_arm(&names[j]);
+            if !(distal || upper_arm(&names[j])) {
                 continue;
             }
             let Some(shoulder) = pivot(j) else { continue };
-            match arms.iter_mut().find(|a| a.shoulder == shoulder) {
-                Some(a) => a.vertices.push(v),
-                None => arms.push(Arm {
-                    shoulder,
-                    vertices: vec![v],
-                }),
+            let arm = match arms.iter().position(|a| a.shoulder == shoulder) {
+                Some(a) => &mut arms[a],
+                None => {
+                    arms.push(Arm {
+                        shoulder,
+                        vertices: Vec::new(),
+                        upper: Vec::new(),
+                    });
+                    arms.last_mut().expect("pushed")
+                }
+            };
+            if distal {
+                arm.vertices.push(v);
+            } else {
+                arm.upper.push(v);
             }
         }
+        arms.retain(|a| !a.vertices.is_empty());
         let torso = |v: u32| {
             let name = names[dominant[v as usize]].as_str();
             let trunk = ["Hips", "HipJoint", "LowerBack", "Spine", "Neck", "Shoulder"]
@@ -217,21 +266,73 @@ impl ArmClearance {
         Ok(Self { arms, torso_faces })
     }
 
-    /// Per pose, the depth of the deepest forearm or hand vertex inside the torso of the body
-    /// of shape `betas`, m (0: none inside).
-    pub fn depths(&self, body: &BodyModel, betas: &[f64], poses: &[Pose]) -> Result<Vec<f64>> {
+    /// Per pose, the depth of the deepest vertex that `options` holds out (forearms and hands,
+    /// and with [`ClearanceOptions::upper_arm_clearance_m`] the upper arms beyond the armpit)
+    /// inside the torso of the body of shape `betas`, m (0: none inside).
+    pub fn depths(
+        &self,
+        body: &BodyModel,
+        betas: &[f64],
+        poses: &[Pose],
+        options: &ClearanceOptions,
+    ) -> Result<Vec<f64>> {
         let mut posing = Posing::new(body, betas)?;
+        let targets = self.targets(&mut posing, options)?;
         poses
             .iter()
             .map(|pose| {
                 posing.pose(pose, &self.torso_faces)?;
-                Ok(self
-                    .arms
+                Ok(targets
                     .iter()
-                    .map(|arm| -posing.worst(arm).0)
+                    .map(|t| posing.worst(t).3)
                     .fold(0.0f64, f64::max))
             })
             .collect()
+    }
+
+    /// Per arm, the vertices held out of the torso of `posing`'s shape and their clearance:
+    /// every forearm and hand vertex at `clearance_m`; with `upper_arm_clearance_m`, the upper
+    /// arm's vertices at least [`UPPER_ARM_MIN_LEVER`] of its length from the shoulder and
+    /// clear of the torso in the rest pose by that clearance and [`UPPER_ARM_REST_SLACK_M`].
+    fn targets(&self, posing: &mut Posing<'_>, options: &ClearanceOptions) -> Result<Targets> {
+        let mut targets: Targets = self
+            .arms
+            .iter()
+            .map(|a| {
+                a.vertices
+                    .iter()
+                    .map(|&v| (v, options.clearance_m))
+                    .collect()
+            })
+            .collect();
+        let Some(upper) = options.upper_arm_clearance_m else {
+            return Ok(targets);
+        };
+        let skeleton = posing.poser.body().skeleton();
+        let parents = skeleton.parents().to_vec();
+        posing.pose(&Pose::rest(skeleton.n_joints()), &self.torso_faces)?;
+        let joints = posing.poser.posed_joints();
+        let distance = posing.distance.as_ref().expect("posed");
+        for (arm, targets) in self.arms.iter().zip(&mut targets) {
+            // The elbow: the farthest child of the shoulder (the forearm's joint).
+            let shoulder = joints[arm.shoulder];
+            let length = (0..parents.len())
+                .filter(|&c| parents[c] == Some(arm.shoulder))
+                .map(|c| (joints[c] - shoulder).norm())
+                .fold(0.0, f64::max);
+            targets.extend(
+                arm.upper
+                    .iter()
+                    .filter(|&&v| {
+                        let p = posing.posed[v];
+                        (p - shoulder).norm() >= UPPER_ARM_MIN_LEVER * length
+                            && distance.query(&p).signed_distance_m
+                                >= upper + UPPER_ARM_REST_SLACK_M
+                    })
+                    .map(|&v| (v, upper)),
+            );
+        }
+        Ok(targets)
     }
 
     /// `poses` with the forearms and hands moved out of the torso of shape `betas` (see the
@@ -245,6 +346,7 @@ impl ArmClearance {
     ) -> Result<(Vec<Pose>, ClearanceReport)> {
         options.validate()?;
         let mut posing = Posing::new(body, betas)?;
+        let targets = self.targets(&mut posing, options)?;
         let mut out = poses.to_vec();
         // Per arm and frame, the total correction: a rotation vector in the frame of the upper
         // arm's parent, applied before the upper arm's own local rotation.
@@ -254,8 +356,8 @@ impl ArmClearance {
             let mut needed = vec![vec![Vector3::<f64>::zeros(); poses.len()]; self.arms.len()];
             let mut any = false;
             for (t, pose) in out.iter().enumerate() {
-                for (a, arm) in self.arms.iter().enumerate() {
-                    let fix = self.frame_fix(&mut posing, pose, arm, options)?;
+                for (a, (arm, targets)) in self.arms.iter().zip(&targets).enumerate() {
+                    let fix = self.frame_fix(&mut posing, pose, arm, targets, options)?;
                     if pass == 0 {
                         report.max_depth_before_m = report.max_depth_before_m.max(fix.1);
                     }
@@ -281,7 +383,7 @@ impl ArmClearance {
             .count();
         report.max_angle_rad = total.iter().flatten().map(|r| r.norm()).fold(0.0, f64::max);
         report.max_depth_after_m = self
-            .depths(body, betas, &out)?
+            .depths(body, betas, &out, options)?
             .into_iter()
             .fold(0.0, f64::max);
         Ok((out, report))
@@ -302,14 +404,15 @@ impl ArmClearance {
         out
     }
 
-    /// The rotation (vector, in the upper arm's parent frame) that takes `arm` at least the
-    /// clearance out of the torso in `pose`, `None` if it is clear; and the depth of its deepest
-    /// vertex inside the torso before, m.
+    /// The rotation (vector, in the upper arm's parent frame) that takes `arm`'s held vertices
+    /// `targets` their clearance out of the torso in `pose`, `None` if they are clear; and the
+    /// depth of its deepest held vertex inside the torso before, m.
     fn frame_fix(
         &self,
         posing: &mut Posing<'_>,
         pose: &Pose,
         arm: &Arm,
+        targets: &[(usize, f64)],
         options: &ClearanceOptions,
     ) -> Result<(Option<Vector3<f64>>, f64)> {
         let j = arm.shoulder;
@@ -320,10 +423,9 @@ impl ArmClearance {
         let mut depth_before = None;
         for _ in 0..options.max_iterations.max(1) {
             posing.pose(&trial, &self.torso_faces)?;
-            let (signed, out, v) = posing.worst(arm);
-            depth_before.get_or_insert((-signed).max(0.0));
+            let (short, out, v, depth) = posing.worst(targets);
+            depth_before.get_or_insert(depth);
             // Half a millimetre of slack, so that a vertex at the clearance is not chased.
-            let short = options.clearance_m - signed;
             if short <= 5e-4 {
                 break;
             }

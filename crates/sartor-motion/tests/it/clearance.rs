@@ -1,8 +1,9 @@
 //! Arm clearance on real motion capture: a CMU walk retargeted onto a wide body swings the
 //! forearms through the hips; [`ArmClearance::apply`] takes them out and changes nothing else.
 
-use sartor_core::{BodyModel, Pose};
-use sartor_motion::{ArmClearance, ClearanceOptions, load_motion};
+use nalgebra::Vector3;
+use sartor_core::{BodyDistance, BodyModel, BodyPoser, Pose};
+use sartor_motion::{ArmClearance, ClearanceOptions, UPPER_ARM_MIN_LEVER, load_motion};
 
 use crate::motion_library::library_options;
 use crate::motion_sources::builtin_model_dir;
@@ -15,7 +16,7 @@ fn a_walk_on_a_wide_body_keeps_its_hands_out_of_the_hips_and_the_rest_as_it_was(
     // A sequence of the CMU experiment that failed to simulate on this shape.
     let walk = load_motion("cmu/02_02@8+60", &library_options()).expect("clip");
     let before = clearance
-        .depths(&body, &betas, walk.frames())
+        .depths(&body, &betas, walk.frames(), &ClearanceOptions::default())
         .expect("depths");
     let deepest = before.iter().copied().fold(0.0, f64::max);
     assert!(deepest > 0.02, "deepest {:.1} mm", deepest * 1e3);
@@ -26,7 +27,9 @@ fn a_walk_on_a_wide_body_keeps_its_hands_out_of_the_hips_and_the_rest_as_it_was(
         .expect("apply");
     assert_eq!(poses.len(), walk.frames().len());
     assert!((report.max_depth_before_m - deepest).abs() < 1e-9);
-    let after = clearance.depths(&body, &betas, &poses).expect("depths");
+    let after = clearance
+        .depths(&body, &betas, &poses, &options)
+        .expect("depths");
     let deepest_after = after.iter().copied().fold(0.0, f64::max);
     assert!(
         deepest_after < 1e-3,
@@ -106,10 +109,99 @@ fn the_rest_pose_needs_nothing_and_bad_options_are_refused() {
             max_angle_rad: 0.0,
             ..ClearanceOptions::default()
         },
+        ClearanceOptions {
+            upper_arm_clearance_m: Some(-1e-3),
+            ..ClearanceOptions::default()
+        },
     ] {
         let e = clearance
             .apply(&body, &[0.0], &rest, &bad)
             .expect_err("refused");
         assert!(e.to_string().contains("arm clearance"), "{e}");
     }
+}
+
+/// Per body vertex, the area-weighted unit normal of its triangles.
+fn vertex_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
+    let mut n = vec![Vector3::zeros(); positions.len()];
+    for f in faces {
+        let [a, b, c] = f.map(|i| positions[i as usize]);
+        let area_normal = (b - a).cross(&(c - a));
+        for &i in f {
+            n[i as usize] += area_normal;
+        }
+    }
+    n.iter()
+        .map(|v| v.try_normalize(1e-20).unwrap_or_else(Vector3::zeros))
+        .collect()
+}
+
+#[test]
+fn held_out_upper_arms_leave_no_pocket_between_arm_and_torso() {
+    // A CMU clip on the heavy shape of the 8,710-triangle experiment (β₀ = 2), the frames where
+    // its hanging upper arms sank into the torso's sides and the shirt between stayed inside
+    // the arm in the simulation.
+    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
+    let clearance = ArmClearance::new(&body).expect("arms and torso");
+    let betas = [2.0];
+    let clip = load_motion("cmu/05_18@184+90", &library_options()).expect("clip");
+    let poses = &clip.frames()[40..56];
+    let options = ClearanceOptions {
+        upper_arm_clearance_m: Some(0.005),
+        ..ClearanceOptions::default()
+    };
+    let (corrected, report) = clearance
+        .apply(&body, &betas, poses, &options)
+        .expect("apply");
+    assert!(
+        report.max_depth_before_m > 0.01,
+        "{:.1} mm",
+        report.max_depth_before_m * 1e3
+    );
+    assert_eq!(report.max_depth_after_m, 0.0, "{report:?}");
+    // A small turn, not arms held out: under 15°.
+    assert!(report.max_angle_rad < 15f64.to_radians(), "{report:?}");
+
+    // Independently of the torso surface the correction uses: 2 mm outside the skin of the
+    // upper arm beyond UPPER_ARM_MIN_LEVER of its length, the whole body's winding number (the
+    // collision measure) finds no other body part.
+    let names = body.skeleton().names();
+    let upper: Vec<(usize, usize)> = (0..body.n_vertices())
+        .filter_map(|v| {
+            let (j, _) = body
+                .skin_weights()
+                .point(v)
+                .max_by(|a, b| a.1.total_cmp(&b.1))?;
+            let upper_arm = names[j].ends_with("Arm") && !names[j].ends_with("ForeArm");
+            upper_arm.then_some((v, j))
+        })
+        .collect();
+    let pockets = |poses: &[Pose]| -> usize {
+        let mut poser = BodyPoser::new(&body);
+        let mut posed = vec![Vector3::zeros(); body.n_vertices()];
+        let mut count = 0;
+        for pose in poses {
+            poser
+                .pose_into(&[2.0, 0.0], pose, &mut posed)
+                .expect("pose");
+            let joints = poser.posed_joints().to_vec();
+            let distance = BodyDistance::new(&posed, body.faces()).expect("distance");
+            let normals = vertex_normals(&posed, body.faces());
+            for &(v, j) in &upper {
+                let elbow = (0..names.len())
+                    .filter(|&c| body.skeleton().parents()[c] == Some(j))
+                    .map(|c| (joints[c] - joints[j]).norm())
+                    .fold(0.0, f64::max);
+                if (posed[v] - joints[j]).norm() < UPPER_ARM_MIN_LEVER * elbow {
+                    continue;
+                }
+                let outside = posed[v] + normals[v] * 2e-3;
+                count += usize::from(distance.winding_number(&outside) > 0.5);
+            }
+        }
+        count
+    };
+    let before = pockets(poses);
+    assert!(before > 0, "the clip's upper arms were inside the torso");
+    assert_eq!(pockets(&corrected), 0, "{before} pocket points before");
 }
