@@ -185,22 +185,23 @@ fn draw_chart<DB: DrawingBackend>(
             draw_series(builder.build_cartesian_2d(x.clone(), ys)?, chart)
         }
     } else if chart.log_x {
-        // A fifth of a decade of room on each side.
-        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-        for x in points().map(|p| p.0).filter(|x| x.is_finite() && *x > 0.0) {
-            lo = lo.min(x);
-            hi = hi.max(x);
-        }
-        let (lo, hi) = if lo.is_finite() {
-            (lo / 1.6, hi * 1.6)
-        } else {
-            (0.1, 10.0)
-        };
-        draw_series(builder.build_cartesian_2d((lo..hi).log_scale(), ys)?, chart)
+        let xs = log_range(points().map(|p| p.0)).unwrap_or(0.1..10.0);
+        draw_series(builder.build_cartesian_2d(xs.log_scale(), ys)?, chart)
     } else {
         let xs = padded(points().map(|p| p.0), false);
         draw_series(builder.build_cartesian_2d(xs, ys)?, chart)
     }
+}
+
+/// A log axis's range over the finite positive `values`, with a fifth of a decade of room on
+/// each side; `None` when there is none.
+pub(crate) fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    lo.is_finite().then(|| lo / 1.6..hi * 1.6)
 }
 
 fn draw_series<'a, DB: DrawingBackend + 'a, X>(
@@ -326,5 +327,12 @@ mod tests {
             .collect();
         assert_eq!(names.len(), 2, "no temporary files left: {names:?}");
         assert!(write_charts(&stem, &[], 1, (10, 10)).is_err());
+    }
+
+    #[test]
+    fn log_axes_pad_a_fifth_of_a_decade_over_positive_values() {
+        let r = log_range([0.05, f64::NAN, -1.0, 0.0, 3.0].into_iter()).expect("two values");
+        assert!((r.start - 0.05 / 1.6).abs() < 1e-15 && (r.end - 3.0 * 1.6).abs() < 1e-12);
+        assert!(log_range([0.0, f64::INFINITY].into_iter()).is_none());
     }
 }

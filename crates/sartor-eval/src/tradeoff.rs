@@ -261,21 +261,13 @@ pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
     sizes.dedup();
     let x = |p: &TradeoffPoint| p.ms_per_frame;
     let y = |p: &TradeoffPoint| p.mean_vertex_error_mm;
-    let (x_lo, x_hi) = points
-        .iter()
-        .map(x)
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
-            (lo.min(v), hi.max(v))
-        });
     let y_hi = points
         .iter()
         .map(y)
         .filter(|v| v.is_finite())
         .fold(0.0f64, f64::max);
-    // A fifth of a decade of room on each side of the time axis; errors from zero.
-    let ranges =
-        (x_lo.is_finite() && x_hi > 0.0).then(|| (x_lo / 1.6..x_hi * 1.6, 0.0..y_hi * 1.05));
+    // The time axis as `plot` pads a log axis; errors from zero.
+    let ranges = crate::plot::log_range(points.iter().map(x)).map(|xs| (xs, 0.0..y_hi * 1.05));
     let mut charts = Vec::new();
     for &size in &sizes {
         let mut series: Vec<Series> = Vec::new();
