@@ -2,7 +2,8 @@
 //! the one collision measure ([`sartor_core::BodyDistance`], through
 //! [`sartor_eval::PosedBody`]): percentiles, the share below 0 mm and below −1 mm (the
 //! simulator's promise: none below −1 mm), per sequence and in total, printed and written as
-//! JSON.
+//! JSON; where the vertex-frames below −1 mm lie (the closest body part, and how many are
+//! caught between two overlapping parts).
 //!
 //! Sources: simulated sequence files (`--sim DIR`, e.g. `runs/<name>/sim`, motion frames only
 //! unless `--all-frames`), or a shipped model's stored slice of held-out ground truth
@@ -86,6 +87,10 @@ pub fn gt_collisions(args: &GtCollisionsArgs, env: &Env) -> anyhow::Result<()> {
             s.percentiles_mm
         );
     }
+    println!(
+        "below -1 mm by the closest body part: {:?}; of them between two overlapping parts: {}",
+        summary.below_minus_1_mm_by_body_part, summary.below_minus_1_mm_between_parts
+    );
     let report = serde_json::json!({
         "source": source,
         "total": summary,

@@ -6,6 +6,7 @@
 //! `eval` reports it for the held-out ground truth (`ground_truth_signed_distance` in
 //! `eval.json`) and counts the methods' collisions before and after the post-process with it.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use nalgebra::Vector3;
@@ -21,7 +22,9 @@ const BIN_MM: f64 = 0.01;
 const RANGE_MM: f64 = 200.0;
 
 /// A histogram of signed distances (0.01 mm bins over ±200 mm) with exact counts below 0 and
-/// −1 mm: percentiles to 0.01 mm without keeping every value.
+/// −1 mm: percentiles to 0.01 mm without keeping every value. Where the values below −1 mm lie,
+/// when the caller says ([`DistanceHistogram::add_deep_place`]): per body part, and how many
+/// between two parts.
 #[derive(Clone, Debug)]
 pub struct DistanceHistogram {
     counts: Vec<u64>,
@@ -29,6 +32,8 @@ pub struct DistanceHistogram {
     below_zero: u64,
     below_minus_1_mm: u64,
     min_mm: f64,
+    deep_by_part: BTreeMap<String, u64>,
+    deep_between_parts: u64,
 }
 
 impl Default for DistanceHistogram {
@@ -39,6 +44,8 @@ impl Default for DistanceHistogram {
             below_zero: 0,
             below_minus_1_mm: 0,
             min_mm: f64::INFINITY,
+            deep_by_part: BTreeMap::new(),
+            deep_between_parts: 0,
         }
     }
 }
@@ -56,6 +63,14 @@ impl DistanceHistogram {
         self.min_mm = self.min_mm.min(d_mm);
     }
 
+    /// Where a value more than 1 mm inside lies: the body part (joint) of the closest body
+    /// triangle, and whether that triangle's own pseudo-normal calls it outside (the point is
+    /// inside another part that overlaps this one: caught between two parts).
+    pub fn add_deep_place(&mut self, part: &str, between_parts: bool) {
+        *self.deep_by_part.entry(part.to_string()).or_default() += 1;
+        self.deep_between_parts += u64::from(between_parts);
+    }
+
     /// Add another histogram's counts.
     pub fn merge(&mut self, o: &Self) {
         self.counts
@@ -66,6 +81,10 @@ impl DistanceHistogram {
         self.below_zero += o.below_zero;
         self.below_minus_1_mm += o.below_minus_1_mm;
         self.min_mm = self.min_mm.min(o.min_mm);
+        for (part, n) in &o.deep_by_part {
+            *self.deep_by_part.entry(part.clone()).or_default() += n;
+        }
+        self.deep_between_parts += o.deep_between_parts;
     }
 
     /// Distances counted.
@@ -104,6 +123,16 @@ impl DistanceHistogram {
                 .iter()
                 .map(|&q| (format!("p{}", q * 100.0), self.percentile_mm(q)))
                 .collect(),
+            below_minus_1_mm_by_body_part: {
+                let mut parts: Vec<(String, u64)> = self
+                    .deep_by_part
+                    .iter()
+                    .map(|(p, n)| (p.clone(), *n))
+                    .collect();
+                parts.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+                parts
+            },
+            below_minus_1_mm_between_parts: self.deep_between_parts,
         }
     }
 }
@@ -123,6 +152,13 @@ pub struct DistanceSummary {
     pub min_mm: Option<f64>,
     /// Percentiles (0.01 %, 0.1 %, 1 %, 5 %, 50 %, 95 %), mm, to 0.01 mm (bin lower edges).
     pub percentiles_mm: Vec<(String, f64)>,
+    /// The vertex-frames more than 1 mm inside per body part (the joint that dominates the
+    /// closest body triangle's skinning), most first.
+    pub below_minus_1_mm_by_body_part: Vec<(String, u64)>,
+    /// Of the vertex-frames more than 1 mm inside, those whose closest body triangle's
+    /// pseudo-normal calls them outside: inside another part that overlaps it (an arm sunk into
+    /// the torso, a thigh into the belly), caught between two parts.
+    pub below_minus_1_mm_between_parts: u64,
 }
 
 /// The whole body posed frame after frame, with a [`BodyDistance`] refitted to it. Keeps a
@@ -131,15 +167,35 @@ pub struct PosedBody {
     body: Arc<BodyModel>,
     distance: Option<BodyDistance>,
     hints: Vec<u32>,
+    /// Per body triangle, the joint with the largest skin weight summed over its vertices.
+    face_parts: Vec<usize>,
 }
 
 impl PosedBody {
     /// For `body`; pose it with [`PosedBody::pose`] before the first query.
     pub fn new(body: Arc<BodyModel>) -> Self {
+        let weights = body.skin_weights();
+        let mut sum = vec![0.0f64; weights.n_joints()];
+        let face_parts = body
+            .faces()
+            .iter()
+            .map(|f| {
+                sum.fill(0.0);
+                for &v in f {
+                    for (j, w) in weights.point(v as usize) {
+                        sum[j] += f64::from(w);
+                    }
+                }
+                (0..sum.len())
+                    .max_by(|&a, &b| sum[a].total_cmp(&sum[b]))
+                    .unwrap_or(0)
+            })
+            .collect();
         Self {
             body,
             distance: None,
             hints: Vec::new(),
+            face_parts,
         }
     }
 
@@ -168,10 +224,16 @@ impl PosedBody {
             .context("pose the body before asking for distances")?;
         self.hints.resize(points.len(), u32::MAX);
         let mut inside = 0;
+        let names = self.body.skeleton().names();
         for (p, hint) in points.zip(&mut self.hints) {
-            let d = distance.query_hinted(&p, hint).signed_distance_m;
+            let q = distance.query_hinted(&p, hint);
+            let d = q.signed_distance_m;
             inside += usize::from(d < 0.0);
             histogram.add_m(d);
+            if d < -1e-3 {
+                let part = &names[self.face_parts[q.closest.face as usize]];
+                histogram.add_deep_place(part, q.closest.signed_distance_m >= 0.0);
+            }
         }
         Ok(inside)
     }
@@ -231,10 +293,105 @@ mod tests {
         assert!((s.below_0_mm_percent - 200.0 / 1001.0).abs() < 1e-12);
         assert!((s.below_minus_1_mm_percent - 100.0 / 1001.0).abs() < 1e-12);
         assert_eq!(s.min_mm, Some(-2.5));
+        assert!(s.below_minus_1_mm_by_body_part.is_empty());
         assert!((h.percentile_mm(0.0) - (-2.5)).abs() <= BIN_MM + 1e-9);
         // The median: the 501st value is 499 mm, beyond the ±200 mm range: the top bin.
         assert!((h.percentile_mm(0.5) - RANGE_MM).abs() < 1e-9);
         // The 3rd value is 0 mm.
         assert!(h.percentile_mm(2.5 / 1001.0).abs() <= BIN_MM + 1e-9);
+    }
+
+    /// Per body vertex, the area-weighted unit normal of its triangles.
+    fn vertex_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
+        let mut n = vec![Vector3::zeros(); positions.len()];
+        for f in faces {
+            let [a, b, c] = f.map(|i| positions[i as usize]);
+            let area_normal = (b - a).cross(&(c - a));
+            f.iter().for_each(|&i| n[i as usize] += area_normal);
+        }
+        n.iter().map(|v| v.normalize()).collect()
+    }
+
+    #[test]
+    fn deep_points_are_placed_by_body_part_and_pockets_between_parts_are_told_apart() {
+        use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let body_dir = root.join("datasets/body/makehuman");
+        let body = Arc::new(BodyModel::load(&body_dir).expect("built-in body"));
+        let names = body.skeleton().names();
+        let dominant = |v: usize| {
+            body.skin_weights()
+                .point(v)
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| names[j].as_str())
+        };
+        // CMU 05_18, frame 50, on β₀ = 2: the hanging upper arms sink into the torso's sides
+        // (what `ArmClearance`'s upper-arm option mends). Points 5 mm under the skin of a
+        // forearm are inside one part; points 2 mm outside the skin of an upper arm far from
+        // the shoulder are, where they are inside at all, inside the torso: between two parts.
+        let options = MotionSourceOptions {
+            motions_dir: root.join("datasets/motions"),
+            body: Some(RetargetBody::load(&body_dir).expect("retarget body")),
+            ..MotionSourceOptions::default()
+        };
+        let clip = load_motion("cmu/05_18@184+90", &options).expect("clip");
+        let betas = [2.0];
+        let pose = &clip.frames()[50];
+        let positions = body.posed_vertices(&[2.0, 0.0], pose).expect("posed");
+        let normals = vertex_normals(&positions, body.faces());
+        let mut posed = PosedBody::new(body.clone());
+        posed.pose(&betas, pose).expect("pose");
+
+        let forearm: Vec<Vector3<f64>> = (0..body.n_vertices())
+            .filter(|&v| dominant(v) == Some("LeftForeArm"))
+            .map(|v| positions[v] - normals[v] * 5e-3)
+            .collect();
+        let mut under = DistanceHistogram::default();
+        let inside = posed
+            .measure(forearm.iter().copied(), &mut under)
+            .expect("measure");
+        let s = under.summary();
+        assert!(
+            inside as f64 > 0.9 * forearm.len() as f64,
+            "{inside} of {}",
+            forearm.len()
+        );
+        assert_eq!(s.below_minus_1_mm_between_parts, 0, "{s:?}");
+        let under_deep: u64 = s.below_minus_1_mm_by_body_part.iter().map(|p| p.1).sum();
+        let (top, n) = &s.below_minus_1_mm_by_body_part[0];
+        assert_eq!(top, "LeftForeArm", "{s:?}");
+        assert!(*n as f64 > 0.8 * forearm.len() as f64, "{s:?}");
+
+        let outside_upper_arms: Vec<Vector3<f64>> = (0..body.n_vertices())
+            .filter(|&v| matches!(dominant(v), Some("LeftArm" | "RightArm")))
+            .map(|v| positions[v] + normals[v] * 2e-3)
+            .collect();
+        let mut pocket = DistanceHistogram::default();
+        posed
+            .measure(outside_upper_arms.iter().copied(), &mut pocket)
+            .expect("measure");
+        let s = pocket.summary();
+        let deep: u64 = s.below_minus_1_mm_by_body_part.iter().map(|p| p.1).sum();
+        assert!(
+            deep >= 10,
+            "the arms sink into the torso in this frame: {s:?}"
+        );
+        assert!(
+            s.below_minus_1_mm_between_parts as f64 >= 0.9 * deep as f64,
+            "{s:?}"
+        );
+        // The merged counts add up.
+        under.merge(&pocket);
+        let merged = under.summary();
+        let total: u64 = merged
+            .below_minus_1_mm_by_body_part
+            .iter()
+            .map(|p| p.1)
+            .sum();
+        assert_eq!(total, under_deep + deep);
+        assert_eq!(
+            merged.below_minus_1_mm_between_parts,
+            s.below_minus_1_mm_between_parts
+        );
     }
 }
