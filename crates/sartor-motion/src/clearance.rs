@@ -68,7 +68,8 @@ impl Default for ClearanceOptions {
 }
 
 impl ClearanceOptions {
-    /// Check the options: a finite clearance ≥ 0, a finite largest angle > 0.
+    /// Check the options: finite clearances ≥ 0 (the upper arm's when set), a finite largest
+    /// angle > 0.
     pub fn validate(&self) -> Result<()> {
         let clearance_ok = [Some(self.clearance_m), self.upper_arm_clearance_m]
             .into_iter()
