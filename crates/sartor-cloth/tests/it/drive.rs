@@ -11,7 +11,7 @@ use sartor_cloth::{
     SequenceFailure, StepFailure, contact_region, relax_on_body, simulate_sequence,
 };
 use sartor_core::{BodyModel, MeshProximity};
-use sartor_motion::Motion;
+use sartor_motion::{ClearanceOptions, Motion};
 
 fn body() -> &'static BodyModel {
     static BODY: OnceLock<BodyModel> = OnceLock::new();
@@ -395,7 +395,9 @@ fn arm_through_torso() -> Motion {
         .into_iter()
         .map(frames)
         .find(|f| {
-            let depths = clearance.depths(body(), &[0.0], f).expect("depths");
+            let depths = clearance
+                .depths(body(), &[0.0], f, &ClearanceOptions::default())
+                .expect("depths");
             depths.iter().all(|&d| d > 0.02)
         })
         .expect("one direction takes the forearm 2 cm into the torso");
@@ -430,7 +432,7 @@ fn arm_clearance_simulates_the_corrected_poses_and_stores_them() {
         }
     }
     let depths = clearance
-        .depths(body(), &betas(0.0), &stored)
+        .depths(body(), &betas(0.0), &stored, &ClearanceOptions::default())
         .expect("depths");
     assert!(depths.iter().all(|&d| d == 0.0), "{depths:?}");
     // The header keeps the motion's own identity and the option.
