@@ -67,7 +67,13 @@ impl DistanceHistogram {
     /// triangle, and whether that triangle's own pseudo-normal calls it outside (the point is
     /// inside another part that overlaps this one: caught between two parts).
     pub fn add_deep_place(&mut self, part: &str, between_parts: bool) {
-        *self.deep_by_part.entry(part.to_string()).or_default() += 1;
+        // The part's name is allocated once per histogram, not once per point.
+        match self.deep_by_part.get_mut(part) {
+            Some(n) => *n += 1,
+            None => {
+                self.deep_by_part.insert(part.to_string(), 1);
+            }
+        }
         self.deep_between_parts += u64::from(between_parts);
     }
 
@@ -301,17 +307,6 @@ mod tests {
         assert!(h.percentile_mm(2.5 / 1001.0).abs() <= BIN_MM + 1e-9);
     }
 
-    /// Per body vertex, the area-weighted unit normal of its triangles.
-    fn vertex_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
-        let mut n = vec![Vector3::zeros(); positions.len()];
-        for f in faces {
-            let [a, b, c] = f.map(|i| positions[i as usize]);
-            let area_normal = (b - a).cross(&(c - a));
-            f.iter().for_each(|&i| n[i as usize] += area_normal);
-        }
-        n.iter().map(|v| v.normalize()).collect()
-    }
-
     #[test]
     fn deep_points_are_placed_by_body_part_and_pockets_between_parts_are_told_apart() {
         use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
@@ -338,7 +333,7 @@ mod tests {
         let betas = [2.0];
         let pose = &clip.frames()[50];
         let positions = body.posed_vertices(&[2.0, 0.0], pose).expect("posed");
-        let normals = vertex_normals(&positions, body.faces());
+        let normals = sartor_core::vertex_normals(&positions, body.faces());
         let mut posed = PosedBody::new(body.clone());
         posed.pose(&betas, pose).expect("pose");
 

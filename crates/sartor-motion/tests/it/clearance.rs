@@ -2,7 +2,7 @@
 //! forearms through the hips; [`ArmClearance::apply`] takes them out and changes nothing else.
 
 use nalgebra::Vector3;
-use sartor_core::{BodyDistance, BodyModel, BodyPoser, Pose};
+use sartor_core::{BodyDistance, BodyModel, BodyPoser, Pose, vertex_normals};
 use sartor_motion::{ArmClearance, ClearanceOptions, UPPER_ARM_MIN_LEVER, load_motion};
 
 use crate::motion_library::library_options;
@@ -119,21 +119,6 @@ fn the_rest_pose_needs_nothing_and_bad_options_are_refused() {
             .expect_err("refused");
         assert!(e.to_string().contains("arm clearance"), "{e}");
     }
-}
-
-/// Per body vertex, the area-weighted unit normal of its triangles.
-fn vertex_normals(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
-    let mut n = vec![Vector3::zeros(); positions.len()];
-    for f in faces {
-        let [a, b, c] = f.map(|i| positions[i as usize]);
-        let area_normal = (b - a).cross(&(c - a));
-        for &i in f {
-            n[i as usize] += area_normal;
-        }
-    }
-    n.iter()
-        .map(|v| v.try_normalize(1e-20).unwrap_or_else(Vector3::zeros))
-        .collect()
 }
 
 #[test]
