@@ -192,6 +192,33 @@ impl SkinWeights {
             .map(|(&j, &w)| (j as usize, w))
     }
 
+    /// The joint with the largest weight at point `p` (the lowest-numbered of equal weights).
+    pub fn dominant_joint(&self, p: usize) -> usize {
+        self.point(p)
+            .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
+            .map_or(0, |(j, _)| j)
+    }
+
+    /// Per face (three point indices), the joint with the largest weight summed over its
+    /// corners (the lowest-numbered of equal sums): the body part the face belongs to.
+    pub fn face_dominant_joints(&self, faces: &[[u32; 3]]) -> Vec<usize> {
+        let mut sums = vec![0.0f32; self.n_joints];
+        faces
+            .iter()
+            .map(|t| {
+                sums.fill(0.0);
+                for &v in t {
+                    for (j, w) in self.point(v as usize) {
+                        sums[j] += w;
+                    }
+                }
+                (0..sums.len())
+                    .max_by(|&a, &b| sums[a].total_cmp(&sums[b]).then(b.cmp(&a)))
+                    .unwrap_or(0)
+            })
+            .collect()
+    }
+
     /// CSR arrays `(offsets, joints, weights)`.
     pub fn csr(&self) -> (&[u32], &[u32], &[f32]) {
         (&self.offsets, &self.joints, &self.weights)
@@ -405,6 +432,25 @@ mod tests {
         assert_eq!(pairs.len(), 2);
         assert_eq!(pairs[0].0, 1);
         assert!((pairs[0].1 - 2.0 / 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_dominant_joint_is_the_heaviest_and_the_lowest_of_equals() {
+        // Points: joint 2 heaviest; joints 1 and 3 equal; joint 0 alone.
+        let w = SkinWeights::new(
+            vec![0, 2, 4, 5],
+            vec![0, 2, 3, 1, 0],
+            vec![0.25, 0.75, 0.5, 0.5, 1.0],
+            4,
+        )
+        .expect("valid");
+        assert_eq!(
+            (0..3).map(|p| w.dominant_joint(p)).collect::<Vec<_>>(),
+            [2, 1, 0]
+        );
+        // Face (0, 1, 2) sums 1.25 on joint 0 and 0.75 on joint 2; face (1, 1, 0) 1.0 on joints 1
+        // and 3, 0.25 on 0 and 0.75 on 2.
+        assert_eq!(w.face_dominant_joints(&[[0, 1, 2], [1, 1, 0]]), [0, 1]);
     }
 
     #[test]

@@ -180,23 +180,7 @@ pub struct PosedBody {
 impl PosedBody {
     /// For `body`; pose it with [`PosedBody::pose`] before the first query.
     pub fn new(body: Arc<BodyModel>) -> Self {
-        let weights = body.skin_weights();
-        let mut sum = vec![0.0f64; weights.n_joints()];
-        let face_parts = body
-            .faces()
-            .iter()
-            .map(|f| {
-                sum.fill(0.0);
-                for &v in f {
-                    for (j, w) in weights.point(v as usize) {
-                        sum[j] += f64::from(w);
-                    }
-                }
-                (0..sum.len())
-                    .max_by(|&a, &b| sum[a].total_cmp(&sum[b]))
-                    .unwrap_or(0)
-            })
-            .collect();
+        let face_parts = body.skin_weights().face_dominant_joints(body.faces());
         Self {
             body,
             distance: None,
@@ -314,12 +298,7 @@ mod tests {
         let body_dir = root.join("datasets/body/makehuman");
         let body = Arc::new(BodyModel::load(&body_dir).expect("built-in body"));
         let names = body.skeleton().names();
-        let dominant = |v: usize| {
-            body.skin_weights()
-                .point(v)
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(j, _)| names[j].as_str())
-        };
+        let dominant = |v: usize| names[body.skin_weights().dominant_joint(v)].as_str();
         // CMU 05_18, frame 50, on β₀ = 2: the hanging upper arms sink into the torso's sides
         // (what `ArmClearance`'s upper-arm option mends). Points 5 mm under the skin of a
         // forearm are inside one part; points 2 mm outside the skin of an upper arm far from
@@ -338,7 +317,7 @@ mod tests {
         posed.pose(&betas, pose).expect("pose");
 
         let forearm: Vec<Vector3<f64>> = (0..body.n_vertices())
-            .filter(|&v| dominant(v) == Some("LeftForeArm"))
+            .filter(|&v| dominant(v) == "LeftForeArm")
             .map(|v| positions[v] - normals[v] * 5e-3)
             .collect();
         let mut under = DistanceHistogram::default();
@@ -358,7 +337,7 @@ mod tests {
         assert!(*n as f64 > 0.8 * forearm.len() as f64, "{s:?}");
 
         let outside_upper_arms: Vec<Vector3<f64>> = (0..body.n_vertices())
-            .filter(|&v| matches!(dominant(v), Some("LeftArm" | "RightArm")))
+            .filter(|&v| matches!(dominant(v), "LeftArm" | "RightArm"))
             .map(|v| positions[v] + normals[v] * 2e-3)
             .collect();
         let mut pocket = DistanceHistogram::default();

@@ -207,12 +207,7 @@ impl ArmClearance {
         let skeleton = body.skeleton();
         let names = skeleton.names();
         let dominant: Vec<usize> = (0..body.n_vertices())
-            .map(|v| {
-                body.skin_weights()
-                    .point(v)
-                    .max_by(|a, b| a.1.total_cmp(&b.1))
-                    .map_or(0, |(j, _)| j)
-            })
+            .map(|v| body.skin_weights().dominant_joint(v))
             .collect();
         let pivot = |mut j: usize| loop {
             if upper_arm(&names[j]) {

@@ -317,18 +317,8 @@ impl BodyRegion {
     fn parts(faces: &[[u32; 3]], weights: &SkinWeights) -> (Option<Vec<u8>>, usize) {
         let mut part_of_joint = vec![u8::MAX; weights.n_joints()];
         let mut n_parts = 0usize;
-        let mut sums = vec![0.0f32; weights.n_joints()];
         let mut face_parts = Vec::with_capacity(faces.len());
-        for t in faces {
-            sums.fill(0.0);
-            for &v in t {
-                for (j, w) in weights.point(v as usize) {
-                    sums[j] += w;
-                }
-            }
-            let joint = (0..sums.len())
-                .max_by(|&a, &b| sums[a].total_cmp(&sums[b]).then(b.cmp(&a)))
-                .unwrap_or(0);
+        for joint in weights.face_dominant_joints(faces) {
             if part_of_joint[joint] == u8::MAX {
                 if n_parts == 64 {
                     return (None, 0);
