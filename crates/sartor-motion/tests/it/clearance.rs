@@ -153,10 +153,7 @@ fn held_out_upper_arms_leave_no_pocket_between_arm_and_torso() {
     let names = body.skeleton().names();
     let upper: Vec<(usize, usize)> = (0..body.n_vertices())
         .filter_map(|v| {
-            let (j, _) = body
-                .skin_weights()
-                .point(v)
-                .max_by(|a, b| a.1.total_cmp(&b.1))?;
+            let j = body.skin_weights().dominant_joint(v);
             let upper_arm = names[j].ends_with("Arm") && !names[j].ends_with("ForeArm");
             upper_arm.then_some((v, j))
         })
