@@ -75,8 +75,9 @@ const REPUSH_SLACK_M: f64 = 1e-6;
 pub enum CollisionQuery {
     /// Exact, and the default: the same pushes as [`CollisionQuery::EXACT_BVH`], with most
     /// cloth vertices proven to need none by a test on the faces near them; the others get the
-    /// exact closest point from those faces, found by one sweep of the region's faces over the
-    /// cloth (see the module docs); one thread whatever the [`Parallelism`]. Where body parts interpenetrate it also leaves out the
+    /// exact closest point from those faces, found by a search of a tree of the region's faces
+    /// per vertex (see the module docs); one thread whatever the [`Parallelism`]. Where body
+    /// parts interpenetrate it also leaves out the
     /// faces buried inside another part, and takes a vertex that lies inside a part out of it
     /// (see the module docs): there it pushes more than the BVH query.
     Certified,

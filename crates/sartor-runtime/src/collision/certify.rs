@@ -22,7 +22,7 @@
 //!
 //! The region the proof and the answers read is the *exposed* surface: per frame, a face whose
 //! centroid lies inside another part (the winding number along a ray on its normal, walked
-//! through the grid) is taken out of the sweep, so no candidate list holds it; the fans keep it
+//! through the grid) is taken out of the search, so no candidate list holds it; the fans keep it
 //! (the pseudo-normals are those of the whole region). A vertex with a crease face (exposed,
 //! sharing a vertex with a buried one) among its candidates is never certified, and its answer
 //! is checked by the same ray test (`Frame::settle`): inside, it gets the nearest way out whose
@@ -35,12 +35,12 @@
 //! # The work
 //!
 //! Per frame, the posed region's faces get f32 boxes, planes and corners relative to a corner
-//! of its box. The faces, in spatial clusters of 16, then sweep a grid of the cloth vertices
-//! (`sweep.rs`): each vertex keeps its f32 nearest distance, started from the face it was
-//! nearest last frame, and every face within it plus 10 µm. That list is `C` above with `U` the
+//! of its box, and a three-level tree of boxes over its spatial clusters of 16 faces
+//! (`search.rs`). Each cloth vertex searches it, started from the face it was nearest last
+//! frame, and keeps its f32 nearest distance and every face within it plus 10 µm. That list is `C` above with `U` the
 //! nearest distance: it holds the exact query's face. The certificate is tested over the list's
 //! faces, and a vertex that fails it gets `MeshProximity::nearest_among` of the list. The later
-//! passes and the reports sweep the points they ask about the same way. Only where buried faces
+//! passes and the reports search the points they ask about the same way. Only where buried faces
 //! are sought is the region also put in a uniform grid (each face in every cell its box
 //! overlaps; a counting sort): the rays and the way out of a part walk it.
 //!
@@ -49,14 +49,14 @@
 //! micrometre for faces that are not slivers, and slivers never pass a certificate nor end a
 //! search).
 //!
-//! The sweep runs on one thread (`Parallelism` does not split it); its cost on the shipped
+//! The search runs on one thread (`Parallelism` does not split it); its cost on the shipped
 //! model: `cargo bench -p sartor-runtime --bench postprocess`.
 
-mod sweep;
+mod search;
 
 use nalgebra::Vector3;
 use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace};
-use sweep::Sweep;
+use search::Search;
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
@@ -175,12 +175,14 @@ pub struct CertifyStats {
 #[derive(Clone, Debug)]
 pub(crate) struct Frame {
     faces: Vec<[u32; 3]>,
-    /// The faces in spatial clusters of [`sweep::CLUSTER`] (the last one shorter), and each
+    /// The faces in spatial clusters of [`search::CLUSTER`] (the last one shorter), and each
     /// cluster's box this frame (relative).
     cluster_faces: Vec<u32>,
     cluster_box: Vec<([f32; 3], [f32; 3])>,
-    /// Per face in cluster order, what the sweep reads of it this frame (contiguous).
-    sweep_faces: Vec<sweep::SweepFace>,
+    /// Per face in cluster order, what the search reads of it this frame (contiguous).
+    search_faces: Vec<search::SearchFace>,
+    /// The same faces as the search's tree (boxes and planes in lanes).
+    tree: search::Tree,
     /// Per region vertex, the faces around it (CSR).
     fan_offsets: Vec<u32>,
     fan: Vec<u32>,
@@ -217,8 +219,8 @@ pub(crate) struct Frame {
 pub(crate) struct Certifier {
     frame: Frame,
     scratch: Scratch,
-    sweep: Sweep,
-    /// The sweep's per cloth vertex warm faces and outcomes, and its points (relative).
+    search: Search,
+    /// The search's per cloth vertex warm faces and outcomes, and its points (relative).
     vertex_warm: Vec<u32>,
     vertex_outcomes: Vec<Option<Outcome>>,
     points: Vec<[f32; 3]>,
@@ -235,7 +237,7 @@ impl Certifier {
         buried: bool,
     ) -> Self {
         let n_vertices = region_rest.len();
-        // The faces in spatial clusters of the sweep, by their centroids at rest.
+        // The faces in spatial clusters of the search, by their centroids at rest.
         let centroids: Vec<Vector3<f32>> = faces
             .iter()
             .map(|t| {
@@ -246,9 +248,9 @@ impl Certifier {
                     .cast()
             })
             .collect();
-        let mut cluster_faces = groups(&centroids, sweep::CLUSTER);
+        let mut cluster_faces = groups(&centroids, search::CLUSTER);
         cluster_faces.retain(|&f| f != u32::MAX);
-        let n_clusters = faces.len().div_ceil(sweep::CLUSTER);
+        let n_clusters = faces.len().div_ceil(search::CLUSTER);
         let mut fan_offsets = vec![0u32; n_vertices + 1];
         for t in faces {
             for &v in t {
@@ -281,7 +283,8 @@ impl Certifier {
                 faces: faces.to_vec(),
                 cluster_faces,
                 cluster_box: vec![([0.0; 3], [0.0; 3]); n_clusters],
-                sweep_faces: vec![sweep::SweepFace::default(); faces.len()],
+                search_faces: vec![search::SearchFace::default(); faces.len()],
+                tree: search::Tree::default(),
                 fan_offsets,
                 fan,
                 rel: vec![[0.0; 3]; n_vertices],
@@ -318,7 +321,7 @@ impl Certifier {
                 loop_caps,
             },
             scratch: Scratch::new(n_f, n_vertices),
-            sweep: Sweep::default(),
+            search: Search::default(),
             vertex_warm: vec![u32::MAX; cloth_rest.len()],
             vertex_outcomes: vec![None; cloth_rest.len()],
             points: Vec::with_capacity(cloth_rest.len()),
@@ -345,7 +348,7 @@ impl Certifier {
 impl Frame {
     /// [`Certifier::update`] with cells of `cell` metres; `false` (and nothing usable) when the
     /// grid would need more cells or entries than it has room for.
-    /// Without `with_grid` only the face data (the sweep's input) is rebuilt.
+    /// Without `with_grid` only the face data (the search's input) is rebuilt.
     fn try_update(&mut self, posed: &[Vector3<f64>], cell: f32, with_grid: bool) -> bool {
         let (mut lo, mut hi) = (
             Vector3::repeat(f64::INFINITY),
@@ -432,14 +435,14 @@ impl Frame {
         }
         for (c, bounds) in self.cluster_box.iter_mut().enumerate() {
             let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            let end = ((c + 1) * sweep::CLUSTER).min(self.cluster_faces.len());
-            for k in c * sweep::CLUSTER..end {
+            let end = ((c + 1) * search::CLUSTER).min(self.cluster_faces.len());
+            for k in c * search::CLUSTER..end {
                 let f = self.cluster_faces[k];
                 let fi = f as usize;
                 let (a, b) = (data.lo[fi], data.hi[fi]);
                 l = [0, 1, 2].map(|k| l[k].min(a[k]));
                 h = [0, 1, 2].map(|k| h[k].max(b[k]));
-                self.sweep_faces[k] = sweep::SweepFace {
+                self.search_faces[k] = search::SearchFace {
                     lo: a,
                     hi: b,
                     plane: data.plane[fi],
@@ -449,6 +452,7 @@ impl Frame {
             }
             *bounds = (l, h);
         }
+        self.tree.refit(&self.search_faces, &self.cluster_box);
         if !with_grid {
             return true;
         }
@@ -518,11 +522,12 @@ impl Frame {
         grid.start[0] = 0;
         if self.find_buried {
             self.mark_buried();
-            // The sweep never reaches a buried face (a box at infinity).
-            for sf in &mut self.sweep_faces {
+            // The search never reaches a buried face (a box at infinity).
+            for (k, sf) in self.search_faces.iter_mut().enumerate() {
                 if self.buried[sf.face as usize] {
                     sf.lo = [f32::INFINITY; 3];
                     sf.hi = [f32::INFINITY; 3];
+                    self.tree.set_face_box(k, sf.lo, sf.hi);
                 }
             }
         }
@@ -853,14 +858,14 @@ impl Frame {
 
 impl Certifier {
     /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]):
-    /// one sweep of the region's faces (see `sweep.rs`), on one thread.
+    /// one search of the region's faces per vertex (see `search.rs`), on one thread.
     pub(crate) fn run(
         &mut self,
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
         margin_m: f64,
     ) -> CertifyStats {
-        self.run_sweep(proximity, cloth, margin_m)
+        self.run_search(proximity, cloth, margin_m)
     }
 
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
@@ -873,11 +878,11 @@ impl Certifier {
 }
 
 impl Certifier {
-    /// [`Certifier::run`] by the sweep: every cloth vertex's faces within its nearest distance
-    /// (plus the slack) from one sweep of the region's faces, then the certificate (the vertex
+    /// [`Certifier::run`] by the search: every cloth vertex's faces within its nearest distance
+    /// (plus the slack) from the search of the region's faces, then the certificate (the vertex
     /// beyond the margin, in front of every face around a vertex of those faces, none of them a
     /// crease) or the exact answer from those faces.
-    fn run_sweep(
+    fn run_search(
         &mut self,
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
@@ -886,7 +891,7 @@ impl Certifier {
         let frame = &self.frame;
         self.points.clear();
         self.points.extend(cloth.iter().map(|p| frame.relative(p)));
-        self.sweep.run(frame, &self.points, &self.vertex_warm);
+        self.search.run(frame, &self.points, &self.vertex_warm);
         let s = &mut self.scratch;
         let front2 = (margin_m as f32 + GUARD_M).powi(2);
         let margin2 = margin_m * margin_m;
@@ -898,14 +903,14 @@ impl Certifier {
             .enumerate()
         {
             let x = &self.points[i];
-            let (best2, best_face) = self.sweep.best(i);
-            stats.candidates += self.sweep.faces(i).count();
+            let (best2, best_face) = self.search.best(i);
+            stats.candidates += self.search.faces(i).count();
             // A vertex with a crease face among its candidates is never certified (`settle`).
-            let crease = self.sweep.faces(i).any(|g| frame.crease[g as usize]);
+            let crease = self.search.faces(i).any(|g| frame.crease[g as usize]);
             if !crease
                 && best2 >= front2
                 && self
-                    .sweep
+                    .search
                     .faces(i)
                     .all(|g| frame.fans_in_front(g, x, GUARD_M))
             {
@@ -915,7 +920,7 @@ impl Certifier {
                 continue;
             }
             s.candidates.clear();
-            s.candidates.extend(self.sweep.faces(i));
+            s.candidates.extend(self.search.faces(i));
             let q = cloth[i].cast::<f64>();
             *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 *warm = nearest.face;
@@ -948,7 +953,7 @@ impl Certifier {
         visit: impl FnMut(usize, Option<ClosestPoint>),
     ) {
         let state = AnswerState {
-            sweep: &mut self.sweep,
+            search: &mut self.search,
             points: &mut self.points,
             scratch: &mut self.scratch,
         };
@@ -964,9 +969,9 @@ impl Certifier {
         points: &[Vector3<f32>],
         visit: impl FnMut(usize, Option<ClosestPoint>),
     ) {
-        let mut sweep = Sweep::default();
+        let mut search = Search::default();
         let state = AnswerState {
-            sweep: &mut sweep,
+            search: &mut search,
             points: &mut Vec::new(),
             scratch: &mut Scratch::for_frame(&self.frame),
         };
@@ -976,15 +981,15 @@ impl Certifier {
     }
 }
 
-/// What [`Frame::answer_points`] works in: the sweep, the relative points, scratch.
+/// What [`Frame::answer_points`] works in: the search, the relative points, scratch.
 struct AnswerState<'a> {
-    sweep: &'a mut Sweep,
+    search: &'a mut Search,
     points: &'a mut Vec<[f32; 3]>,
     scratch: &'a mut Scratch,
 }
 
 impl Frame {
-    /// The exact query's answer for each of `points` from `warm` faces, by the sweep.
+    /// The exact query's answer for each of `points` from `warm` faces, by the search.
     fn answer_points(
         &self,
         state: AnswerState<'_>,
@@ -994,16 +999,16 @@ impl Frame {
         mut visit: impl FnMut(usize, Option<ClosestPoint>),
     ) {
         let AnswerState {
-            sweep,
+            search,
             points: rel,
             scratch: s,
         } = state;
         rel.clear();
         rel.extend(points.iter().map(|p| self.relative(p)));
-        sweep.run(self, rel, warm);
+        search.run(self, rel, warm);
         for (k, p) in points.iter().enumerate() {
             s.candidates.clear();
-            s.candidates.extend(sweep.faces(k));
+            s.candidates.extend(search.faces(k));
             let q = p.cast::<f64>();
             let hit = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 let c = proximity.signed(&q, &nearest);
@@ -1277,9 +1282,9 @@ mod tests {
     }
 
     #[test]
-    fn the_sweep_answers_as_the_exact_query_near_and_far() {
-        // Two boxes; points from inside them to 30 cm away: every reach of the sweep, and the
-        // search of every face beyond the last, give the exact query's closest point.
+    fn the_search_answers_as_the_exact_query_near_and_far() {
+        // Two boxes; points from inside them to 30 cm away, with no face to start from: the
+        // tree search gives the exact query's closest point near and far.
         let (mut v, mut f) = (Vec::new(), Vec::new());
         cuboid([0.0, 0.0, 0.0], [0.2, 0.1, 0.3], &mut v, &mut f);
         cuboid([0.25, 0.0, 0.0], [0.3, 0.05, 0.1], &mut v, &mut f);
@@ -1314,6 +1319,45 @@ mod tests {
             checked[usize::from(d > 0.02) + usize::from(d > 0.1)] += 1;
         });
         assert!(checked.iter().all(|&n| n > 100), "{checked:?}");
+    }
+
+    #[test]
+    fn more_near_ties_than_a_list_holds_still_give_the_exact_answer() {
+        // A cone of 24 faces around one apex, and a box beside it: above the apex every cone
+        // face is at the same distance (more than a candidate list holds), so the search falls
+        // back to every face and keeps all the ties; the tie rule picks the lowest face.
+        let n = 24u32;
+        let mut v = vec![Vector3::new(0.0, 0.0, 0.05)];
+        for k in 0..n {
+            let a = std::f64::consts::TAU * f64::from(k) / f64::from(n);
+            v.push(Vector3::new(0.1 * a.cos(), 0.1 * a.sin(), 0.0));
+        }
+        let mut f: Vec<[u32; 3]> = (0..n).map(|k| [0, 1 + k, 1 + (k + 1) % n]).collect();
+        cuboid([0.3, 0.0, 0.0], [0.4, 0.1, 0.1], &mut v, &mut f);
+        let proximity = MeshProximity::new(&v, &f).expect("mesh");
+        let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], false);
+        certifier.update(&v);
+        let points: Vec<Vector3<f32>> = [[0.0, 0.0, 0.06], [0.0, 0.0, 0.09], [1e-4, 0.0, 0.07]]
+            .iter()
+            .map(|p| Vector3::new(p[0], p[1], p[2]))
+            .collect();
+        for warm in [u32::MAX, 3, n] {
+            certifier.exact_points(&proximity, &points, &[warm; 3], |k, hit| {
+                let c = hit.expect("an answer");
+                let exact = proximity.closest(&points[k].cast::<f64>());
+                assert_eq!(
+                    (c.face, c.signed_distance_m),
+                    (exact.face, exact.signed_distance_m),
+                    "{:?} from face {warm}",
+                    points[k]
+                );
+            });
+        }
+        // Above the apex every cone face ties: the list overflowed and was kept in full.
+        let rel = certifier.frame.relative(&points[0]);
+        let mut search = Search::default();
+        search.run(&certifier.frame, &[rel], &[u32::MAX]);
+        assert_eq!(search.faces(0).filter(|&g| g < n).count(), n as usize);
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! The certified query (the default) against the exact BVH query on the shipped model: the
 //! same garment, vertex for vertex, on a real motion and the procedural walk, at the nominal
-//! shape and at a trained extreme (the sweep answers there; beyond the training shapes the grid
+//! shape and at a trained extreme (the tree search answers there; beyond the training shapes the grid
 //! path with buried faces runs, which pushes more by design: see `extremes.rs`).
 
 use std::path::PathBuf;
