@@ -16,7 +16,10 @@
 //! their features. The intrinsic engines follow the lane rule of `rows.rs` (32 lanes: 4
 //! registers × 8 on AVX2, 2 × 16 on AVX-512; separate multiply and add, the same padded tail
 //! and reduction tree), so every [`Isa`] gives bitwise the same results; the tests below check
-//! that against the portable engines.
+//! that against the portable engines. The single-vector path reduces its lane sums in
+//! registers (`reduce_acc`: one vector add per level of the tree) rather than storing them
+//! and adding 31 scalars: for the rows of 64 weights of the shipped model's PCA basis the
+//! stored reduction cost several times the dot product itself.
 #![allow(unsafe_code)]
 
 use std::sync::OnceLock;
@@ -160,7 +163,7 @@ macro_rules! isa_kernels {
             // The same sums as `madd1` from zero, lane for lane.
             let mut s = [0.0f32; LANES];
             $madd1(w, x, &mut s);
-            reduce(s)
+            reduce_acc(load_acc(&s))
         }
 
         #[inline]
@@ -194,11 +197,7 @@ macro_rules! isa_kernels {
                 let pw = wc.map(|(_, tail)| padded(tail));
                 step(&mut acc, [&pw[0], &pw[1], &pw[2], &pw[3]], &padded(xt));
             }
-            acc.map(|a| {
-                let mut s = [0.0f32; LANES];
-                store_acc(a, &mut s);
-                reduce(s)
-            })
+            acc.map(|a| reduce_acc(a))
         }
 
         #[inline]
@@ -271,15 +270,39 @@ macro_rules! isa_kernels {
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::{
-        __m128i, __m256, _mm_loadl_epi64, _mm_loadu_si128, _mm256_add_ps, _mm256_cvtepi8_epi32,
-        _mm256_cvtepi32_ps, _mm256_cvtph_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_storeu_ps,
+        __m128i, __m256, _mm_add_ps, _mm_add_ss, _mm_cvtss_f32, _mm_loadl_epi64, _mm_loadu_si128,
+        _mm_movehl_ps, _mm_shuffle_ps, _mm256_add_ps, _mm256_castps256_ps128, _mm256_cvtepi8_epi32,
+        _mm256_cvtepi32_ps, _mm256_cvtph_ps, _mm256_extractf128_ps, _mm256_loadu_ps, _mm256_mul_ps,
+        _mm256_storeu_ps,
     };
 
-    use super::super::rows::{F16Bits, LANES, padded, reduce};
+    use super::super::rows::{F16Bits, LANES, padded};
 
     type V = __m256;
     const W: usize = 8;
     const R: usize = LANES / W;
+
+    /// `rows::reduce` of the lane sums in registers: the same tree, each level one vector add
+    /// of `s[l]` and `s[l + w]` (lanes 0–7, 8–15, 16–23, 24–31 in the four registers).
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn reduce_acc(acc: [V; R]) -> f32 {
+        // + 16: lanes 0–15 in two registers.
+        let (a, b) = (_mm256_add_ps(acc[0], acc[2]), _mm256_add_ps(acc[1], acc[3]));
+        // + 8: lanes 0–7.
+        let s8 = _mm256_add_ps(a, b);
+        // + 4: lanes 0–3.
+        let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
+        reduce4(s4)
+    }
+
+    /// The last two levels of the tree on lanes 0–3: `+ 2`, then `+ 1`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    fn reduce4(s4: std::arch::x86_64::__m128) -> f32 {
+        let s2 = _mm_add_ps(s4, _mm_movehl_ps(s4, s4));
+        _mm_cvtss_f32(_mm_add_ss(s2, _mm_shuffle_ps::<0b01>(s2, s2)))
+    }
 
     #[inline]
     #[target_feature(enable = "avx2,fma,f16c")]
@@ -313,16 +336,45 @@ mod avx2 {
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use std::arch::x86_64::{
-        __m128i, __m256i, __m512, _mm_loadu_si128, _mm256_loadu_si256, _mm512_add_ps,
-        _mm512_cvtepi8_epi32, _mm512_cvtepi32_ps, _mm512_cvtph_ps, _mm512_loadu_ps, _mm512_mul_ps,
-        _mm512_storeu_ps,
+        __m128, __m128i, __m256i, __m512, _mm_add_ps, _mm_add_ss, _mm_cvtss_f32, _mm_loadu_si128,
+        _mm_movehl_ps, _mm_shuffle_ps, _mm256_add_ps, _mm256_castpd_ps, _mm256_castps256_ps128,
+        _mm256_extractf128_ps, _mm256_loadu_si256, _mm512_add_ps, _mm512_castpd512_pd256,
+        _mm512_castps_pd, _mm512_cvtepi8_epi32, _mm512_cvtepi32_ps, _mm512_cvtph_ps,
+        _mm512_extractf64x4_pd, _mm512_loadu_ps, _mm512_mul_ps, _mm512_storeu_ps,
     };
 
-    use super::super::rows::{F16Bits, LANES, padded, reduce};
+    use super::super::rows::{F16Bits, LANES, padded};
 
     type V = __m512;
     const W: usize = 16;
     const R: usize = LANES / W;
+
+    /// `rows::reduce` of the lane sums in registers: the same tree, each level one vector add
+    /// of `s[l]` and `s[l + w]` (lanes 0–15 and 16–31 in the two registers).
+    #[inline]
+    #[target_feature(enable = "avx512f,avx2,fma,f16c")]
+    fn reduce_acc(acc: [V; R]) -> f32 {
+        // + 16: lanes 0–15.
+        let s16 = _mm512_add_ps(acc[0], acc[1]);
+        // + 8: lanes 0–7 (the upper half moved down as four doubles: the same bits).
+        let d = _mm512_castps_pd(s16);
+        let (lo, hi) = (
+            _mm256_castpd_ps(_mm512_castpd512_pd256(d)),
+            _mm256_castpd_ps(_mm512_extractf64x4_pd::<1>(d)),
+        );
+        let s8 = _mm256_add_ps(lo, hi);
+        // + 4: lanes 0–3.
+        let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
+        reduce4(s4)
+    }
+
+    /// The last two levels of the tree on lanes 0–3: `+ 2`, then `+ 1`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx2,fma,f16c")]
+    fn reduce4(s4: __m128) -> f32 {
+        let s2 = _mm_add_ps(s4, _mm_movehl_ps(s4, s4));
+        _mm_cvtss_f32(_mm_add_ss(s2, _mm_shuffle_ps::<0b01>(s2, s2)))
+    }
 
     #[inline]
     #[target_feature(enable = "avx512f,avx2,fma,f16c")]
@@ -507,6 +559,7 @@ mod tests {
         for &(n_rows, cols, batch) in &[
             (5, 1, 1),
             (9, 31, 1),
+            (11, 64, 1),
             (13, 1037, 1),
             (17, 100, 3),
             (33, 1037, 9),
