@@ -169,35 +169,7 @@ macro_rules! isa_kernels {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
-            // Per row the same sums as `dot`, lane for lane; the four rows interleaved.
-            #[inline]
-            #[target_feature(enable = $feat)]
-            fn step(acc: &mut [[V; R]; 4], w: [&[$t; LANES]; 4], x: &[f32; LANES]) {
-                let (xw, _) = x.as_chunks::<W>();
-                for r in 0..R {
-                    let xv = load_f32(&xw[r]);
-                    for k in 0..4 {
-                        let (ww, _) = w[k].as_chunks::<W>();
-                        acc[k][r] = add(acc[k][r], mul($load(&ww[r]), xv));
-                    }
-                }
-            }
-            let zero = [0.0f32; LANES];
-            let mut acc = [load_acc(&zero); 4];
-            let (xc, xt) = x.as_chunks::<LANES>();
-            let wc = w.map(|row| row.as_chunks::<LANES>());
-            for (i, b) in xc.iter().enumerate() {
-                step(
-                    &mut acc,
-                    [&wc[0].0[i], &wc[1].0[i], &wc[2].0[i], &wc[3].0[i]],
-                    b,
-                );
-            }
-            if !xt.is_empty() {
-                let pw = wc.map(|(_, tail)| padded(tail));
-                step(&mut acc, [&pw[0], &pw[1], &pw[2], &pw[3]], &padded(xt));
-            }
-            acc.map(|a| reduce_acc(a))
+            $dotn::<4>(w, x)
         }
 
         #[inline]
@@ -206,9 +178,7 @@ macro_rules! isa_kernels {
             $dotn::<8>(w, x)
         }
 
-        /// `dot4` for `N` rows (the eight-row kernel; `dot4` keeps its own: with every row
-        /// block through this one, at four and eight rows, the shipped model's step, short rows
-        /// only, took twice as long).
+        /// `dot` of `N` rows with one input, bitwise the same as `N` calls (`dot4`, `dot8`).
         #[inline]
         #[target_feature(enable = $feat)]
         fn $dotn<const N: usize>(w: [&[$t]; N], x: &[f32]) -> [f32; N] {

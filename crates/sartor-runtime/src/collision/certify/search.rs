@@ -77,6 +77,18 @@ impl Near {
         }
     }
 
+    /// [`Near::new`] with the point's warm face offered first (when it is a face of the
+    /// region and not buried); the search does not offer it again.
+    fn from_warm(frame: &Frame, x: &[f32; 3], warm: u32, limit2: f32) -> Self {
+        let mut near = Self::new(limit2);
+        if (warm as usize) < frame.faces.len() && !frame.buried[warm as usize] {
+            let (d2, exact) = frame.distance2(warm, x);
+            near.offer(warm, d2, exact);
+            near.warm = warm;
+        }
+        near
+    }
+
     /// Offer face `f` at distance² `d2` (`exact`: a true distance, else a lower bound that
     /// never tightens the reach).
     #[inline(always)]
@@ -378,12 +390,7 @@ impl Search {
         for (i, x) in points.iter().enumerate() {
             let w = warm[i];
             // Finite: a face at infinity (a buried face, a padding slot) never passes.
-            let mut near = Near::new(f32::MAX);
-            if (w as usize) < frame.faces.len() && !frame.buried[w as usize] {
-                let (d2, exact) = frame.distance2(w, x);
-                near.offer(w, d2, exact);
-                near.warm = w;
-            }
+            let mut near = Near::from_warm(frame, x, w, f32::MAX);
             frame.tree.search(&frame.search_faces, x, &mut near);
             // More near-ties than a list holds, or only sliver faces near: every face.
             if near.overflowed() || near.best_face == u32::MAX {
@@ -427,21 +434,12 @@ impl Search {
 
 /// [`Near`] for `x` against every face of `frame` (started from face `warm`, if any).
 fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
-    let mut near = Near::new(f32::INFINITY);
-    if (warm as usize) < frame.faces.len() && !frame.buried[warm as usize] {
-        let (d2, exact) = frame.distance2(warm, x);
-        near.offer(warm, d2, exact);
-    }
+    let mut near = Near::from_warm(frame, x, warm, f32::INFINITY);
     let data = &frame.data;
     // A bounded list cannot overflow here by more than exact ties: when it does, every face
     // within reach is kept in a second, unbounded pass below.
     for f in (0..frame.faces.len()).filter(|&f| !frame.buried[f]) {
-        let (lo, hi) = (data.lo[f], data.hi[f]);
-        let dx = fmax(fmax(lo[0] - x[0], x[0] - hi[0]), 0.0);
-        let dy = fmax(fmax(lo[1] - x[1], x[1] - hi[1]), 0.0);
-        let dz = fmax(fmax(lo[2] - x[2], x[2] - hi[2]), 0.0);
-        let box2 = dx * dx + dy * dy + dz * dz;
-        if box2 > near.reach2 {
+        if f as u32 == near.warm || box2(&data.lo[f], &data.hi[f], x) > near.reach2 {
             continue;
         }
         let (d2, exact) = frame.distance2(f as u32, x);
@@ -456,9 +454,7 @@ impl Frame {
     pub(super) fn distance2(&self, f: u32, x: &[f32; 3]) -> (f32, bool) {
         let fi = f as usize;
         if self.data.plane[fi][3].is_infinite() {
-            let (lo, hi) = (self.data.lo[fi], self.data.hi[fi]);
-            let d = [0, 1, 2].map(|k| fmax(fmax(lo[k] - x[k], x[k] - hi[k]), 0.0));
-            return (d[0] * d[0] + d[1] * d[1] + d[2] * d[2], false);
+            return (box2(&self.data.lo[fi], &self.data.hi[fi], x), false);
         }
         let tri = self.faces[fi].map(|v| self.rel[v as usize]);
         (distance2(x, &tri), true)
