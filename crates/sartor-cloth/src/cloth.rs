@@ -273,6 +273,92 @@ impl Cloth {
     pub fn total_mass_kg(&self) -> f64 {
         self.mass_kg.iter().sum()
     }
+
+    /// A vertex order that keeps near vertices near in memory: the rest positions sorted along
+    /// a Z-order (Morton) curve of a 1024³ grid over their box, ties by index. Returns `order`
+    /// with `order[k]` the vertex that comes `k`-th.
+    pub(crate) fn spatial_order(&self) -> Vec<u32> {
+        let x = self.rest.positions();
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in x {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let scale = 1023.0 / (hi - lo).max().max(f64::MIN_POSITIVE);
+        // Spread the 10 bits of `v` to every third bit.
+        let spread = |v: u64| {
+            let mut v = v & 0x3ff;
+            v = (v | (v << 16)) & 0x0300_00ff;
+            v = (v | (v << 8)) & 0x0300_f00f;
+            v = (v | (v << 4)) & 0x030c_30c3;
+            (v | (v << 2)) & 0x0924_9249
+        };
+        let code = |p: &Vector3<f64>| {
+            let c = (p - lo) * scale;
+            spread(c.x as u64) | (spread(c.y as u64) << 1) | (spread(c.z as u64) << 2)
+        };
+        let mut order: Vec<u32> = (0..x.len() as u32).collect();
+        order.sort_by_key(|&v| (code(&x[v as usize]), v));
+        order
+    }
+
+    /// The same cloth with its vertices renumbered and its elements reordered to follow:
+    /// vertex `order[k]` of `self` becomes vertex `k` (`order` a permutation of the vertices),
+    /// and triangles and hinges are sorted by their first vertex in the new numbering (ties
+    /// in their old order), so that consecutive elements touch nearby vertices. Rest data
+    /// travel with their elements.
+    pub(crate) fn renumbered(&self, order: &[u32]) -> Result<Self> {
+        let n = self.n_vertices();
+        let mut place = vec![u32::MAX; n];
+        for (k, &v) in order.iter().enumerate() {
+            place[v as usize] = k as u32;
+        }
+        if order.len() != n || place.contains(&u32::MAX) {
+            return Err(Error::invalid(
+                "vertex order",
+                format!("not a permutation of the cloth's {n} vertices"),
+            ));
+        }
+        let relabel = |v: &u32| place[*v as usize];
+        let first = |vs: &[u32]| vs.iter().map(|&v| place[v as usize]).min().unwrap_or(0);
+        let mut tri_order: Vec<usize> = (0..self.faces().len()).collect();
+        tri_order.sort_by_key(|&t| (first(&self.faces()[t]), t));
+        let mut hinge_order: Vec<usize> = (0..self.hinges.len()).collect();
+        hinge_order.sort_by_key(|&e| (first(&self.hinges[e].vertices), e));
+        let permute = |values: &[f64]| order.iter().map(|&v| values[v as usize]).collect();
+        let rest = TriMesh::new(
+            order
+                .iter()
+                .map(|&v| self.rest.positions()[v as usize])
+                .collect(),
+            tri_order
+                .iter()
+                .map(|&t| self.faces()[t].each_ref().map(relabel))
+                .collect(),
+        )?;
+        Ok(Self {
+            topology: rest.topology(),
+            rest,
+            material: self.material.clone(),
+            u_axes: tri_order.iter().map(|&t| self.u_axes[t]).collect(),
+            membranes: tri_order.iter().map(|&t| self.membranes[t]).collect(),
+            hinges: hinge_order
+                .iter()
+                .map(|&e| {
+                    let h = self.hinges[e];
+                    BendingRest {
+                        vertices: h.vertices.each_ref().map(relabel),
+                        ..h
+                    }
+                })
+                .collect(),
+            mass_kg: permute(&self.mass_kg),
+            area_m2: permute(&self.area_m2),
+        })
+    }
 }
 
 /// Per vertex, a third of the rest area of each adjacent triangle, and that area times the
