@@ -21,19 +21,26 @@ use crate::energy::SelfContact;
 /// Scratch buffers of the spatial hash, kept between steps.
 #[derive(Debug, Default)]
 pub(crate) struct SelfCollisionGrid {
-    /// `(cell key, face)` per face and covered cell, in face order.
-    entries: Vec<(u64, u32)>,
+    /// `(cell tag, face)` per face and covered cell, in face order ([`tag_of`]).
+    entries: Vec<(u32, u32)>,
     /// The entries grouped by bucket (`bucket_start` its CSR offsets), faces ascending.
-    buckets: Vec<(u64, u32)>,
+    buckets: Vec<(u32, u32)>,
     bucket_start: Vec<u32>,
     /// Per face, its box inflated by the radius (and a rounding margin): min, max.
     boxes: Vec<[Vector3<f64>; 2]>,
     closest: Vec<[Option<(u32, f64)>; 2]>,
 }
 
-/// The bucket of a cell key in a table of `2^bits` buckets.
-fn bucket_of(key: u64, bits: u32) -> usize {
-    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize
+/// The bucket of a cell (its [`tag_of`]) in a table of `2^bits` buckets.
+fn bucket_of(tag: u32, bits: u32) -> usize {
+    (u64::from(tag).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize
+}
+
+/// A cell's 32-bit tag: the low half of its key. Two cells of one bucket rarely share one; when
+/// they do, a vertex also tests the other cell's faces, which the box and plane tests then
+/// judge: the tag is a filter, never an answer.
+fn tag_of(key: u64) -> u32 {
+    key as u32
 }
 
 fn cell_key(c: [i64; 3]) -> u64 {
@@ -109,16 +116,17 @@ impl SelfCollisionGrid {
             for i in clo[0]..=chi[0] {
                 for j in clo[1]..=chi[1] {
                     for k in clo[2]..=chi[2] {
-                        self.entries.push((cell_key([i, j, k]), f as u32));
+                        self.entries.push((tag_of(cell_key([i, j, k])), f as u32));
                     }
                 }
             }
         }
-        // Counting sort into buckets; within a bucket the faces stay ascending.
-        let bits = self
-            .entries
-            .len()
-            .max(2)
+        // Counting sort into buckets; within a bucket the faces stay ascending. A cell holds
+        // dozens of entries (a face covers about 15 cells at 8,710 triangles, and a cell meets
+        // about 50 faces): a bucket per eight entries leaves most cells a bucket of their own
+        // in a table that stays in cache while the entries are counted and placed.
+        let bits = (self.entries.len() / 8)
+            .max(64)
             .next_power_of_two()
             .trailing_zeros();
         let n_buckets = 1usize << bits;
@@ -146,24 +154,34 @@ impl SelfCollisionGrid {
         self.closest.clear();
         self.closest.resize(x.len(), [None, None]);
         let (buckets, bucket_start, boxes) = (&self.buckets, &self.bucket_start, &self.boxes);
-        let search = |v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
+        // `stamp[w] == v` marks `v` and its one-ring while `v` searches (one array per thread).
+        let search = |stamp: &mut Vec<u32>, v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
             let p = x[v];
-            let key = cell_key(cell_of(&p, inv_cell));
+            let key = tag_of(cell_key(cell_of(&p, inv_cell)));
             let b = bucket_of(key, bits);
-            let ring = topology.neighbours(v);
+            stamp[v] = v as u32;
+            for &w in topology.neighbours(v) {
+                stamp[w as usize] = v as u32;
+            }
             let range = bucket_start[b] as usize..bucket_start[b + 1] as usize;
             for &(k, f) in &buckets[range] {
                 if k != key {
                     continue;
                 }
+                // One branch for the six comparisons (most candidates fail one of them, in no
+                // predictable order).
                 let [lo, hi] = &boxes[f as usize];
-                if (0..3).any(|d| p[d] < lo[d] || p[d] > hi[d]) {
+                let inside = (p.x >= lo.x)
+                    & (p.x <= hi.x)
+                    & (p.y >= lo.y)
+                    & (p.y <= hi.y)
+                    & (p.z >= lo.z)
+                    & (p.z <= hi.z);
+                if !inside {
                     continue;
                 }
                 let t = faces[f as usize];
-                if t.iter()
-                    .any(|&w| w as usize == v || ring.binary_search(&w).is_ok())
-                {
+                if t.iter().any(|&w| stamp[w as usize] == v as u32) {
                     continue;
                 }
                 let tx = t.map(|i| x[i as usize]);
@@ -179,17 +197,20 @@ impl SelfCollisionGrid {
                 }
             }
         };
+        let unmarked = || vec![u32::MAX; x.len()];
         match par {
-            Parallelism::Sequential => self
-                .closest
-                .iter_mut()
-                .enumerate()
-                .for_each(|(v, slot)| search(v, slot)),
+            Parallelism::Sequential => {
+                let mut stamp = unmarked();
+                self.closest
+                    .iter_mut()
+                    .enumerate()
+                    .for_each(|(v, slot)| search(&mut stamp, v, slot));
+            }
             Parallelism::Rayon => self
                 .closest
                 .par_iter_mut()
                 .enumerate()
-                .for_each(|(v, slot)| search(v, slot)),
+                .for_each_init(unmarked, |stamp, (v, slot)| search(stamp, v, slot)),
         }
         for (v, slots) in self.closest.iter().enumerate() {
             for (side, slot) in slots.iter().enumerate() {
