@@ -52,6 +52,20 @@ pub struct SequenceBenchmark {
     pub solve_ms_per_frame: f64,
     /// Contact queries and self-collision detection, ms per frame.
     pub collision_ms_per_frame: f64,
+    /// The self-collision detection's part of `collision_ms_per_frame`.
+    #[serde(default)]
+    pub self_collision_ms_per_frame: f64,
+    /// Looking up the frozen membrane stiffness and bending coefficients, ms per frame.
+    #[serde(default)]
+    pub coefficients_ms_per_frame: f64,
+    /// Friction, new positions and the projection fallback (its queries included), ms per
+    /// frame.
+    #[serde(default)]
+    pub projection_ms_per_frame: f64,
+    /// The simulator's substeps whole, ms per frame: assembly, solve, collision, coefficients,
+    /// projection and the rest of a step (its vector updates and checks).
+    #[serde(default)]
+    pub step_ms_per_frame: f64,
     /// Posing the body and refitting the collider, ms per frame.
     pub body_ms_per_frame: f64,
     /// End-of-frame checks, ms per frame.
@@ -133,6 +147,10 @@ pub fn benchmark_sequence(
         assemble_ms_per_frame: per_frame(timing.assemble_secs),
         solve_ms_per_frame: per_frame(timing.solve_secs),
         collision_ms_per_frame: per_frame(timing.collision_secs),
+        self_collision_ms_per_frame: per_frame(timing.self_collision_secs),
+        coefficients_ms_per_frame: per_frame(timing.coefficients_secs),
+        projection_ms_per_frame: per_frame(timing.projection_secs),
+        step_ms_per_frame: per_frame(timing.step_secs),
         body_ms_per_frame: per_frame(timing.body_secs),
         check_ms_per_frame: per_frame(timing.check_secs),
         region_ms: timing.region_secs * 1e3,

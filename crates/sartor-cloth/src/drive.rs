@@ -677,6 +677,10 @@ impl FrameStepper {
             self.timing.assemble_secs += stats.assemble_secs;
             self.timing.solve_secs += stats.solve_secs;
             self.timing.collision_secs += stats.collision_secs;
+            self.timing.self_collision_secs += stats.self_collision_secs;
+            self.timing.coefficients_secs += stats.coefficients_secs;
+            self.timing.projection_secs += stats.projection_secs;
+            self.timing.step_secs += stats.total_secs;
             totals.newton_iterations += stats.newton_iterations;
             totals.linear_iterations += stats.total_linear_iterations;
             totals.obstacle_contacts += stats.obstacle_contacts;

@@ -302,6 +302,14 @@ pub struct SequenceTiming {
     pub solve_secs: f64,
     /// Contact queries and self-collision detection, s.
     pub collision_secs: f64,
+    /// The self-collision detection's part of `collision_secs`, s.
+    pub self_collision_secs: f64,
+    /// Frozen material coefficients, s.
+    pub coefficients_secs: f64,
+    /// Friction, new positions and the projection fallback, s.
+    pub projection_secs: f64,
+    /// The simulator's substeps, whole (the parts above and the rest of a step), s.
+    pub step_secs: f64,
     /// Per-frame checks (penetration, excluded region), s.
     pub check_secs: f64,
 }

@@ -202,6 +202,13 @@ pub struct StepStats {
     pub solve_secs: f64,
     /// Time in contact queries and self-collision detection, s.
     pub collision_secs: f64,
+    /// The self-collision detection's part of `collision_secs`, s.
+    pub self_collision_secs: f64,
+    /// Time looking up the frozen membrane stiffness and bending coefficients, s.
+    pub coefficients_secs: f64,
+    /// Time in friction, the new positions and the projection fallback (its queries
+    /// included), s.
+    pub projection_secs: f64,
     /// Wall time of the whole substep, s.
     pub total_secs: f64,
     /// Vertex–obstacle contacts within the thickness.
@@ -1029,9 +1036,11 @@ impl Simulator {
         let start = Instant::now();
         let mut stats = StepStats::default();
         let par = self.config.parallelism;
+        let t_coefficients = Instant::now();
         self.freeze_coefficients();
+        stats.coefficients_secs = t_coefficients.elapsed().as_secs_f64();
         let t_collision = Instant::now();
-        self.find_contacts(colliders);
+        stats.self_collision_secs = self.find_contacts(colliders);
         stats.collision_secs = t_collision.elapsed().as_secs_f64();
         stats.obstacle_contacts = self.ws.obstacle_contacts.len();
         stats.self_contacts = self.ws.self_contacts.len();
@@ -1129,6 +1138,7 @@ impl Simulator {
             }
         }
 
+        let t_projection = Instant::now();
         self.ws.step_acceleration.clear();
         self.ws
             .step_acceleration
@@ -1138,6 +1148,7 @@ impl Simulator {
             self.ws.x_new[i] = self.x[i] + self.ws.v_plus[i] * h;
         }
         stats.projected_vertices = self.project_out(colliders);
+        stats.projection_secs = t_projection.elapsed().as_secs_f64();
 
         let masses = self.sim_cloth.masses_kg();
         let mut kinetic = 0.0;
@@ -1200,8 +1211,8 @@ impl Simulator {
     }
 
     /// Obstacle contacts (at the start positions, against the end-of-substep obstacles) and
-    /// self-contact pairs.
-    fn find_contacts(&mut self, colliders: &[&dyn Collider]) {
+    /// self-contact pairs; returns the seconds the self-contacts took.
+    fn find_contacts(&mut self, colliders: &[&dyn Collider]) -> f64 {
         let par = self.config.parallelism;
         let penalty = self.config.contact_penalty;
         let x = &self.x;
@@ -1250,6 +1261,7 @@ impl Simulator {
                 }
             }
         }
+        let t_self = Instant::now();
         if self.config.self_collision {
             self.ws.grid.detect(
                 x,
@@ -1267,6 +1279,7 @@ impl Simulator {
         self.ws
             .self_out
             .resize(self.ws.self_contacts.len(), ElementDerivatives::default());
+        t_self.elapsed().as_secs_f64()
     }
 
     /// The gradient of the potential and its PSD Hessian at `x_iter`, then the system
