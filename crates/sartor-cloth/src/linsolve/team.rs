@@ -345,9 +345,9 @@ mod tests {
 
     #[test]
     fn rows_split_on_chunk_boundaries_as_evenly_as_chunks_allow() {
-        assert_eq!(split_rows(4_500, 2), vec![0..2_048, 2_048..4_500]);
-        assert_eq!(split_rows(700, 2), vec![0..512, 512..700]);
-        assert_eq!(split_rows(2_200, 3), vec![0..512, 512..1_536, 1_536..2_200]);
+        assert_eq!(split_rows(4_500, 2), vec![0..2_304, 2_304..4_500]);
+        assert_eq!(split_rows(700, 2), vec![0..384, 384..700]);
+        assert_eq!(split_rows(2_200, 3), vec![0..768, 768..1_408, 1_408..2_200]);
         for n in [1usize, 511, 512, 513, 2_200, 4_500, 9_001, 13_100] {
             let chunks = n.div_ceil(CHUNK);
             for threads in 1..=chunks.min(7) {
