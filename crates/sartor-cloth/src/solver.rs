@@ -531,21 +531,31 @@ impl Shared<'_> {
         let bending_hessian = self.config.bending_hessian;
         for &e in &share.hinges {
             let (e, h) = (e as usize, &hinges[e as usize]);
-            let d = h.derivatives(
-                &gather(self.x, h.vertices),
-                self.coefficient[e],
-                bending_hessian,
-            );
+            let x = gather(self.x, h.vertices);
             let slots = &self.hinge_slots[e];
-            for a in 0..4 {
-                if let Some(k) = out.place(share, h.vertices[a]) {
-                    let (stiffness, _, gradient, _) = out.row(k);
-                    *gradient += d.gradient[a];
-                    let first = first(h.vertices[a]);
-                    for b in 0..4 {
-                        stiffness[slots[4 * a + b] as usize - first] += d.hessian[a][b];
+            // The hinge's rows of the system, each block made by `block(a, b)`.
+            let mut add = |gradient: &[Vector3<f64>; 4],
+                           block: &dyn Fn(usize, usize) -> Matrix3<f64>| {
+                for a in 0..4 {
+                    if let Some(k) = out.place(share, h.vertices[a]) {
+                        let (stiffness, _, g, _) = out.row(k);
+                        *g += gradient[a];
+                        let first = first(h.vertices[a]);
+                        for b in 0..4 {
+                            stiffness[slots[4 * a + b] as usize - first] += block(a, b);
+                        }
                     }
                 }
+            };
+            if bending_hessian == BendingHessian::GaussNewton {
+                // ARCSim's Hessian (the default): its sixteen blocks made where they are added,
+                // the same numbers as `derivatives` gives without holding them all.
+                if let Some(d) = h.gauss_newton(&x, self.coefficient[e]) {
+                    add(&d.gradient, &|a, b| d.block(a, b));
+                }
+            } else {
+                let d = h.derivatives(&x, self.coefficient[e], bending_hessian);
+                add(&d.gradient, &|a, b| d.hessian[a][b]);
             }
         }
         let penalty = self.config.contact_penalty;

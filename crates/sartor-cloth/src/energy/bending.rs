@@ -62,6 +62,27 @@ pub enum BendingHessian {
 /// [`BendingRest::crushed`].
 pub const CRUSHED_AREA_FRACTION: f64 = 0.01;
 
+/// A hinge's Gauss–Newton derivatives in factored form ([`BendingRest::gauss_newton`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GaussNewtonHinge {
+    /// Energy, J.
+    pub energy_j: f64,
+    /// `∂E/∂x_i`, N.
+    pub gradient: [Vector3<f64>; 4],
+    /// `∂θ/∂x_i`, 1/m.
+    pub angle: [Vector3<f64>; 4],
+    /// `2c`, the factor of `∇θ ∇θᵀ`, J.
+    pub curvature: f64,
+}
+
+impl GaussNewtonHinge {
+    /// The Hessian's block `(a, b)`, N/m.
+    #[inline]
+    pub fn block(&self, a: usize, b: usize) -> Matrix3<f64> {
+        self.angle[a] * self.angle[b].transpose() * self.curvature
+    }
+}
+
 /// Rest data of one hinge.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BendingRest {
@@ -168,6 +189,39 @@ impl BendingRest {
         coefficient * d * d
     }
 
+    /// The Gauss–Newton derivatives in factored form: the gradient per vertex and the angle's
+    /// gradient `∇θ` per vertex with the curvature `2c`, so that the Hessian's block `(a, b)`
+    /// is `∇θ_a ∇θ_bᵀ · 2c`, bitwise the block [`Self::derivatives`] gives for
+    /// [`BendingHessian::GaussNewton`]. For callers that add the blocks where they go without
+    /// holding the sixteen of them. `None` where `derivatives` gives zeros (a crushed or
+    /// degenerate hinge).
+    pub fn gauss_newton(
+        &self,
+        x: &[Vector3<f64>; 4],
+        coefficient: f64,
+    ) -> Option<GaussNewtonHinge> {
+        if self.crushed(x) {
+            return None;
+        }
+        // First derivatives of θ suffice: no 9 × 9 second derivatives (same numbers). The
+        // angle's gradient per vertex (z = x1 − x0, x2 − x0, x3 − x0), and the Gauss–Newton
+        // Hessian 2c ∇θ ∇θᵀ block by block: the same matrix as mapping the 9 × 9 one of z to
+        // the vertices, at a third of the work. `∇θ_b ∇θ_aᵀ` is bitwise the transpose of
+        // `∇θ_a ∇θ_bᵀ` (each entry one product), so every block is computed the same way.
+        let (theta, grad) = dihedral_angle_gradient(x)?;
+        let d = theta - self.rest_angle_rad;
+        let [g1, g2, g3]: [Vector3<f64>; 3] =
+            std::array::from_fn(|k| grad.fixed_rows::<3>(3 * k).into_owned());
+        let angle = [-g1 - g2 - g3, g1, g2, g3];
+        let slope = 2.0 * coefficient * d;
+        Some(GaussNewtonHinge {
+            energy_j: coefficient * d * d,
+            gradient: angle.map(|g| g * slope),
+            angle,
+            curvature: 2.0 * coefficient,
+        })
+    }
+
     /// Energy, gradient and Hessian for a frozen coefficient (zero for a [`Self::crushed`]
     /// hinge).
     pub fn derivatives(
@@ -180,31 +234,14 @@ impl BendingRest {
             return ElementDerivatives::default();
         }
         if hessian == BendingHessian::GaussNewton {
-            // First derivatives of θ suffice: no 9 × 9 second derivatives (same numbers).
-            let Some((theta, grad)) = dihedral_angle_gradient(x) else {
-                return ElementDerivatives::default();
-            };
-            let d = theta - self.rest_angle_rad;
-            // The angle's gradient per vertex (z = x1 − x0, x2 − x0, x3 − x0), and the
-            // Gauss–Newton Hessian 2c ∇θ ∇θᵀ block by block: the same matrix as mapping the
-            // 9 × 9 one of z to the vertices, at a third of the work.
-            let [g1, g2, g3]: [Vector3<f64>; 3] =
-                std::array::from_fn(|k| grad.fixed_rows::<3>(3 * k).into_owned());
-            let angle = [-g1 - g2 - g3, g1, g2, g3];
-            let (slope, curvature) = (2.0 * coefficient * d, 2.0 * coefficient);
-            let mut out = ElementDerivatives {
-                energy_j: coefficient * d * d,
-                gradient: angle.map(|g| g * slope),
-                hessian: [[Matrix3::zeros(); 4]; 4],
-            };
-            for a in 0..4 {
-                for b in a..4 {
-                    let block = angle[a] * angle[b].transpose() * curvature;
-                    out.hessian[a][b] = block;
-                    out.hessian[b][a] = block.transpose();
-                }
-            }
-            return out;
+            return self.gauss_newton(x, coefficient).map_or_else(
+                ElementDerivatives::default,
+                |gn| ElementDerivatives {
+                    energy_j: gn.energy_j,
+                    gradient: gn.gradient,
+                    hessian: std::array::from_fn(|a| std::array::from_fn(|b| gn.block(a, b))),
+                },
+            );
         }
         let Some(theta) = dihedral_angle_derivatives(x) else {
             return ElementDerivatives::default();

@@ -12,7 +12,9 @@ pub(crate) mod diff;
 mod membrane;
 mod psd;
 
-pub use bending::{BendingHessian, BendingRest, CRUSHED_AREA_FRACTION, dihedral_angle};
+pub use bending::{
+    BendingHessian, BendingRest, CRUSHED_AREA_FRACTION, GaussNewtonHinge, dihedral_angle,
+};
 pub use contact::{
     ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_velocity_change,
 };
