@@ -258,7 +258,7 @@ struct Workspace {
     collider_identity: Vec<Option<u64>>,
     self_contacts: Vec<SelfContact>,
     grid: SelfCollisionGrid,
-    stiffness: Vec<Matrix3<f64>>,
+    /// The system `A` (during the assembly, first the stiffness `K`).
     system: Vec<Matrix3<f64>>,
     gradient: Vec<Vector3<f64>>,
     rhs: Vec<Vector3<f64>>,
@@ -397,19 +397,17 @@ struct Shared<'a> {
     h: f64,
 }
 
-/// One row of the system being filled: its vertex, its stiffness and system blocks (its slots
-/// of the pattern), its gradient and right-hand side.
+/// One row of the system being filled: its vertex, its blocks (its slots of the pattern), its
+/// gradient and right-hand side.
 struct RowMut<'a> {
     vertex: usize,
-    stiffness: &'a mut [Matrix3<f64>],
     system: &'a mut [Matrix3<f64>],
     gradient: &'a mut Vector3<f64>,
     rhs: &'a mut Vector3<f64>,
 }
 
-/// A row's stiffness and system blocks, gradient and right-hand side.
+/// A row's blocks, gradient and right-hand side.
 type RowParts<'a> = (
-    &'a mut [Matrix3<f64>],
     &'a mut [Matrix3<f64>],
     &'a mut Vector3<f64>,
     &'a mut Vector3<f64>,
@@ -425,14 +423,13 @@ trait RowAccess {
     fn vertex(&self, k: usize) -> usize;
     /// The place of vertex `i` among its rows, if it is this share's.
     fn place(&self, share: &Share, i: u32) -> Option<usize>;
-    /// The `k`-th row's stiffness and system blocks, gradient and right-hand side.
+    /// The `k`-th row's blocks, gradient and right-hand side.
     fn row(&mut self, k: usize) -> RowParts<'_>;
 }
 
 /// Every row of the system, in place.
 struct Whole<'a> {
     pattern: &'a BlockPattern,
-    stiffness: &'a mut [Matrix3<f64>],
     system: &'a mut [Matrix3<f64>],
     gradient: &'a mut [Vector3<f64>],
     rhs: &'a mut [Vector3<f64>],
@@ -456,7 +453,6 @@ impl RowAccess for Whole<'_> {
     fn row(&mut self, k: usize) -> RowParts<'_> {
         let slots = self.pattern.row(k);
         (
-            &mut self.stiffness[slots.clone()],
             &mut self.system[slots],
             &mut self.gradient[k],
             &mut self.rhs[k],
@@ -482,18 +478,13 @@ impl RowAccess for [RowMut<'_>] {
     #[inline(always)]
     fn row(&mut self, k: usize) -> RowParts<'_> {
         let r = &mut self[k];
-        (
-            &mut *r.stiffness,
-            &mut *r.system,
-            &mut *r.gradient,
-            &mut *r.rhs,
-        )
+        (&mut *r.system, &mut *r.gradient, &mut *r.rhs)
     }
 }
 
 impl Shared<'_> {
-    /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness and gradient
-    /// summed over its elements (triangles, then hinges, by index), then the obstacle contacts
+    /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness `K` (in the
+    /// system's blocks, scaled into `A` at the end) and gradient summed over its elements (triangles, then hinges, by index), then the obstacle contacts
     /// and the self-contacts (in list order), then the system and right-hand side of those rows.
     fn fill<R: RowAccess + ?Sized>(&self, share: &Share, out: &mut R) {
         let (faces, membranes, hinges) = (
@@ -506,7 +497,7 @@ impl Shared<'_> {
         let pattern = self.pattern;
         for k in 0..out.count() {
             let i = out.vertex(k);
-            let (stiffness, _, gradient, _) = out.row(k);
+            let (stiffness, gradient, _) = out.row(k);
             stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
             *gradient = -gravity * masses[i];
         }
@@ -519,7 +510,7 @@ impl Shared<'_> {
             let slots = &self.tri_slots[t];
             for a in 0..3 {
                 if let Some(k) = out.place(share, f[a]) {
-                    let (stiffness, _, gradient, _) = out.row(k);
+                    let (stiffness, gradient, _) = out.row(k);
                     *gradient += d.gradient[a];
                     let first = first(f[a]);
                     for b in 0..3 {
@@ -538,7 +529,7 @@ impl Shared<'_> {
                            block: &dyn Fn(usize, usize) -> Matrix3<f64>| {
                 for a in 0..4 {
                     if let Some(k) = out.place(share, h.vertices[a]) {
-                        let (stiffness, _, g, _) = out.row(k);
+                        let (stiffness, g, _) = out.row(k);
                         *g += gradient[a];
                         let first = first(h.vertices[a]);
                         for b in 0..4 {
@@ -564,7 +555,7 @@ impl Shared<'_> {
             if let Some(k) = out.place(share, c.vertex) {
                 let i = c.vertex as usize;
                 let d = c.derivatives(&self.x[i], &penalty);
-                let (stiffness, _, gradient, _) = out.row(k);
+                let (stiffness, gradient, _) = out.row(k);
                 *gradient += d.gradient[0];
                 stiffness[diag(i)] += d.hessian[0][0];
             }
@@ -573,7 +564,7 @@ impl Shared<'_> {
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             for a in 0..4 {
                 if let Some(k) = out.place(share, idx[a]) {
-                    let (stiffness, _, gradient, _) = out.row(k);
+                    let (stiffness, gradient, _) = out.row(k);
                     *gradient += d.gradient[a];
                     stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
                 }
@@ -590,17 +581,18 @@ impl Shared<'_> {
         let any_pinned = self.pinned.iter().any(|&p| p);
         for k in 0..out.count() {
             let i = out.vertex(k);
-            let (stiffness, system, gradient, rhs) = out.row(k);
-            for (a, k) in system.iter_mut().zip(stiffness.iter()) {
-                *a = k * scale;
-            }
-            system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
+            // The row holds K's blocks until here; then A's.
+            let (system, gradient, rhs) = out.row(k);
             let mut kv = Vector3::zeros();
             if beta != 0.0 {
-                for (k, s) in stiffness.iter().zip(pattern.row(i)) {
+                for (k, s) in system.iter().zip(pattern.row(i)) {
                     kv += k * self.v_plus[cols[s] as usize];
                 }
             }
+            for a in system.iter_mut() {
+                *a *= scale;
+            }
+            system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
             *rhs = -(self.v_plus[i] - self.velocities[i]) * masses[i]
                 - *gradient * h
                 - kv * (h * beta)
@@ -811,7 +803,6 @@ impl Simulator {
             collider_identity: Vec::new(),
             self_contacts: Vec::new(),
             grid: SelfCollisionGrid::default(),
-            stiffness: vec![Matrix3::zeros(); n_blocks],
             system: vec![Matrix3::zeros(); n_blocks],
             gradient: zeros.clone(),
             rhs: zeros.clone(),
@@ -1328,7 +1319,6 @@ impl Simulator {
         if let Parallelism::Sequential = par {
             let mut whole = Whole {
                 pattern: &self.pattern,
-                stiffness: &mut ws.stiffness,
                 system: &mut ws.system,
                 gradient: &mut ws.gradient,
                 rhs: &mut ws.rhs,
@@ -1342,19 +1332,17 @@ impl Simulator {
             .iter()
             .map(|s| Vec::with_capacity(s.rows.len()))
             .collect();
-        let (mut k, mut a) = (&mut ws.stiffness[..], &mut ws.system[..]);
+        let mut a = &mut ws.system[..];
         for (i, (gradient, rhs)) in ws.gradient.iter_mut().zip(ws.rhs.iter_mut()).enumerate() {
             let len = self.pattern.row(i).len();
-            let (stiffness, k_rest) = std::mem::take(&mut k).split_at_mut(len);
             let (system, a_rest) = std::mem::take(&mut a).split_at_mut(len);
-            (k, a) = (k_rest, a_rest);
+            a = a_rest;
             let owner = shares
                 .iter()
                 .position(|s| s.local[i] != u32::MAX)
                 .expect("every row has a share");
             work[owner].push(RowMut {
                 vertex: i,
-                stiffness,
                 system,
                 gradient,
                 rhs,
