@@ -21,8 +21,9 @@ use crate::energy::SelfContact;
 /// Scratch buffers of the spatial hash, kept between steps.
 #[derive(Debug, Default)]
 pub(crate) struct SelfCollisionGrid {
-    /// `(cell tag, face)` per face and covered cell, in face order ([`tag_of`]).
-    entries: Vec<(u32, u32)>,
+    /// `(cell tag, face)` per face and covered cell ([`tag_of`]), per block of
+    /// [`FACE_BLOCK`] faces; in face order read block after block.
+    entries: Vec<Vec<(u32, u32)>>,
     /// The entries grouped by bucket (`bucket_start` its CSR offsets), faces ascending.
     buckets: Vec<(u32, u32)>,
     bucket_start: Vec<u32>,
@@ -30,6 +31,12 @@ pub(crate) struct SelfCollisionGrid {
     boxes: Vec<[Vector3<f64>; 2]>,
     closest: Vec<[Option<(u32, f64)>; 2]>,
 }
+
+/// Faces per block of the parallel binning.
+const FACE_BLOCK: usize = 512;
+
+/// What binning a block of faces writes: their test boxes and their entries.
+type BlockOut<'a> = (&'a mut [[Vector3<f64>; 2]], &'a mut Vec<(u32, u32)>);
 
 /// The bucket of a cell (its [`tag_of`]) in a table of `2^bits` buckets.
 fn bucket_of(tag: u32, bits: u32) -> usize {
@@ -99,51 +106,66 @@ impl SelfCollisionGrid {
             / faces.len() as f64;
         let cell = mean_edge.max(2.0 * radius_m);
         let inv_cell = 1.0 / cell;
-        self.entries.clear();
-        self.boxes.clear();
-        for (f, t) in faces.iter().enumerate() {
-            let [a, b, c] = t.map(|i| x[i as usize]);
-            let (lo0, hi0) = (a.inf(&b).inf(&c), a.sup(&b).sup(&c));
-            let lo = lo0.add_scalar(-radius_m);
-            let hi = hi0.add_scalar(radius_m);
-            // A vertex passing the plane test lies within the radius of a point whose
-            // barycentrics are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its box:
-            // this margin keeps every such vertex inside the test box.
-            let slack = radius_m + 1e-5 * (hi0 - lo0).max() + 1e-12;
-            self.boxes
-                .push([lo0.add_scalar(-slack), hi0.add_scalar(slack)]);
-            let (clo, chi) = (cell_of(&lo, inv_cell), cell_of(&hi, inv_cell));
-            for i in clo[0]..=chi[0] {
-                for j in clo[1]..=chi[1] {
-                    for k in clo[2]..=chi[2] {
-                        self.entries.push((tag_of(cell_key([i, j, k])), f as u32));
+        // Bin the faces, block by block (on rayon's pool when `par` says so).
+        self.boxes.resize(faces.len(), [Vector3::zeros(); 2]);
+        self.entries
+            .resize_with(faces.len().div_ceil(FACE_BLOCK), Vec::new);
+        let bin = |(block, (boxes, entries)): (usize, BlockOut<'_>)| {
+            entries.clear();
+            for (k, b) in boxes.iter_mut().enumerate() {
+                let f = block * FACE_BLOCK + k;
+                let [a, b0, c] = faces[f].map(|i| x[i as usize]);
+                let (lo0, hi0) = (a.inf(&b0).inf(&c), a.sup(&b0).sup(&c));
+                let lo = lo0.add_scalar(-radius_m);
+                let hi = hi0.add_scalar(radius_m);
+                // A vertex passing the plane test lies within the radius of a point whose
+                // barycentrics are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its
+                // box: this margin keeps every such vertex inside the test box.
+                let slack = radius_m + 1e-5 * (hi0 - lo0).max() + 1e-12;
+                *b = [lo0.add_scalar(-slack), hi0.add_scalar(slack)];
+                let (clo, chi) = (cell_of(&lo, inv_cell), cell_of(&hi, inv_cell));
+                for i in clo[0]..=chi[0] {
+                    for j in clo[1]..=chi[1] {
+                        for k in clo[2]..=chi[2] {
+                            entries.push((tag_of(cell_key([i, j, k])), f as u32));
+                        }
                     }
                 }
             }
+        };
+        let blocks = self
+            .boxes
+            .chunks_mut(FACE_BLOCK)
+            .zip(self.entries.iter_mut());
+        match par {
+            Parallelism::Sequential => blocks.enumerate().for_each(bin),
+            Parallelism::Rayon => self
+                .boxes
+                .par_chunks_mut(FACE_BLOCK)
+                .zip(self.entries.par_iter_mut())
+                .enumerate()
+                .for_each(bin),
         }
         // Counting sort into buckets; within a bucket the faces stay ascending. A cell holds
         // dozens of entries (a face covers about 15 cells at 8,710 triangles, and a cell meets
         // about 50 faces): a bucket per eight entries leaves most cells a bucket of their own
         // in a table that stays in cache while the entries are counted and placed.
-        let bits = (self.entries.len() / 8)
-            .max(64)
-            .next_power_of_two()
-            .trailing_zeros();
+        let n_entries: usize = self.entries.iter().map(Vec::len).sum();
+        let bits = (n_entries / 8).max(64).next_power_of_two().trailing_zeros();
         let n_buckets = 1usize << bits;
         self.bucket_start.clear();
         self.bucket_start.resize(n_buckets + 1, 0);
-        for &(key, _) in &self.entries {
-            self.bucket_start[bucket_of(key, bits) + 1] += 1;
+        for &(tag, _) in self.entries.iter().flatten() {
+            self.bucket_start[bucket_of(tag, bits) + 1] += 1;
         }
         for b in 0..n_buckets {
             self.bucket_start[b + 1] += self.bucket_start[b];
         }
         self.buckets.clear();
-        self.buckets.resize(self.entries.len(), (0, 0));
-        for &(key, f) in &self.entries {
-            let b = bucket_of(key, bits);
-            let slot = &mut self.bucket_start[b];
-            self.buckets[*slot as usize] = (key, f);
+        self.buckets.resize(n_entries, (0, 0));
+        for &(tag, f) in self.entries.iter().flatten() {
+            let slot = &mut self.bucket_start[bucket_of(tag, bits)];
+            self.buckets[*slot as usize] = (tag, f);
             *slot += 1;
         }
         // The fill advanced every start to the next bucket's: shift back.
@@ -265,9 +287,10 @@ mod tests {
 
     #[test]
     fn the_grid_finds_what_testing_every_pair_finds() {
-        // A sheet folded over itself into three layers 4 mm apart, crumpled a little: many
-        // pairs within the radius, on both sides, near cell boundaries and at ties.
-        let (nu, nv) = (24usize, 9usize);
+        // A sheet folded over itself into six layers 4 mm apart, crumpled a little: many pairs
+        // within the radius, on both sides, near cell boundaries and at ties; 1,128 faces, more
+        // than two blocks of the parallel binning.
+        let (nu, nv) = (48usize, 13usize);
         let mut x = Vec::new();
         let mut seed = 0x9e37_79b9_7f4a_7c15u64;
         let mut jitter = move || {
@@ -278,7 +301,7 @@ mod tests {
         };
         for j in 0..nv {
             for i in 0..nu {
-                // Along u: three 8-column layers, each reversed, stacked 4 mm apart.
+                // Along u: six 8-column layers, each reversed, stacked 4 mm apart.
                 let (layer, k) = (i / 8, i % 8);
                 let u = if layer % 2 == 0 { k } else { 7 - k } as f64 * 0.01;
                 x.push(Vector3::new(
