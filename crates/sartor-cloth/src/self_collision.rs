@@ -30,7 +30,18 @@ pub(crate) struct SelfCollisionGrid {
     /// Per face, its box inflated by the radius (and a rounding margin): min, max.
     boxes: Vec<[Vector3<f64>; 2]>,
     closest: Vec<[Option<(u32, f64)>; 2]>,
+    /// One stamp array per part of the vertex search ([`SEARCH_PARTS`] per thread): `stamp[w]
+    /// == v` marks `v` and its one-ring while `v` searches. Kept between calls (a vertex marks
+    /// the same set every time, so old marks never mislead).
+    stamps: Vec<Vec<u32>>,
 }
+
+/// What a part of the vertex search writes: its vertices' closest faces, with its stamps.
+type PartOut<'a> = (&'a mut [[Option<(u32, f64)>; 2]], &'a mut Vec<u32>);
+
+/// Parts of the vertex search per thread of the pool (contiguous vertex ranges, each with its
+/// own stamp array; a few per thread so that an uneven part does not hold up the others).
+const SEARCH_PARTS: usize = 4;
 
 /// Faces per block of the parallel binning.
 const FACE_BLOCK: usize = 512;
@@ -176,7 +187,6 @@ impl SelfCollisionGrid {
         self.closest.clear();
         self.closest.resize(x.len(), [None, None]);
         let (buckets, bucket_start, boxes) = (&self.buckets, &self.bucket_start, &self.boxes);
-        // `stamp[w] == v` marks `v` and its one-ring while `v` searches (one array per thread).
         let search = |stamp: &mut Vec<u32>, v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
             let p = x[v];
             let key = tag_of(cell_key(cell_of(&p, inv_cell)));
@@ -219,20 +229,33 @@ impl SelfCollisionGrid {
                 }
             }
         };
-        let unmarked = || vec![u32::MAX; x.len()];
-        match par {
-            Parallelism::Sequential => {
-                let mut stamp = unmarked();
-                self.closest
-                    .iter_mut()
-                    .enumerate()
-                    .for_each(|(v, slot)| search(&mut stamp, v, slot));
+        let parts = match par {
+            Parallelism::Sequential => 1,
+            Parallelism::Rayon => SEARCH_PARTS * rayon::current_num_threads(),
+        };
+        self.stamps.resize_with(parts, Vec::new);
+        for stamp in &mut self.stamps {
+            stamp.resize(x.len(), u32::MAX);
+        }
+        let size = x.len().div_ceil(parts).max(1);
+        let part = |(p, (slots, stamp)): (usize, PartOut<'_>)| {
+            for (k, slot) in slots.iter_mut().enumerate() {
+                search(stamp, p * size + k, slot);
             }
+        };
+        match par {
+            Parallelism::Sequential => self
+                .closest
+                .chunks_mut(size)
+                .zip(self.stamps.iter_mut())
+                .enumerate()
+                .for_each(part),
             Parallelism::Rayon => self
                 .closest
-                .par_iter_mut()
+                .par_chunks_mut(size)
+                .zip(self.stamps.par_iter_mut())
                 .enumerate()
-                .for_each_init(unmarked, |stamp, (v, slot)| search(stamp, v, slot)),
+                .for_each(part),
         }
         for (v, slots) in self.closest.iter().enumerate() {
             for (side, slot) in slots.iter().enumerate() {

@@ -484,8 +484,9 @@ impl RowAccess for [RowMut<'_>] {
 
 impl Shared<'_> {
     /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness `K` (in the
-    /// system's blocks, scaled into `A` at the end) and gradient summed over its elements (triangles, then hinges, by index), then the obstacle contacts
-    /// and the self-contacts (in list order), then the system and right-hand side of those rows.
+    /// system's blocks, scaled into `A` at the end) and gradient summed over its elements
+    /// (triangles, then hinges, by index), then the obstacle contacts and the self-contacts (in
+    /// list order), then the system and right-hand side of those rows.
     fn fill<R: RowAccess + ?Sized>(&self, share: &Share, out: &mut R) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
