@@ -224,6 +224,28 @@ impl Cloth {
         &self.rest
     }
 
+    /// The median length of the rest mesh's edges (each edge once), m; 0 without faces.
+    pub fn median_rest_edge_m(&self) -> f64 {
+        let mut edges: Vec<(u32, u32)> = self
+            .faces()
+            .iter()
+            .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+            .map(|(a, b)| (a.min(b), a.max(b)))
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        let p = self.rest.positions();
+        let mut lengths: Vec<f64> = edges
+            .iter()
+            .map(|&(a, b)| (p[a as usize] - p[b as usize]).norm())
+            .collect();
+        if lengths.is_empty() {
+            return 0.0;
+        }
+        let mid = lengths.len() / 2;
+        *lengths.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
     /// Triangles.
     pub fn faces(&self) -> &[[u32; 3]] {
         self.rest.faces()

@@ -61,12 +61,12 @@ mod self_collision;
 mod sequence;
 mod solver;
 
-pub use benchmark::{SequenceBenchmark, benchmark_sequence};
+pub use benchmark::{SequenceBenchmark, benchmark_sequence, folded_hinge_percent};
 pub use cloth::{Cloth, rectangle_sheet};
 pub use collider::{Collider, Contact, MotionBound, Plane, Sphere};
 pub use drive::{
-    DriveConfig, LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig, contact_region,
-    simulate_sequence,
+    DriveConfig, LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig,
+    STABLE_STEP_PER_EDGE_S_PER_M, contact_region, simulate_sequence,
 };
 pub use error::{Error, Result, SequenceFailure, StepFailure};
 pub use garment::{

@@ -38,6 +38,9 @@ pub struct SimBenchOptions {
     pub no_relax: bool,
     /// The linear solver of the implicit step.
     pub solver: Solver,
+    /// [`DriveConfig::max_step_per_edge_s_per_m`]: the substeps per frame follow the garment's
+    /// resolution (`None`: 10 at every size).
+    pub max_step_per_edge_s_per_m: Option<f64>,
 }
 
 /// Where `bench sim` finds or builds its garments.
@@ -151,6 +154,7 @@ pub fn bench_sim(
         ..DriveConfig::default()
     };
     config.sim.linear_solver = args.solver.linear_solver();
+    config.max_step_per_edge_s_per_m = args.max_step_per_edge_s_per_m;
     let mut sizes = Vec::new();
     for &n in &args.sizes {
         let (garment, source) = garment_of_size(n, body, &material, dirs, args.no_relax, progress)?;

@@ -7,8 +7,9 @@ use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 use sartor_cloth::{
-    ClothSequence, DriveConfig, Error, Garment, LinearSolver, Material, Phase, RelaxConfig,
-    SequenceFailure, StepFailure, contact_region, relax_on_body, simulate_sequence,
+    Cloth, ClothSequence, DriveConfig, Error, Garment, LinearSolver, Material, Phase, RelaxConfig,
+    STABLE_STEP_PER_EDGE_S_PER_M, SequenceFailure, StepFailure, contact_region,
+    folded_hinge_percent, relax_on_body, simulate_sequence,
 };
 use sartor_core::{BodyModel, MeshProximity};
 use sartor_motion::{ClearanceOptions, Motion};
@@ -490,4 +491,69 @@ fn cloth_left_behind_by_a_jump_in_the_motion_fails_the_sequence() {
     )
     .expect("motion");
     simulate(&betas(0.0), Some(&still), &config).expect("no jump, no failure");
+}
+
+#[test]
+fn the_shipped_tshirts_get_their_stable_substeps_and_start_unfolded() {
+    let config = DriveConfig {
+        max_step_per_edge_s_per_m: Some(STABLE_STEP_PER_EDGE_S_PER_M),
+        ..DriveConfig::default()
+    };
+    for (name, substeps) in [("tshirt-4210", 14), ("tshirt-8710", 20)] {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../datasets/garments")
+            .join(name);
+        let garment = Garment::load(&dir).expect(name);
+        let cloth = Cloth::from_garment(&garment, Material::gray_interlock()).expect("cloth");
+        let edge = cloth.median_rest_edge_m();
+        // Independently: the median over every face's three edges (interior ones twice).
+        let p = garment.positions();
+        let mut all: Vec<f64> = garment
+            .faces()
+            .iter()
+            .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+            .map(|(a, b)| (p[a as usize] - p[b as usize]).norm())
+            .collect();
+        all.sort_by(f64::total_cmp);
+        let twice = all[all.len() / 2];
+        assert!(
+            (edge - twice).abs() < 0.03 * twice,
+            "{name}: {edge} vs {twice}"
+        );
+        assert_eq!(
+            config.substeps_for_edge(edge, sartor_core::FPS),
+            substeps,
+            "{name}"
+        );
+        let positions: Vec<[f32; 3]> = p.iter().map(|v| v.cast::<f32>().into()).collect();
+        let folded = folded_hinge_percent(&positions, garment.faces());
+        assert!(folded < 0.2, "{name}: {folded} % of hinges folded at rest");
+    }
+}
+
+#[test]
+fn folded_hinges_are_counted_beyond_a_right_angle_only() {
+    // Two triangles on the edge (0, 1), the second turned about it by `angle`.
+    let pair = |angle: f64| -> Vec<[f32; 3]> {
+        let (s, c) = angle.sin_cos();
+        vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.5, 1.0, 0.0],
+            [0.5, -c as f32, s as f32],
+        ]
+    };
+    let faces = [[0u32, 1, 2], [1, 0, 3]];
+    assert_eq!(folded_hinge_percent(&pair(0.0), &faces), 0.0);
+    assert_eq!(folded_hinge_percent(&pair(80f64.to_radians()), &faces), 0.0);
+    assert_eq!(
+        folded_hinge_percent(&pair(100f64.to_radians()), &faces),
+        100.0
+    );
+    assert_eq!(
+        folded_hinge_percent(&pair(179f64.to_radians()), &faces),
+        100.0
+    );
+    // A lone triangle has no interior edge.
+    assert_eq!(folded_hinge_percent(&pair(0.0), &faces[..1]), 0.0);
 }
