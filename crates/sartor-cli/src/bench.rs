@@ -85,6 +85,10 @@ pub struct SimBenchArgs {
     /// and 34 at 4,210, 8,710 and 26,066 triangles). 0: 10 substeps at every size.
     #[arg(long, default_value_t = STABLE_STEP_PER_EDGE_S_PER_M)]
     pub max_step_per_edge_s_per_m: f64,
+    /// Write a picture of each size's last frame (one thread), front and back, into this
+    /// folder (`tshirt-<n>.png`): a benchmark of a crumpled cloth times the wrong thing.
+    #[arg(long)]
+    pub pictures: Option<PathBuf>,
 }
 
 /// Arguments of `bench runtime`.
@@ -197,6 +201,7 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
                 rest_frames: a.rest_frames,
                 single_thread_only: a.single_thread_only,
                 no_relax: a.no_relax,
+                pictures: a.pictures.clone(),
                 max_step_per_edge_s_per_m: (a.max_step_per_edge_s_per_m > 0.0)
                     .then_some(a.max_step_per_edge_s_per_m),
                 solver: match a.solver {

@@ -11,7 +11,7 @@ use crate::Result;
 use crate::drive::{DriveConfig, simulate_sequence};
 use crate::garment::Garment;
 use crate::material::Material;
-use crate::sequence::Phase;
+use crate::sequence::{Phase, SequenceFrame};
 
 /// What [`benchmark_sequence`] measured. Times are wall-clock (noisy on a shared machine);
 /// iteration and contact counts are deterministic.
@@ -41,6 +41,9 @@ pub struct SequenceBenchmark {
     /// crumpled cloth times the wrong thing.
     #[serde(default)]
     pub folded_hinge_percent: f64,
+    /// The last frame simulated, to look at (not in the report).
+    #[serde(skip)]
+    pub last_frame: Option<SequenceFrame>,
     /// Frames that needed a retry with more substeps.
     pub retried_frames: usize,
     /// Newton iterations per substep (all frames).
@@ -168,6 +171,7 @@ pub fn benchmark_sequence(
         body_ms_per_frame: per_frame(timing.body_secs),
         check_ms_per_frame: per_frame(timing.check_secs),
         region_ms: timing.region_secs * 1e3,
+        last_frame: sequence.frames.last().cloned(),
         cloth_sha256: sha256_hex(
             &sequence
                 .frames

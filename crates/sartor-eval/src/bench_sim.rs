@@ -1,8 +1,10 @@
 //! `bench sim`: the cloth simulator driven by the walk, per garment size, on one thread and on
 //! all → `bench-sim.json`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+use nalgebra::Vector3;
 
 use sartor_cloth::{
     DriveConfig, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig, SequenceBenchmark,
@@ -11,6 +13,7 @@ use sartor_cloth::{
 use sartor_core::io::read_file;
 use sartor_core::{BodyModel, Parallelism};
 use sartor_motion::Motion;
+use sartor_runtime::{Camera, Panel, RenderMesh, render_png};
 use serde::Serialize;
 
 use crate::error::Context;
@@ -41,6 +44,9 @@ pub struct SimBenchOptions {
     /// [`DriveConfig::max_step_per_edge_s_per_m`]: the substeps per frame follow the garment's
     /// resolution (`None`: 10 at every size).
     pub max_step_per_edge_s_per_m: Option<f64>,
+    /// Where to write a picture of each size's last frame (one thread), front and back:
+    /// `tshirt-<n>.png`.
+    pub pictures: Option<PathBuf>,
 }
 
 /// Where `bench sim` finds or builds its garments.
@@ -170,6 +176,11 @@ pub fn bench_sim(
             "  one thread:  {:.1} ms/frame",
             single.ms_per_frame
         ));
+        if let Some(dir) = &args.pictures {
+            let path = dir.join(format!("{}.png", garment.name()));
+            picture(&path, body, &single, garment.faces())?;
+            progress.println(&format!("  picture: {}", path.display()));
+        }
         let all = if args.single_thread_only {
             None
         } else {
@@ -213,6 +224,42 @@ pub fn bench_sim(
         sizes,
     };
     Ok(report)
+}
+
+/// The last frame of `run`, front and back, with the body.
+fn picture(
+    path: &Path,
+    body: &BodyModel,
+    run: &SequenceBenchmark,
+    faces: &[[u32; 3]],
+) -> Result<()> {
+    let Some(frame) = &run.last_frame else {
+        return Ok(());
+    };
+    let posed = crate::eval::posed_body(body, &frame.betas, &frame.pose)?;
+    let cloth: Vec<Vector3<f32>> = frame.positions.iter().map(|&p| p.into()).collect();
+    let body_mesh = RenderMesh {
+        positions: &posed,
+        faces: body.faces(),
+        color: [0.80, 0.70, 0.62],
+    };
+    let cloth_mesh = RenderMesh {
+        positions: &cloth,
+        faces,
+        color: [0.20, 0.42, 0.78],
+    };
+    let panels: Vec<Panel<'_>> = [Vector3::new(0.35, 0.1, 1.0), Vector3::new(-0.35, 0.1, -1.0)]
+        .into_iter()
+        .map(|direction| Panel {
+            meshes: vec![body_mesh, cloth_mesh],
+            camera: Camera::framing(&[cloth_mesh], direction, true),
+        })
+        .collect();
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    render_png(path, &panels, 360, 420, [1.0, 1.0, 1.0])?;
+    Ok(())
 }
 
 /// The T-shirt of `n` triangles and where it came from.

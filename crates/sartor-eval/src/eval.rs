@@ -831,7 +831,11 @@ fn render_comparison(
     Ok(())
 }
 
-fn posed_body(body: &BodyModel, betas: &[f64], pose: &Pose) -> Result<Vec<Vector3<f32>>> {
+pub(crate) fn posed_body(
+    body: &BodyModel,
+    betas: &[f64],
+    pose: &Pose,
+) -> Result<Vec<Vector3<f32>>> {
     let mut b = betas.to_vec();
     b.resize(body.n_betas(), 0.0);
     Ok(body
