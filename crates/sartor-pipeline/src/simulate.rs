@@ -25,7 +25,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
-use sartor_cloth::{DriveConfig, Garment, Material, simulate_sequence};
+use sartor_cloth::{
+    Cloth, DriveConfig, Garment, Material, STABLE_STEP_PER_EDGE_S_PER_M, simulate_sequence,
+};
 use sartor_core::BodyModel;
 use sartor_dataset::{FAILED_DIR, REST_MOTION, sequence_stem};
 use sartor_eval::{Machine, Progress, write_json};
@@ -238,6 +240,12 @@ pub struct SimulateReport {
     pub ms_per_frame_per_thread: f64,
     /// Wall time per simulated frame (throughput of the whole run).
     pub ms_per_frame_wall: f64,
+    /// Substeps per frame (without retries) for this garment.
+    pub substeps_per_frame: usize,
+    /// Their step in seconds per metre of the garment's median rest edge: above
+    /// [`STABLE_STEP_PER_EDGE_S_PER_M`] the cloth may crumple (set
+    /// `simulation.max_step_per_edge_s_per_m`).
+    pub step_per_edge_s_per_m: f64,
     /// Where it ran.
     pub machine: Machine,
 }
@@ -292,6 +300,19 @@ pub fn simulate(
         bail!("shard {index}/{count}: need 0 ≤ I < N");
     }
     let inputs = SimInputs::load(e, data)?;
+    let edge = Cloth::from_garment(&inputs.garment, inputs.material.clone())?.median_rest_edge_m();
+    let substeps_per_frame = inputs.drive.substeps_for_edge(edge, sartor_core::FPS);
+    let step_per_edge_s_per_m = inputs.drive.step_per_edge_s_per_m(edge, sartor_core::FPS);
+    if step_per_edge_s_per_m > STABLE_STEP_PER_EDGE_S_PER_M * (1.0 + 1e-9) {
+        progress.println(&format!(
+            "warning: {} substeps per frame are a step of {step_per_edge_s_per_m:.3} s per metre \
+             of the garment's median edge ({:.1} mm), above the {STABLE_STEP_PER_EDGE_S_PER_M} \
+             at which the T-shirts stay smooth: the cloth may crumple (set \
+             simulation.max_step_per_edge_s_per_m)",
+            substeps_per_frame,
+            edge * 1e3
+        ));
+    }
     let out = e.sim_dir();
     std::fs::create_dir_all(out.join(FAILED_DIR))
         .with_context(|| format!("creating {}", out.display()))?;
@@ -443,6 +464,8 @@ pub fn simulate(
         threads,
         ms_per_frame_per_thread: per_frame_wall * threads.min(todo.len().max(1)) as f64,
         ms_per_frame_wall: per_frame_wall,
+        substeps_per_frame,
+        step_per_edge_s_per_m,
         machine: Machine::current(),
     };
     let path = out.join(&name);
