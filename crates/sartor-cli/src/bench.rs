@@ -10,7 +10,7 @@ use sartor_eval::{
     AnchorOptions, GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime,
     bench_sim, write_json,
 };
-use sartor_motion::{MotionSourceOptions, load_motion};
+use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
 
 use crate::Env;
 use crate::progress::Bar;
@@ -81,10 +81,14 @@ pub struct SimBenchArgs {
     #[arg(long, value_enum, default_value_t = SolverArg::Cg)]
     pub solver: SolverArg,
     /// The longest substep, seconds per metre of the garment's median rest edge: the
-    /// substeps per frame rise with the resolution so that every size stays stable (14, 20
-    /// and 34 at 4,210, 8,710 and 26,066 triangles). 0: 10 substeps at every size.
+    /// substeps per frame rise with the resolution so that every size stays stable (28, 40
+    /// and 69 at 4,210, 8,710 and 26,066 triangles). 0: 10 substeps at every size.
     #[arg(long, default_value_t = STABLE_STEP_PER_EDGE_S_PER_M)]
     pub max_step_per_edge_s_per_m: f64,
+    /// Hold the arms out of the torso as the reference configs do (`arm_clearance` with
+    /// `upper_arm_clearance_m` 5 mm): for retargeted motion capture.
+    #[arg(long)]
+    pub arm_clearance: bool,
     /// Write a picture of each size's last frame (one thread), front and back, into this
     /// folder (`tshirt-<n>.png`): a benchmark of a crumpled cloth times the wrong thing.
     #[arg(long)]
@@ -181,10 +185,9 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
     let progress = Bar::new();
     let (out, report) = match &args.target {
         BenchTarget::Sim(a) => {
-            let options = MotionSourceOptions {
-                motions_dir: env.data.motions_dir(),
-                ..MotionSourceOptions::default()
-            };
+            // Stored motion capture (`cmu/02_04`) is retargeted onto the body, as `simulate`
+            // does.
+            let options = crate::motion_options(&env.data, UpAxis::default())?;
             let motion = load_motion(&a.motion, &options)?;
             let end = a.start_frame + a.frames;
             anyhow::ensure!(
@@ -202,6 +205,10 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
                 single_thread_only: a.single_thread_only,
                 no_relax: a.no_relax,
                 pictures: a.pictures.clone(),
+                arm_clearance: a.arm_clearance.then(|| ClearanceOptions {
+                    upper_arm_clearance_m: Some(0.005),
+                    ..ClearanceOptions::default()
+                }),
                 max_step_per_edge_s_per_m: (a.max_step_per_edge_s_per_m > 0.0)
                     .then_some(a.max_step_per_edge_s_per_m),
                 solver: match a.solver {

@@ -47,6 +47,8 @@ pub struct SimBenchOptions {
     /// Where to write a picture of each size's last frame (one thread), front and back:
     /// `tshirt-<n>.png`.
     pub pictures: Option<PathBuf>,
+    /// [`DriveConfig::arm_clearance`].
+    pub arm_clearance: Option<sartor_motion::ClearanceOptions>,
 }
 
 /// Where `bench sim` finds or builds its garments.
@@ -161,6 +163,7 @@ pub fn bench_sim(
     };
     config.sim.linear_solver = args.solver.linear_solver();
     config.max_step_per_edge_s_per_m = args.max_step_per_edge_s_per_m;
+    config.arm_clearance.clone_from(&args.arm_clearance);
     let mut sizes = Vec::new();
     for &n in &args.sizes {
         let (garment, source) = garment_of_size(n, body, &material, dirs, args.no_relax, progress)?;
