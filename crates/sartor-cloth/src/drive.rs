@@ -184,21 +184,25 @@ pub struct DriveConfig {
     /// the cloth's median rest edge ([`DriveConfig::substeps_for_edge`]);
     /// [`STABLE_STEP_PER_EDGE_S_PER_M`] is the value measured to keep the T-shirt smooth. The
     /// one linearised implicit step per substep is stable only for steps short against the
-    /// time a wave takes to cross a triangle: at 10 substeps per frame the 8,710- and
-    /// 26,066-triangle T-shirts crumple within a second of motion. Default `None` (exactly
+    /// triangle size: at 10 substeps per frame the 8,710- and 26,066-triangle T-shirts crumple
+    /// within a second of the walk, and in a crouch the 4,210-triangle one does too. Default `None` (exactly
     /// `substeps_per_frame`; a config written without this field reads as `None`, its hash
     /// unchanged).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_step_per_edge_s_per_m: Option<f64>,
 }
 
-/// The step, seconds per metre of median rest edge, at which the T-shirt stays smooth on the
-/// walk with one Newton iteration per substep: measured on the 4,210-, 8,710- and
-/// 26,066-triangle T-shirts (median edges 18.3, 12.8 and 7.4 mm) by rendering them and counting
-/// their hinges folded beyond 90°. At 10 substeps (0.26 s/m at 8,710 triangles, 0.45 at
-/// 26,066) both finer shirts crumple; at 0.18 the 8,710 one still frays at a sleeve; at 0.13
-/// it is smooth. 0.135 gives 14, 20 and 34 substeps per frame at 30 fps.
-pub const STABLE_STEP_PER_EDGE_S_PER_M: f64 = 0.135;
+/// The step, seconds per metre of median rest edge, at which the T-shirt stays smooth with one
+/// Newton iteration per substep: measured on the 4,210- and 8,710-triangle T-shirts (median
+/// edges 18.3 and 12.8 mm) by rendering them and counting their hinges folded beyond 90°
+/// (`bench sim --pictures`), on the walk and on a CMU crouch (`cmu/02_04`, 60 frames after
+/// 30 blend and 30 rest frames). At 10 substeps (0.18 and 0.26 s/m) the walk already crumples
+/// the 8,710-triangle shirt (and the 26,066 one, 0.45 s/m); at 0.135 the walk stays smooth but
+/// the crouch crumples both shirts and pushes them up the back (14.5 and 9.7 % of hinges
+/// folded); at 0.066, 28 and 40 substeps, both stay smooth (1.7 and 1.2 %), as 30 and 40
+/// substeps did at 8,710 triangles. 0.066 gives 28, 40 and 69 substeps per frame at 30 fps at
+/// 4,210, 8,710 and 26,066 triangles.
+pub const STABLE_STEP_PER_EDGE_S_PER_M: f64 = 0.066;
 
 impl Default for DriveConfig {
     fn default() -> Self {
@@ -1226,10 +1230,10 @@ mod tests {
         };
         on.validate().expect("valid");
         assert_ne!(old.sha256().expect("hash"), on.sha256().expect("hash"));
-        // 1 / (30 × 0.135 × edge): 13.5, 19.3 and 33.4 for the T-shirts' median edges.
-        assert_eq!(on.substeps_for_edge(18.28e-3, 30.0), 14);
-        assert_eq!(on.substeps_for_edge(12.77e-3, 30.0), 20);
-        assert_eq!(on.substeps_for_edge(7.40e-3, 30.0), 34);
+        // 1 / (30 × 0.066 × edge): 27.6, 39.5 and 68.2 for the T-shirts' median edges.
+        assert_eq!(on.substeps_for_edge(18.28e-3, 30.0), 28);
+        assert_eq!(on.substeps_for_edge(12.77e-3, 30.0), 40);
+        assert_eq!(on.substeps_for_edge(7.40e-3, 30.0), 69);
         for edge in [18.28e-3, 12.77e-3, 7.40e-3] {
             assert!(on.step_per_edge_s_per_m(edge, 30.0) <= STABLE_STEP_PER_EDGE_S_PER_M);
         }
@@ -1237,7 +1241,7 @@ mod tests {
         let old_step = old.step_per_edge_s_per_m(12.77e-3, 30.0);
         assert!((old_step - 0.261).abs() < 1e-3, "{old_step}");
         // Never fewer than configured; a coarse cloth keeps the configured 10.
-        assert_eq!(on.substeps_for_edge(0.05, 30.0), 10);
+        assert_eq!(on.substeps_for_edge(0.1, 30.0), 10);
         // A degenerate edge asks for more than the retries leave: capped, still valid.
         let capped = on.substeps_for_edge(1e-9, 30.0);
         let most = capped

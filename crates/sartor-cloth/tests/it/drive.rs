@@ -499,7 +499,7 @@ fn the_shipped_tshirts_get_their_stable_substeps_and_start_unfolded() {
         max_step_per_edge_s_per_m: Some(STABLE_STEP_PER_EDGE_S_PER_M),
         ..DriveConfig::default()
     };
-    for (name, substeps) in [("tshirt-4210", 14), ("tshirt-8710", 20)] {
+    for (name, substeps) in [("tshirt-4210", 28), ("tshirt-8710", 40)] {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../datasets/garments")
             .join(name);
