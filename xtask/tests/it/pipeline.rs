@@ -65,6 +65,29 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
 fn tiny_pipeline_resumes_byte_identically_and_keeps_splits_apart() {
     let straight = tempfile::tempdir().expect("temp dir");
     run(&["simulate"], straight.path());
+    // The report gives the step against the garment's resolution: 10 substeps (the config
+    // sets no rule) and 1 / (30 fps × 10 × the median edge, measured here over every face's
+    // edges).
+    let report = read_json(&straight.path().join("tiny/sim/simulate.json"));
+    assert_eq!(report["substeps_per_frame"], 10);
+    let garment = sartor_cloth::Garment::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../datasets/garments/tshirt-tiny"),
+    )
+    .expect("the tiny garment");
+    let p = garment.positions();
+    let mut edges: Vec<f64> = garment
+        .faces()
+        .iter()
+        .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+        .map(|(a, b)| (p[a as usize] - p[b as usize]).norm())
+        .collect();
+    edges.sort_by(f64::total_cmp);
+    let expected = 1.0 / (300.0 * edges[edges.len() / 2]);
+    let step = report["step_per_edge_s_per_m"].as_f64().expect("a number");
+    assert!(
+        (step - expected).abs() < 0.05 * expected,
+        "{step} s/m against {expected}"
+    );
 
     // Kill a second run as soon as its first sequences are finished, then resume it.
     let resumed = tempfile::tempdir().expect("temp dir");
