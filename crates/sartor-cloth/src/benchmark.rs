@@ -2,8 +2,9 @@
 
 use std::time::Instant;
 
-use sartor_core::BodyModel;
+use nalgebra::Vector3;
 use sartor_core::io::sha256_hex;
+use sartor_core::{BodyModel, MeshTopology, face_normals};
 use sartor_motion::Motion;
 use serde::{Deserialize, Serialize};
 
@@ -187,27 +188,17 @@ pub fn benchmark_sequence(
 /// differ by more than 90° (a fold back beyond a right angle), %; 0 without interior edges.
 /// Degenerate triangles count as unfolded.
 pub fn folded_hinge_percent(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> f64 {
-    let p = |i: u32| {
-        let c = positions[i as usize];
-        nalgebra::Vector3::new(f64::from(c[0]), f64::from(c[1]), f64::from(c[2]))
-    };
-    let normals: Vec<nalgebra::Vector3<f64>> = faces
+    let positions: Vec<Vector3<f64>> = positions
         .iter()
-        .map(|f| (p(f[1]) - p(f[0])).cross(&(p(f[2]) - p(f[0]))))
+        .map(|c| Vector3::new(f64::from(c[0]), f64::from(c[1]), f64::from(c[2])))
         .collect();
-    let mut edges: Vec<(u32, u32, u32)> = faces
-        .iter()
-        .enumerate()
-        .flat_map(|(t, f)| {
-            [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])].map(|(a, b)| (a.min(b), a.max(b), t as u32))
-        })
-        .collect();
-    edges.sort_unstable();
+    let normals = face_normals(&positions, faces);
+    let topology = MeshTopology::new(positions.len(), faces);
     let (mut interior, mut folded) = (0usize, 0usize);
-    for w in edges.windows(2) {
-        if (w[0].0, w[0].1) == (w[1].0, w[1].1) {
+    for edge_faces in &topology.edge_faces {
+        if let &[a, b] = edge_faces.as_slice() {
             interior += 1;
-            if normals[w[0].2 as usize].dot(&normals[w[1].2 as usize]) < 0.0 {
+            if normals[a as usize].dot(&normals[b as usize]) < 0.0 {
                 folded += 1;
             }
         }

@@ -226,18 +226,12 @@ impl Cloth {
 
     /// The median length of the rest mesh's edges (each edge once), m; 0 without faces.
     pub fn median_rest_edge_m(&self) -> f64 {
-        let mut edges: Vec<(u32, u32)> = self
-            .faces()
-            .iter()
-            .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
-            .map(|(a, b)| (a.min(b), a.max(b)))
-            .collect();
-        edges.sort_unstable();
-        edges.dedup();
         let p = self.rest.positions();
-        let mut lengths: Vec<f64> = edges
+        let mut lengths: Vec<f64> = self
+            .topology
+            .edges
             .iter()
-            .map(|&(a, b)| (p[a as usize] - p[b as usize]).norm())
+            .map(|&[a, b]| (p[a as usize] - p[b as usize]).norm())
             .collect();
         if lengths.is_empty() {
             return 0.0;
