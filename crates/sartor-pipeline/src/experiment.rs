@@ -751,6 +751,24 @@ mod tests {
             serde_json::to_value(&b.training).expect("json")
         );
         assert_ne!(a.garment, b.garment);
+        // Both simulate with the same settings, each at a step its garment's resolution keeps
+        // smooth (at 10 substeps per frame the shirts crumple on fast motion).
+        assert_eq!(a.simulation, b.simulation);
+        for e in [&a, &b] {
+            let garment = sartor_cloth::Garment::load(&e.garment).expect("the config's garment");
+            let edge = sartor_cloth::Cloth::from_garment(
+                &garment,
+                sartor_cloth::Material::gray_interlock(),
+            )
+            .expect("cloth")
+            .median_rest_edge_m();
+            let step = e.simulation.step_per_edge_s_per_m(edge, sartor_core::FPS);
+            assert!(
+                step <= sartor_cloth::STABLE_STEP_PER_EDGE_S_PER_M * (1.0 + 1e-9),
+                "{}: {step} s per metre of edge",
+                e.garment.display()
+            );
+        }
         let e = config("default");
         for k in 0..10 {
             assert!(
