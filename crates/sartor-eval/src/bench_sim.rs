@@ -13,7 +13,7 @@ use sartor_cloth::{
 use sartor_core::io::read_file;
 use sartor_core::{BodyModel, Parallelism};
 use sartor_motion::Motion;
-use sartor_runtime::{Camera, Panel, RenderMesh, render_png};
+use sartor_runtime::{BODY_COLOR, GARMENT_COLOR, Panel, RenderMesh, render_png};
 use serde::Serialize;
 
 use crate::error::Context;
@@ -244,20 +244,14 @@ fn picture(
     let body_mesh = RenderMesh {
         positions: &posed,
         faces: body.faces(),
-        color: [0.80, 0.70, 0.62],
+        color: BODY_COLOR,
     };
     let cloth_mesh = RenderMesh {
         positions: &cloth,
         faces,
-        color: [0.20, 0.42, 0.78],
+        color: GARMENT_COLOR,
     };
-    let panels: Vec<Panel<'_>> = [Vector3::new(0.35, 0.1, 1.0), Vector3::new(-0.35, 0.1, -1.0)]
-        .into_iter()
-        .map(|direction| Panel {
-            meshes: vec![body_mesh, cloth_mesh],
-            camera: Camera::framing(&[cloth_mesh], direction, true),
-        })
-        .collect();
+    let panels = Panel::front_and_back(&[body_mesh, cloth_mesh], &[cloth_mesh]);
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir)?;
     }

@@ -18,10 +18,8 @@ use sartor_runtime::{
 use crate::Result;
 use crate::error::{Context, ensure};
 
-/// Colours of the written meshes.
-pub const BODY_COLOR: [f32; 3] = [0.80, 0.70, 0.62];
-/// See [`BODY_COLOR`].
-pub const GARMENT_COLOR: [f32; 3] = [0.20, 0.42, 0.78];
+/// Colours of the written meshes (the runtime's writers').
+pub use sartor_runtime::{BODY_COLOR, GARMENT_COLOR};
 
 /// An output format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -90,6 +90,6 @@ pub use sartor_core::{
 #[cfg(feature = "png")]
 pub use writers::render_png;
 pub use writers::{
-    Camera, Image, MeshSequence, Panel, Projection, RenderMesh, render, write_gltf,
-    write_obj_sequence,
+    BODY_COLOR, Camera, GARMENT_COLOR, Image, MeshSequence, Panel, Projection, RenderMesh, render,
+    write_gltf, write_obj_sequence,
 };

@@ -14,7 +14,7 @@ pub use gltf::write_gltf;
 pub use obj::write_obj_sequence;
 #[cfg(feature = "png")]
 pub use raster::render_png;
-pub use raster::{Camera, Image, Panel, Projection, RenderMesh, render};
+pub use raster::{BODY_COLOR, Camera, GARMENT_COLOR, Image, Panel, Projection, RenderMesh, render};
 
 /// An animated triangle mesh: fixed triangles, one vertex array per frame (metres), a colour.
 #[derive(Clone, Debug, PartialEq)]

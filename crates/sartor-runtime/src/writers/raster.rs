@@ -224,6 +224,11 @@ pub struct RenderMesh<'a> {
     pub color: [f32; 3],
 }
 
+/// The colour the writers give a body.
+pub const BODY_COLOR: [f32; 3] = [0.80, 0.70, 0.62];
+/// The colour the writers give a garment.
+pub const GARMENT_COLOR: [f32; 3] = [0.20, 0.42, 0.78];
+
 /// One view: meshes seen by a camera.
 #[derive(Clone, Debug)]
 pub struct Panel<'a> {
@@ -231,6 +236,21 @@ pub struct Panel<'a> {
     pub meshes: Vec<RenderMesh<'a>>,
     /// The camera.
     pub camera: Camera,
+}
+
+impl<'a> Panel<'a> {
+    /// Two perspective views of `meshes`, from the front-right and from the back-left, each
+    /// framing `frame_on` (for a body and its garment: the garment to see the cloth, the body to
+    /// see where the garment sits on it).
+    pub fn front_and_back(meshes: &[RenderMesh<'a>], frame_on: &[RenderMesh<'a>]) -> Vec<Self> {
+        [Vector3::new(0.35, 0.1, 1.0), Vector3::new(-0.35, 0.1, -1.0)]
+            .into_iter()
+            .map(|direction| Panel {
+                meshes: meshes.to_vec(),
+                camera: Camera::framing(frame_on, direction, true),
+            })
+            .collect()
+    }
 }
 
 /// An 8-bit sRGB image, RGBA, row-major from the top.

@@ -26,7 +26,7 @@ use sartor_runtime::{
     NetworkOptions,
 };
 #[cfg(feature = "png")]
-use sartor_runtime::{Camera, Panel, RenderMesh, render_png};
+use sartor_runtime::{BODY_COLOR, GARMENT_COLOR, Panel, RenderMesh, render_png};
 
 fn shipped() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../datasets/models/default")
@@ -171,20 +171,14 @@ fn picture(
     let body_mesh = RenderMesh {
         positions: posed,
         faces: body.faces(),
-        color: [0.80, 0.70, 0.62],
+        color: BODY_COLOR,
     };
     let garment_mesh = RenderMesh {
         positions: garment,
         faces,
-        color: [0.20, 0.42, 0.78],
+        color: GARMENT_COLOR,
     };
-    let panels: Vec<Panel<'_>> = [Vector3::new(0.35, 0.1, 1.0), Vector3::new(-0.35, 0.1, -1.0)]
-        .into_iter()
-        .map(|direction| Panel {
-            meshes: vec![body_mesh, garment_mesh],
-            camera: Camera::framing(&[body_mesh], direction, true),
-        })
-        .collect();
+    let panels = Panel::front_and_back(&[body_mesh, garment_mesh], &[body_mesh]);
     render_png(path, &panels, 200, 340, [1.0, 1.0, 1.0]).expect("png");
 }
 
