@@ -1,16 +1,25 @@
-//! Self-collision candidates: vertex–triangle proximity by a uniform spatial hash.
+//! Self-collision candidates: vertex–triangle proximity by a dense uniform grid of the vertices.
 //!
-//! Triangles are binned by their bounding boxes inflated by the search radius; a vertex looks
-//! up its own cell. A pair counts when the vertex projects inside the triangle (barycentric
-//! weights ≥ −1e-6, as ARCSim's `add_proximity`) within the search radius of its plane, and
-//! the triangle does not touch the vertex or its one-ring (those are neighbours through the
-//! surface, not contacts). As in ARCSim, each vertex keeps the closest triangle on each side.
-//! Results are sorted by vertex and side, independent of the thread count.
+//! The vertices are binned into the cells of a grid over their bounding box (one cell each);
+//! each triangle visits the cells its bounding box, inflated by the search radius, overlaps and
+//! tests the vertices there. A pair counts when the vertex projects inside the triangle
+//! (barycentric weights ≥ −1e-6, as ARCSim's `add_proximity`) within the search radius of its
+//! plane, and the triangle does not touch the vertex or its one-ring (those are neighbours
+//! through the surface, not contacts). As in ARCSim, each vertex keeps the closest triangle on
+//! each side (the lowest-numbered one among equally close ones). Results are sorted by vertex and
+//! side, independent of the thread count.
 //!
-//! The cells are a hash table filled by a counting sort (no comparison sort of the entries),
-//! each bucket listing its faces in ascending order, so a vertex meets its candidates in the
-//! order of a sorted list; a candidate whose inflated box misses the vertex is dropped before
-//! the one-ring and plane tests (it cannot pass them).
+//! The cell is at least the mean edge and twice the radius, and grows until the grid has at most
+//! four cells per vertex, so clearing and summing the cells stays small. Binning the vertices
+//! rather than the triangles keeps the one serial part small: a counting sort of one entry per
+//! vertex, with the positions copied in sorted order so that a row of cells is one contiguous
+//! run. The triangles are the parallel part, in blocks of [`FACE_BLOCK`], each block listing the
+//! pairs it found; those few pairs are then merged in triangle order. It replaces a hash table of
+//! the triangles' cells, whose serial counting sort of ~15 entries per triangle kept the search
+//! on one core (27 ms per frame on two threads against 29 on one, 4,210 triangles, the walk);
+//! this grid takes 26 ms on one thread and 18 on two (2-core Intel Xeon VM, `cargo xtask bench
+//! sim`). A candidate whose inflated box misses the vertex is dropped before the one-ring and
+//! plane tests (it cannot pass them).
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -18,62 +27,41 @@ use sartor_core::{MeshTopology, Parallelism};
 
 use crate::energy::SelfContact;
 
-/// Scratch buffers of the spatial hash, kept between steps.
+/// Scratch buffers of the grid, kept between steps.
 #[derive(Debug, Default)]
 pub(crate) struct SelfCollisionGrid {
-    /// `(cell tag, face)` per face and covered cell ([`tag_of`]), per block of
-    /// [`FACE_BLOCK`] faces; in face order read block after block.
-    entries: Vec<Vec<(u32, u32)>>,
-    /// The entries grouped by bucket (`bucket_start` its CSR offsets), faces ascending.
-    buckets: Vec<(u32, u32)>,
-    bucket_start: Vec<u32>,
-    /// Per face, its box inflated by the radius (and a rounding margin): min, max.
-    boxes: Vec<[Vector3<f64>; 2]>,
-    closest: Vec<[Option<(u32, f64)>; 2]>,
-    /// One stamp array per part of the vertex search ([`SEARCH_PARTS`] per thread): `stamp[w]
-    /// == v` marks `v` and its one-ring while `v` searches. Kept between calls (a vertex marks
-    /// the same set every time, so old marks never mislead).
+    /// Per cell (x fastest), its vertices `sorted[start[c]..start[c + 1]]`, ascending.
+    start: Vec<u32>,
+    sorted: Vec<u32>,
+    /// The vertices' positions in `sorted` order (one contiguous run per row of cells).
+    sorted_x: Vec<Vector3<f64>>,
+    /// Per vertex, its cell.
+    cell_of_vertex: Vec<u32>,
+    /// Per block of [`FACE_BLOCK`] faces, the pairs it found, in face order.
+    found: Vec<Vec<Found>>,
+    /// Per block, a stamp per vertex: `stamp[v] == f` marks the corners of face `f` and their
+    /// one-rings while `f` searches. Kept between calls (a face marks the same set every time,
+    /// so old marks never mislead).
     stamps: Vec<Vec<u32>>,
+    closest: Vec<[Option<(u32, f64)>; 2]>,
 }
 
-/// What a part of the vertex search writes: its vertices' closest faces, with its stamps.
-type PartOut<'a> = (&'a mut [[Option<(u32, f64)>; 2]], &'a mut Vec<u32>);
-
-/// Parts of the vertex search per thread of the pool (contiguous vertex ranges, each with its
-/// own stamp array; a few per thread so that an uneven part does not hold up the others).
-const SEARCH_PARTS: usize = 4;
-
-/// Faces per block of the parallel binning.
-const FACE_BLOCK: usize = 512;
-
-/// What binning a block of faces writes: their test boxes and their entries.
-type BlockOut<'a> = (&'a mut [[Vector3<f64>; 2]], &'a mut Vec<(u32, u32)>);
-
-/// The bucket of a cell (its [`tag_of`]) in a table of `2^bits` buckets.
-fn bucket_of(tag: u32, bits: u32) -> usize {
-    (u64::from(tag).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize
+/// A vertex–triangle pair within the radius: vertex, side (0: in front), face, |distance|.
+#[derive(Clone, Copy, Debug)]
+struct Found {
+    vertex: u32,
+    side: u8,
+    face: u32,
+    distance_m: f64,
 }
 
-/// A cell's 32-bit tag: the low half of its key. Two cells of one bucket rarely share one; when
-/// they do, a vertex also tests the other cell's faces, which the box and plane tests then
-/// judge: the tag is a filter, never an answer.
-fn tag_of(key: u64) -> u32 {
-    key as u32
-}
+/// Faces per block of the parallel search.
+const FACE_BLOCK: usize = 256;
 
-fn cell_key(c: [i64; 3]) -> u64 {
-    (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9)
-}
-
-fn cell_of(p: &Vector3<f64>, inv_cell: f64) -> [i64; 3] {
-    [
-        (p.x * inv_cell).floor() as i64,
-        (p.y * inv_cell).floor() as i64,
-        (p.z * inv_cell).floor() as i64,
-    ]
-}
+/// The grid has at most this many cells per vertex (at least [`MIN_CELLS`]); the cell grows
+/// until it fits, so that clearing and summing the cells stays small against the search.
+const CELLS_PER_VERTEX: usize = 4;
+const MIN_CELLS: usize = 4096;
 
 /// Signed distance of `p` to the plane of `t` and whether its projection is inside `t`.
 fn vertex_triangle(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> Option<f64> {
@@ -91,6 +79,118 @@ fn vertex_triangle(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> Option<f64> {
     (w0.min(w1).min(w2) >= -1e-6).then(|| r.dot(&n) / n2.sqrt())
 }
 
+/// The uniform grid over the vertices' box.
+#[derive(Clone, Copy, Debug)]
+struct Cells {
+    origin: Vector3<f64>,
+    inv_cell: f64,
+    dims: [usize; 3],
+}
+
+impl Cells {
+    /// The grid of cell edge `cell` (or larger, to stay within the cell budget) over `x`.
+    fn new(x: &[Vector3<f64>], mut cell: f64) -> Self {
+        let (mut lo, mut hi) = (x[0], x[0]);
+        for p in x {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let budget = (CELLS_PER_VERTEX * x.len()).max(MIN_CELLS);
+        loop {
+            let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / cell).floor().max(0.0) as usize + 1);
+            if dims[0].saturating_mul(dims[1]).saturating_mul(dims[2]) <= budget {
+                return Self {
+                    origin: lo,
+                    inv_cell: 1.0 / cell,
+                    dims,
+                };
+            }
+            cell *= 1.25;
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// The cell coordinates of `p`, clamped to the grid.
+    fn coords(&self, p: &Vector3<f64>) -> [usize; 3] {
+        [0, 1, 2].map(|k| {
+            let c = ((p[k] - self.origin[k]) * self.inv_cell).floor();
+            (c.max(0.0) as usize).min(self.dims[k] - 1)
+        })
+    }
+
+    fn index(&self, c: [usize; 3]) -> usize {
+        c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
+    }
+}
+
+/// The vertex grid and the mesh a block of faces searches.
+struct Table<'a> {
+    x: &'a [Vector3<f64>],
+    faces: &'a [[u32; 3]],
+    topology: &'a MeshTopology,
+    cells: Cells,
+    start: &'a [u32],
+    sorted: &'a [u32],
+    sorted_x: &'a [Vector3<f64>],
+    radius_m: f64,
+}
+
+impl Table<'_> {
+    /// Append to `found` the pairs of face `f` with the vertices of the cells its box,
+    /// inflated by the radius, overlaps: one contiguous run of vertices per row of cells.
+    fn search_face(&self, f: usize, stamp: &mut [u32], found: &mut Vec<Found>) {
+        let (x, r) = (self.x, self.radius_m);
+        let t = self.faces[f];
+        for &c in &t {
+            stamp[c as usize] = f as u32;
+            for &w in self.topology.neighbours(c as usize) {
+                stamp[w as usize] = f as u32;
+            }
+        }
+        let tx = t.map(|i| x[i as usize]);
+        let (lo0, hi0) = (tx[0].inf(&tx[1]).inf(&tx[2]), tx[0].sup(&tx[1]).sup(&tx[2]));
+        // A vertex passing the plane test lies within the radius of a point whose barycentrics
+        // are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its box: this margin keeps
+        // every such vertex inside the test box, and the cells cover the test box.
+        let slack = r + 1e-5 * (hi0 - lo0).max() + 1e-12;
+        let (lo, hi) = (lo0.add_scalar(-slack), hi0.add_scalar(slack));
+        let (clo, chi) = (self.cells.coords(&lo), self.cells.coords(&hi));
+        for k in clo[2]..=chi[2] {
+            for j in clo[1]..=chi[1] {
+                let a = self.start[self.cells.index([clo[0], j, k])] as usize;
+                let b = self.start[self.cells.index([chi[0], j, k]) + 1] as usize;
+                for (&v, p) in self.sorted[a..b].iter().zip(&self.sorted_x[a..b]) {
+                    // One branch for the six comparisons (most candidates fail one of them,
+                    // in no predictable order).
+                    let inside = (p.x >= lo.x)
+                        & (p.x <= hi.x)
+                        & (p.y >= lo.y)
+                        & (p.y <= hi.y)
+                        & (p.z >= lo.z)
+                        & (p.z <= hi.z);
+                    if !inside || stamp[v as usize] == f as u32 {
+                        continue;
+                    }
+                    let Some(d) = vertex_triangle(p, &tx) else {
+                        continue;
+                    };
+                    if d.abs() < r {
+                        found.push(Found {
+                            vertex: v,
+                            side: u8::from(d < 0.0),
+                            face: f as u32,
+                            distance_m: d.abs(),
+                        });
+                    }
+                }
+            }
+        }
+    }
+}
+
 impl SelfCollisionGrid {
     /// Find vertex–triangle pairs closer than `radius_m` and append them to `out` (cleared
     /// first). `vertex_area_m2` and `triangle_area_m2` give the contact area scaling.
@@ -106,7 +206,7 @@ impl SelfCollisionGrid {
         out: &mut Vec<SelfContact>,
     ) {
         out.clear();
-        if faces.is_empty() || radius_m <= 0.0 {
+        if faces.is_empty() || x.is_empty() || radius_m <= 0.0 {
             return;
         }
         // Cell size: the mean edge length, but at least the search diameter.
@@ -115,147 +215,81 @@ impl SelfCollisionGrid {
             .map(|t| (x[t[1] as usize] - x[t[0] as usize]).norm())
             .sum::<f64>()
             / faces.len() as f64;
-        let cell = mean_edge.max(2.0 * radius_m);
-        let inv_cell = 1.0 / cell;
-        // Bin the faces, block by block (on rayon's pool when `par` says so).
-        self.boxes.resize(faces.len(), [Vector3::zeros(); 2]);
-        self.entries
-            .resize_with(faces.len().div_ceil(FACE_BLOCK), Vec::new);
-        let bin = |(block, (boxes, entries)): (usize, BlockOut<'_>)| {
-            entries.clear();
-            for (k, b) in boxes.iter_mut().enumerate() {
-                let f = block * FACE_BLOCK + k;
-                let [a, b0, c] = faces[f].map(|i| x[i as usize]);
-                let (lo0, hi0) = (a.inf(&b0).inf(&c), a.sup(&b0).sup(&c));
-                let lo = lo0.add_scalar(-radius_m);
-                let hi = hi0.add_scalar(radius_m);
-                // A vertex passing the plane test lies within the radius of a point whose
-                // barycentrics are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its
-                // box: this margin keeps every such vertex inside the test box.
-                let slack = radius_m + 1e-5 * (hi0 - lo0).max() + 1e-12;
-                *b = [lo0.add_scalar(-slack), hi0.add_scalar(slack)];
-                let (clo, chi) = (cell_of(&lo, inv_cell), cell_of(&hi, inv_cell));
-                for i in clo[0]..=chi[0] {
-                    for j in clo[1]..=chi[1] {
-                        for k in clo[2]..=chi[2] {
-                            entries.push((tag_of(cell_key([i, j, k])), f as u32));
-                        }
-                    }
-                }
-            }
-        };
-        let blocks = self
-            .boxes
-            .chunks_mut(FACE_BLOCK)
-            .zip(self.entries.iter_mut());
-        match par {
-            Parallelism::Sequential => blocks.enumerate().for_each(bin),
-            Parallelism::Rayon => self
-                .boxes
-                .par_chunks_mut(FACE_BLOCK)
-                .zip(self.entries.par_iter_mut())
-                .enumerate()
-                .for_each(bin),
+        let cells = Cells::new(x, mean_edge.max(2.0 * radius_m));
+        // Counting sort of the vertices into their cells (ascending within one).
+        self.start.clear();
+        self.start.resize(cells.len() + 1, 0);
+        self.cell_of_vertex.clear();
+        for p in x {
+            let c = cells.index(cells.coords(p));
+            self.cell_of_vertex.push(c as u32);
+            self.start[c + 1] += 1;
         }
-        // Counting sort into buckets; within a bucket the faces stay ascending. A cell holds
-        // dozens of entries (a face covers about 15 cells at 8,710 triangles, and a cell meets
-        // about 50 faces): a bucket per eight entries leaves most cells a bucket of their own
-        // in a table that stays in cache while the entries are counted and placed.
-        let n_entries: usize = self.entries.iter().map(Vec::len).sum();
-        let bits = (n_entries / 8).max(64).next_power_of_two().trailing_zeros();
-        let n_buckets = 1usize << bits;
-        self.bucket_start.clear();
-        self.bucket_start.resize(n_buckets + 1, 0);
-        for &(tag, _) in self.entries.iter().flatten() {
-            self.bucket_start[bucket_of(tag, bits) + 1] += 1;
+        for c in 0..cells.len() {
+            self.start[c + 1] += self.start[c];
         }
-        for b in 0..n_buckets {
-            self.bucket_start[b + 1] += self.bucket_start[b];
-        }
-        self.buckets.clear();
-        self.buckets.resize(n_entries, (0, 0));
-        for &(tag, f) in self.entries.iter().flatten() {
-            let slot = &mut self.bucket_start[bucket_of(tag, bits)];
-            self.buckets[*slot as usize] = (tag, f);
+        self.sorted.clear();
+        self.sorted.resize(x.len(), 0);
+        self.sorted_x.clear();
+        self.sorted_x.resize(x.len(), Vector3::zeros());
+        for (v, &c) in self.cell_of_vertex.iter().enumerate() {
+            let slot = &mut self.start[c as usize];
+            self.sorted[*slot as usize] = v as u32;
+            self.sorted_x[*slot as usize] = x[v];
             *slot += 1;
         }
-        // The fill advanced every start to the next bucket's: shift back.
-        for b in (1..=n_buckets).rev() {
-            self.bucket_start[b] = self.bucket_start[b - 1];
+        // The fill advanced every start to the next cell's: shift back.
+        for c in (1..=cells.len()).rev() {
+            self.start[c] = self.start[c - 1];
         }
-        self.bucket_start[0] = 0;
-        self.closest.clear();
-        self.closest.resize(x.len(), [None, None]);
-        let (buckets, bucket_start, boxes) = (&self.buckets, &self.bucket_start, &self.boxes);
-        let search = |stamp: &mut Vec<u32>, v: usize, slot: &mut [Option<(u32, f64)>; 2]| {
-            let p = x[v];
-            let key = tag_of(cell_key(cell_of(&p, inv_cell)));
-            let b = bucket_of(key, bits);
-            stamp[v] = v as u32;
-            for &w in topology.neighbours(v) {
-                stamp[w as usize] = v as u32;
-            }
-            let range = bucket_start[b] as usize..bucket_start[b + 1] as usize;
-            for &(k, f) in &buckets[range] {
-                if k != key {
-                    continue;
-                }
-                // One branch for the six comparisons (most candidates fail one of them, in no
-                // predictable order).
-                let [lo, hi] = &boxes[f as usize];
-                let inside = (p.x >= lo.x)
-                    & (p.x <= hi.x)
-                    & (p.y >= lo.y)
-                    & (p.y <= hi.y)
-                    & (p.z >= lo.z)
-                    & (p.z <= hi.z);
-                if !inside {
-                    continue;
-                }
-                let t = faces[f as usize];
-                if t.iter().any(|&w| stamp[w as usize] == v as u32) {
-                    continue;
-                }
-                let tx = t.map(|i| x[i as usize]);
-                let Some(d) = vertex_triangle(&p, &tx) else {
-                    continue;
-                };
-                if d.abs() >= radius_m {
-                    continue;
-                }
-                let side = usize::from(d < 0.0);
-                if slot[side].is_none_or(|(_, best)| d.abs() < best) {
-                    slot[side] = Some((f, d.abs()));
-                }
-            }
+        self.start[0] = 0;
+        // The faces, block by block (on rayon's pool when `par` says so).
+        let table = Table {
+            x,
+            faces,
+            topology,
+            cells,
+            start: &self.start,
+            sorted: &self.sorted,
+            sorted_x: &self.sorted_x,
+            radius_m,
         };
-        let parts = match par {
-            Parallelism::Sequential => 1,
-            Parallelism::Rayon => SEARCH_PARTS * rayon::current_num_threads(),
-        };
-        self.stamps.resize_with(parts, Vec::new);
+        self.found
+            .resize_with(faces.len().div_ceil(FACE_BLOCK), Vec::new);
+        self.stamps
+            .resize_with(faces.len().div_ceil(FACE_BLOCK), Vec::new);
         for stamp in &mut self.stamps {
             stamp.resize(x.len(), u32::MAX);
         }
-        let size = x.len().div_ceil(parts).max(1);
-        let part = |(p, (slots, stamp)): (usize, PartOut<'_>)| {
-            for (k, slot) in slots.iter_mut().enumerate() {
-                search(stamp, p * size + k, slot);
+        let block = |(b, (found, stamp)): (usize, (&mut Vec<Found>, &mut Vec<u32>))| {
+            found.clear();
+            for f in b * FACE_BLOCK..((b + 1) * FACE_BLOCK).min(faces.len()) {
+                table.search_face(f, stamp, found);
             }
         };
         match par {
             Parallelism::Sequential => self
-                .closest
-                .chunks_mut(size)
+                .found
+                .iter_mut()
                 .zip(self.stamps.iter_mut())
                 .enumerate()
-                .for_each(part),
+                .for_each(block),
             Parallelism::Rayon => self
-                .closest
-                .par_chunks_mut(size)
+                .found
+                .par_iter_mut()
                 .zip(self.stamps.par_iter_mut())
                 .enumerate()
-                .for_each(part),
+                .for_each(block),
+        }
+        // Per vertex and side the closest face; faces arrive in ascending order, so the first
+        // of equally close ones stays.
+        self.closest.clear();
+        self.closest.resize(x.len(), [None, None]);
+        for found in self.found.iter().flatten() {
+            let slot = &mut self.closest[found.vertex as usize][usize::from(found.side)];
+            if slot.is_none_or(|(_, best)| found.distance_m < best) {
+                *slot = Some((found.face, found.distance_m));
+            }
         }
         for (v, slots) in self.closest.iter().enumerate() {
             for (side, slot) in slots.iter().enumerate() {
