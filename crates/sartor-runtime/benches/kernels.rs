@@ -3,6 +3,8 @@
 //! precision, on one thread and on rayon's pool; batch 1 and batch 8 (8 avatars sharing one
 //! pass over the weights — divide by 8 for the time per avatar).
 //!
+//! `pca_basis` times the thin PCA decode at the ranks `sartor tradeoff` sweeps.
+//!
 //! `cargo bench -p sartor-runtime --bench kernels -- --warm-up-time 1 --measurement-time 3`
 
 use std::hint::black_box;
@@ -124,5 +126,36 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench);
+/// The PCA decode `mean + basis · c` of the two T-shirts (3V = 6,504 and 13,272 rows) at the
+/// ranks `sartor tradeoff` sweeps, one thread: a thin matrix, stored in panels.
+fn pca_basis(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let mut group = c.benchmark_group("pca_basis");
+    for rows in [3 * 2168, OUTPUTS] {
+        let mean = random(&mut rng, rows, 0.1);
+        for rank in [4usize, 8, 16, 32, 64] {
+            let basis = random(&mut rng, rows * rank, 0.05);
+            let coefficients = random(&mut rng, rank, 1.0);
+            let mut y = vec![0.0f32; rows];
+            for precision in [Precision::F32, Precision::Int8] {
+                let m = Matrix::from_f32(rows, rank, basis.clone(), precision).expect("finite");
+                let name = format!("{rows}x{rank}/{}", precision.name());
+                group.bench_function(name, |b| {
+                    b.iter(|| {
+                        m.matvec(
+                            black_box(&coefficients),
+                            Some(&mean),
+                            &mut y,
+                            Parallelism::Sequential,
+                        )
+                        .expect("sizes")
+                    })
+                });
+            }
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, pca_basis);
 criterion_main!(benches);

@@ -24,6 +24,7 @@
 
 use std::sync::OnceLock;
 
+use super::panels::panels;
 use super::rows::{F16Bits, F16Codec, F32Codec, I8Codec, Portable, rows};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -560,6 +561,76 @@ dispatched_rows!(
     Portable<I8Codec>,
     Avx2I8,
     Avx512I8
+);
+
+macro_rules! dispatched_panels {
+    ($(#[$doc:meta])* $name:ident, $t:ty) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        pub(crate) fn $name(
+            isa: Isa,
+            w: &[$t],
+            cols: usize,
+            xs: &[f32],
+            batch: usize,
+            scales: Option<&[f32]>,
+            bias: Option<&[f32]>,
+            ys_t: &mut [f32],
+        ) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                // The panel kernel is plain Rust over arrays of PANEL f32; compiled inside
+                // these wrappers it uses their vector width (the same bits: no FMA).
+                macro_rules! wrapper {
+                    ($wrap:ident, $feat:literal) => {
+                        #[target_feature(enable = $feat)]
+                        fn $wrap(
+                            w: &[$t],
+                            cols: usize,
+                            xs: &[f32],
+                            batch: usize,
+                            scales: Option<&[f32]>,
+                            bias: Option<&[f32]>,
+                            ys_t: &mut [f32],
+                        ) {
+                            panels::<$t>(w, cols, xs, batch, scales, bias, ys_t)
+                        }
+                    };
+                }
+                wrapper!(avx2, "avx2,fma,f16c");
+                wrapper!(avx512, "avx512f,avx2,fma,f16c");
+                match isa.0 {
+                    // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
+                    // fma and f16c on this CPU.
+                    Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
+                    // SAFETY: `Isa(Level::Avx512)` is only built after `has_avx512()` found
+                    // avx512f as well.
+                    Level::Avx512 => {
+                        return unsafe { avx512(w, cols, xs, batch, scales, bias, ys_t) };
+                    }
+                    Level::Portable => {}
+                }
+            }
+            let _ = isa;
+            panels::<$t>(w, cols, xs, batch, scales, bias, ys_t)
+        }
+    };
+}
+
+dispatched_panels!(
+    /// f32 panels (see `panels.rs`).
+    panels_f32,
+    f32
+);
+dispatched_panels!(
+    /// f16 panels (bits), converted exactly to f32.
+    panels_f16,
+    F16Bits
+);
+dispatched_panels!(
+    /// int8 panels with a per-row scale.
+    panels_i8,
+    i8
 );
 
 #[cfg(test)]

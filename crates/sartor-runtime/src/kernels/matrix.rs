@@ -27,7 +27,8 @@
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
-use super::dispatch::{Isa, rows_f16, rows_f32, rows_i8};
+use super::dispatch::{Isa, panels_f16, panels_f32, panels_i8, rows_f16, rows_f32, rows_i8};
+use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
 use super::rows::F16Bits;
 use crate::error::{Error, Result, check_len};
 
@@ -64,8 +65,14 @@ pub use sartor_core::Parallelism;
 /// Below this many multiply–adds a product is not worth splitting across threads.
 pub const MIN_PARALLEL_MACS: usize = 1 << 16;
 
-/// Rows per task under `par`, or `None` to run on the calling thread.
-fn rows_per_task(par: Parallelism, rows: usize, cols: usize, batch: usize) -> Option<usize> {
+/// Rows per task under `par` (a multiple of `align`), or `None` to run on the calling thread.
+fn rows_per_task(
+    par: Parallelism,
+    rows: usize,
+    cols: usize,
+    batch: usize,
+    align: usize,
+) -> Option<usize> {
     match par {
         Parallelism::Sequential => None,
         Parallelism::Rayon => {
@@ -74,7 +81,7 @@ fn rows_per_task(par: Parallelism, rows: usize, cols: usize, batch: usize) -> Op
                 return None;
             }
             let tasks = 4 * threads;
-            Some(rows.div_ceil(tasks).max(8))
+            Some(rows.div_ceil(tasks).max(8).next_multiple_of(align))
         }
     }
 }
@@ -86,12 +93,35 @@ enum Storage {
     Int8 { q: Vec<i8>, scales: Vec<f32> },
 }
 
-/// A `rows × cols` weight matrix, row-major, in the storage of its [`Precision`]. Built only
-/// from finite f32 values; immutable after construction.
+/// How `Storage` orders the weights.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Layout {
+    /// Row by row (`rows.rs`).
+    RowMajor,
+    /// Panels of `PANEL` rows, each column by column (`panels.rs`): thin matrices.
+    Panels,
+}
+
+impl Layout {
+    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows.
+    fn for_shape(rows: usize, cols: usize) -> Self {
+        if (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
+            Self::Panels
+        } else {
+            Self::RowMajor
+        }
+    }
+}
+
+/// A `rows × cols` weight matrix in the storage of its [`Precision`]: row-major, or for a thin
+/// matrix (at most 16 columns, such as a PCA basis at a low rank) in panels of 8 rows stored
+/// column by column (`panels.rs`; the same results bit for bit, faster). Built only from finite f32 values;
+/// immutable after construction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Matrix {
     rows: usize,
     cols: usize,
+    layout: Layout,
     storage: Storage,
 }
 
@@ -103,6 +133,16 @@ impl Matrix {
         cols: usize,
         data: Vec<f32>,
         precision: Precision,
+    ) -> Result<Self> {
+        Self::with_layout(rows, cols, data, precision, Layout::for_shape(rows, cols))
+    }
+
+    fn with_layout(
+        rows: usize,
+        cols: usize,
+        data: Vec<f32>,
+        precision: Precision,
+        layout: Layout,
     ) -> Result<Self> {
         let n = rows
             .checked_mul(cols)
@@ -142,9 +182,19 @@ impl Matrix {
                 Storage::Int8 { q, scales }
             }
         };
+        let storage = match (layout, storage) {
+            (Layout::RowMajor, s) => s,
+            (Layout::Panels, Storage::F32(w)) => Storage::F32(to_panels(&w, rows, cols)),
+            (Layout::Panels, Storage::F16(w)) => Storage::F16(to_panels(&w, rows, cols)),
+            (Layout::Panels, Storage::Int8 { q, scales }) => Storage::Int8 {
+                q: to_panels(&q, rows, cols),
+                scales,
+            },
+        };
         Ok(Self {
             rows,
             cols,
+            layout,
             storage,
         })
     }
@@ -168,7 +218,8 @@ impl Matrix {
         }
     }
 
-    /// Bytes held by the weights (and int8 scales).
+    /// Bytes held by the weights (and int8 scales; a thin matrix's last panel is padded to 8
+    /// rows).
     pub fn weight_bytes(&self) -> usize {
         match &self.storage {
             Storage::F32(w) => 4 * w.len(),
@@ -180,12 +231,14 @@ impl Matrix {
     /// The stored weights as f32 (dequantised: `scale · q` for int8), row-major.
     pub fn to_f32(&self) -> Vec<f32> {
         match &self.storage {
-            Storage::F32(w) => w.clone(),
-            Storage::F16(w) => w
+            Storage::F32(w) => self.row_major(w),
+            Storage::F16(w) => self
+                .row_major(w)
                 .iter()
                 .map(|h| half::f16::from_bits(h.0).to_f32())
                 .collect(),
             Storage::Int8 { q, scales } => {
+                let q = self.row_major(q);
                 if self.cols == 0 {
                     return Vec::new();
                 }
@@ -194,6 +247,14 @@ impl Matrix {
                     .flat_map(|(row, &s)| row.iter().map(move |&v| s * f32::from(v)))
                     .collect()
             }
+        }
+    }
+
+    /// The stored elements in row-major order.
+    fn row_major<T: Copy + Default>(&self, w: &[T]) -> Vec<T> {
+        match self.layout {
+            Layout::RowMajor => w.to_vec(),
+            Layout::Panels => from_panels(w, self.rows, self.cols),
         }
     }
 
@@ -263,29 +324,33 @@ impl Matrix {
         par: Parallelism,
     ) {
         let cols = self.cols;
+        let panels = self.layout == Layout::Panels;
         let task = |r0: usize, ys: &mut [f32]| {
             let r1 = r0 + ys.len() / batch;
             let b = bias.map(|b| &b[r0..r1]);
-            match &self.storage {
-                Storage::F32(w) => {
-                    rows_f32(isa, &w[r0 * cols..r1 * cols], cols, xs, batch, None, b, ys)
+            // Panels: whole panels from `r0` (a multiple of PANEL) to past `r1`.
+            let span = if panels {
+                r0 * cols..r1.next_multiple_of(PANEL) * cols
+            } else {
+                r0 * cols..r1 * cols
+            };
+            match (&self.storage, panels) {
+                (Storage::F32(w), false) => rows_f32(isa, &w[span], cols, xs, batch, None, b, ys),
+                (Storage::F32(w), true) => panels_f32(isa, &w[span], cols, xs, batch, None, b, ys),
+                (Storage::F16(w), false) => rows_f16(isa, &w[span], cols, xs, batch, None, b, ys),
+                (Storage::F16(w), true) => panels_f16(isa, &w[span], cols, xs, batch, None, b, ys),
+                (Storage::Int8 { q, scales }, false) => {
+                    let s = Some(&scales[r0..r1]);
+                    rows_i8(isa, &q[span], cols, xs, batch, s, b, ys)
                 }
-                Storage::F16(w) => {
-                    rows_f16(isa, &w[r0 * cols..r1 * cols], cols, xs, batch, None, b, ys)
+                (Storage::Int8 { q, scales }, true) => {
+                    let s = Some(&scales[r0..r1]);
+                    panels_i8(isa, &q[span], cols, xs, batch, s, b, ys)
                 }
-                Storage::Int8 { q, scales } => rows_i8(
-                    isa,
-                    &q[r0 * cols..r1 * cols],
-                    cols,
-                    xs,
-                    batch,
-                    Some(&scales[r0..r1]),
-                    b,
-                    ys,
-                ),
             }
         };
-        match rows_per_task(par, self.rows, cols, batch) {
+        let align = if panels { PANEL } else { 1 };
+        match rows_per_task(par, self.rows, cols, batch, align) {
             None => task(0, ys_t),
             Some(block) => ys_t
                 .par_chunks_mut(block * batch)
@@ -625,5 +690,79 @@ mod tests {
         )
         .expect("sizes");
         assert_eq!(y, [1.5, 2.5]);
+    }
+
+    #[test]
+    fn thin_matrices_in_panels_equal_the_row_kernels_bitwise() {
+        use crate::kernels::dispatch::Isa;
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let sizes = [
+            (8, 1),
+            (9, 3),
+            (17, 4),
+            (40, 8),
+            (23, 16),
+            (31, 31),
+            (64, 32),
+            (19, 33),
+            (33, 47),
+            (16, 64),
+            (12_630, 64),
+        ];
+        for (rows, cols) in sizes {
+            let mut w = random(&mut rng, rows * cols, 1.0);
+            // Zeros of both signs, and products that underflow to −0.0: the lane rule's sums
+            // are +0.0 there, which the panels must reproduce.
+            for (k, v) in w.iter_mut().enumerate() {
+                match k % 11 {
+                    0 => *v = -0.0,
+                    1 => *v = 0.0,
+                    2 => *v *= 1.0e-30,
+                    _ => {}
+                }
+            }
+            // One row of nothing but −0.0 (int8: the zero row).
+            w[cols..2 * cols].fill(-0.0);
+            for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+                // Panels for every width (the kernel takes any), not only those `from_f32`
+                // stores so.
+                let thin = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::Panels)
+                    .expect("finite");
+                let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
+                    .expect("finite");
+                let chosen = Matrix::from_f32(rows, cols, w.clone(), precision).expect("finite");
+                let want = if cols <= THIN_COLS { &thin } else { &plain };
+                assert_eq!(&chosen, want, "{rows} × {cols}: the layout by width");
+                assert_eq!(thin.to_f32(), plain.to_f32());
+                for batch in [1, 2, 5] {
+                    let mut xs = random(&mut rng, batch * cols, 2.0);
+                    xs[0] = -0.0;
+                    for x in xs.iter_mut().skip(3).step_by(7) {
+                        *x *= 1.0e-20;
+                    }
+                    let bias = random(&mut rng, rows, 0.5);
+                    for &isa in &Isa::available() {
+                        for (b, par) in [
+                            (None, Parallelism::Sequential),
+                            (Some(&bias[..]), Parallelism::Rayon),
+                        ] {
+                            let run = |m: &Matrix| {
+                                let mut y = vec![f32::NAN; rows * batch];
+                                m.run_rows(isa, &xs, batch, b, &mut y, par);
+                                y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                            };
+                            assert_eq!(
+                                run(&thin),
+                                run(&plain),
+                                "{rows} × {cols} {} batch {batch} {} bias {}",
+                                precision.name(),
+                                isa.name(),
+                                b.is_some()
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 }

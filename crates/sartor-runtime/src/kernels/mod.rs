@@ -10,6 +10,7 @@ mod dispatch;
 mod gru;
 mod matrix;
 mod mlp;
+mod panels;
 mod rows;
 
 pub use gru::{GruCell, GruScratch};
