@@ -636,6 +636,21 @@ impl FrameStepper {
         prev: &[Vector3<f64>],
         next: &[Vector3<f64>],
     ) -> std::result::Result<(usize, FrameChecks), (FrameError, usize)> {
+        match self.sim.config().parallelism {
+            Parallelism::Sequential => self.advance_here(prev, next),
+            // One set of awake workers for all the frame's substeps (see `awake.rs`).
+            Parallelism::Rayon => {
+                crate::awake::with_workers_awake(|| self.advance_here(prev, next))
+            }
+        }
+    }
+
+    /// [`Self::advance`] on the calling thread.
+    fn advance_here(
+        &mut self,
+        prev: &[Vector3<f64>],
+        next: &[Vector3<f64>],
+    ) -> std::result::Result<(usize, FrameChecks), (FrameError, usize)> {
         self.saved_x.copy_from_slice(self.sim.positions());
         self.saved_v.copy_from_slice(self.sim.velocities());
         let mut substeps = self.base_substeps;

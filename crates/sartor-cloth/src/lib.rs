@@ -46,6 +46,7 @@
 
 #![warn(missing_docs)]
 
+mod awake;
 mod benchmark;
 mod cloth;
 mod collider;

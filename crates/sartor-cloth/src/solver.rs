@@ -1029,6 +1029,17 @@ impl Simulator {
     /// Advance by one substep of `dt_secs`. `colliders` must already be at their pose for the
     /// end of the substep. On failure the state is unchanged.
     pub fn step(&mut self, dt_secs: f64, colliders: &[&dyn Collider]) -> Result<StepStats> {
+        match self.config.parallelism {
+            Parallelism::Sequential => self.step_here(dt_secs, colliders),
+            // The parallel loops find rayon's other workers awake (see `awake.rs`).
+            Parallelism::Rayon => {
+                crate::awake::with_workers_awake(|| self.step_here(dt_secs, colliders))
+            }
+        }
+    }
+
+    /// [`Simulator::step`] on the calling thread.
+    fn step_here(&mut self, dt_secs: f64, colliders: &[&dyn Collider]) -> Result<StepStats> {
         if !(dt_secs.is_finite() && dt_secs > 0.0) {
             return Err(Error::invalid(
                 "time step",
