@@ -276,7 +276,7 @@ macro_rules! isa_kernels {
 
 /// AVX2 + F16C kernels with explicit intrinsics: 4 registers of 8 lanes per lane sum. Every
 /// function has `#[target_feature(enable = "avx2,fma,f16c")]`; they are only reached through
-/// the engines below, inside the `avx2` wrappers of `dispatched_rows!`.
+/// the engines below, inside the `avx2` wrappers of `dispatched!`.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::{
@@ -342,7 +342,7 @@ mod avx2 {
 
 /// AVX-512 kernels: 2 registers of 16 lanes per lane sum, the same lane rule. Every function
 /// has `#[target_feature(enable = "avx512f,avx2,fma,f16c")]`; reached only through the engines
-/// below, inside the `avx512` wrappers of `dispatched_rows!`.
+/// below, inside the `avx512` wrappers of `dispatched!`.
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use std::arch::x86_64::{
@@ -412,7 +412,7 @@ mod avx512 {
     );
 }
 
-/// The SIMD engines: private, and only instantiated inside the wrappers of `dispatched_rows!`
+/// The SIMD engines: private, and only instantiated inside the wrappers of `dispatched!`
 /// with their module's target features.
 #[cfg(target_arch = "x86_64")]
 mod engines {
@@ -487,84 +487,11 @@ mod engines {
     );
 }
 
-macro_rules! dispatched_rows {
-    ($(#[$doc:meta])* $name:ident, $t:ty, $portable:ty, $simd:ident, $simd512:ident) => {
-        $(#[$doc])*
-        pub(crate) fn $name(
-            isa: Isa,
-            w: &[$t],
-            cols: usize,
-            xs: &[f32],
-            batch: usize,
-            scales: Option<&[f32]>,
-            bias: Option<&[f32]>,
-            ys_t: &mut [f32],
-        ) {
-            #[cfg(target_arch = "x86_64")]
-            {
-                macro_rules! wrapper {
-                    ($wrap:ident, $feat:literal, $engine:ident) => {
-                        #[target_feature(enable = $feat)]
-                        fn $wrap(
-                            w: &[$t],
-                            cols: usize,
-                            xs: &[f32],
-                            batch: usize,
-                            scales: Option<&[f32]>,
-                            bias: Option<&[f32]>,
-                            ys_t: &mut [f32],
-                        ) {
-                            rows::<engines::$engine>(w, cols, xs, batch, scales, bias, ys_t)
-                        }
-                    };
-                }
-                wrapper!(avx2, "avx2,fma,f16c", $simd);
-                wrapper!(avx512, "avx512f,avx2,fma,f16c", $simd512);
-                match isa.0 {
-                    // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
-                    // fma and f16c on this CPU.
-                    Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
-                    // SAFETY: `Isa(Level::Avx512)` is only built after `has_avx512()` found
-                    // avx512f as well.
-                    Level::Avx512 => {
-                        return unsafe { avx512(w, cols, xs, batch, scales, bias, ys_t) };
-                    }
-                    Level::Portable => {}
-                }
-            }
-            let _ = isa;
-            rows::<$portable>(w, cols, xs, batch, scales, bias, ys_t)
-        }
-    };
-}
-
-dispatched_rows!(
-    /// f32 rows.
-    rows_f32,
-    f32,
-    Portable<F32Codec>,
-    Avx2F32,
-    Avx512F32
-);
-dispatched_rows!(
-    /// f16 rows (bits), converted exactly to f32 on the fly (F16C on x86-64 when present).
-    rows_f16,
-    F16Bits,
-    Portable<F16Codec>,
-    Avx2F16,
-    Avx512F16
-);
-dispatched_rows!(
-    /// int8 rows with a per-row scale.
-    rows_i8,
-    i8,
-    Portable<I8Codec>,
-    Avx2I8,
-    Avx512I8
-);
-
-macro_rules! dispatched_panels {
-    ($(#[$doc:meta])* $name:ident, $t:ty) => {
+/// A kernel `$name(isa, w, cols, xs, batch, scales, bias, ys_t)` that calls `$portable` or,
+/// inside wrappers with the instruction set's target features, `$avx2` / `$avx512` (each a
+/// generic kernel instantiated for that instruction set).
+macro_rules! dispatched {
+    ($(#[$doc:meta])* $name:ident, $t:ty, $portable:path, $avx2:path, $avx512:path) => {
         $(#[$doc])*
         #[allow(clippy::too_many_arguments)]
         pub(crate) fn $name(
@@ -579,10 +506,8 @@ macro_rules! dispatched_panels {
         ) {
             #[cfg(target_arch = "x86_64")]
             {
-                // The panel kernel is plain Rust over arrays of PANEL f32; compiled inside
-                // these wrappers it uses their vector width (the same bits: no FMA).
                 macro_rules! wrapper {
-                    ($wrap:ident, $feat:literal) => {
+                    ($wrap:ident, $feat:literal, $kernel:path) => {
                         #[target_feature(enable = $feat)]
                         fn $wrap(
                             w: &[$t],
@@ -593,12 +518,12 @@ macro_rules! dispatched_panels {
                             bias: Option<&[f32]>,
                             ys_t: &mut [f32],
                         ) {
-                            panels::<$t>(w, cols, xs, batch, scales, bias, ys_t)
+                            $kernel(w, cols, xs, batch, scales, bias, ys_t)
                         }
                     };
                 }
-                wrapper!(avx2, "avx2,fma,f16c");
-                wrapper!(avx512, "avx512f,avx2,fma,f16c");
+                wrapper!(avx2, "avx2,fma,f16c", $avx2);
+                wrapper!(avx512, "avx512f,avx2,fma,f16c", $avx512);
                 match isa.0 {
                     // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
                     // fma and f16c on this CPU.
@@ -612,25 +537,60 @@ macro_rules! dispatched_panels {
                 }
             }
             let _ = isa;
-            panels::<$t>(w, cols, xs, batch, scales, bias, ys_t)
+            $portable(w, cols, xs, batch, scales, bias, ys_t)
         }
     };
 }
 
-dispatched_panels!(
+dispatched!(
+    /// f32 rows.
+    rows_f32,
+    f32,
+    rows::<Portable<F32Codec>>,
+    rows::<engines::Avx2F32>,
+    rows::<engines::Avx512F32>
+);
+dispatched!(
+    /// f16 rows (bits), converted exactly to f32 on the fly (F16C on x86-64 when present).
+    rows_f16,
+    F16Bits,
+    rows::<Portable<F16Codec>>,
+    rows::<engines::Avx2F16>,
+    rows::<engines::Avx512F16>
+);
+dispatched!(
+    /// int8 rows with a per-row scale.
+    rows_i8,
+    i8,
+    rows::<Portable<I8Codec>>,
+    rows::<engines::Avx2I8>,
+    rows::<engines::Avx512I8>
+);
+// The panel kernel (`panels.rs`) is plain Rust over arrays of PANEL f32; compiled inside the
+// wrappers it uses their vector width (the same bits: no FMA).
+dispatched!(
     /// f32 panels (see `panels.rs`).
     panels_f32,
-    f32
+    f32,
+    panels::<f32>,
+    panels::<f32>,
+    panels::<f32>
 );
-dispatched_panels!(
+dispatched!(
     /// f16 panels (bits), converted exactly to f32.
     panels_f16,
-    F16Bits
+    F16Bits,
+    panels::<F16Bits>,
+    panels::<F16Bits>,
+    panels::<F16Bits>
 );
-dispatched_panels!(
+dispatched!(
     /// int8 panels with a per-row scale.
     panels_i8,
-    i8
+    i8,
+    panels::<i8>,
+    panels::<i8>,
+    panels::<i8>
 );
 
 #[cfg(test)]
