@@ -2,7 +2,8 @@
 //! sartor, used for cloth binding, body contact, the runtime's collision post-process and garment
 //! checks.
 //!
-//! A bounding-volume hierarchy over the triangles (f64) answers "closest point to p", with the
+//! A bounding-volume hierarchy over the triangles (f64, searched in an eight-wide f32 form whose
+//! boxes only prune: [`wide`]) answers "closest point to p", with the
 //! triangle, barycentric coordinates and a signed distance whose sign comes from angle-weighted
 //! pseudo-normals (Bærentzen & Aanæs 2005): negative inside a closed, outward-oriented surface.
 //! The tree can be refitted to moved vertices without rebuilding (for an animated body)
@@ -15,6 +16,10 @@ use nalgebra::Vector3;
 
 use crate::tree::MedianTree;
 use crate::{Error, Result};
+
+mod wide;
+
+use wide::WideTree;
 
 const LEAF_SIZE: usize = 4;
 
@@ -70,6 +75,9 @@ pub struct MeshProximity {
     /// The hierarchy over the faces, and each node's box (indexed like its nodes).
     tree: MedianTree,
     bounds: Vec<Aabb>,
+    /// The same hierarchy eight children to a node, in f32 relative to its root box, for
+    /// [`Self::closest_within`] (refitted with `bounds`).
+    wide: WideTree,
     face_normals: Vec<Vector3<f64>>,
     /// Per face, pseudo-normal of edges (v0 v1), (v1 v2), (v2 v0).
     edge_normals: Vec<[Vector3<f64>; 3]>,
@@ -143,6 +151,7 @@ impl MeshProximity {
             positions: positions.to_vec(),
             tree: MedianTree::new(&[], LEAF_SIZE),
             bounds: Vec::new(),
+            wide: WideTree::default(),
             face_normals: Vec::new(),
             edge_normals: Vec::new(),
             vertex_normals: Vec::new(),
@@ -158,6 +167,7 @@ impl MeshProximity {
             .collect();
         s.tree = MedianTree::new(&centroids, LEAF_SIZE);
         s.bounds = vec![Aabb::empty(); s.tree.nodes().len()];
+        s.wide = WideTree::new(&s.tree);
         s.refit_tree();
         s.update_normals();
         Ok(s)
@@ -319,6 +329,7 @@ impl MeshProximity {
                 self.bounds[node.left as usize].merge(&self.bounds[node.right as usize])
             };
         }
+        self.wide.refit(&self.bounds);
     }
 
     /// The vertex positions currently used.
@@ -348,42 +359,10 @@ impl MeshProximity {
             let (face, point, barycentric, feature) = best?;
             return Some(self.answer(p, face, point, barycentric, feature));
         }
-        // Nodes to visit with their box distance (computed once, when pushed).
-        let mut stack = [(0u32, 0.0f64); 64];
-        stack[0].1 = self.bounds[0].distance_sq(p);
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let (id, box_d2) = stack[top];
-            if box_d2 > best_d2 {
-                continue;
-            }
-            let node = &self.tree.nodes()[id as usize];
-            if node.is_leaf() {
-                for &f in self.tree.leaf_items(node) {
-                    self.consider(p, f, &mut best_d2, &mut best);
-                }
-            } else {
-                // Visit the nearer child first (pushed last); children out of reach are not
-                // pushed at all.
-                let (l, r) = (node.left, node.right);
-                let (dl, dr) = (
-                    self.bounds[l as usize].distance_sq(p),
-                    self.bounds[r as usize].distance_sq(p),
-                );
-                let (near, far) = if dl <= dr {
-                    ((l, dl), (r, dr))
-                } else {
-                    ((r, dr), (l, dl))
-                };
-                for child in [far, near] {
-                    if child.1 <= best_d2 {
-                        stack[top] = child;
-                        top += 1;
-                    }
-                }
-            }
-        }
+        self.wide
+            .search(p, self.tree.order(), &mut best_d2, |f, best_d2| {
+                self.consider(p, f, best_d2, &mut best)
+            });
         let (face, point, barycentric, feature) = best?;
         Some(self.answer(p, face, point, barycentric, feature))
     }
@@ -664,14 +643,19 @@ fn edge_normal(face: &Vector3<f64>, other: Option<&Vector3<f64>>) -> Vector3<f64
     sum.try_normalize(0.0).unwrap_or(*face)
 }
 
-/// Squared distance from `p` to the axis-aligned box of the triangle.
+/// Squared distance from `p` to the axis-aligned box of the triangle. Comparisons instead of
+/// `f64::min` / `max`, whose NaN rule costs a blend per call: the same value for finite input,
+/// and a NaN point still gives a box distance of 0 (its triangle distance is NaN, which never
+/// wins).
 #[inline]
 fn triangle_box_distance_sq(p: &Vector3<f64>, [a, b, c]: &[Vector3<f64>; 3]) -> f64 {
+    let min = |x: f64, y: f64| if x < y { x } else { y };
+    let max = |x: f64, y: f64| if x > y { x } else { y };
     let mut d2 = 0.0;
     for k in 0..3 {
-        let lo = a[k].min(b[k]).min(c[k]);
-        let hi = a[k].max(b[k]).max(c[k]);
-        let d = (lo - p[k]).max(p[k] - hi).max(0.0);
+        let lo = min(min(a[k], b[k]), c[k]);
+        let hi = max(max(a[k], b[k]), c[k]);
+        let d = max(max(lo - p[k], p[k] - hi), 0.0);
         d2 += d * d;
     }
     d2

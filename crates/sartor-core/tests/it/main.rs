@@ -3,3 +3,4 @@
 mod body_distance;
 mod common;
 mod model;
+mod proximity;

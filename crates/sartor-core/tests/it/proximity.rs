@@ -1,0 +1,98 @@
+//! `MeshProximity`'s tree query on the built-in MakeHuman body against the same arithmetic over
+//! every triangle (`closest_among` all faces, no tree): the same answer bit for bit — near the
+//! surface, far from it, inside, with a bound, from a hint, after the body moves (a refit), and
+//! with the body a kilometre from the origin (where the tree's f32 boxes round most).
+
+use nalgebra::{UnitQuaternion, Vector3};
+use sartor_core::{BodyModel, MeshProximity, Pose, vertex_normals};
+
+/// Points around `positions`: each 13th vertex offset along its normal from 5 cm in to 5 cm
+/// out, and points up to a metre beyond the body's box.
+fn points(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
+    let normals = vertex_normals(positions, faces);
+    let mut rng = 0x2545f4914f6cdd1du64;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (lo, hi) = positions.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+    );
+    let mut out = Vec::new();
+    for (p, n) in positions.iter().zip(&normals).step_by(13) {
+        out.push(p + n * (0.1 * next() - 0.05));
+    }
+    for _ in 0..300 {
+        let t = Vector3::new(next(), next(), next());
+        out.push(lo - Vector3::repeat(1.0) + (hi - lo + Vector3::repeat(2.0)).component_mul(&t));
+    }
+    out
+}
+
+/// Every query of the tree against every triangle, for `positions` (set by a refit).
+fn agree(tree: &MeshProximity, positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> usize {
+    let all: Vec<u32> = (0..faces.len() as u32).collect();
+    let mut checked = 0;
+    for (i, q) in points(positions, faces).iter().enumerate() {
+        let exact = tree.closest_among(q, &all).expect("faces");
+        assert_eq!(tree.closest(q), exact, "point {i} at {q}");
+        // A bound just above and just below the distance.
+        let d = exact.signed_distance_m.abs();
+        assert_eq!(tree.closest_within(q, d * 1.001), Some(exact), "point {i}");
+        assert_eq!(tree.closest_within(q, d * 0.999), None, "point {i}");
+        // From a hint: a face far away, a neighbour of the answer, the answer itself.
+        for h in [
+            (i * 7919) as u32 % faces.len() as u32,
+            exact.face ^ 1,
+            exact.face,
+        ] {
+            let mut hint = h;
+            assert_eq!(
+                tree.closest_within_hinted(q, f64::INFINITY, &mut hint),
+                Some(exact),
+                "point {i} from face {h}"
+            );
+            assert_eq!(hint, exact.face);
+        }
+        checked += 1;
+    }
+    checked
+}
+
+#[test]
+fn the_tree_query_answers_as_every_triangle_on_the_body_posed_moved_and_far_away() {
+    let b = BodyModel::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
+    )
+    .expect("the built-in body");
+    let betas = vec![0.0; b.n_betas()];
+    let rest = b
+        .posed_vertices(&betas, &Pose::rest(b.skeleton().n_joints()))
+        .expect("rest pose");
+    let mut tree = MeshProximity::new(&rest, b.faces()).expect("body");
+    let mut checked = agree(&tree, &rest, b.faces());
+    // The arm swung into the torso (parts pressed together), and the knee bent.
+    let mut pose = Pose::rest(b.skeleton().n_joints());
+    pose.local_rotations[b.skeleton().index_of("LeftArm").expect("joint")] =
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -1.2);
+    pose.local_rotations[b.skeleton().index_of("RightLeg").expect("joint")] =
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 1.4);
+    let posed = b.posed_vertices(&betas, &pose).expect("posed");
+    tree.update_positions_refit(&posed).expect("same size");
+    checked += agree(&tree, &posed, b.faces());
+    // A kilometre away: coordinates where f32 keeps only about 0.1 mm.
+    let far: Vec<Vector3<f64>> = posed
+        .iter()
+        .map(|p| p + Vector3::new(1000.0, -250.0, 730.0))
+        .collect();
+    tree.update_positions(&far).expect("same size");
+    checked += agree(&tree, &far, b.faces());
+    println!("{checked} points, each asked five ways");
+    assert!(checked > 3000, "{checked}");
+}
