@@ -75,6 +75,8 @@ pub struct MeshProximity {
     /// The hierarchy over the faces, and each node's box (indexed like its nodes).
     tree: MedianTree,
     bounds: Vec<Aabb>,
+    /// Each face's box, in the tree's order.
+    face_bounds: Vec<Aabb>,
     /// The same hierarchy eight children to a node, in f32 relative to its root box, for
     /// [`Self::closest_within`] (refitted with `bounds`).
     wide: WideTree,
@@ -151,6 +153,7 @@ impl MeshProximity {
             positions: positions.to_vec(),
             tree: MedianTree::new(&[], LEAF_SIZE),
             bounds: Vec::new(),
+            face_bounds: vec![Aabb::empty(); faces.len()],
             wide: WideTree::default(),
             face_normals: Vec::new(),
             edge_normals: Vec::new(),
@@ -319,17 +322,20 @@ impl MeshProximity {
             let node = self.tree.nodes()[id];
             self.bounds[id] = if node.is_leaf() {
                 let mut b = Aabb::empty();
-                for &f in self.tree.leaf_items(&node) {
-                    for p in self.tri(&self.faces[f as usize]) {
-                        b.grow(&p);
+                for (k, &f) in node.items().zip(self.tree.leaf_items(&node)) {
+                    let mut face = Aabb::empty();
+                    for v in self.faces[f as usize] {
+                        face.grow(&self.positions[v as usize]);
                     }
+                    b = b.merge(&face);
+                    self.face_bounds[k] = face;
                 }
                 b
             } else {
                 self.bounds[node.left as usize].merge(&self.bounds[node.right as usize])
             };
         }
-        self.wide.refit(&self.bounds);
+        self.wide.refit(&self.bounds, &self.face_bounds);
     }
 
     /// The vertex positions currently used.
