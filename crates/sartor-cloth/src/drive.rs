@@ -853,7 +853,9 @@ impl FrameStepper {
             }));
         }
         if let Some(guard) = &mut self.guard {
-            guard.update_positions(next).map_err(Error::from)?;
+            // Only distances are read: the pseudo-normals are left to the few answers that
+            // need them (bitwise the stored ones), not recomputed for the whole body.
+            guard.update_positions_refit(next).map_err(Error::from)?;
             let mut closest = None;
             let (guard, radius) = (&*guard, self.guard_radius_m);
             query_every_vertex(
