@@ -2,8 +2,8 @@
 //! sartor, used for cloth binding, body contact, the runtime's collision post-process and garment
 //! checks.
 //!
-//! A bounding-volume hierarchy over the triangles (f64, searched in an eight-wide f32 form whose
-//! boxes only prune: [`wide`]) answers "closest point to p", with the
+//! A bounding-volume hierarchy over the triangles (eight children to a node, f32 boxes that only
+//! prune, every answer computed in f64: [`wide`]) answers "closest point to p", with the
 //! triangle, barycentric coordinates and a signed distance whose sign comes from angle-weighted
 //! pseudo-normals (Bærentzen & Aanæs 2005): negative inside a closed, outward-oriented surface.
 //! The tree can be refitted to moved vertices without rebuilding (for an animated body)
@@ -38,47 +38,14 @@ pub struct ClosestPoint {
     pub normal: Vector3<f64>,
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Aabb {
-    min: Vector3<f64>,
-    max: Vector3<f64>,
-}
-
-impl Aabb {
-    fn empty() -> Self {
-        Self {
-            min: Vector3::repeat(f64::INFINITY),
-            max: Vector3::repeat(f64::NEG_INFINITY),
-        }
-    }
-    fn grow(&mut self, p: &Vector3<f64>) {
-        self.min = self.min.inf(p);
-        self.max = self.max.sup(p);
-    }
-    fn merge(&self, o: &Aabb) -> Aabb {
-        Aabb {
-            min: self.min.inf(&o.min),
-            max: self.max.sup(&o.max),
-        }
-    }
-    fn distance_sq(&self, p: &Vector3<f64>) -> f64 {
-        let d = (self.min - p).sup(&(p - self.max)).sup(&Vector3::zeros());
-        d.norm_squared()
-    }
-}
-
 /// A closest-point structure over a triangle mesh (or any subset of its faces).
 #[derive(Clone, Debug)]
 pub struct MeshProximity {
     faces: Vec<[u32; 3]>,
     positions: Vec<Vector3<f64>>,
-    /// The hierarchy over the faces, and each node's box (indexed like its nodes).
+    /// The hierarchy over the faces (its structure and order), and its boxes: eight children to
+    /// a node, in f32 ([`wide`]), refitted to every move.
     tree: MedianTree,
-    bounds: Vec<Aabb>,
-    /// Each face's box, in the tree's order.
-    face_bounds: Vec<Aabb>,
-    /// The same hierarchy eight children to a node, in f32 relative to its root box, for
-    /// [`Self::closest_within`] (refitted with `bounds`).
     wide: WideTree,
     face_normals: Vec<Vector3<f64>>,
     /// Per face, pseudo-normal of edges (v0 v1), (v1 v2), (v2 v0).
@@ -152,8 +119,6 @@ impl MeshProximity {
             faces: faces.to_vec(),
             positions: positions.to_vec(),
             tree: MedianTree::new(&[], LEAF_SIZE),
-            bounds: Vec::new(),
-            face_bounds: vec![Aabb::empty(); faces.len()],
             wide: WideTree::default(),
             face_normals: Vec::new(),
             edge_normals: Vec::new(),
@@ -169,7 +134,6 @@ impl MeshProximity {
             .map(|t| s.tri(t).iter().sum::<Vector3<f64>>() / 3.0)
             .collect();
         s.tree = MedianTree::new(&centroids, LEAF_SIZE);
-        s.bounds = vec![Aabb::empty(); s.tree.nodes().len()];
         s.wide = WideTree::new(&s.tree);
         s.refit_tree();
         s.update_normals();
@@ -314,28 +278,10 @@ impl MeshProximity {
         Ok(())
     }
 
-    /// The tree's boxes from the current positions, children before parents (a child's index
-    /// is larger than its parent's). Leaves take their triangles' vertices, inner nodes merge
-    /// their children's boxes.
+    /// The tree's boxes from the current positions.
     fn refit_tree(&mut self) {
-        for id in (0..self.tree.nodes().len()).rev() {
-            let node = self.tree.nodes()[id];
-            self.bounds[id] = if node.is_leaf() {
-                let mut b = Aabb::empty();
-                for (k, &f) in node.items().zip(self.tree.leaf_items(&node)) {
-                    let mut face = Aabb::empty();
-                    for v in self.faces[f as usize] {
-                        face.grow(&self.positions[v as usize]);
-                    }
-                    b = b.merge(&face);
-                    self.face_bounds[k] = face;
-                }
-                b
-            } else {
-                self.bounds[node.left as usize].merge(&self.bounds[node.right as usize])
-            };
-        }
-        self.wide.refit(&self.bounds, &self.face_bounds);
+        self.wide
+            .refit(&self.positions, &self.faces, self.tree.order());
     }
 
     /// The vertex positions currently used.
@@ -488,39 +434,28 @@ impl MeshProximity {
             found.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
             return found;
         }
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let id = stack[top] as usize;
-            if self.bounds[id].distance_sq(p) > r2 {
-                continue;
+        let mut reach2 = r2;
+        self.wide.search(p, self.tree.order(), &mut reach2, |f, _| {
+            let tri = self.tri(&self.faces[f as usize]);
+            let d2 = (closest_on_triangle(p, &tri).0 - p).norm_squared();
+            if d2 <= r2 {
+                found.push((f, d2.sqrt()));
             }
-            let node = &self.tree.nodes()[id];
-            if node.is_leaf() {
-                for &f in self.tree.leaf_items(node) {
-                    let tri = self.tri(&self.faces[f as usize]);
-                    let d2 = (closest_on_triangle(p, &tri).0 - p).norm_squared();
-                    if d2 <= r2 {
-                        found.push((f, d2.sqrt()));
-                    }
-                }
-            } else {
-                stack[top] = node.left;
-                stack[top + 1] = node.right;
-                top += 2;
-            }
-        }
+        });
         found.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
         found
     }
 
     /// Visit every triangle whose axis-aligned box lies within `radius_m` of `p` (a superset of
-    /// the triangles within `radius_m`: the box is a lower bound of the distance), in tree
-    /// order. No allocation. For callers that gather the few triangles near a group of points
+    /// the triangles within `radius_m`: the box is a lower bound of the distance), nearer parts
+    /// of the tree first. No allocation. For callers that gather the few triangles near a group of points
     /// once and then test them themselves.
     pub fn for_each_face_near(&self, p: &Vector3<f64>, radius_m: f64, mut visit: impl FnMut(u32)) {
         let r2 = radius_m * radius_m;
+        // A NaN point visits nothing.
+        if p.iter().any(|c| c.is_nan()) {
+            return;
+        }
         if !self.tree_current {
             for f in 0..self.faces.len() as u32 {
                 if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
@@ -529,29 +464,12 @@ impl MeshProximity {
             }
             return;
         }
-        let mut stack = [0u32; 64];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let id = stack[top] as usize;
-            // A NaN distance (a NaN point) visits nothing.
-            let d2 = self.bounds[id].distance_sq(p);
-            if d2.is_nan() || d2 > r2 {
-                continue;
+        let mut reach2 = r2;
+        self.wide.search(p, self.tree.order(), &mut reach2, |f, _| {
+            if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
+                visit(f);
             }
-            let node = &self.tree.nodes()[id];
-            if node.is_leaf() {
-                for &f in self.tree.leaf_items(node) {
-                    if triangle_box_distance_sq(p, &self.tri(&self.faces[f as usize])) <= r2 {
-                        visit(f);
-                    }
-                }
-            } else {
-                stack[top] = node.left;
-                stack[top + 1] = node.right;
-                top += 2;
-            }
-        }
+        });
     }
 
     /// Unsigned distance from `p` to triangle `face` (the distance [`Self::closest`] compares).

@@ -1,18 +1,23 @@
-//! The closest-point query's hierarchy with eight children to a node, in f32: the median tree's
-//! top three levels below each node collapsed into one node, whose children's boxes are stored
-//! lane by lane (relative to the root box's corner), so that one point tests all eight in a few
-//! vector instructions instead of descending three levels of f64 boxes. A leaf keeps its faces'
-//! own boxes the same way: of a leaf within reach, only the faces whose box is within reach are
-//! offered (on the simulator's walk a hinted query tested 14-23 faces in f64 before).
+//! The closest-point query's hierarchy, eight children to a node, in f32: the median tree's top
+//! three levels below each node collapsed into one node, whose children's boxes are stored lane
+//! by lane, so that one point tests all eight in a few vector instructions. A leaf keeps its
+//! faces' own boxes the same way: of a leaf within reach, only the faces whose box is within
+//! reach are offered (on the simulator's walk a hinted query tested 14–23 faces in f64 before).
+//!
+//! The boxes are refitted in f32 from the vertices: each vertex relative to the lowest corner of
+//! all of them, rounded to nearest (a monotone map, so each face's f32 box is its f64 box
+//! rounded), then each lane the union of its faces or its child's lanes. This replaced a binary
+//! tree of f64 boxes, refitted too and read by the three queries: on the simulator's walk the
+//! body's refit per substep went back below what that tree alone cost.
 //!
 //! The f32 boxes only prune: a child is skipped when its box lies farther than the best
-//! distance so far plus a bound on the f32 rounding, and every triangle that is not skipped is
-//! tested by the caller in f64 as before. The answer is therefore the one the f64 tree gives:
-//! the nearest triangle, ties to the lowest index, whichever order the triangles are visited in.
+//! distance so far (or the radius asked) plus a bound on the f32 rounding, and every triangle
+//! that is not skipped is tested by the caller in f64. The answer is therefore the one every
+//! triangle would give: the nearest triangle, ties to the lowest index, whichever order the
+//! triangles are visited in.
 
 use nalgebra::Vector3;
 
-use super::Aabb;
 use crate::tree::MedianTree;
 
 /// Children per node.
@@ -53,13 +58,13 @@ struct Leaf {
 #[derive(Clone, Debug, Default)]
 pub(super) struct WideTree {
     nodes: Vec<Node>,
-    /// Per node and lane, the median tree's node whose box the lane holds.
-    source: Vec<[u32; W]>,
+    /// The vertices relative to `origin`, in f32 (scratch of the refit).
+    rel: Vec<Vector3<f32>>,
     /// The leaves, each face's own box: a leaf within reach offers only its faces within it.
     leaves: Vec<Leaf>,
-    /// The root box's lower corner: the origin of the f32 boxes.
+    /// The vertices' lowest corner: the origin of the f32 boxes.
     origin: Vector3<f64>,
-    /// The root box's largest side, m.
+    /// The vertices' box's largest side, m.
     extent: f64,
 }
 
@@ -94,7 +99,6 @@ impl WideTree {
             count: [0; W],
             used: (1u32 << lanes.len()) - 1,
         });
-        self.source.push([u32::MAX; W]);
         for (l, &n) in lanes.iter().enumerate() {
             let node = nodes[n as usize];
             let (child, count) = if node.is_leaf() {
@@ -114,40 +118,70 @@ impl WideTree {
             };
             self.nodes[index].child[l] = child;
             self.nodes[index].count[l] = count;
-            self.source[index][l] = n;
         }
         index as u32
     }
 
-    /// Take the boxes of the median tree's nodes (`bounds`, indexed like its nodes) and of its
-    /// faces (`face_bounds`, in the tree's order).
-    pub(super) fn refit(&mut self, bounds: &[Aabb], face_bounds: &[Aabb]) {
-        let Some(root) = bounds.first() else {
+    /// The boxes for the vertices at `positions` (of which `faces` are the triangles, in the
+    /// median tree's `order`): each vertex relative to the lowest corner of all of them, in f32
+    /// (rounded to nearest, a monotone map, so a face's f32 box is its f64 box rounded), each
+    /// face's box from its corners, each node's lanes the union of their faces or children.
+    pub(super) fn refit(&mut self, positions: &[Vector3<f64>], faces: &[[u32; 3]], order: &[u32]) {
+        if self.nodes.is_empty() {
             return;
-        };
-        self.origin = root.min;
-        self.extent = (root.max - root.min).max();
-        let o = self.origin;
-        for (node, source) in self.nodes.iter_mut().zip(&self.source) {
-            for (l, &n) in source.iter().enumerate() {
-                if n != u32::MAX {
-                    let b = &bounds[n as usize];
-                    for k in 0..3 {
-                        node.lo[k][l] = relative(b.min[k], o[k]);
-                        node.hi[k][l] = relative(b.max[k], o[k]);
-                    }
+        }
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in positions {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        self.origin = lo;
+        self.extent = (hi - lo).max();
+        self.rel.clear();
+        self.rel
+            .extend(positions.iter().map(|p| (p - lo).map(|c| c as f32)));
+        for leaf in &mut self.leaves {
+            let start = leaf.start as usize;
+            for (j, &f) in order[start..start + leaf.count as usize].iter().enumerate() {
+                let [a, b, c] = faces[f as usize].map(|v| self.rel[v as usize]);
+                for k in 0..3 {
+                    leaf.lo[k][j] = fmin(fmin(a[k], b[k]), c[k]);
+                    leaf.hi[k][j] = fmax(fmax(a[k], b[k]), c[k]);
                 }
             }
         }
-        for leaf in &mut self.leaves {
-            let start = leaf.start as usize;
-            for (j, b) in face_bounds[start..start + leaf.count as usize]
-                .iter()
-                .enumerate()
-            {
+        // Children come after their parent: the last node first.
+        for id in (0..self.nodes.len()).rev() {
+            for l in 0..W {
+                if self.nodes[id].used & (1 << l) == 0 {
+                    continue;
+                }
+                let (child, count) = (self.nodes[id].child[l] as usize, self.nodes[id].count[l]);
+                let (mut blo, mut bhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                let mut take = |clo: [f32; 3], chi: [f32; 3]| {
+                    for k in 0..3 {
+                        blo[k] = fmin(blo[k], clo[k]);
+                        bhi[k] = fmax(bhi[k], chi[k]);
+                    }
+                };
+                if count > 0 {
+                    let leaf = &self.leaves[child];
+                    for j in 0..count as usize {
+                        take(leaf.lo.map(|c| c[j]), leaf.hi.map(|c| c[j]));
+                    }
+                } else {
+                    let node = &self.nodes[child];
+                    for j in (0..W).filter(|j| node.used & (1 << j) != 0) {
+                        take(node.lo.map(|c| c[j]), node.hi.map(|c| c[j]));
+                    }
+                }
+                let node = &mut self.nodes[id];
                 for k in 0..3 {
-                    leaf.lo[k][j] = relative(b.min[k], o[k]);
-                    leaf.hi[k][j] = relative(b.max[k], o[k]);
+                    node.lo[k][l] = blo[k];
+                    node.hi[k][l] = bhi[k];
                 }
             }
         }
@@ -265,11 +299,10 @@ fn leaf_distance2(leaf: &Leaf, x: &[f32; 3]) -> [f32; LEAF] {
     d2
 }
 
-/// `v − origin` in f32, rounded to nearest: within `extent` · 2⁻²⁴ of the f64 value, which
-/// the search's slack covers.
+/// `min(a, b)` as one vector instruction (see [`fmax`]).
 #[inline(always)]
-fn relative(v: f64, origin: f64) -> f32 {
-    (v - origin) as f32
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
 }
 
 /// `max(a, b)` as one vector instruction (`f32::max`'s NaN rule costs a blend; a NaN here

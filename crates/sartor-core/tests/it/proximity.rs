@@ -1,7 +1,8 @@
-//! `MeshProximity`'s tree query on the built-in MakeHuman body against the same arithmetic over
-//! every triangle (`closest_among` all faces, no tree): the same answer bit for bit — near the
-//! surface, far from it, inside, with a bound, from a hint, after the body moves (a refit), and
-//! with the body a kilometre from the origin (where the tree's f32 boxes round most).
+//! `MeshProximity`'s tree queries on the built-in MakeHuman body against the same arithmetic
+//! over every triangle (`closest_among` all faces, no tree): the same answer bit for bit — near
+//! the surface, far from it, inside, with a bound, from a hint, after the body moves (a refit),
+//! and with the body a kilometre from the origin (where the tree's f32 boxes round most); the
+//! faces within a radius and the faces whose box is, against a filter of every face.
 
 use nalgebra::{UnitQuaternion, Vector3};
 use sartor_core::{BodyModel, MeshProximity, Pose, vertex_normals};
@@ -60,6 +61,41 @@ fn agree(tree: &MeshProximity, positions: &[Vector3<f64>], faces: &[[u32; 3]]) -
             );
             assert_eq!(hint, exact.face);
         }
+        // Every face within 3 cm, and every face whose box is, against the same tests on all.
+        let r = 0.03;
+        let mut within: Vec<(u32, f64)> = all
+            .iter()
+            .filter_map(|&f| {
+                let d = tree.distance_to_face(q, f);
+                (d <= r).then_some((f, d))
+            })
+            .collect();
+        within.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        let from_tree = tree.faces_within(q, r);
+        assert_eq!(from_tree.len(), within.len(), "point {i}");
+        for (a, b) in from_tree.iter().zip(&within) {
+            assert_eq!(a.0, b.0, "point {i}");
+            assert!((a.1 - b.1).abs() <= 1e-12 * (1.0 + b.1), "point {i}");
+        }
+        let mut near = Vec::new();
+        tree.for_each_face_near(q, r, |f| near.push(f));
+        near.sort_unstable();
+        let boxes: Vec<u32> = all
+            .iter()
+            .copied()
+            .filter(|&f| {
+                let t = faces[f as usize].map(|v| positions[v as usize]);
+                (0..3)
+                    .map(|k| {
+                        let lo = t[0][k].min(t[1][k]).min(t[2][k]);
+                        let hi = t[0][k].max(t[1][k]).max(t[2][k]);
+                        (lo - q[k]).max(q[k] - hi).max(0.0).powi(2)
+                    })
+                    .sum::<f64>()
+                    <= r * r
+            })
+            .collect();
+        assert_eq!(near, boxes, "point {i}");
         checked += 1;
     }
     checked
