@@ -18,6 +18,7 @@
 
 use nalgebra::Vector3;
 
+use crate::bounding_box;
 use crate::tree::MedianTree;
 
 /// Children per node.
@@ -35,10 +36,10 @@ struct Node {
     hi: [[f32; W]; 3],
     /// Per lane: a leaf's index in `leaves`, or an inner child's node.
     child: [u32; W],
-    /// Per lane: a leaf's number of items (0: an inner child).
-    count: [u32; W],
     /// The lanes in use, as bits.
     used: u32,
+    /// The lanes holding a leaf, as bits.
+    leaf: u32,
 }
 
 /// Faces per leaf block (at least the median tree's leaf size).
@@ -96,12 +97,12 @@ impl WideTree {
             lo: [[f32::INFINITY; W]; 3],
             hi: [[f32::INFINITY; W]; 3],
             child: [u32::MAX; W],
-            count: [0; W],
             used: (1u32 << lanes.len()) - 1,
+            leaf: 0,
         });
         for (l, &n) in lanes.iter().enumerate() {
             let node = nodes[n as usize];
-            let (child, count) = if node.is_leaf() {
+            let child = if node.is_leaf() {
                 assert!(
                     node.count as usize <= LEAF,
                     "leaves of at most {LEAF} faces"
@@ -112,12 +113,12 @@ impl WideTree {
                     start: node.start,
                     count: node.count,
                 });
-                (self.leaves.len() as u32 - 1, node.count)
+                self.nodes[index].leaf |= 1 << l;
+                self.leaves.len() as u32 - 1
             } else {
-                (self.build(tree, n), 0)
+                self.build(tree, n)
             };
             self.nodes[index].child[l] = child;
-            self.nodes[index].count[l] = count;
         }
         index as u32
     }
@@ -130,14 +131,9 @@ impl WideTree {
         if self.nodes.is_empty() {
             return;
         }
-        let (mut lo, mut hi) = (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        );
-        for p in positions {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let Some((lo, hi)) = bounding_box(positions) else {
+            return;
+        };
         self.origin = lo;
         self.extent = (hi - lo).max();
         self.rel.clear();
@@ -159,7 +155,10 @@ impl WideTree {
                 if self.nodes[id].used & (1 << l) == 0 {
                     continue;
                 }
-                let (child, count) = (self.nodes[id].child[l] as usize, self.nodes[id].count[l]);
+                let (child, is_leaf) = (
+                    self.nodes[id].child[l] as usize,
+                    self.nodes[id].leaf & (1 << l) != 0,
+                );
                 let (mut blo, mut bhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
                 let mut take = |clo: [f32; 3], chi: [f32; 3]| {
                     for k in 0..3 {
@@ -167,9 +166,9 @@ impl WideTree {
                         bhi[k] = fmax(bhi[k], chi[k]);
                     }
                 };
-                if count > 0 {
+                if is_leaf {
                     let leaf = &self.leaves[child];
-                    for j in 0..count as usize {
+                    for j in 0..leaf.count as usize {
                         take(leaf.lo.map(|c| c[j]), leaf.hi.map(|c| c[j]));
                     }
                 } else {
@@ -217,7 +216,7 @@ impl WideTree {
                 continue;
             }
             let node = &self.nodes[id as usize];
-            let lb2 = distance2(node, &x);
+            let lb2 = lane_distance2(&node.lo, &node.hi, &x);
             let mut hits = node.used;
             for (l, &b) in lb2.iter().enumerate() {
                 if b > reach2 {
@@ -242,7 +241,7 @@ impl WideTree {
             let mut n_inner = 0;
             for &(b, l) in &near[..n] {
                 let l = l as usize;
-                if node.count[l] == 0 {
+                if node.leaf & (1 << l) == 0 {
                     inner[n_inner] = (node.child[l], b);
                     n_inner += 1;
                     continue;
@@ -251,7 +250,7 @@ impl WideTree {
                     continue;
                 }
                 let leaf = &self.leaves[node.child[l] as usize];
-                let fb2 = leaf_distance2(leaf, &x);
+                let fb2 = lane_distance2(&leaf.lo, &leaf.hi, &x);
                 let start = leaf.start as usize;
                 for (j, &f) in order[start..start + leaf.count as usize].iter().enumerate() {
                     if fb2[j] > reach2 {
@@ -273,27 +272,19 @@ impl WideTree {
     }
 }
 
-/// Squared distance from `x` to each lane's box (∞ for an unused lane).
+/// Squared distance from `x` to each of `N` boxes stored lane by lane (∞ for a lane at
+/// infinity: an unused one).
 #[inline(always)]
-fn distance2(node: &Node, x: &[f32; 3]) -> [f32; W] {
-    let mut d2 = [0.0f32; W];
+fn lane_distance2<const N: usize>(
+    lo: &[[f32; N]; 3],
+    hi: &[[f32; N]; 3],
+    x: &[f32; 3],
+) -> [f32; N] {
+    let mut d2 = [0.0f32; N];
     for k in 0..3 {
-        for l in 0..W {
-            let d = fmax(fmax(node.lo[k][l] - x[k], x[k] - node.hi[k][l]), 0.0);
+        for l in 0..N {
+            let d = fmax(fmax(lo[k][l] - x[k], x[k] - hi[k][l]), 0.0);
             d2[l] += d * d;
-        }
-    }
-    d2
-}
-
-/// Squared distance from `x` to each face box of `leaf` (∞ for an unused lane).
-#[inline(always)]
-fn leaf_distance2(leaf: &Leaf, x: &[f32; 3]) -> [f32; LEAF] {
-    let mut d2 = [0.0f32; LEAF];
-    for k in 0..3 {
-        for j in 0..LEAF {
-            let d = fmax(fmax(leaf.lo[k][j] - x[k], x[k] - leaf.hi[k][j]), 0.0);
-            d2[j] += d * d;
         }
     }
     d2
