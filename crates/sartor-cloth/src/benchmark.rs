@@ -68,6 +68,9 @@ pub struct SequenceBenchmark {
     /// The self-collision detection's part of `collision_ms_per_frame`.
     #[serde(default)]
     pub self_collision_ms_per_frame: f64,
+    /// Share of substeps whose self-collision detection rebuilt its candidate lists, %.
+    #[serde(default)]
+    pub self_collision_builds_percent: f64,
     /// Looking up the frozen membrane stiffness and bending coefficients, ms per frame.
     #[serde(default)]
     pub coefficients_ms_per_frame: f64,
@@ -166,6 +169,7 @@ pub fn benchmark_sequence(
         solve_ms_per_frame: per_frame(timing.solve_secs),
         collision_ms_per_frame: per_frame(timing.collision_secs),
         self_collision_ms_per_frame: per_frame(timing.self_collision_secs),
+        self_collision_builds_percent: 100.0 * timing.self_collision_builds as f64 / substeps,
         coefficients_ms_per_frame: per_frame(timing.coefficients_secs),
         projection_ms_per_frame: per_frame(timing.projection_secs),
         step_ms_per_frame: per_frame(timing.step_secs),

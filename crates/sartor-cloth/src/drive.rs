@@ -754,6 +754,7 @@ impl FrameStepper {
             self.timing.solve_secs += stats.solve_secs;
             self.timing.collision_secs += stats.collision_secs;
             self.timing.self_collision_secs += stats.self_collision_secs;
+            self.timing.self_collision_builds += usize::from(stats.self_collision_built);
             self.timing.coefficients_secs += stats.coefficients_secs;
             self.timing.projection_secs += stats.projection_secs;
             self.timing.step_secs += stats.total_secs;

@@ -304,6 +304,9 @@ pub struct SequenceTiming {
     pub collision_secs: f64,
     /// The self-collision detection's part of `collision_secs`, s.
     pub self_collision_secs: f64,
+    /// Substeps whose self-collision detection rebuilt its candidate lists (the others reused
+    /// them).
+    pub self_collision_builds: usize,
     /// Frozen material coefficients, s.
     pub coefficients_secs: f64,
     /// Friction, new positions and the projection fallback, s.

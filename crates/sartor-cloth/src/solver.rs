@@ -204,6 +204,8 @@ pub struct StepStats {
     pub collision_secs: f64,
     /// The self-collision detection's part of `collision_secs`, s.
     pub self_collision_secs: f64,
+    /// Whether the self-collision detection rebuilt its candidate lists (else it reused them).
+    pub self_collision_built: bool,
     /// Time looking up the frozen membrane stiffness and bending coefficients, s.
     pub coefficients_secs: f64,
     /// Time in friction, the new positions and the projection fallback (its queries
@@ -1053,7 +1055,7 @@ impl Simulator {
         self.freeze_coefficients();
         stats.coefficients_secs = t_coefficients.elapsed().as_secs_f64();
         let t_collision = Instant::now();
-        stats.self_collision_secs = self.find_contacts(colliders);
+        (stats.self_collision_secs, stats.self_collision_built) = self.find_contacts(colliders);
         stats.collision_secs = t_collision.elapsed().as_secs_f64();
         stats.obstacle_contacts = self.ws.obstacle_contacts.len();
         stats.self_contacts = self.ws.self_contacts.len();
@@ -1225,7 +1227,7 @@ impl Simulator {
 
     /// Obstacle contacts (at the start positions, against the end-of-substep obstacles) and
     /// self-contact pairs; returns the seconds the self-contacts took.
-    fn find_contacts(&mut self, colliders: &[&dyn Collider]) -> f64 {
+    fn find_contacts(&mut self, colliders: &[&dyn Collider]) -> (f64, bool) {
         let par = self.config.parallelism;
         let penalty = self.config.contact_penalty;
         let x = &self.x;
@@ -1275,8 +1277,9 @@ impl Simulator {
             }
         }
         let t_self = Instant::now();
+        let mut built = false;
         if self.config.self_collision {
-            self.ws.grid.detect(
+            built = self.ws.grid.detect(
                 x,
                 self.sim_cloth.faces(),
                 self.sim_cloth.topology(),
@@ -1292,7 +1295,7 @@ impl Simulator {
         self.ws
             .self_out
             .resize(self.ws.self_contacts.len(), ElementDerivatives::default());
-        t_self.elapsed().as_secs_f64()
+        (t_self.elapsed().as_secs_f64(), built)
     }
 
     /// The gradient of the potential and its PSD Hessian at `x_iter`, then the system
