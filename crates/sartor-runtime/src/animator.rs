@@ -534,7 +534,7 @@ impl Avatar {
         self.pushed = 0;
         if let Some(collider) = &mut self.collider {
             collider.pose(&rig.region, &self.transforms, par)?;
-            self.pushed = collider.resolve(&mut self.vertices, par);
+            self.pushed = collider.resolve(&mut self.vertices, rig.binding.faces(), par);
         }
         let done = self.now();
         self.times.skinning_ms = skinned - start;

@@ -168,6 +168,14 @@ pub struct CollisionOptions {
     /// When the certified query looks for body parts sunk into each other (see the module
     /// docs); the other queries never do.
     pub interpenetration: Interpenetration,
+    /// Also push out the cloth triangles' centroids. The vertex passes leave every vertex
+    /// outside, but where the body is curved more tightly than the cloth is fine (a shoulder
+    /// under a raised arm) skin pokes through a triangle between them; this pass queries each
+    /// triangle's centroid after the vertex passes and moves a triangle whose centroid is
+    /// closer than the margin out by the centroid's push (each vertex by the largest push of
+    /// its triangles), then re-checks the moved vertices as a later pass does. Off by default:
+    /// it triples the queries.
+    pub faces: bool,
 }
 
 /// When the certified query finds the region faces buried inside another body part each frame
@@ -195,6 +203,7 @@ impl Default for CollisionOptions {
             query: CollisionQuery::Certified,
             passes: 4,
             interpenetration: Interpenetration::default(),
+            faces: false,
         }
     }
 }
@@ -374,6 +383,10 @@ pub(crate) struct Collider {
     moved: Vec<u32>,
     moved_points: Vec<Vector3<f32>>,
     moved_warm: Vec<u32>,
+    /// [`CollisionOptions::faces`], and its scratch: per cloth vertex the largest push of its
+    /// triangles.
+    faces: bool,
+    face_push: Vec<Vector3<f64>>,
 }
 
 /// What the post-process remembers of a cloth vertex.
@@ -510,6 +523,8 @@ impl Collider {
             moved: Vec::with_capacity(cloth_rest.len()),
             moved_points: Vec::with_capacity(cloth_rest.len()),
             moved_warm: Vec::with_capacity(cloth_rest.len()),
+            faces: options.faces,
+            face_push: vec![Vector3::zeros(); cloth_rest.len()],
         })
     }
 
@@ -579,18 +594,97 @@ impl Collider {
 
     /// Push every cloth vertex closer than the margin (or inside) out to the margin along the
     /// closest primitive's normal, in up to `passes` passes; returns the number of pushes (a
-    /// vertex moved in two passes counts twice).
-    /// Allocation-free.
-    pub(crate) fn resolve(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
+    /// vertex moved in two passes counts twice). With [`CollisionOptions::faces`], then the
+    /// triangles `faces` of the cloth (see there).
+    /// Allocation-free (after the first frame with the triangles pushed).
+    pub(crate) fn resolve(
+        &mut self,
+        cloth: &mut [Vector3<f32>],
+        faces: &[[u32; 3]],
+        par: Parallelism,
+    ) -> usize {
+        let mut total = self.vertex_passes(true, cloth, par);
+        if self.faces && self.passes > 0 {
+            let moved = self.face_pass(cloth, faces);
+            if moved > 0 {
+                total += moved + self.vertex_passes(false, cloth, par);
+            }
+        }
+        total
+    }
+
+    /// Up to `passes` passes, the first over every vertex when `first`, else only over those
+    /// moved before; the number of pushes.
+    fn vertex_passes(
+        &mut self,
+        first: bool,
+        cloth: &mut [Vector3<f32>],
+        par: Parallelism,
+    ) -> usize {
         let mut total = 0;
         for pass in 0..self.passes {
-            let moved = self.pass(pass == 0, cloth, par);
+            let moved = self.pass(first && pass == 0, cloth, par);
             total += moved;
             if moved == 0 {
                 break;
             }
         }
         total
+    }
+
+    /// Push the triangles whose centroid is closer to the body than the margin (see
+    /// [`CollisionOptions::faces`]); marks the vertices it moves and returns how many.
+    fn face_pass(&mut self, cloth: &mut [Vector3<f32>], faces: &[[u32; 3]]) -> usize {
+        let margin = self.margin_m;
+        self.moved_points.clear();
+        for t in faces {
+            let c = t.iter().map(|&v| cloth[v as usize]).sum::<Vector3<f32>>() / 3.0;
+            self.moved_points.push(c);
+        }
+        let push = &mut self.face_push;
+        let mut visit = |k: usize, hit: Option<sartor_core::ClosestPoint>| {
+            if let Some(c) = hit
+                && c.signed_distance_m < margin
+            {
+                let d = c.normal * (margin - c.signed_distance_m);
+                for &v in &faces[k] {
+                    let slot = &mut push[v as usize];
+                    if d.norm_squared() > slot.norm_squared() {
+                        *slot = d;
+                    }
+                }
+            }
+        };
+        match self.certifier.as_mut() {
+            // Certified like the vertices: most centroids need no closest point.
+            Some(certifier) => {
+                certifier.run_points(&self.proximity, &self.moved_points, margin, |k, o| {
+                    if let Some(Outcome::Exact(c)) = o {
+                        visit(k, Some(c));
+                    }
+                });
+            }
+            None => {
+                for (k, p) in self.moved_points.iter().enumerate() {
+                    visit(k, Some(self.proximity.closest(&p.cast::<f64>())));
+                }
+            }
+        }
+        let mut moved = 0;
+        for ((p, state), d) in cloth
+            .iter_mut()
+            .zip(&mut self.vertices)
+            .zip(&mut self.face_push)
+        {
+            if *d != Vector3::zeros() {
+                *p = (p.cast::<f64>() + *d).cast::<f32>();
+                *d = Vector3::zeros();
+                state.moved = true;
+                state.plane = None;
+                moved += 1;
+            }
+        }
+        moved
     }
 
     /// One pass over every vertex (`first`) or over those the previous pass moved; updates the

@@ -224,6 +224,10 @@ pub(crate) struct Certifier {
     vertex_warm: Vec<u32>,
     vertex_outcomes: Vec<Option<Outcome>>,
     points: Vec<[f32; 3]>,
+    /// The same for the cloth triangles' centroids ([`Certifier::run_points`]), sized on first
+    /// use.
+    face_warm: Vec<u32>,
+    face_outcomes: Vec<Option<Outcome>>,
 }
 
 impl Certifier {
@@ -325,6 +329,8 @@ impl Certifier {
             vertex_warm: vec![u32::MAX; cloth_rest.len()],
             vertex_outcomes: vec![None; cloth_rest.len()],
             points: Vec::with_capacity(cloth_rest.len()),
+            face_warm: Vec::new(),
+            face_outcomes: Vec::new(),
         }
     }
 
@@ -888,58 +894,47 @@ impl Certifier {
         cloth: &[Vector3<f32>],
         margin_m: f64,
     ) -> CertifyStats {
-        let frame = &self.frame;
-        self.points.clear();
-        self.points.extend(cloth.iter().map(|p| frame.relative(p)));
-        self.search.run(frame, &self.points, &self.vertex_warm);
-        let s = &mut self.scratch;
-        let front2 = (margin_m as f32 + GUARD_M).powi(2);
-        let margin2 = margin_m * margin_m;
-        let mut stats = CertifyStats::default();
-        for (i, (out, warm)) in self
-            .vertex_outcomes
-            .iter_mut()
-            .zip(&mut self.vertex_warm)
-            .enumerate()
-        {
-            let x = &self.points[i];
-            let (best2, best_face) = self.search.best(i);
-            stats.candidates += self.search.faces(i).count();
-            // A vertex with a crease face among its candidates is never certified (`settle`).
-            let crease = self.search.faces(i).any(|g| frame.crease[g as usize]);
-            if !crease
-                && best2 >= front2
-                && self
-                    .search
-                    .faces(i)
-                    .all(|g| frame.fans_in_front(g, x, GUARD_M))
-            {
-                *out = Some(Outcome::Certified);
-                *warm = best_face;
-                stats.certified += 1;
-                continue;
-            }
-            s.candidates.clear();
-            s.candidates.extend(self.search.faces(i));
-            let q = cloth[i].cast::<f64>();
-            *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
-                *warm = nearest.face;
-                if !crease
-                    && nearest.distance_sq >= margin2
-                    && frame.feature_in_front(x, &nearest, GUARD_M)
-                {
-                    stats.certified += 1;
-                    Outcome::Certified
-                } else {
-                    stats.exact += 1;
-                    let c = proximity.signed(&q, &nearest);
-                    Outcome::Exact(frame.settle(proximity, &q, c, s))
-                }
-            });
-        }
-        CertifyStats {
-            buried_faces: frame.n_buried,
-            ..stats
+        self.certify_into(proximity, cloth, false, margin_m)
+    }
+
+    /// [`Frame::certify`] of `points` with the cloth vertices' warm faces and outcomes, or
+    /// (`triangles`) the triangles'.
+    fn certify_into(
+        &mut self,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        triangles: bool,
+        margin_m: f64,
+    ) -> CertifyStats {
+        let per_point = if triangles {
+            (&mut self.face_warm[..], &mut self.face_outcomes[..])
+        } else {
+            (&mut self.vertex_warm[..], &mut self.vertex_outcomes[..])
+        };
+        let state = AnswerState {
+            search: &mut self.search,
+            points: &mut self.points,
+            scratch: &mut self.scratch,
+        };
+        self.frame
+            .certify(state, proximity, points, per_point, margin_m)
+    }
+
+    /// [`Certifier::run`] for other points than the cloth vertices: the cloth triangles'
+    /// centroids, `points[k]` that of triangle `k` (each triangle keeps its own warm face from
+    /// frame to frame); `visit(k, outcome)` for each, in order.
+    pub(crate) fn run_points(
+        &mut self,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        margin_m: f64,
+        mut visit: impl FnMut(usize, Option<Outcome>),
+    ) {
+        self.face_warm.resize(points.len(), u32::MAX);
+        self.face_outcomes.resize(points.len(), None);
+        self.certify_into(proximity, points, true, margin_m);
+        for (k, &o) in self.face_outcomes.iter().enumerate() {
+            visit(k, o);
         }
     }
 
@@ -978,6 +973,69 @@ impl Certifier {
         let warm = vec![u32::MAX; points.len()];
         self.frame
             .answer_points(state, proximity, points, &warm, visit);
+    }
+}
+
+impl Frame {
+    /// Certify or answer each of `cloth` (see [`Certifier::run_search`]), starting from and
+    /// updating `warm`, writing `outcomes`.
+    fn certify(
+        &self,
+        state: AnswerState<'_>,
+        proximity: &MeshProximity,
+        cloth: &[Vector3<f32>],
+        (warm, outcomes): (&mut [u32], &mut [Option<Outcome>]),
+        margin_m: f64,
+    ) -> CertifyStats {
+        let AnswerState {
+            search,
+            points,
+            scratch: s,
+        } = state;
+        let frame = self;
+        points.clear();
+        points.extend(cloth.iter().map(|p| frame.relative(p)));
+        search.run(frame, points, warm);
+        let front2 = (margin_m as f32 + GUARD_M).powi(2);
+        let margin2 = margin_m * margin_m;
+        let mut stats = CertifyStats::default();
+        for (i, (out, warm)) in outcomes.iter_mut().zip(warm.iter_mut()).enumerate() {
+            let x = &points[i];
+            let (best2, best_face) = search.best(i);
+            stats.candidates += search.faces(i).count();
+            // A vertex with a crease face among its candidates is never certified (`settle`).
+            let crease = search.faces(i).any(|g| frame.crease[g as usize]);
+            if !crease
+                && best2 >= front2
+                && search.faces(i).all(|g| frame.fans_in_front(g, x, GUARD_M))
+            {
+                *out = Some(Outcome::Certified);
+                *warm = best_face;
+                stats.certified += 1;
+                continue;
+            }
+            s.candidates.clear();
+            s.candidates.extend(search.faces(i));
+            let q = cloth[i].cast::<f64>();
+            *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
+                *warm = nearest.face;
+                if !crease
+                    && nearest.distance_sq >= margin2
+                    && frame.feature_in_front(x, &nearest, GUARD_M)
+                {
+                    stats.certified += 1;
+                    Outcome::Certified
+                } else {
+                    stats.exact += 1;
+                    let c = proximity.signed(&q, &nearest);
+                    Outcome::Exact(frame.settle(proximity, &q, c, s))
+                }
+            });
+        }
+        CertifyStats {
+            buried_faces: frame.n_buried,
+            ..stats
+        }
     }
 }
 

@@ -22,11 +22,25 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{BodyDistance, BodyModel, PhenotypeRequest, PhenotypeSpace, Pose};
 use sartor_runtime::{
-    AnimatorOptions, BetaOutOfRange, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,
-    NetworkOptions,
+    AnimatorOptions, BetaOutOfRange, CollisionOptions, GarmentAnimator, GarmentBinding,
+    GarmentNetwork, GarmentRig, NetworkOptions,
 };
 #[cfg(feature = "png")]
 use sartor_runtime::{BODY_COLOR, GARMENT_COLOR, Panel, RenderMesh, render_png};
+
+/// The body's faces outside the garment's region.
+fn outside_region(body: &BodyModel, binding: &GarmentBinding) -> Vec<[u32; 3]> {
+    let mut in_region = vec![false; body.faces().len()];
+    for &f in binding.region_faces() {
+        in_region[f as usize] = true;
+    }
+    body.faces()
+        .iter()
+        .zip(&in_region)
+        .filter(|&(_, &r)| !r)
+        .map(|(t, _)| *t)
+        .collect()
+}
 
 fn shipped() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../datasets/models/default")
@@ -207,17 +221,7 @@ fn the_shipped_model_stays_out_of_extreme_bodies() {
         rig(BetaOutOfRange::Extrapolate),
     );
     assert_eq!(BetaOutOfRange::default(), BetaOutOfRange::ProjectAndFollow);
-    let mut in_region = vec![false; body.faces().len()];
-    for &f in binding.region_faces() {
-        in_region[f as usize] = true;
-    }
-    let outside_faces: Vec<[u32; 3]> = body
-        .faces()
-        .iter()
-        .zip(&in_region)
-        .filter(|&(_, &r)| !r)
-        .map(|(t, _)| *t)
-        .collect();
+    let outside_faces = outside_region(&body, &binding);
     // Three frames of the walk, spread over a step.
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     let poses: Vec<Pose> = walk.frames().iter().step_by(8).take(3).cloned().collect();
@@ -337,4 +341,104 @@ fn the_interpenetration_test_runs_beyond_the_training_shapes() {
     assert!(beyond > 0, "an arm sunk into a heavy torso buries faces");
     assert_eq!(buried(Interpenetration::Ignore, &heavy), 0);
     assert_eq!(buried(Interpenetration::Always, &heavy), beyond);
+}
+
+#[test]
+fn pushing_the_triangles_keeps_the_skin_out_of_a_raised_arms_sleeves() {
+    // A heavy tall body (the try-on page's "male, 1.90 m, heavy") raising both arms (CMU 05_06,
+    // a dance, retargeted): every cloth vertex ends outside, yet the shoulders poke through
+    // the triangles between them (0.9 % of centroids inside at the first frame). With
+    // `CollisionOptions::faces` the centroids are pushed out too.
+    use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
+    let dir = shipped();
+    let data = |p: &str| {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../datasets")
+            .join(p)
+    };
+    let body = Arc::new(crate::common::load_builtin().expect("built-in body"));
+    let network =
+        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    let options = MotionSourceOptions {
+        motions_dir: data("motions"),
+        body: Some(RetargetBody::load(&data("body/makehuman")).expect("built-in body")),
+        ..MotionSourceOptions::default()
+    };
+    let clip = load_motion("cmu/05_06@0+21", &options).expect("stored CMU clip");
+    let mut betas = vec![3.01f32, -1.2, 0.91, 2.24, -1.15, -1.04, 0.78, -0.74, 0.4];
+    betas.resize(network.n_betas(), 0.0);
+    let betas64: Vec<f64> = betas.iter().map(|&b| f64::from(b)).collect();
+    let outside_faces = outside_region(&body, &binding);
+    let counts = |faces: bool| {
+        let collision = CollisionOptions {
+            faces,
+            ..CollisionOptions::default()
+        };
+        let options = AnimatorOptions {
+            collision: Some(collision),
+            ..AnimatorOptions::default()
+        };
+        let rig = GarmentRig::new(network.clone(), binding.clone(), body.clone(), options);
+        let mut avatar = GarmentAnimator::new(Arc::new(rig.expect("rig"))).expect("avatar");
+        avatar.set_shape(&betas).expect("finite shape");
+        let mut inside = Inside::default();
+        let mut first = None;
+        // Every tenth frame counted, the GRU run through all of them.
+        for (k, pose) in clip.frames().iter().enumerate() {
+            let garment = avatar.frame(pose).expect("frame").to_vec();
+            if k % 10 != 0 {
+                continue;
+            }
+            let posed = body.posed_vertices(&betas64, pose).expect("posed body");
+            let distance = BodyDistance::new(&posed, body.faces()).expect("body mesh");
+            let outside = BodyDistance::new(&posed, &outside_faces).expect("body mesh");
+            inside.add(&distance, &outside, &garment, avatar.faces());
+            if first.is_none() {
+                let posed: Vec<Vector3<f32>> = posed.iter().map(|p| p.cast::<f32>()).collect();
+                first = Some((posed, garment));
+            }
+        }
+        (inside, first.expect("a frame"))
+    };
+    let (vertices_only, (_posed, _before)) = counts(false);
+    let (with_faces, (_, _after)) = counts(true);
+    eprintln!(
+        "raised arms: triangles inside {:.2} % → {:.2} % with the triangles pushed, vertices \
+         inside {:.3} % → {:.3} %",
+        vertices_only.triangle_percent(),
+        with_faces.triangle_percent(),
+        vertices_only.vertex_percent(),
+        with_faces.vertex_percent()
+    );
+    #[cfg(feature = "png")]
+    if let Some(d) = std::env::var_os("SARTOR_EXTREMES_PNG") {
+        let d = PathBuf::from(d);
+        std::fs::create_dir_all(&d).expect("picture folder");
+        picture(
+            &d.join("raised-arms-vertices.png"),
+            &body,
+            &_posed,
+            &_before,
+            binding.faces(),
+        );
+        picture(
+            &d.join("raised-arms-faces.png"),
+            &body,
+            &_posed,
+            &_after,
+            binding.faces(),
+        );
+    }
+    assert!(
+        vertices_only.triangle_percent() > 0.5,
+        "the case no longer shows the fault: {:.2} % of triangles inside",
+        vertices_only.triangle_percent()
+    );
+    assert!(
+        with_faces.triangle_percent() <= 0.1,
+        "{:.2} % of triangles inside with the triangles pushed",
+        with_faces.triangle_percent()
+    );
+    assert!(with_faces.vertices <= vertices_only.vertices);
 }
