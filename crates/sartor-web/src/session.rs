@@ -20,8 +20,8 @@ use sartor_motion::{
     stored_clip_from_bytes,
 };
 use sartor_runtime::{
-    AnimatorOptions, GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig,
-    NetworkOptions, Precision, StageTimes,
+    AnimatorOptions, CollisionOptions, GarmentAnimator, GarmentBinding, GarmentModel,
+    GarmentNetwork, GarmentRig, NetworkOptions, Precision, StageTimes,
 };
 
 use crate::error::{Error, Result};
@@ -38,7 +38,8 @@ pub struct TryOnOptions {
     /// Precision of the weights in memory (the page's files are f16 on the wire; `F32` computes
     /// with exactly those values).
     pub precision: Precision,
-    /// The collision post-process (on by default).
+    /// The collision post-process (on by default), the cloth triangles pushed out as well as
+    /// the vertices (`CollisionOptions::faces`).
     pub post_process: bool,
     /// A monotonic clock in milliseconds that times each stage (`None`: no timing).
     pub clock: Option<fn() -> f64>,
@@ -224,11 +225,12 @@ impl TryOn {
         let rest = body.shaped_joints(&vec![0.0; body.n_betas()])?;
         let retarget = RetargetBody::new(body.skeleton().clone(), rest, tpose)?;
         let animator_options = AnimatorOptions {
-            collision: if options.post_process {
-                AnimatorOptions::default().collision
-            } else {
-                None
-            },
+            // The triangles pushed out too: on a raised arm the shoulders otherwise show through
+            // the sleeves between cloth vertices (see `CollisionOptions::faces`).
+            collision: options.post_process.then(|| CollisionOptions {
+                faces: true,
+                ..CollisionOptions::default()
+            }),
             parallelism: Parallelism::Sequential,
             ..AnimatorOptions::default()
         };
