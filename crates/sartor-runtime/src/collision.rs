@@ -70,6 +70,13 @@ pub const DEFAULT_MARGIN_M: f64 = 0.002;
 /// pushed again in every later pass, by that much, each for an exact query.
 const REPUSH_SLACK_M: f64 = 1e-6;
 
+/// [`CollisionOptions::faces`] leaves a triangle whose centroid is deeper than this inside the
+/// body as the vertex passes left it, metres. Skin between cloth vertices sits shallow (the
+/// sagitta of a body curve over a cloth edge: a few millimetres); a centroid deeper in lies
+/// between body parts pressed together (an arm against the torso), where pushing the whole
+/// triangle along one part's normal tore the sleeve into spikes.
+const FACE_DEPTH_M: f64 = 0.005;
+
 /// How the closest body primitive of each cloth vertex is found (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CollisionQuery {
@@ -645,6 +652,7 @@ impl Collider {
         let mut visit = |k: usize, hit: Option<sartor_core::ClosestPoint>| {
             if let Some(c) = hit
                 && c.signed_distance_m < margin
+                && c.signed_distance_m > -FACE_DEPTH_M
             {
                 let d = c.normal * (margin - c.signed_distance_m);
                 for &v in &faces[k] {
