@@ -528,22 +528,36 @@ fn post_process(
             },
         ),
     ];
-    let collision = |query, passes| CollisionOptions {
+    let collision = |query, passes, faces| CollisionOptions {
         query,
         passes,
+        faces,
         ..CollisionOptions::default()
     };
+    // Every query as the vertex passes alone, then the default one with the triangles pushed
+    // out too (`CollisionOptions::faces`, off by default).
+    let queries = queries
+        .into_iter()
+        .map(|(name, query)| (name, query, false))
+        .chain(std::iter::once((
+            "certified, triangles pushed too (faces)".to_string(),
+            CollisionQuery::Certified,
+            true,
+        )));
     let passes_on = CollisionOptions::default().passes;
     // Collisions before the post-process (detect only), and the BVH's result per frame.
     let mut detect = avatar(
         scene,
         network,
-        options(par, Some(collision(CollisionQuery::EXACT_BVH, 0))),
+        options(par, Some(collision(CollisionQuery::EXACT_BVH, 0, false))),
     )?;
     let mut bvh = avatar(
         scene,
         network,
-        options(par, Some(collision(CollisionQuery::EXACT_BVH, passes_on))),
+        options(
+            par,
+            Some(collision(CollisionQuery::EXACT_BVH, passes_on, false)),
+        ),
     )?;
     let (mut inside_before, mut near_before) = (0, 0);
     let mut reference = Vec::new();
@@ -555,13 +569,21 @@ fn post_process(
         reference.push(bvh.frame(pose)?.to_vec());
     }
     let mut results = Vec::new();
-    for (k, (name, query)) in queries.into_iter().enumerate() {
+    for (k, (name, query, faces)) in queries.enumerate() {
         let passes = if k == 0 { 0 } else { passes_on };
-        let mut timed = avatar(scene, network, options(par, Some(collision(query, passes))))?;
+        let mut timed = avatar(
+            scene,
+            network,
+            options(par, Some(collision(query, passes, faces))),
+        )?;
         let ms = time_frames(&mut timed, poses, args.warmup, args.frames)?
             .cpu_ms
             .unwrap_or(f64::NAN);
-        let mut a = avatar(scene, network, options(par, Some(collision(query, passes))))?;
+        let mut a = avatar(
+            scene,
+            network,
+            options(par, Some(collision(query, passes, faces))),
+        )?;
         let (mut inside, mut near, mut differing) = (0, 0, 0);
         for (pose, want) in poses.iter().take(args.frames).zip(&reference) {
             let got = a.frame(pose)?;
