@@ -17,6 +17,11 @@
 //!   `|w − s·q| ≤ s·(1/2 + 127u)`, so
 //!   `|ŷ_i − y_i| ≤ s_i (1/2 + 127u) Σ_j |x_j| + γ_{m+3} · (s_i Σ_j |q_ij x_j| + |b_i|)`.
 //!   (A row whose largest weight is below [`INT8_ZERO_ROW`] = 1e-30 is stored as zeros.)
+//!   Rows of 17 to 2,048 columns multiply integers (`int8.rs`): the input is quantised with
+//!   one step `t = max_j |x_j| / L` (`L` = 32,767 up to 516 columns, `⌊(2³¹ − 1) / 127n⌋`
+//!   beyond), which adds `t (1/2 + 2Lu) · s_i Σ_j |q_ij|`, and the rounding term becomes
+//!   `γ_4 · (s_i t Σ_j |q_ij x_q,j| + |b_i|)`: one exact integer sum, then three products and
+//!   the bias.
 //!
 //! The unit tests assert these bounds element by element on random matrices of odd sizes. The
 //! typical (root-mean-square) relative error is much smaller than the worst case: for a
@@ -518,6 +523,19 @@ mod tests {
                             .sum();
                         store + gamma(k + 2) * (abs_swx + abs_b)
                     }
+                    Precision::Int8 if super::super::int8::applies(cols) => {
+                        let s = m.int8_scales().expect("int8")[i] as f64;
+                        let limit = super::super::int8::input_limit(cols);
+                        let max_x = x.iter().fold(0.0f32, |a, v| a.max(v.abs()));
+                        let t = f64::from(max_x / limit as f32);
+                        let (l, t) = (f64::from(limit), t);
+                        // Σ_j |ŵ_ij x̂_j| ≤ Σ_j |ŵ_ij| (|x_j| + t (1/2 + 2Lu)).
+                        let move_x = t * (0.5 + 2.0 * l * U);
+                        let abs_sw: f64 = srow.iter().map(|&a| f64::from(a).abs()).sum();
+                        s * (0.5 + 127.0 * U) * abs_x
+                            + move_x * abs_sw
+                            + gamma(4) * (abs_swx + move_x * abs_sw + abs_b)
+                    }
                     Precision::Int8 => {
                         let s = m.int8_scales().expect("int8")[i] as f64;
                         s * (0.5 + 127.0 * U) * abs_x + gamma(k + 3) * (abs_swx + abs_b)
@@ -734,6 +752,11 @@ mod tests {
                 let want = if cols <= THIN_COLS { &thin } else { &plain };
                 assert_eq!(&chosen, want, "{rows} × {cols}: the layout by width");
                 assert_eq!(thin.to_f32(), plain.to_f32());
+                // int8 rows wider than a panel multiply integers (`int8.rs`), panels of any
+                // width keep the lane rule: they agree only where panels are stored.
+                if precision == Precision::Int8 && cols > THIN_COLS {
+                    continue;
+                }
                 for batch in [1, 2, 5] {
                     let mut xs = random(&mut rng, batch * cols, 2.0);
                     xs[0] = -0.0;

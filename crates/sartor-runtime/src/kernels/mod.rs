@@ -8,6 +8,7 @@
 
 mod dispatch;
 mod gru;
+mod int8;
 mod matrix;
 mod mlp;
 mod panels;

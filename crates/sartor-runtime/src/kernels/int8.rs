@@ -1,0 +1,215 @@
+//! int8 rows times inputs quantised to 16 bits: integer dot products.
+//!
+//! The lane kernels of `rows.rs` convert each int8 weight to f32 before a multiply and an add:
+//! four instructions per 16 weights on AVX-512, which made the paper-size 13,272 × 1,500
+//! product bound by instructions (1.42 ms per frame, 14 GMAC/s, while streaming its 19.9 MB
+//! takes about 0.9 ms; `cargo bench -p sartor-runtime --bench kernels -- matvec`). Here an
+//! input vector is quantised once per product to integers `x_q` with one step `t` (symmetric,
+//! `t = max_j |x_j| / L`, `x_q = round_ties_even(x / t)` clamped to ±`L`), and every row is one
+//! exact integer sum `S_i = Σ_j q_ij · x_q,j`: on x86-64 two instructions per 16 (AVX2) or 32
+//! (AVX-512) weights (`vpmovsxbw`, `vpmaddwd`) and an integer add.
+//!
+//! **Arithmetic contract.** `L = min(32,767, ⌊(2³¹ − 1) / (127 · n)⌋)` for rows of `n` columns,
+//! so that no partial sum can leave `i32` (`Σ|q x_q| ≤ 127 · n · L`): 16 bits up to 516
+//! columns, 14 bits (±11,272) at 1,500. Integer sums are exact, so their order is free: every engine,
+//! thread split and batch size gives the same `S_i`, and the output is then
+//! `y_i = s_i · (f32(S_i) · t) + b_i` (the row's scale `s_i`, its bias `b_i`), in that order —
+//! bitwise the same on every instruction set, on one or many threads, alone or in a batch.
+//! An input with a value that is not finite gives NaN for every row (the lane kernels would
+//! give NaN or ±∞); an input whose largest magnitude is below `L ·` [`f32::MIN_POSITIVE`]
+//! (about 1e-34) is taken as zero.
+//!
+//! **Error.** Beyond the weights' own rounding (`matrix.rs`), each input value moves by at most
+//! `t · (1/2 + 2 L u)` (`u = 2⁻²⁴`): about `1.2e-4 · max|x|` at 1,500 columns, some fifty times
+//! smaller than the int8 weights' relative step, and the final conversions and products add
+//! `γ₄` of the result. `matrix.rs` states the bound its tests assert.
+//!
+//! Used for int8 rows of more than [`super::panels::THIN_COLS`] and at most [`MAX_COLS`]
+//! columns (the quantised input lives on the stack); thinner and wider int8 matrices keep the
+//! lane kernels.
+
+/// The widest rows the integer kernels take (the quantised input is a stack array).
+pub(crate) const MAX_COLS: usize = 2048;
+/// The narrowest rows the integer kernels take (thinner int8 matrices are stored in panels and
+/// keep the lane arithmetic, so that panels and rows agree bit for bit).
+pub(crate) const MIN_COLS: usize = super::panels::THIN_COLS + 1;
+
+/// Whether int8 rows of `cols` columns use the integer kernels.
+pub(crate) fn applies(cols: usize) -> bool {
+    (MIN_COLS..=MAX_COLS).contains(&cols)
+}
+
+/// The largest `|x_q|` for rows of `cols` columns (see the module docs).
+pub(crate) fn input_limit(cols: usize) -> i32 {
+    let per_column = 127 * (cols.max(1) as i64);
+    (i64::from(i32::MAX) / per_column).min(i64::from(i16::MAX)) as i32
+}
+
+/// Quantise `x` into `out` (the same length): the step `t`, `Some(0.0)` for an input taken as
+/// zero, `None` when a value is not finite.
+pub(crate) fn quantize_input(x: &[f32], out: &mut [i16]) -> Option<f32> {
+    let mut max_abs = 0.0f32;
+    let mut finite = true;
+    for &v in x {
+        let a = v.abs();
+        // `a <= MAX` is false for NaN and ±∞.
+        finite &= a <= f32::MAX;
+        max_abs = max_abs.max(a);
+    }
+    if !finite {
+        return None;
+    }
+    let limit = input_limit(x.len()) as f32;
+    let step = max_abs / limit;
+    if step < f32::MIN_POSITIVE {
+        out.fill(0);
+        return Some(0.0);
+    }
+    for (q, &v) in out.iter_mut().zip(x) {
+        // In range by the clamp; `as` is exact for integers within ±32,767.
+        *q = (v / step).round_ties_even().clamp(-limit, limit) as i16;
+    }
+    Some(step)
+}
+
+/// Integer dot products of int8 rows with one quantised input. Sums are exact (the limit keeps
+/// them within `i32`), so an engine may add in any order.
+pub(crate) trait IntEngine {
+    /// `Σ_j w_j · x_j` (both slices the same length).
+    fn dot(w: &[i8], x: &[i16]) -> i32;
+    /// [`IntEngine::dot`] of eight rows with one input (eight concurrent streams).
+    fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
+        w.map(|row| Self::dot(row, x))
+    }
+}
+
+/// The safe-Rust engine (LLVM vectorises it; on WebAssembly with `simd128` too).
+pub(crate) struct PortableInt;
+
+impl IntEngine for PortableInt {
+    #[inline(always)]
+    fn dot(w: &[i8], x: &[i16]) -> i32 {
+        w.iter()
+            .zip(x)
+            .map(|(&a, &b)| i32::from(a) * i32::from(b))
+            .sum()
+    }
+}
+
+/// `y = s · (f32(S) · t) + b` (NaN for an input that was not finite).
+#[inline(always)]
+fn output(sum: i32, step: Option<f32>, scale: f32, bias: Option<f32>) -> f32 {
+    let d = match step {
+        Some(t) => scale * (sum as f32 * t),
+        None => f32::NAN,
+    };
+    match bias {
+        Some(b) => d + b,
+        None => d,
+    }
+}
+
+/// int8 rows (`w`: `rows × cols` row-major, one scale per row) times `batch` inputs (`xs`:
+/// `batch × cols`) into `ys_t` (`rows × batch`), by the integer contract of the module docs.
+/// Each input is quantised once and meets every row; eight rows at a time.
+/// `cols` must satisfy [`applies`]; lengths are checked by the caller.
+#[inline(always)]
+pub(crate) fn rows_int<E: IntEngine>(
+    w: &[i8],
+    cols: usize,
+    xs: &[f32],
+    batch: usize,
+    scales: &[f32],
+    bias: Option<&[f32]>,
+    ys_t: &mut [f32],
+) {
+    debug_assert!(applies(cols));
+    let n_rows = ys_t.len() / batch;
+    let mut buffer = [0i16; MAX_COLS];
+    let xq = &mut buffer[..cols];
+    for b in 0..batch {
+        let step = quantize_input(&xs[b * cols..(b + 1) * cols], xq);
+        let xq = &*xq;
+        let out = |i: usize, sum: i32| output(sum, step, scales[i], bias.map(|v| v[i]));
+        let octs = n_rows / 8;
+        for o in 0..octs {
+            let i0 = 8 * o;
+            let row = |k: usize| &w[(i0 + k) * cols..(i0 + k + 1) * cols];
+            let sums = E::dot8(std::array::from_fn(row), xq);
+            for (k, &s) in sums.iter().enumerate() {
+                ys_t[(i0 + k) * batch + b] = out(i0 + k, s);
+            }
+        }
+        for i in 8 * octs..n_rows {
+            let sum = E::dot(&w[i * cols..(i + 1) * cols], xq);
+            ys_t[i * batch + b] = out(i, sum);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_limit_keeps_every_sum_within_i32() {
+        for cols in [MIN_COLS, 100, 516, 517, 1500, MAX_COLS] {
+            let l = i64::from(input_limit(cols));
+            assert!(127 * cols as i64 * l <= i64::from(i32::MAX), "{cols}");
+            assert!(l <= i64::from(i16::MAX));
+        }
+        assert_eq!(input_limit(516), 32_767);
+        assert_eq!(input_limit(1500), 11_272);
+        // The worst case itself: every weight −127 against every input at the limit.
+        let cols = 1500;
+        let l = input_limit(cols) as i16;
+        let (w, x) = (vec![-127i8; cols], vec![-l; cols]);
+        assert_eq!(
+            i64::from(PortableInt::dot(&w, &x)),
+            127 * i64::from(l) * cols as i64
+        );
+    }
+
+    #[test]
+    fn quantisation_is_within_half_a_step_and_keeps_non_finite_inputs_out() {
+        let x: Vec<f32> = (0..700)
+            .map(|i| ((i * 37 % 101) as f32 - 50.0) * 0.013)
+            .collect();
+        let mut q = vec![0i16; x.len()];
+        let t = quantize_input(&x, &mut q).expect("finite");
+        let limit = input_limit(x.len());
+        assert!(
+            q.iter().any(|&v| i32::from(v).abs() == limit),
+            "the largest maps to ±L"
+        );
+        let u = f64::from(f32::EPSILON) / 2.0;
+        let tol = f64::from(t) * (0.5 + 2.0 * f64::from(limit) * u);
+        for (&v, &qv) in x.iter().zip(&q) {
+            let err = (f64::from(v) - f64::from(t) * f64::from(qv)).abs();
+            assert!(err <= tol, "{v}: {err:e} > {tol:e}");
+        }
+        let mut bad = x.clone();
+        bad[3] = f32::NAN;
+        assert_eq!(quantize_input(&bad, &mut q), None);
+        bad[3] = f32::NEG_INFINITY;
+        assert_eq!(quantize_input(&bad, &mut q), None);
+        let tiny = vec![1e-40f32; 50];
+        assert_eq!(quantize_input(&tiny, &mut q[..50]), Some(0.0));
+        assert!(q[..50].iter().all(|&v| v == 0));
+    }
+
+    #[test]
+    fn a_non_finite_input_gives_nan_rows_and_leaves_the_others_alone() {
+        let (rows, cols) = (11, 40);
+        let w: Vec<i8> = (0..rows * cols).map(|i| (i % 255) as i8).collect();
+        let scales = vec![0.01f32; rows];
+        let mut xs: Vec<f32> = (0..2 * cols).map(|i| i as f32 * 0.1 - 3.0).collect();
+        xs[cols + 5] = f32::INFINITY;
+        let mut ys = vec![0.0f32; rows * 2];
+        rows_int::<PortableInt>(&w, cols, &xs, 2, &scales, None, &mut ys);
+        for i in 0..rows {
+            assert!(ys[2 * i].is_finite());
+            assert!(ys[2 * i + 1].is_nan());
+        }
+    }
+}
