@@ -33,6 +33,7 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{Isa, panels_f16, panels_f32, panels_i8, rows_f16, rows_f32, rows_i8};
+use super::int8;
 use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
 use super::rows::F16Bits;
 use crate::error::{Error, Result, check_len};
@@ -69,6 +70,10 @@ pub use sartor_core::Parallelism;
 
 /// Below this many multiply–adds a product is not worth splitting across threads.
 pub const MIN_PARALLEL_MACS: usize = 1 << 16;
+
+/// How many of the integer kernels' multiply–adds count as one of the lane kernels' when a
+/// product is sized for threads (`int8.rs`).
+const INT8_SPEEDUP: usize = 8;
 
 /// Rows per task under `par` (a multiple of `align`), or `None` to run on the calling thread.
 fn rows_per_task(
@@ -355,7 +360,19 @@ impl Matrix {
             }
         };
         let align = if panels { PANEL } else { 1 };
-        match rows_per_task(par, self.rows, cols, batch, align) {
+        // The integer kernels' products are worth splitting only from eight times the size:
+        // the shipped model's int8 step (GRU 256, PCA 64: products of 10–20 µs) took 0.048 ms
+        // on one thread and 0.065–0.069 on two with the lane kernels' threshold (the hand-off
+        // cost more than the half product it saved), 0.050 with this one (`cargo xtask bench
+        // runtime --anchors`, 2-core Intel Xeon VM).
+        let integer =
+            matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
+        let work = if integer {
+            cols.div_ceil(INT8_SPEEDUP)
+        } else {
+            cols
+        };
+        match rows_per_task(par, self.rows, work, batch, align) {
             None => task(0, ys_t),
             Some(block) => ys_t
                 .par_chunks_mut(block * batch)
@@ -646,7 +663,7 @@ mod tests {
             .num_threads(3)
             .build()
             .expect("pool");
-        for &(rows, cols) in &[(1, 5), (37, 45), (301, 257), (130, 1031)] {
+        for &(rows, cols) in &[(1, 5), (37, 45), (301, 257), (130, 1031), (700, 1031)] {
             for precision in [Precision::F32, Precision::F16, Precision::Int8] {
                 let m = Matrix::from_f32(rows, cols, random(&mut rng, rows * cols, 1.0), precision)
                     .expect("finite");
