@@ -109,10 +109,17 @@ fn output(sum: i32, step: Option<f32>, scale: f32, bias: Option<f32>) -> f32 {
     }
 }
 
+/// Quantised inputs a batch holds at once: 24 KB on the stack (eight inputs of 1,500).
+const GROUP_BUFFER: usize = 6 * MAX_COLS;
+/// At most this many inputs share one pass over the weights.
+const MAX_GROUP: usize = 16;
+
 /// int8 rows (`w`: `rows × cols` row-major, one scale per row) times `batch` inputs (`xs`:
 /// `batch × cols`) into `ys_t` (`rows × batch`), by the integer contract of the module docs.
-/// Each input is quantised once and meets every row; eight rows at a time.
-/// `cols` must satisfy [`applies`]; lengths are checked by the caller.
+/// Each input is quantised once; eight rows at a time meet every input of a group (as many
+/// as [`GROUP_BUFFER`] holds, at most [`MAX_GROUP`]), so that a batch streams the weights
+/// from memory once per group rather than once per input. `cols` must satisfy [`applies`];
+/// lengths are checked by the caller.
 #[inline(always)]
 pub(crate) fn rows_int<E: IntEngine>(
     w: &[i8],
@@ -124,25 +131,59 @@ pub(crate) fn rows_int<E: IntEngine>(
     ys_t: &mut [f32],
 ) {
     debug_assert!(applies(cols));
+    if batch == 1 {
+        let mut buffer = [0i16; MAX_COLS];
+        let step = quantize_input(xs, &mut buffer[..cols]);
+        group::<E>(w, cols, &buffer[..cols], &[step], scales, bias, ys_t, 1, 0);
+        return;
+    }
+    let per_group = (GROUP_BUFFER / cols).clamp(1, MAX_GROUP);
+    let mut buffer = [0i16; GROUP_BUFFER];
+    for g0 in (0..batch).step_by(per_group) {
+        let ng = per_group.min(batch - g0);
+        let mut steps = [None; MAX_GROUP];
+        for (k, step) in steps[..ng].iter_mut().enumerate() {
+            let x = &xs[(g0 + k) * cols..(g0 + k + 1) * cols];
+            *step = quantize_input(x, &mut buffer[k * cols..(k + 1) * cols]);
+        }
+        let xq = &buffer[..ng * cols];
+        group::<E>(w, cols, xq, &steps[..ng], scales, bias, ys_t, batch, g0);
+    }
+}
+
+/// Every row times the quantised inputs `xq` (`steps.len()` of them, `cols` each), written to
+/// `ys_t[i·batch + first + k]`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn group<E: IntEngine>(
+    w: &[i8],
+    cols: usize,
+    xq: &[i16],
+    steps: &[Option<f32>],
+    scales: &[f32],
+    bias: Option<&[f32]>,
+    ys_t: &mut [f32],
+    batch: usize,
+    first: usize,
+) {
     let n_rows = ys_t.len() / batch;
-    let mut buffer = [0i16; MAX_COLS];
-    let xq = &mut buffer[..cols];
-    for b in 0..batch {
-        let step = quantize_input(&xs[b * cols..(b + 1) * cols], xq);
-        let xq = &*xq;
-        let out = |i: usize, sum: i32| output(sum, step, scales[i], bias.map(|v| v[i]));
-        let octs = n_rows / 8;
-        for o in 0..octs {
-            let i0 = 8 * o;
-            let row = |k: usize| &w[(i0 + k) * cols..(i0 + k + 1) * cols];
-            let sums = E::dot8(std::array::from_fn(row), xq);
-            for (k, &s) in sums.iter().enumerate() {
-                ys_t[(i0 + k) * batch + b] = out(i0 + k, s);
+    let input = |k: usize| &xq[k * cols..(k + 1) * cols];
+    let out = |i: usize, k: usize, sum: i32| output(sum, steps[k], scales[i], bias.map(|v| v[i]));
+    let octs = n_rows / 8;
+    for o in 0..octs {
+        let i0 = 8 * o;
+        let rows: [&[i8]; 8] = std::array::from_fn(|r| &w[(i0 + r) * cols..(i0 + r + 1) * cols]);
+        for k in 0..steps.len() {
+            let sums = E::dot8(rows, input(k));
+            for (r, &sum) in sums.iter().enumerate() {
+                ys_t[(i0 + r) * batch + first + k] = out(i0 + r, k, sum);
             }
         }
-        for i in 8 * octs..n_rows {
-            let sum = E::dot(&w[i * cols..(i + 1) * cols], xq);
-            ys_t[i * batch + b] = out(i, sum);
+    }
+    for i in 8 * octs..n_rows {
+        let row = &w[i * cols..(i + 1) * cols];
+        for k in 0..steps.len() {
+            ys_t[i * batch + first + k] = out(i, k, E::dot(row, input(k)));
         }
     }
 }

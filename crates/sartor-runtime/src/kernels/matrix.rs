@@ -663,7 +663,14 @@ mod tests {
             .num_threads(3)
             .build()
             .expect("pool");
-        for &(rows, cols) in &[(1, 5), (37, 45), (301, 257), (130, 1031), (700, 1031)] {
+        for &(rows, cols) in &[
+            (1, 5),
+            (37, 45),
+            (301, 257),
+            (130, 1031),
+            (700, 1031),
+            (50, 1500),
+        ] {
             for precision in [Precision::F32, Precision::F16, Precision::Int8] {
                 let m = Matrix::from_f32(rows, cols, random(&mut rng, rows * cols, 1.0), precision)
                     .expect("finite");
