@@ -108,19 +108,23 @@ fn a_relocated_binary_finds_its_data_beside_it_by_flag_or_by_environment() {
     let by_env = tmp.path().join("by-env");
     let out = demo(&exe, &elsewhere, &by_env)
         .env("SARTOR_DATA_DIR", &data)
+        .args(["--precision", "int8"])
         .output()
         .expect("runs");
     assert_ok(&out, "demo with SARTOR_DATA_DIR");
-    assert!(by_env.join("demo.json").is_file());
+    let report = |dir: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.join("demo.json")).expect("demo.json"))
+            .expect("json")
+    };
+    assert_eq!(report(&by_env)["precision"], "int8");
 
     // Installed beside the binary: <prefix>/share/sartor.
     copy_data(&prefix.join("share/sartor"));
     let beside = tmp.path().join("beside");
     let out = demo(&exe, &elsewhere, &beside).output().expect("runs");
     assert_ok(&out, "demo with the data beside the binary");
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(beside.join("demo.json")).expect("demo.json"))
-            .expect("json");
+    let report = report(&beside);
+    assert_eq!(report["precision"], "f32");
     let model = report["model"].as_str().expect("model path");
     assert!(
         Path::new(model).starts_with(prefix.join("share/sartor")),
