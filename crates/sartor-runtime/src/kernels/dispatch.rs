@@ -623,81 +623,80 @@ mod int {
         _mm_cvtsi128_si32(s)
     }
 
-    /// `N` rows with one input, 16 columns per step; the tail by the portable engine.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    pub(super) fn dotn_avx2<const N: usize>(w: [&[i8]; N], x: &[i16]) -> [i32; N] {
-        let (xc, xt) = x.as_chunks::<16>();
-        let mut acc = [_mm256_setzero_si256(); N];
-        for (c, xv) in xc.iter().enumerate() {
-            // SAFETY: `xv` is 16 i16 = 32 readable bytes; the load needs no alignment.
-            let xv = unsafe { _mm256_loadu_si256(xv.as_ptr().cast::<__m256i>()) };
-            for (a, row) in acc.iter_mut().zip(&w) {
-                let q = &row[16 * c..16 * c + 16];
-                // SAFETY: `q` is 16 readable bytes; `_mm_loadu_si128` reads exactly 16.
-                let q = unsafe { _mm_loadu_si128(q.as_ptr().cast::<__m128i>()) };
-                *a = _mm256_add_epi32(*a, _mm256_madd_epi16(_mm256_cvtepi8_epi16(q), xv));
+    /// `$dotn`: `N` rows with one input, `$w` columns per step (`$x`: a vector of `$w` i16,
+    /// `$q`: a load of `$w` i8), the tail by the portable engine; `$engine` is its
+    /// [`IntEngine`], usable only inside wrappers with `$feat`.
+    macro_rules! int_kernels {
+        ($feat:literal, $engine:ident, $dotn:ident, $w:literal, $x:ty, $q:ty, $load_x:ident,
+            $load_q:ident, $zero:ident, $widen:ident, $madd:ident, $add:ident, $sum:path) => {
+            #[inline]
+            #[target_feature(enable = $feat)]
+            pub(super) fn $dotn<const N: usize>(w: [&[i8]; N], x: &[i16]) -> [i32; N] {
+                let (xc, xt) = x.as_chunks::<$w>();
+                let mut acc = [$zero(); N];
+                for (c, xv) in xc.iter().enumerate() {
+                    // SAFETY: `xv` is `$w` i16, exactly the vector's width; no alignment needed.
+                    let xv = unsafe { $load_x(xv.as_ptr().cast::<$x>()) };
+                    for (a, row) in acc.iter_mut().zip(&w) {
+                        let q = &row[$w * c..$w * c + $w];
+                        // SAFETY: `q` is `$w` readable bytes, exactly what the load reads.
+                        let q = unsafe { $load_q(q.as_ptr().cast::<$q>()) };
+                        *a = $add(*a, $madd($widen(q), xv));
+                    }
+                }
+                let done = $w * xc.len();
+                std::array::from_fn(|r| $sum(acc[r]) + PortableInt::dot(&w[r][done..], xt))
             }
-        }
-        let done = 16 * xc.len();
-        std::array::from_fn(|r| sum8(acc[r]) + PortableInt::dot(&w[r][done..], xt))
-    }
 
-    /// `N` rows with one input, 32 columns per step; the tail by the portable engine.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512bw,avx2")]
-    pub(super) fn dotn_avx512<const N: usize>(w: [&[i8]; N], x: &[i16]) -> [i32; N] {
-        let (xc, xt) = x.as_chunks::<32>();
-        let mut acc = [_mm512_setzero_si512(); N];
-        for (c, xv) in xc.iter().enumerate() {
-            // SAFETY: `xv` is 32 i16 = 64 readable bytes; the load needs no alignment.
-            let xv = unsafe { _mm512_loadu_si512(xv.as_ptr().cast::<__m512i>()) };
-            for (a, row) in acc.iter_mut().zip(&w) {
-                let q = &row[32 * c..32 * c + 32];
-                // SAFETY: `q` is 32 readable bytes; `_mm256_loadu_si256` reads exactly 32.
-                let q = unsafe { _mm256_loadu_si256(q.as_ptr().cast::<__m256i>()) };
-                *a = _mm512_add_epi32(*a, _mm512_madd_epi16(_mm512_cvtepi8_epi16(q), xv));
+            pub(super) struct $engine;
+
+            impl IntEngine for $engine {
+                #[inline(always)]
+                fn dot(w: &[i8], x: &[i16]) -> i32 {
+                    // SAFETY: this engine is only used inside the wrapper of `rows_i8` with
+                    // `$feat`, called only for an `Isa` made after detection found them.
+                    unsafe { $dotn([w], x)[0] }
+                }
+
+                #[inline(always)]
+                fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
+                    // SAFETY: as for `dot`.
+                    unsafe { $dotn(w, x) }
+                }
             }
-        }
-        let done = 32 * xc.len();
-        std::array::from_fn(|r| {
-            _mm512_reduce_add_epi32(acc[r]) + PortableInt::dot(&w[r][done..], xt)
-        })
+        };
     }
 
-    pub(super) struct Avx2Int;
-
-    impl IntEngine for Avx2Int {
-        #[inline(always)]
-        fn dot(w: &[i8], x: &[i16]) -> i32 {
-            // SAFETY: this engine is only used inside the `avx2` wrapper of `rows_i8`, called
-            // only for an `Isa` made after detection found AVX2.
-            unsafe { dotn_avx2([w], x)[0] }
-        }
-
-        #[inline(always)]
-        fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
-            // SAFETY: as for `dot`.
-            unsafe { dotn_avx2(w, x) }
-        }
-    }
-
-    pub(super) struct Avx512Int;
-
-    impl IntEngine for Avx512Int {
-        #[inline(always)]
-        fn dot(w: &[i8], x: &[i16]) -> i32 {
-            // SAFETY: this engine is only used inside the `avx512` wrapper of `rows_i8`, called
-            // only for an `Isa` made after detection found avx512f and avx512bw.
-            unsafe { dotn_avx512([w], x)[0] }
-        }
-
-        #[inline(always)]
-        fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
-            // SAFETY: as for `dot`.
-            unsafe { dotn_avx512(w, x) }
-        }
-    }
+    int_kernels!(
+        "avx2",
+        Avx2Int,
+        dotn_avx2,
+        16,
+        __m256i,
+        __m128i,
+        _mm256_loadu_si256,
+        _mm_loadu_si128,
+        _mm256_setzero_si256,
+        _mm256_cvtepi8_epi16,
+        _mm256_madd_epi16,
+        _mm256_add_epi32,
+        sum8
+    );
+    int_kernels!(
+        "avx512f,avx512bw,avx2",
+        Avx512Int,
+        dotn_avx512,
+        32,
+        __m512i,
+        __m256i,
+        _mm512_loadu_si512,
+        _mm256_loadu_si256,
+        _mm512_setzero_si512,
+        _mm512_cvtepi8_epi16,
+        _mm512_madd_epi16,
+        _mm512_add_epi32,
+        _mm512_reduce_add_epi32
+    );
 }
 
 /// int8 rows with a per-row scale: the integer kernels of `int8.rs` for rows of more than 16
@@ -718,30 +717,24 @@ pub(crate) fn rows_i8(
     };
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx2")]
-        fn avx2(
-            w: &[i8],
-            cols: usize,
-            xs: &[f32],
-            batch: usize,
-            scales: &[f32],
-            bias: Option<&[f32]>,
-            ys_t: &mut [f32],
-        ) {
-            rows_int::<int::Avx2Int>(w, cols, xs, batch, scales, bias, ys_t);
+        macro_rules! wrapper {
+            ($wrap:ident, $feat:literal, $engine:ty) => {
+                #[target_feature(enable = $feat)]
+                fn $wrap(
+                    w: &[i8],
+                    cols: usize,
+                    xs: &[f32],
+                    batch: usize,
+                    scales: &[f32],
+                    bias: Option<&[f32]>,
+                    ys_t: &mut [f32],
+                ) {
+                    rows_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
+                }
+            };
         }
-        #[target_feature(enable = "avx512f,avx512bw,avx2")]
-        fn avx512(
-            w: &[i8],
-            cols: usize,
-            xs: &[f32],
-            batch: usize,
-            scales: &[f32],
-            bias: Option<&[f32]>,
-            ys_t: &mut [f32],
-        ) {
-            rows_int::<int::Avx512Int>(w, cols, xs, batch, scales, bias, ys_t);
-        }
+        wrapper!(avx2, "avx2", int::Avx2Int);
+        wrapper!(avx512, "avx512f,avx512bw,avx2", int::Avx512Int);
         match isa.0 {
             // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2.
             Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
