@@ -2,8 +2,8 @@
 //!
 //! The lane kernels of `rows.rs` convert each int8 weight to f32 before a multiply and an add:
 //! four instructions per 16 weights on AVX-512, which made the paper-size 13,272 × 1,500
-//! product bound by instructions (1.42 ms per frame, 14 GMAC/s, while streaming its 19.9 MB
-//! takes about 0.9 ms; `cargo bench -p sartor-runtime --bench kernels -- matvec`). Here an
+//! product bound by instructions (1.42 ms, 14 GMAC/s, while streaming its 19.9 MB takes about
+//! 0.9 ms; `cargo bench -p sartor-runtime --bench kernels -- matvec`). Here an
 //! input vector is quantised once per product to integers `x_q` with one step `t` (symmetric,
 //! `t = max_j |x_j| / L`, `x_q = round_ties_even(x / t)` clamped to ±`L`), and every row is one
 //! exact integer sum `S_i = Σ_j q_ij · x_q,j`: on x86-64 two instructions per 16 (AVX2) or 32
@@ -20,9 +20,10 @@
 //! (about 1e-34) is taken as zero.
 //!
 //! **Error.** Beyond the weights' own rounding (`matrix.rs`), each input value moves by at most
-//! `t · (1/2 + 2 L u)` (`u = 2⁻²⁴`): about `1.2e-4 · max|x|` at 1,500 columns, some fifty times
-//! smaller than the int8 weights' relative step, and the final conversions and products add
-//! `γ₄` of the result. `matrix.rs` states the bound its tests assert.
+//! `t · (1/2 + 2 L u)` (`u = 2⁻²⁴`): about `4.4e-5 · max|x|` at 1,500 columns (`1.5e-5` up to
+//! 516), some ninety times less than an int8 weight moves relative to its row's largest
+//! (`1/254`), and the final conversions and products add `γ₄` of the result. `matrix.rs`
+//! states the bound its tests assert.
 //!
 //! Used for int8 rows of more than [`super::panels::THIN_COLS`] and at most [`MAX_COLS`]
 //! columns (the quantised input lives on the stack); thinner and wider int8 matrices keep the
