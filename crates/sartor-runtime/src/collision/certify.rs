@@ -998,10 +998,9 @@ impl Frame {
             points,
             scratch: s,
         } = state;
-        let frame = self;
         points.clear();
-        points.extend(cloth.iter().map(|p| frame.relative(p)));
-        search.run(frame, points, warm);
+        points.extend(cloth.iter().map(|p| self.relative(p)));
+        search.run(self, points, warm);
         let front2 = (margin_m as f32 + GUARD_M).powi(2);
         let margin2 = margin_m * margin_m;
         let mut stats = CertifyStats::default();
@@ -1010,10 +1009,10 @@ impl Frame {
             let (best2, best_face) = search.best(i);
             stats.candidates += search.faces(i).count();
             // A vertex with a crease face among its candidates is never certified (`settle`).
-            let crease = search.faces(i).any(|g| frame.crease[g as usize]);
+            let crease = search.faces(i).any(|g| self.crease[g as usize]);
             if !crease
                 && best2 >= front2
-                && search.faces(i).all(|g| frame.fans_in_front(g, x, GUARD_M))
+                && search.faces(i).all(|g| self.fans_in_front(g, x, GUARD_M))
             {
                 *out = Some(Outcome::Certified);
                 *warm = best_face;
@@ -1027,19 +1026,19 @@ impl Frame {
                 *warm = nearest.face;
                 if !crease
                     && nearest.distance_sq >= margin2
-                    && frame.feature_in_front(x, &nearest, GUARD_M)
+                    && self.feature_in_front(x, &nearest, GUARD_M)
                 {
                     stats.certified += 1;
                     Outcome::Certified
                 } else {
                     stats.exact += 1;
                     let c = proximity.signed(&q, &nearest);
-                    Outcome::Exact(frame.settle(proximity, &q, c, s))
+                    Outcome::Exact(self.settle(proximity, &q, c, s))
                 }
             });
         }
         CertifyStats {
-            buried_faces: frame.n_buried,
+            buried_faces: self.n_buried,
             ..stats
         }
     }

@@ -525,13 +525,13 @@ macro_rules! dispatched {
                     };
                 }
                 wrapper!(avx2, "avx2,fma,f16c", $avx2);
-                wrapper!(avx512, "avx512f,avx2,fma,f16c", $avx512);
+                wrapper!(avx512, "avx512f,avx512bw,avx2,fma,f16c", $avx512);
                 match isa.0 {
                     // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2,
                     // fma and f16c on this CPU.
                     Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
                     // SAFETY: `Isa(Level::Avx512)` is only built after `has_avx512()` found
-                    // avx512f as well.
+                    // avx512f and avx512bw as well.
                     Level::Avx512 => {
                         return unsafe { avx512(w, cols, xs, batch, scales, bias, ys_t) };
                     }
@@ -699,6 +699,17 @@ mod int {
     );
 }
 
+// The integer kernels (`int8.rs`); reached through `rows_i8` only. Their 512-bit engine needs
+// avx512bw, which `has_avx512` requires and the AVX-512 wrappers enable.
+dispatched!(
+    /// int8 rows with a per-row scale by integer products (`int8.rs`).
+    rows_i8_int,
+    i8,
+    rows_int::<PortableInt>,
+    rows_int::<int::Avx2Int>,
+    rows_int::<int::Avx512Int>
+);
+
 /// int8 rows with a per-row scale: the integer kernels of `int8.rs` for rows of more than 16
 /// and at most 2,048 columns, the lane kernels ([`rows_i8_lanes`]) otherwise.
 #[allow(clippy::too_many_arguments)]
@@ -712,39 +723,12 @@ pub(crate) fn rows_i8(
     bias: Option<&[f32]>,
     ys_t: &mut [f32],
 ) {
-    let Some(scales) = scales.filter(|_| int8::applies(cols)) else {
-        return rows_i8_lanes(isa, w, cols, xs, batch, scales, bias, ys_t);
+    let kernel = if int8::applies(cols) {
+        rows_i8_int
+    } else {
+        rows_i8_lanes
     };
-    #[cfg(target_arch = "x86_64")]
-    {
-        macro_rules! wrapper {
-            ($wrap:ident, $feat:literal, $engine:ty) => {
-                #[target_feature(enable = $feat)]
-                fn $wrap(
-                    w: &[i8],
-                    cols: usize,
-                    xs: &[f32],
-                    batch: usize,
-                    scales: &[f32],
-                    bias: Option<&[f32]>,
-                    ys_t: &mut [f32],
-                ) {
-                    rows_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
-                }
-            };
-        }
-        wrapper!(avx2, "avx2", int::Avx2Int);
-        wrapper!(avx512, "avx512f,avx512bw,avx2", int::Avx512Int);
-        match isa.0 {
-            // SAFETY: `Isa(Level::Avx2)` is only built after `has_avx2()` found avx2.
-            Level::Avx2 => return unsafe { avx2(w, cols, xs, batch, scales, bias, ys_t) },
-            // SAFETY: `Isa(Level::Avx512)` is only built after `has_avx512()` found avx512f
-            // and avx512bw.
-            Level::Avx512 => return unsafe { avx512(w, cols, xs, batch, scales, bias, ys_t) },
-            Level::Portable => {}
-        }
-    }
-    rows_int::<PortableInt>(w, cols, xs, batch, scales, bias, ys_t);
+    kernel(isa, w, cols, xs, batch, scales, bias, ys_t);
 }
 
 #[cfg(test)]
