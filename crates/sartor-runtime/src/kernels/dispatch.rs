@@ -1,8 +1,9 @@
 //! Run-time instruction-set dispatch for the row kernels — the crate's only `unsafe` code.
 //!
-//! [`super::rows::rows`] is generic over an engine. This module instantiates it with the
-//! portable engines and, on x86-64, inside `#[target_feature(enable = "avx2,fma,f16c")]` and
-//! `#[target_feature(enable = "avx512f,avx2,fma,f16c")]` functions with engines written with
+//! [`super::rows::rows`] (and `int8.rs`'s integer kernels) is generic over an engine. This
+//! module instantiates it with the portable engines and, on x86-64, inside
+//! `#[target_feature(enable = "avx2,fma,f16c")]` and
+//! `#[target_feature(enable = "avx512f,avx512bw,avx2,fma,f16c")]` functions with engines written with
 //! AVX2 / AVX-512 and F16C intrinsics (LLVM's auto-vectoriser proved unreliable for the 32-lane
 //! accumulators: inside the crate it chose 2-wide vectors and ran 5–10× slower). The kernels
 //! are written once (`isa_kernels!`) over each module's vector type. One instruction set is
