@@ -21,11 +21,11 @@
 //! The single-vector path streams each weight row once with the conversion fused into the dot
 //! product, four rows at a time (four concurrent memory streams, each input chunk loaded once:
 //! one stream per row left a third of the memory bandwidth unused on an Intel Xeon), eight at
-//! a time for rows of [`EIGHT_ROWS_FROM`] columns or more (on the AMD EPYC VM the paper-size
-//! 13,272 × 1,500 product took 5.0–6.4 ms in f32 with four streams, 4.5–5.0 with eight; the
-//! shipped model's rows of 64 to 256 columns, which live in cache, took twice as long with
-//! eight). The
-//! batched path tiles the work so that everything but the weights stays in L1:
+//! a time, an eighth of the rows apart, for rows of [`EIGHT_ROWS_FROM`] columns or more (on
+//! the AMD EPYC VM the paper-size 13,272 × 1,500 product took 5.0–6.4 ms in f32 with four
+//! streams, 4.5–5.0 with eight; the shipped model's rows of 64 to 256 columns, which live in
+//! cache, took twice as long with eight). The batched path tiles the work so that everything
+//! but the weights stays in L1:
 //! blocks of [`ROW_BLOCK`] rows × [`COL_BLOCK`] columns × up to [`GROUP`] inputs, inputs taken
 //! two at a time (one weight load feeds two products), lane sums carried across column
 //! blocks. `B` avatars thus share one pass over the weights in memory.
@@ -295,22 +295,29 @@ pub(crate) fn rows<E: Engine>(
     }
     if batch == 1 {
         // Eight streams for long rows (memory-bound: more rows in flight), four for short ones
-        // (cache-resident: eight rows' accumulators cost more than they hide).
-        let (octs, after) = if cols >= EIGHT_ROWS_FROM {
-            ys_t.as_chunks_mut::<8>()
+        // (cache-resident: eight rows' accumulators cost more than they hide). The eight rows
+        // are an eighth of the block apart, so that each stream runs on through its own
+        // contiguous part of the weights: eight neighbouring rows (one 48 KB run read at eight
+        // places) made the paper-size GRU + dense step 9–14 % slower in f32 and 17–25 % in
+        // f16, where the weights come from memory (`cargo bench --bench kernels --
+        // gru1500_out13272`, 2-core Intel Xeon VM, alternating builds). Every row's sum is
+        // the same either way.
+        let n8 = if cols >= EIGHT_ROWS_FROM {
+            ys_t.len() / 8
         } else {
-            (&mut [][..], ys_t)
+            0
         };
-        for (q, y) in octs.iter_mut().enumerate() {
-            let i0 = 8 * q;
-            let row = |k: usize| &w[(i0 + k) * cols..(i0 + k + 1) * cols];
+        for q in 0..n8 {
+            let idx = |k: usize| q + k * n8;
+            let row = |k: usize| &w[idx(k) * cols..(idx(k) + 1) * cols];
             let d = E::dot8(std::array::from_fn(row), xs);
             for k in 0..8 {
-                let i = i0 + k;
-                y[k] = epilogue(d[k], scales.map(|s| s[i]), bias.map(|b| b[i]));
+                let i = idx(k);
+                ys_t[i] = epilogue(d[k], scales.map(|s| s[i]), bias.map(|b| b[i]));
             }
         }
-        let base = 8 * octs.len();
+        let base = 8 * n8;
+        let after = &mut ys_t[base..];
         let (quads, rest) = after.as_chunks_mut::<4>();
         for (q, y) in quads.iter_mut().enumerate() {
             let i0 = base + 4 * q;
