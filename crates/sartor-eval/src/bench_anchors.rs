@@ -130,10 +130,14 @@ struct Floor {
     precision: &'static str,
     /// Weight bytes the step reads per frame (GRU and output layer, int8 scales included).
     bytes: usize,
-    /// Median ms to stream that many bytes once.
+    /// Median ms to stream that many bytes once: the faster of the two page sizes below.
     ms: f64,
     /// Implied bandwidth, GB/s (10^9 bytes).
     gb_per_s: f64,
+    /// The same from a buffer in ordinary (4 KiB) pages.
+    ms_small_pages: f64,
+    /// The same from a buffer advised to huge pages (Linux only; `None` elsewhere).
+    ms_huge_pages: Option<f64>,
 }
 
 /// One anchor at one thread count.
@@ -209,6 +213,9 @@ pub struct AnchorsReport {
     script: String,
     versions: BTreeMap<String, String>,
     torch_cpu_capability: Option<String>,
+    /// The transparent-huge-page mode the OS reports (`always`, `madvise`, `never`), which
+    /// decides whether the floor's huge-page buffer gets huge pages.
+    transparent_huge_pages: Option<String>,
     warmup_frames: usize,
     timed_frames: usize,
     check_frames: usize,
@@ -326,39 +333,118 @@ fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
 }
 
 /// The memory-bandwidth floor: median ms to read `bytes` bytes once (rounded up to whole
-/// 8-byte words) on `threads` threads (each a contiguous share; more than one thread runs in a
-/// rayon pool of exactly that many), over `reps` repetitions after three untimed ones. The
-/// buffer is filled with non-zero values so that every page is really backed.
+/// 8-byte words) on `threads` threads, the faster of ordinary and huge pages ([`stream_floor`]).
 pub fn stream_floor_ms(bytes: usize, threads: usize, reps: usize) -> Result<f64> {
+    Ok(stream_floor(bytes, threads, reps)?.ms())
+}
+
+/// The floor's two measurements (see [`stream_floor`]).
+#[derive(Clone, Copy, Debug)]
+struct StreamFloor {
+    small_pages_ms: f64,
+    huge_pages_ms: Option<f64>,
+}
+
+impl StreamFloor {
+    /// The floor: the faster of the two.
+    fn ms(&self) -> f64 {
+        self.huge_pages_ms
+            .map_or(self.small_pages_ms, |h| h.min(self.small_pages_ms))
+    }
+}
+
+/// Median ms to read `bytes` bytes once (rounded up to whole 8-byte words) on `threads`
+/// threads (each a contiguous share; more than one thread runs in a rayon pool of exactly that
+/// many), over `reps` repetitions after three untimed ones: from a buffer in ordinary pages and,
+/// on Linux, from one advised to huge pages ([`huge_page_words`]). Buffers are filled with
+/// non-zero values so that every page is really backed.
+///
+/// Both, because a floor must not be beaten: on the 2-core Intel Xeon VM (transparent huge
+/// pages `madvise`) eight streams read 108 MB in 7.2–7.5 ms from 4 KiB pages and 5.3–5.5 ms
+/// from 2 MiB pages, and ONNX Runtime's paper-size step, which reads those bytes, took 5.2 ms
+/// there — under a 4 KiB-page floor. (sartor's own weights advised to huge pages were no
+/// faster: `gru1500_out13272` f32 6.2 ms either way, so its kernels keep ordinary pages.)
+fn stream_floor(bytes: usize, threads: usize, reps: usize) -> Result<StreamFloor> {
     ensure!(bytes > 0, "no bytes to stream");
     ensure!(threads > 0, "no threads to stream with");
     ensure!(reps > 0, "no repetitions");
-    let words: Vec<u64> = (0..bytes.div_ceil(8) as u64)
-        .map(|i| i.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-        .collect();
+    let n = bytes.div_ceil(8);
+    let word = |i: usize| (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let pool = thread_pool(threads)?;
-    let chunk = words.len().div_ceil(threads).max(1);
-    let once = || -> u64 {
-        if threads == 1 {
-            stream_sum(std::hint::black_box(&words))
-        } else {
-            pool.install(|| {
-                std::hint::black_box(&words)
-                    .par_chunks(chunk)
-                    .map(stream_sum)
-                    .reduce(|| 0, u64::wrapping_add)
-            })
+    let time = |words: &[u64]| -> f64 {
+        let chunk = words.len().div_ceil(threads).max(1);
+        let once = || -> u64 {
+            if threads == 1 {
+                stream_sum(std::hint::black_box(words))
+            } else {
+                pool.install(|| {
+                    std::hint::black_box(words)
+                        .par_chunks(chunk)
+                        .map(stream_sum)
+                        .reduce(|| 0, u64::wrapping_add)
+                })
+            }
+        };
+        let mut ms = Vec::with_capacity(reps);
+        for rep in 0..reps + 3 {
+            let start = Instant::now();
+            std::hint::black_box(once());
+            if rep >= 3 {
+                ms.push(start.elapsed().as_secs_f64() * 1e3);
+            }
         }
+        median(&ms)
     };
-    let mut ms = Vec::with_capacity(reps);
-    for rep in 0..reps + 3 {
-        let start = Instant::now();
-        std::hint::black_box(once());
-        if rep >= 3 {
-            ms.push(start.elapsed().as_secs_f64() * 1e3);
+    let small: Vec<u64> = (0..n).map(word).collect();
+    let small_pages_ms = time(&small);
+    drop(small);
+    let huge_pages_ms = huge_page_words(n, word).map(|words| time(&words));
+    Ok(StreamFloor {
+        small_pages_ms,
+        huge_pages_ms,
+    })
+}
+
+/// `n` words `word(i)` in a fresh buffer whose whole 2 MiB pages Linux is asked to back with
+/// huge pages before they are first written (`madvise(MADV_HUGEPAGE)`; it does so when its
+/// transparent huge pages are `always` or `madvise`). `None` off Linux or when the kernel
+/// refuses the advice.
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+fn huge_page_words(n: usize, word: impl Fn(usize) -> u64) -> Option<Vec<u64>> {
+    const HUGE_PAGE: usize = 2 << 20;
+    let mut words: Vec<u64> = Vec::with_capacity(n);
+    let start = words.as_ptr() as usize;
+    let first = start.next_multiple_of(HUGE_PAGE);
+    let end = (start + 8 * n) / HUGE_PAGE * HUGE_PAGE;
+    // A buffer without a whole huge page inside is read from ordinary pages only.
+    if end > first {
+        // SAFETY: `[first, end)` lies within `words`' allocation of `8 n` bytes; the advice
+        // changes how those pages are backed, never their contents or whether they may be
+        // accessed.
+        let advised =
+            unsafe { libc::madvise(first as *mut libc::c_void, end - first, libc::MADV_HUGEPAGE) };
+        if advised != 0 {
+            return None;
         }
     }
-    Ok(median(&ms))
+    words.extend((0..n).map(word));
+    Some(words)
+}
+
+/// Huge pages are advised on Linux only.
+#[cfg(not(target_os = "linux"))]
+fn huge_page_words(_: usize, _: impl Fn(usize) -> u64) -> Option<Vec<u64>> {
+    None
+}
+
+/// The transparent-huge-page mode Linux reports (the bracketed word of
+/// `/sys/kernel/mm/transparent_hugepage/enabled`, e.g. `madvise`); `None` elsewhere.
+fn transparent_huge_pages() -> Option<String> {
+    let text = std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled").ok()?;
+    let start = text.find('[')? + 1;
+    let end = start + text[start..].find(']')?;
+    Some(text[start..end].to_string())
 }
 
 /// Repetitions of the floor: about half a second of streaming at 10 GB/s, 20 to 2,000.
@@ -569,7 +655,8 @@ fn model_anchors(
         for n in &networks {
             let ms = time_step(n, &x, threads, options.warmup, options.frames)?;
             let bytes = n.wrinkle_weight_bytes();
-            let floor_ms = stream_floor_ms(bytes, threads, floor_reps(bytes))?;
+            let streams = stream_floor(bytes, threads, floor_reps(bytes))?;
+            let floor_ms = streams.ms();
             progress.println(&format!(
                 "  anchors {} sartor {:>4} {threads} thread(s): {ms:.4} ms/frame; floor {floor_ms:.4} \
                  ms for {:.1} MB",
@@ -586,6 +673,8 @@ fn model_anchors(
                 bytes,
                 ms: floor_ms,
                 gb_per_s: bytes as f64 / (floor_ms * 1e6),
+                ms_small_pages: streams.small_pages_ms,
+                ms_huge_pages: streams.huge_pages_ms,
             });
         }
         per_thread.push((threads, sartor, floor));
@@ -692,6 +781,7 @@ pub(crate) fn anchors(
         script: options.script.display().to_string(),
         versions,
         torch_cpu_capability: capability,
+        transparent_huge_pages: transparent_huge_pages(),
         warmup_frames: options.warmup,
         timed_frames: options.frames,
         check_frames: options.check_frames,
@@ -706,7 +796,9 @@ pub(crate) fn anchors(
              fastest precision at that thread count.",
             "floor: the median time to stream the step's weight bytes once (sum of a buffer of \
              that many bytes, warm, back to back as the frames are), per precision's weight \
-             size; sartor_*_over_floor = sartor's ms / that floor (1: at the memory bandwidth).",
+             size, the faster of a buffer in 4 KiB pages (ms_small_pages) and one advised to \
+             2 MiB pages (ms_huge_pages, Linux); sartor_*_over_floor = sartor's ms / that floor \
+             (1: at the memory bandwidth).",
             "max_abs_diff_m: the engine's displacements against sartor's f32 ones for the same \
              inputs from a zero state, metres; max_abs_output_m is their scale; \
              agrees_with_sartor: within 1e-4 of that scale (an engine that disagrees is never \
@@ -764,6 +856,8 @@ mod tests {
                 bytes,
                 ms,
                 gb_per_s: bytes as f64 / (ms * 1e6),
+                ms_small_pages: ms,
+                ms_huge_pages: None,
             })
             .collect()
     }
@@ -845,6 +939,27 @@ mod tests {
         }
         assert!(stream_floor_ms(0, 1, 5).is_err());
         Ok(())
+    }
+
+    #[test]
+    fn the_huge_page_buffer_holds_every_word_and_the_mode_is_one_word() {
+        // 5 MiB: at least one whole 2 MiB page inside, whatever the allocation's start.
+        let n = 5 << 17;
+        if let Some(words) = huge_page_words(n, |i| i as u64 * 3 + 1) {
+            assert_eq!(words.len(), n);
+            assert!(
+                words
+                    .iter()
+                    .enumerate()
+                    .all(|(i, &w)| w == i as u64 * 3 + 1)
+            );
+        }
+        if let Some(mode) = transparent_huge_pages() {
+            assert!(
+                ["always", "madvise", "never"].contains(&mode.as_str()),
+                "{mode:?}"
+            );
+        }
     }
 
     #[test]
