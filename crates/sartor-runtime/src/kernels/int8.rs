@@ -111,6 +111,8 @@ fn output(sum: i32, step: Option<f32>, scale: f32, bias: Option<f32>) -> f32 {
     }
 }
 
+/// Rows from this many columns on are read eight streams apart (see `group`).
+const STRIDED_FROM: usize = 512;
 /// Quantised inputs a batch holds at once: 24 KB on the stack (eight inputs of 1,500).
 const GROUP_BUFFER: usize = 6 * MAX_COLS;
 /// At most this many inputs share one pass over the weights.
@@ -190,7 +192,23 @@ fn group<E: IntEngine>(
     let input = |k: usize| &xq[k * cols..(k + 1) * cols];
     let out = |i: usize, k: usize, sum: i32| output(sum, steps[k], scales(i), bias.map(|v| v[i]));
     let octs = n_rows / 8;
-    if let ([Some(t)], 1) = (steps, batch) {
+    if let ([Some(_)], 1) = (steps, batch)
+        && cols >= STRIDED_FROM
+    {
+        // One finite input, long rows, which come from memory: the eight rows an eighth of
+        // the block apart, each stream running on through its own part of the weights, as in
+        // `rows.rs` (the paper-size GRU + dense int8 step took 1.16–1.28 → 1.03–1.07 ms on one
+        // thread, 0.82–0.84 → 0.66–0.73 on two, alternating builds; `cargo bench --bench
+        // kernels -- gru1500_out13272`). Their outputs are not side by side.
+        for o in 0..octs {
+            let at = |r: usize| o + r * octs;
+            let rows: [&[i8]; 8] = std::array::from_fn(|r| &w[at(r) * cols..(at(r) + 1) * cols]);
+            let sums = E::dot8(rows, input(0));
+            for (r, &sum) in sums.iter().enumerate() {
+                ys_t[at(r)] = out(at(r), 0, sum);
+            }
+        }
+    } else if let ([Some(t)], 1) = (steps, batch) {
         // One finite input: the eight outputs side by side, in vectors where the compiler can,
         // the arithmetic of `output` (so the same bits). With the eight sums' tree of
         // horizontal adds (`dispatch.rs`) the 6,504 × 64 product took 27.1 → 20.4 µs, 6,504 ×
@@ -288,31 +306,33 @@ mod tests {
 
     #[test]
     fn one_input_gives_the_bits_of_the_formula_row_by_row() {
-        // The one-input path writes eight rows at a time; here every row against `output`
-        // of its own integer sum, with and without bias and scales, and a tail of rows.
-        let (rows, cols) = (8 * 5 + 3, 70);
-        let w: Vec<i8> = (0..rows * cols)
-            .map(|i| ((i * 7919 % 255) as i32 - 127) as i8)
-            .collect();
-        let x: Vec<f32> = (0..cols)
-            .map(|j| ((j * 31 % 67) as f32 - 33.0) * 0.071)
-            .collect();
-        let scales: Vec<f32> = (0..rows).map(|i| 0.003 + i as f32 * 1e-4).collect();
-        let bias: Vec<f32> = (0..rows).map(|i| (i as f32 - 20.0) * 0.013).collect();
-        let mut xq = vec![0i16; cols];
-        let step = quantize_input(&x, &mut xq);
-        for (s, b) in [
-            (Some(&scales[..]), Some(&bias[..])),
-            (Some(&scales[..]), None),
-            (None, Some(&bias[..])),
-            (None, None),
-        ] {
-            let mut y = vec![f32::NAN; rows];
-            rows_int::<PortableInt>(&w, cols, &x, 1, s, b, &mut y);
-            for i in 0..rows {
-                let sum = PortableInt::dot(&w[i * cols..(i + 1) * cols], &xq);
-                let want = output(sum, step, s.map_or(1.0, |s| s[i]), b.map(|b| b[i]));
-                assert_eq!(y[i].to_bits(), want.to_bits(), "row {i}");
+        // The one-input paths write eight rows at a time (side by side for short rows, an
+        // eighth of the block apart for long ones); here every row against `output` of its
+        // own integer sum, with and without bias and scales, and a tail of rows.
+        for (rows, cols) in [(8 * 5 + 3, 70), (8 * 3 + 5, STRIDED_FROM + 88)] {
+            let w: Vec<i8> = (0..rows * cols)
+                .map(|i| ((i * 7919 % 255) as i32 - 127) as i8)
+                .collect();
+            let x: Vec<f32> = (0..cols)
+                .map(|j| ((j * 31 % 67) as f32 - 33.0) * 0.071)
+                .collect();
+            let scales: Vec<f32> = (0..rows).map(|i| 0.003 + i as f32 * 1e-4).collect();
+            let bias: Vec<f32> = (0..rows).map(|i| (i as f32 - 20.0) * 0.013).collect();
+            let mut xq = vec![0i16; cols];
+            let step = quantize_input(&x, &mut xq);
+            for (s, b) in [
+                (Some(&scales[..]), Some(&bias[..])),
+                (Some(&scales[..]), None),
+                (None, Some(&bias[..])),
+                (None, None),
+            ] {
+                let mut y = vec![f32::NAN; rows];
+                rows_int::<PortableInt>(&w, cols, &x, 1, s, b, &mut y);
+                for i in 0..rows {
+                    let sum = PortableInt::dot(&w[i * cols..(i + 1) * cols], &xq);
+                    let want = output(sum, step, s.map_or(1.0, |s| s[i]), b.map(|b| b[i]));
+                    assert_eq!(y[i].to_bits(), want.to_bits(), "{rows} × {cols}: row {i}");
+                }
             }
         }
     }
