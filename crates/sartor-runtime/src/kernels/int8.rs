@@ -174,7 +174,8 @@ fn rows_scaled<E: IntEngine>(
 }
 
 /// Every row times the quantised inputs `xq` (`steps.len()` of them, `cols` each), written to
-/// `ys_t[i·batch + first + k]`.
+/// `ys_t[i·batch + first + k]`; eight rows at a time, an eighth of the rows apart from
+/// [`STRIDED_FROM`] columns on (long rows come from memory), neighbours below.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn group<E: IntEngine>(
