@@ -356,7 +356,7 @@ impl StreamFloor {
 /// Median ms to read `bytes` bytes once (rounded up to whole 8-byte words) on `threads`
 /// threads (each a contiguous share; more than one thread runs in a rayon pool of exactly that
 /// many), over `reps` repetitions after three untimed ones: from a buffer in ordinary pages and,
-/// on Linux, from one advised to huge pages ([`huge_page_words`]). Buffers are filled with
+/// on Linux, from one advised to huge pages ([`paged_words`]). Buffers are filled with
 /// non-zero values so that every page is really backed.
 ///
 /// Both, because a floor must not be beaten: on the 2-core Intel Xeon VM (transparent huge
@@ -395,10 +395,10 @@ fn stream_floor(bytes: usize, threads: usize, reps: usize) -> Result<StreamFloor
         }
         median(&ms)
     };
-    let small: Vec<u64> = (0..n).map(word).collect();
+    let small = paged_words(n, word, false).unwrap_or_else(|| (0..n).map(word).collect());
     let small_pages_ms = time(&small);
     drop(small);
-    let huge_pages_ms = huge_page_words(n, word).map(|words| time(&words));
+    let huge_pages_ms = paged_words(n, word, true).map(|words| time(&words));
     Ok(StreamFloor {
         small_pages_ms,
         huge_pages_ms,
@@ -406,35 +406,46 @@ fn stream_floor(bytes: usize, threads: usize, reps: usize) -> Result<StreamFloor
 }
 
 /// `n` words `word(i)` in a fresh buffer whose whole 2 MiB pages Linux is asked to back with
-/// huge pages before they are first written (`madvise(MADV_HUGEPAGE)`; it does so when its
-/// transparent huge pages are `always` or `madvise`). `None` off Linux or when the kernel
-/// refuses the advice.
+/// huge pages (`huge`: `madvise(MADV_HUGEPAGE)` before the pages are first written, which it
+/// follows when its transparent huge pages are `always` or `madvise`, and `MADV_COLLAPSE`
+/// after, for memory the allocator had touched before) or never to (`MADV_NOHUGEPAGE`, so that
+/// the ordinary-page figure is one also where huge pages are `always`). `None` off Linux or
+/// when the kernel refuses the first advice.
 #[cfg(target_os = "linux")]
 #[allow(unsafe_code)]
-fn huge_page_words(n: usize, word: impl Fn(usize) -> u64) -> Option<Vec<u64>> {
+fn paged_words(n: usize, word: impl Fn(usize) -> u64, huge: bool) -> Option<Vec<u64>> {
     const HUGE_PAGE: usize = 2 << 20;
+    /// `MADV_COLLAPSE` (Linux 6.1; the UAPI value, which the `libc` crate defines for glibc
+    /// only). An older kernel answers `EINVAL` and the pages stay as they are.
+    const MADV_COLLAPSE: libc::c_int = 25;
     let mut words: Vec<u64> = Vec::with_capacity(n);
     let start = words.as_ptr() as usize;
     let first = start.next_multiple_of(HUGE_PAGE);
     let end = (start + 8 * n) / HUGE_PAGE * HUGE_PAGE;
-    // A buffer without a whole huge page inside is read from ordinary pages only.
-    if end > first {
-        // SAFETY: `[first, end)` lies within `words`' allocation of `8 n` bytes; the advice
-        // changes how those pages are backed, never their contents or whether they may be
-        // accessed.
-        let advised =
-            unsafe { libc::madvise(first as *mut libc::c_void, end - first, libc::MADV_HUGEPAGE) };
-        if advised != 0 {
-            return None;
-        }
+    // SAFETY: `[first, end)` lies within `words`' allocation of `8 n` bytes; these advices
+    // change how those pages are backed, never their contents or whether they may be accessed.
+    let advise =
+        |flag| unsafe { libc::madvise(first as *mut libc::c_void, end - first, flag) == 0 };
+    // A buffer without a whole huge page inside is in ordinary pages whatever the advice.
+    let whole = end > first;
+    let flag = if huge {
+        libc::MADV_HUGEPAGE
+    } else {
+        libc::MADV_NOHUGEPAGE
+    };
+    if whole && !advise(flag) {
+        return None;
     }
     words.extend((0..n).map(word));
+    if whole && huge {
+        advise(MADV_COLLAPSE);
+    }
     Some(words)
 }
 
-/// Huge pages are advised on Linux only.
+/// Page sizes are advised on Linux only.
 #[cfg(not(target_os = "linux"))]
-fn huge_page_words(_: usize, _: impl Fn(usize) -> u64) -> Option<Vec<u64>> {
+fn paged_words(_: usize, _: impl Fn(usize) -> u64, _: bool) -> Option<Vec<u64>> {
     None
 }
 
@@ -942,17 +953,19 @@ mod tests {
     }
 
     #[test]
-    fn the_huge_page_buffer_holds_every_word_and_the_mode_is_one_word() {
+    fn the_paged_buffers_hold_every_word_and_the_mode_is_one_word() {
         // 5 MiB: at least one whole 2 MiB page inside, whatever the allocation's start.
         let n = 5 << 17;
-        if let Some(words) = huge_page_words(n, |i| i as u64 * 3 + 1) {
-            assert_eq!(words.len(), n);
-            assert!(
-                words
-                    .iter()
-                    .enumerate()
-                    .all(|(i, &w)| w == i as u64 * 3 + 1)
-            );
+        for huge in [false, true] {
+            if let Some(words) = paged_words(n, |i| i as u64 * 3 + 1, huge) {
+                assert_eq!(words.len(), n);
+                assert!(
+                    words
+                        .iter()
+                        .enumerate()
+                        .all(|(i, &w)| w == i as u64 * 3 + 1)
+                );
+            }
         }
         if let Some(mode) = transparent_huge_pages() {
             assert!(
