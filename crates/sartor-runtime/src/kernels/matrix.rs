@@ -64,8 +64,8 @@ impl Precision {
 
 /// How a kernel may use threads: sartor-core's one choice. Every output row is computed by one
 /// thread with the same arithmetic, so [`Parallelism::Rayon`] is bitwise equal to
-/// [`Parallelism::Sequential`]; products smaller than [`MIN_PARALLEL_MACS`] run on the calling
-/// thread.
+/// [`Parallelism::Sequential`]; products smaller than `MIN_PARALLEL_MACS` (2¹⁶ multiply–adds)
+/// run on the calling thread.
 pub use sartor_core::Parallelism;
 
 /// Below this many multiply–adds a product is not worth splitting across threads.
