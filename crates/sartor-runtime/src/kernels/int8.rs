@@ -193,28 +193,15 @@ fn group<E: IntEngine>(
     let input = |k: usize| &xq[k * cols..(k + 1) * cols];
     let out = |i: usize, k: usize, sum: i32| output(sum, steps[k], scales(i), bias.map(|v| v[i]));
     let octs = n_rows / 8;
-    if let ([Some(_)], 1) = (steps, batch)
-        && cols >= STRIDED_FROM
+    if let ([Some(t)], 1) = (steps, batch)
+        && cols < STRIDED_FROM
     {
-        // One finite input, long rows, which come from memory: the eight rows an eighth of
-        // the block apart, each stream running on through its own part of the weights, as in
-        // `rows.rs` (the paper-size GRU + dense int8 step took 1.16–1.28 → 1.03–1.07 ms on one
-        // thread, 0.82–0.84 → 0.66–0.73 on two, alternating builds; `cargo bench --bench
-        // kernels -- gru1500_out13272`). Their outputs are not side by side.
-        for o in 0..octs {
-            let at = |r: usize| o + r * octs;
-            let rows: [&[i8]; 8] = std::array::from_fn(|r| &w[at(r) * cols..(at(r) + 1) * cols]);
-            let sums = E::dot8(rows, input(0));
-            for (r, &sum) in sums.iter().enumerate() {
-                ys_t[at(r)] = out(at(r), 0, sum);
-            }
-        }
-    } else if let ([Some(t)], 1) = (steps, batch) {
-        // One finite input: the eight outputs side by side, in vectors where the compiler can,
-        // the arithmetic of `output` (so the same bits). With the eight sums' tree of
-        // horizontal adds (`dispatch.rs`) the 6,504 × 64 product took 27.1 → 20.4 µs, 6,504 ×
-        // 32 23.6 → 16.5 (`cargo bench --bench kernels -- pca_basis`); this loop's shape
-        // matters: with `step_by`, or the outputs computed before `ys` is taken, 23–24 µs.
+        // One finite input, short rows (in cache): the eight outputs side by side, in vectors
+        // where the compiler can, the arithmetic of `output` (so the same bits). With the eight
+        // sums' tree of horizontal adds (`dispatch.rs`) the 6,504 × 64 product took 27.1 →
+        // 20.4 µs, 6,504 × 32 23.6 → 16.5 (`cargo bench --bench kernels -- pca_basis`); this
+        // loop's shape matters: with `step_by`, or the outputs computed before `ys` is taken,
+        // 23–24 µs.
         let t = *t;
         for o in 0..octs {
             let i0 = 8 * o;
@@ -234,9 +221,12 @@ fn group<E: IntEngine>(
             }
         }
     } else {
-        // Several inputs (or one not finite): long rows spread as above, which took a batch of
-        // eight through the paper-size int8 GRU + dense step on two threads in 3.37–3.43 ms
-        // against 3.65–3.69 with neighbouring rows (alternating builds).
+        // Long rows come from memory: the eight rows an eighth of the block apart, each stream
+        // running on through its own part of the weights, as in `rows.rs` (the paper-size GRU
+        // + dense int8 step took 1.16–1.28 → 1.03–1.07 ms on one thread, 0.82–0.84 →
+        // 0.66–0.73 on two; a batch of eight on two threads 3.65–3.69 → 3.37–3.43; alternating
+        // builds, `cargo bench --bench kernels -- gru1500_out13272`). Several inputs, or one
+        // not finite, take this loop too.
         let spread = cols >= STRIDED_FROM;
         for o in 0..octs {
             let at = |r: usize| if spread { o + r * octs } else { 8 * o + r };
