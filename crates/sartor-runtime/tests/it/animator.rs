@@ -247,12 +247,7 @@ fn extreme_shapes_and_near_half_turns_stay_finite_in_every_precision() {
     for scale in [5.0f32, -5.0] {
         let reference = run(Precision::F32, scale);
         for (precision, limit_mm) in [(Precision::F16, 0.1), (Precision::Int8, 10.0)] {
-            let frames = run(precision, scale);
-            let worst = frames
-                .iter()
-                .zip(&reference)
-                .map(|(a, b)| max_mm(a, b))
-                .fold(0.0, f64::max);
+            let worst = worst_mm(&run(precision, scale), &reference);
             eprintln!("{precision:?}, β = {scale}: max vertex deviation from f32 {worst:.4} mm");
             assert!(worst <= limit_mm, "{precision:?}, β = {scale}: {worst} mm");
         }
@@ -264,6 +259,14 @@ fn max_mm(a: &[Vector3<f32>], b: &[Vector3<f32>]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(p, q)| (p - q).norm() as f64 * 1e3)
+        .fold(0.0, f64::max)
+}
+
+/// The largest [`max_mm`] over frames, frame by frame.
+fn worst_mm(a: &[Vec<Vector3<f32>>], b: &[Vec<Vector3<f32>>]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| max_mm(p, q))
         .fold(0.0, f64::max)
 }
 
@@ -368,12 +371,7 @@ fn f16_and_int8_stay_within_documented_tolerances_of_f32() {
     };
     let reference = run(Precision::F32);
     for (precision, limit_mm) in [(Precision::F16, 0.1), (Precision::Int8, 1.0)] {
-        let frames = run(precision);
-        let worst = reference
-            .iter()
-            .zip(&frames)
-            .map(|(a, b)| max_mm(a, b))
-            .fold(0.0, f64::max);
+        let worst = worst_mm(&reference, &run(precision));
         eprintln!("{precision:?}: max vertex deviation from f32 {worst:.4} mm");
         assert!(worst <= limit_mm, "{precision:?}: {worst} mm");
         assert!(worst > 0.0);
