@@ -203,8 +203,16 @@ macro_rules! isa_kernels {
             let mut acc = [load_acc(&zero); N];
             let (xc, xt) = x.as_chunks::<LANES>();
             let wc = w.map(|row| row.as_chunks::<LANES>());
+            // The rows' lengths checked once, so that the loop below reads them without a
+            // bounds check per row and chunk.
+            let n = xc.len();
+            let rows: [*const [$t; LANES]; N] = std::array::from_fn(|k| {
+                assert!(wc[k].0.len() >= n, "a row shorter than the input");
+                wc[k].0.as_ptr()
+            });
             for (i, b) in xc.iter().enumerate() {
-                step(&mut acc, std::array::from_fn(|k| &wc[k].0[i]), b);
+                // SAFETY: `i < n` and every row has at least `n` whole chunks (checked above).
+                step(&mut acc, std::array::from_fn(|k| unsafe { &*rows[k].add(i) }), b);
             }
             if !xt.is_empty() {
                 let pw = wc.map(|(_, tail)| padded(tail));
@@ -669,13 +677,20 @@ mod int {
             fn $dotn<const N: usize>(w: [&[i8]; N], x: &[i16]) -> [$x; N] {
                 let (xc, _) = x.as_chunks::<$w>();
                 let mut acc = [$zero(); N];
+                // The rows' lengths checked once, not per row and step (see `dotn` of
+                // `isa_kernels!`).
+                let n = xc.len() * $w;
+                let rows: [*const i8; N] = std::array::from_fn(|k| {
+                    assert!(w[k].len() >= n, "a row shorter than the input");
+                    w[k].as_ptr()
+                });
                 for (c, xv) in xc.iter().enumerate() {
                     // SAFETY: `xv` is `$w` i16, exactly the vector's width; no alignment needed.
                     let xv = unsafe { $load_x(xv.as_ptr().cast::<$x>()) };
-                    for (a, row) in acc.iter_mut().zip(&w) {
-                        let q = &row[$w * c..$w * c + $w];
-                        // SAFETY: `q` is `$w` readable bytes, exactly what the load reads.
-                        let q = unsafe { $load_q(q.as_ptr().cast::<$q>()) };
+                    for (a, row) in acc.iter_mut().zip(&rows) {
+                        // SAFETY: `$w·c + $w ≤ n`, within the row (checked above): `$w`
+                        // readable bytes, exactly what the load reads.
+                        let q = unsafe { $load_q(row.add($w * c).cast::<$q>()) };
                         *a = $add(*a, $madd($widen(q), xv));
                     }
                 }
