@@ -670,6 +670,9 @@ mod tests {
             (130, 1031),
             (700, 1031),
             (50, 1500),
+            // Long rows in more than one block of the single-vector path's eight streams, the
+            // last one partial.
+            (2 * super::super::rows::SPREAD_ROWS + 43, 520),
         ] {
             for precision in [Precision::F32, Precision::F16, Precision::Int8] {
                 let m = Matrix::from_f32(rows, cols, random(&mut rng, rows * cols, 1.0), precision)
