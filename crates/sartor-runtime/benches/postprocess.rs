@@ -1,7 +1,8 @@
 //! The collision post-process of the shipped model (the 4,210-triangle T-shirt on the built-in
 //! body, nominal shape) on the procedural walk, one thread: milliseconds per frame of the
 //! post-process alone (posing the body region and pushing the cloth out), per query, and the
-//! whole frame with the default query. `certified-buried` is the certified query as a body
+//! whole frame with the default query. `certified-2threads` is the default query with its first
+//! pass split over a pool of two threads (every other entry runs on one). `certified-buried` is the certified query as a body
 //! shape beyond the model's training shapes gets it (the faces buried inside another body part
 //! sought every frame). Each iteration is the next frame of the clip, so the
 //! temporal caches see real motion.
@@ -16,7 +17,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use sartor_core::{BodyModel, Pose};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
-    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions,
+    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -34,6 +35,7 @@ fn animator(
     query: CollisionQuery,
     interpenetration: Interpenetration,
     faces: bool,
+    parallelism: Parallelism,
 ) -> GarmentAnimator {
     let dir = data("models/default");
     let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
@@ -41,6 +43,7 @@ fn animator(
         Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
     let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
     let options = AnimatorOptions {
+        parallelism,
         collision: Some(CollisionOptions {
             query,
             interpenetration,
@@ -59,36 +62,58 @@ fn post_process(c: &mut Criterion) {
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     let poses: Vec<Pose> = walk.frames().to_vec();
     let mut group = c.benchmark_group("post-process/shipped-4210");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool of two threads");
     let within = Interpenetration::BeyondTrainingShapes;
-    for (name, query, interpenetration, faces) in [
-        ("certified", CollisionQuery::Certified, within, false),
+    let seq = Parallelism::Sequential;
+    for (name, query, interpenetration, faces, parallelism) in [
+        ("certified", CollisionQuery::Certified, within, false, seq),
+        // Its first pass split over two threads.
+        (
+            "certified-2threads",
+            CollisionQuery::Certified,
+            within,
+            false,
+            Parallelism::Rayon,
+        ),
         // The triangles' centroids pushed out too (`CollisionOptions::faces`).
-        ("certified-faces", CollisionQuery::Certified, within, true),
+        (
+            "certified-faces",
+            CollisionQuery::Certified,
+            within,
+            true,
+            seq,
+        ),
         // What a shape beyond the training shapes gets: buried faces sought every frame.
         (
             "certified-buried",
             CollisionQuery::Certified,
             Interpenetration::Always,
             false,
+            seq,
         ),
-        ("bvh", CollisionQuery::EXACT_BVH, within, false),
+        ("bvh", CollisionQuery::EXACT_BVH, within, false, seq),
     ] {
-        let mut avatar = animator(query, interpenetration, faces);
+        let mut avatar = animator(query, interpenetration, faces, parallelism);
         let mut k = 0;
         group.bench_function(name, |b| {
             b.iter_custom(|iters| {
-                let mut total = 0.0;
-                for _ in 0..iters {
-                    avatar.frame(&poses[k % poses.len()]).expect("frame");
-                    k += 1;
-                    total += avatar.stage_times().expect("clock").post_process_ms;
-                }
-                Duration::from_secs_f64(total * 1e-3)
+                pool.install(|| {
+                    let mut total = 0.0;
+                    for _ in 0..iters {
+                        avatar.frame(&poses[k % poses.len()]).expect("frame");
+                        k += 1;
+                        total += avatar.stage_times().expect("clock").post_process_ms;
+                    }
+                    Duration::from_secs_f64(total * 1e-3)
+                })
             })
         });
     }
     group.finish();
-    let mut avatar = animator(CollisionQuery::Certified, within, false);
+    let mut avatar = animator(CollisionQuery::Certified, within, false, seq);
     let mut k = 0;
     c.bench_function("frame/shipped-4210-certified", |b| {
         b.iter(|| {

@@ -83,7 +83,9 @@ pub enum CollisionQuery {
     /// Exact, and the default: the same pushes as [`CollisionQuery::EXACT_BVH`], with most
     /// cloth vertices proven to need none by a test on the faces near them; the others get the
     /// exact closest point from those faces, found by a search of a tree of the region's faces
-    /// per vertex (see the module docs); one thread whatever the [`Parallelism`]. Where body
+    /// per vertex (see the module docs). Under [`Parallelism::Rayon`] the first pass splits the
+    /// vertices over the threads (the same pushes: each vertex's answer is its own); the posing
+    /// of the region and the later passes stay on one thread. Where body
     /// parts interpenetrate it also leaves out the
     /// faces buried inside another part, and takes a vertex that lies inside a part out of it
     /// (see the module docs): there it pushes more than the BVH query.
@@ -612,7 +614,7 @@ impl Collider {
     ) -> usize {
         let mut total = self.vertex_passes(true, cloth, par);
         if self.faces && self.passes > 0 {
-            let moved = self.face_pass(cloth, faces);
+            let moved = self.face_pass(cloth, faces, par);
             if moved > 0 {
                 total += moved + self.vertex_passes(false, cloth, par);
             }
@@ -641,7 +643,12 @@ impl Collider {
 
     /// Push the triangles whose centroid is closer to the body than the margin (see
     /// [`CollisionOptions::faces`]); marks the vertices it moves and returns how many.
-    fn face_pass(&mut self, cloth: &mut [Vector3<f32>], faces: &[[u32; 3]]) -> usize {
+    fn face_pass(
+        &mut self,
+        cloth: &mut [Vector3<f32>],
+        faces: &[[u32; 3]],
+        par: Parallelism,
+    ) -> usize {
         let margin = self.margin_m;
         self.moved_points.clear();
         for t in faces {
@@ -666,7 +673,7 @@ impl Collider {
         match self.certifier.as_mut() {
             // Certified like the vertices: most centroids need no closest point.
             Some(certifier) => {
-                certifier.run_points(&self.proximity, &self.moved_points, margin, |k, o| {
+                certifier.run_points(&self.proximity, &self.moved_points, margin, par, |k, o| {
                     if let Some(Outcome::Exact(c)) = o {
                         visit(k, Some(c));
                     }
@@ -700,7 +707,7 @@ impl Collider {
     fn pass(&mut self, first: bool, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         if self.certifier.is_some() {
             return if first {
-                self.certified_pass(cloth)
+                self.certified_pass(cloth, par)
             } else {
                 self.certified_later_pass(cloth)
             };
@@ -772,11 +779,11 @@ impl Collider {
     /// The first pass of the certified query: every vertex certified or answered exactly (see
     /// `certify.rs`) from the unpushed cloth, then the pushes, as the BVH query's first pass
     /// makes them.
-    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>]) -> usize {
+    fn certified_pass(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         let Some(certifier) = self.certifier.as_mut() else {
             return 0;
         };
-        self.stats = certifier.run(&self.proximity, cloth, self.margin_m);
+        self.stats = certifier.run(&self.proximity, cloth, self.margin_m, par);
         let margin = self.margin_m;
         let mut pushed = 0;
         let states = &mut self.vertices;

@@ -49,13 +49,19 @@
 //! micrometre for faces that are not slivers, and slivers never pass a certificate nor end a
 //! search).
 //!
-//! The search runs on one thread (`Parallelism` does not split it); its cost on the shipped
-//! model: `cargo bench -p sartor-runtime --bench postprocess`.
+//! The first pass (every cloth vertex, or every triangle's centroid) is split over rayon's
+//! threads under `Parallelism::Rayon`, in parts of the points with their own search and
+//! scratch; each point's answer is its own, so the split changes no bit. The frame's update and
+//! the later passes (the few points a pass moved) run on one thread. Costs on the shipped model:
+//! `cargo bench -p sartor-runtime --bench postprocess`.
 
 mod search;
 
 use nalgebra::Vector3;
-use sartor_core::{ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace};
+use rayon::prelude::*;
+use sartor_core::{
+    ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace, Parallelism,
+};
 use search::Search;
 
 /// Slack on every f32 comparison of the certificates, metres.
@@ -177,6 +183,18 @@ pub struct CertifyStats {
     pub buried_faces: usize,
 }
 
+impl CertifyStats {
+    /// The counts of two parts of one frame's points (the buried faces are the frame's).
+    fn merged(self, other: Self) -> Self {
+        Self {
+            certified: self.certified + other.certified,
+            exact: self.exact + other.exact,
+            candidates: self.candidates + other.candidates,
+            buried_faces: self.buried_faces.max(other.buried_faces),
+        }
+    }
+}
+
 /// The region as posed this frame: faces, fans, grid.
 #[derive(Clone, Debug)]
 pub(crate) struct Frame {
@@ -234,7 +252,26 @@ pub(crate) struct Certifier {
     /// use.
     face_warm: Vec<u32>,
     face_outcomes: Vec<Option<Outcome>>,
+    /// Per part of a first pass split over threads, its own search, points and scratch
+    /// (made on the first split pass).
+    parts: Vec<Part>,
 }
+
+/// The state of one part of a first pass split over threads.
+#[derive(Clone, Debug)]
+struct Part {
+    search: Search,
+    points: Vec<[f32; 3]>,
+    scratch: Scratch,
+}
+
+/// A first pass is split over threads only from this many points (below, the hand-off costs
+/// more than the half search it saves).
+const MIN_SPLIT_POINTS: usize = 256;
+
+/// Parts per thread of a split first pass (cloth vertices near the body cost more than far
+/// ones, so more parts than threads even the load).
+const PARTS_PER_THREAD: usize = 4;
 
 impl Certifier {
     /// For a region of `faces` over vertices at `region_rest`, and a garment whose rest shape is
@@ -337,6 +374,7 @@ impl Certifier {
             points: Vec::with_capacity(cloth_rest.len()),
             face_warm: Vec::new(),
             face_outcomes: Vec::new(),
+            parts: Vec::new(),
         }
     }
 
@@ -870,14 +908,17 @@ impl Frame {
 
 impl Certifier {
     /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]):
-    /// one search of the region's faces per vertex (see `search.rs`), on one thread.
+    /// one search of the region's faces per vertex (see `search.rs`); under
+    /// [`Parallelism::Rayon`] the vertices are split over the threads (each vertex's outcome is
+    /// its own, so the split changes no bit).
     pub(crate) fn run(
         &mut self,
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
         margin_m: f64,
+        par: Parallelism,
     ) -> CertifyStats {
-        self.run_search(proximity, cloth, margin_m)
+        self.certify_into(proximity, cloth, false, margin_m, par)
     }
 
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
@@ -890,40 +931,61 @@ impl Certifier {
 }
 
 impl Certifier {
-    /// [`Certifier::run`] by the search: every cloth vertex's faces within its nearest distance
-    /// (plus the slack) from the search of the region's faces, then the certificate (the vertex
-    /// beyond the margin, in front of every face around a vertex of those faces, none of them a
-    /// crease) or the exact answer from those faces.
-    fn run_search(
-        &mut self,
-        proximity: &MeshProximity,
-        cloth: &[Vector3<f32>],
-        margin_m: f64,
-    ) -> CertifyStats {
-        self.certify_into(proximity, cloth, false, margin_m)
-    }
-
     /// [`Frame::certify`] of `points` with the cloth vertices' warm faces and outcomes, or
-    /// (`triangles`) the triangles'.
+    /// (`triangles`) the triangles': every point's faces within its nearest distance (plus the
+    /// slack) from the search of the region's faces, then the certificate (the point beyond the
+    /// margin, in front of every face around a vertex of those faces, none of them a crease)
+    /// or the exact answer from those faces. Split over threads under [`Parallelism::Rayon`]
+    /// from [`MIN_SPLIT_POINTS`] points.
     fn certify_into(
         &mut self,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         triangles: bool,
         margin_m: f64,
+        par: Parallelism,
     ) -> CertifyStats {
-        let per_point = if triangles {
+        let (warm, outcomes) = if triangles {
             (&mut self.face_warm[..], &mut self.face_outcomes[..])
         } else {
             (&mut self.vertex_warm[..], &mut self.vertex_outcomes[..])
         };
-        let state = AnswerState {
-            search: &mut self.search,
-            points: &mut self.points,
-            scratch: &mut self.scratch,
+        let threads = match par {
+            Parallelism::Sequential => 1,
+            Parallelism::Rayon => rayon::current_num_threads(),
         };
-        self.frame
-            .certify(state, proximity, points, per_point, margin_m)
+        let frame = &self.frame;
+        if threads < 2 || points.len() < MIN_SPLIT_POINTS {
+            let state = AnswerState {
+                search: &mut self.search,
+                points: &mut self.points,
+                scratch: &mut self.scratch,
+            };
+            return frame.certify(state, proximity, points, (warm, outcomes), margin_m);
+        }
+        let n_parts = PARTS_PER_THREAD * threads;
+        let chunk = points.len().div_ceil(n_parts);
+        if self.parts.len() < n_parts {
+            self.parts.resize_with(n_parts, || Part {
+                search: Search::default(),
+                points: Vec::with_capacity(chunk),
+                scratch: Scratch::for_frame(frame),
+            });
+        }
+        points
+            .par_chunks(chunk)
+            .zip(warm.par_chunks_mut(chunk))
+            .zip(outcomes.par_chunks_mut(chunk))
+            .zip(self.parts.par_iter_mut())
+            .map(|(((points, warm), outcomes), part)| {
+                let state = AnswerState {
+                    search: &mut part.search,
+                    points: &mut part.points,
+                    scratch: &mut part.scratch,
+                };
+                frame.certify(state, proximity, points, (warm, outcomes), margin_m)
+            })
+            .reduce(CertifyStats::default, CertifyStats::merged)
     }
 
     /// [`Certifier::run`] for other points than the cloth vertices: the cloth triangles'
@@ -934,11 +996,12 @@ impl Certifier {
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         margin_m: f64,
+        par: Parallelism,
         mut visit: impl FnMut(usize, Option<Outcome>),
     ) {
         self.face_warm.resize(points.len(), u32::MAX);
         self.face_outcomes.resize(points.len(), None);
-        self.certify_into(proximity, points, true, margin_m);
+        self.certify_into(proximity, points, true, margin_m, par);
         for (k, &o) in self.face_outcomes.iter().enumerate() {
             visit(k, o);
         }
@@ -983,7 +1046,7 @@ impl Certifier {
 }
 
 impl Frame {
-    /// Certify or answer each of `cloth` (see [`Certifier::run_search`]), starting from and
+    /// Certify or answer each of `cloth` (see [`Certifier::certify_into`]), starting from and
     /// updating `warm`, writing `outcomes`.
     fn certify(
         &self,

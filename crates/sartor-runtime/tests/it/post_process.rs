@@ -10,7 +10,7 @@ use sartor_core::{BodyModel, Pose};
 use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
-    GarmentNetwork, GarmentRig, NetworkOptions,
+    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -84,4 +84,60 @@ fn the_certified_query_makes_the_exact_queries_pushes_on_the_shipped_model() {
         }
     }
     assert!(pushed_total > 0, "the clips collide");
+}
+
+#[test]
+fn the_certified_query_split_over_threads_makes_the_same_garment() {
+    let dir = data("models/default");
+    let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
+    let network =
+        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    // The triangles pushed too and the buried faces sought every frame: every path of the
+    // first pass (certificates, exact answers, the way out of a part) runs split.
+    let avatar = |parallelism| {
+        let options = AnimatorOptions {
+            parallelism,
+            collision: Some(CollisionOptions {
+                query: CollisionQuery::Certified,
+                interpenetration: Interpenetration::Always,
+                faces: true,
+                ..CollisionOptions::default()
+            }),
+            ..AnimatorOptions::default()
+        };
+        let rig = GarmentRig::new(network.clone(), binding.clone(), body.clone(), options);
+        GarmentAnimator::new(Arc::new(rig.expect("rig"))).expect("avatar")
+    };
+    let options = MotionSourceOptions {
+        motions_dir: data("motions"),
+        body: Some(RetargetBody::load(&data("body/makehuman")).expect("built-in body")),
+        ..MotionSourceOptions::default()
+    };
+    let cmu = load_motion("cmu/02_04@60+16", &options).expect("stored CMU clip");
+    // Three threads: parts of unequal cost, taken in any order.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .expect("pool");
+    // A heavy shape beyond the training shapes, so that body parts press into each other.
+    let mut heavy = vec![0.0f32; network.header().sizes.n_betas];
+    heavy[0] = 3.0;
+    heavy[1] = -3.0;
+    let mut one = avatar(Parallelism::Sequential);
+    let mut split = avatar(Parallelism::Rayon);
+    let mut pushed = 0;
+    for betas in [vec![0.0f32; heavy.len()], heavy] {
+        one.set_shape(&betas).expect("shape");
+        split.set_shape(&betas).expect("shape");
+        for (k, pose) in cmu.frames().iter().enumerate() {
+            let a = one.frame(pose).expect("frame").to_vec();
+            let b = pool.install(|| split.frame(pose).expect("frame").to_vec());
+            assert_eq!(a, b, "β {betas:?}, frame {k}");
+            assert_eq!(one.last_frame_pushed(), split.last_frame_pushed());
+            assert_eq!(one.certify_stats(), split.certify_stats(), "frame {k}");
+            pushed += split.last_frame_pushed();
+        }
+    }
+    assert!(pushed > 0, "the clip collides");
 }
