@@ -19,13 +19,28 @@ fn data(path: &str) -> PathBuf {
         .join(path)
 }
 
-#[test]
-fn the_certified_query_makes_the_exact_queries_pushes_on_the_shipped_model() {
+/// The shipped model: the built-in body, its network and binding.
+fn shipped() -> (Arc<BodyModel>, Arc<GarmentNetwork>, Arc<GarmentBinding>) {
     let dir = data("models/default");
     let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
     let network =
         Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
     let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    (body, network, binding)
+}
+
+/// Stored motions, retargeted onto the built-in body.
+fn motion_options() -> MotionSourceOptions {
+    MotionSourceOptions {
+        motions_dir: data("motions"),
+        body: Some(RetargetBody::load(&data("body/makehuman")).expect("built-in body")),
+        ..MotionSourceOptions::default()
+    }
+}
+
+#[test]
+fn the_certified_query_makes_the_exact_queries_pushes_on_the_shipped_model() {
+    let (body, network, binding) = shipped();
     let avatar = |query| {
         let options = AnimatorOptions {
             collision: Some(CollisionOptions {
@@ -39,12 +54,7 @@ fn the_certified_query_makes_the_exact_queries_pushes_on_the_shipped_model() {
     };
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     // A real capture: CMU 02_04 (a jump), retargeted onto the built-in body.
-    let options = MotionSourceOptions {
-        motions_dir: data("motions"),
-        body: Some(RetargetBody::load(&data("body/makehuman")).expect("built-in body")),
-        ..MotionSourceOptions::default()
-    };
-    let cmu = load_motion("cmu/02_04@60+24", &options).expect("stored CMU clip");
+    let cmu = load_motion("cmu/02_04@60+24", &motion_options()).expect("stored CMU clip");
     let clips: Vec<(&str, Vec<Pose>)> = vec![
         ("walk", walk.frames()[..24].to_vec()),
         ("cmu/02_04", cmu.frames().to_vec()),
@@ -88,11 +98,7 @@ fn the_certified_query_makes_the_exact_queries_pushes_on_the_shipped_model() {
 
 #[test]
 fn the_certified_query_split_over_threads_makes_the_same_garment() {
-    let dir = data("models/default");
-    let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
-    let network =
-        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
-    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    let (body, network, binding) = shipped();
     // The triangles pushed too and the buried faces sought every frame: every path of the
     // first pass (certificates, exact answers, the way out of a part) runs split.
     let avatar = |parallelism| {
@@ -109,12 +115,7 @@ fn the_certified_query_split_over_threads_makes_the_same_garment() {
         let rig = GarmentRig::new(network.clone(), binding.clone(), body.clone(), options);
         GarmentAnimator::new(Arc::new(rig.expect("rig"))).expect("avatar")
     };
-    let options = MotionSourceOptions {
-        motions_dir: data("motions"),
-        body: Some(RetargetBody::load(&data("body/makehuman")).expect("built-in body")),
-        ..MotionSourceOptions::default()
-    };
-    let cmu = load_motion("cmu/02_04@60+16", &options).expect("stored CMU clip");
+    let cmu = load_motion("cmu/02_04@60+16", &motion_options()).expect("stored CMU clip");
     // Three threads: parts of unequal cost, taken in any order.
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(3)
