@@ -99,7 +99,7 @@ fn unit(x: [f32; 3], g: [f32; 3], h: f32) -> f32 {
     (1.0 - z) * n + z * h
 }
 
-/// [`unit`] of every unit of one sequence: `gx` and `gh` hold the `r`, `z` and `n` rows one
+/// [`unit()`] of every unit of one sequence: `gx` and `gh` hold the `r`, `z` and `n` rows one
 /// after the other, `hs` the state (updated). Compiled for AVX2 where the CPU has it (the
 /// baseline x86-64 target lacks the vector float-to-integer and rounding steps the loop needs);
 /// the same bits either way.

@@ -10,9 +10,9 @@
 //! three clusters. Per point the search keeps its nearest distance `b` in f32 and every face
 //! within `b` + [`SLACK_M`]: the f32 distances are within a micrometre of the f64 ones, so
 //! that list holds every face the f64 query could return, and
-//! [`MeshProximity::nearest_among`] on it is the exact query's answer (same faces, same
-//! arithmetic, same tie rule). A point with more near-ties than a list holds, or only sliver
-//! faces near, is searched against every face.
+//! [`sartor_core::MeshProximity::nearest_among`] on it is the exact query's answer (same faces,
+//! same arithmetic, same tie rule). A point with more near-ties than a list holds, or only
+//! sliver faces near, is searched against every face.
 //!
 //! It replaces a sweep of the face clusters over a grid of the cloth vertices, with reaches
 //! of 2, 4 and 15 cm (cluster-major): on the shipped model's walk the point-major tree
