@@ -98,37 +98,23 @@ pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Resu
     }
 }
 
-/// Check that every value is finite.
-pub(crate) fn check_finite(what: &'static str, values: &[f32]) -> Result<()> {
-    // One pass without an early exit first (it vectorises; `position` does not): the largest
-    // magnitude's bits are below those of infinity exactly when every value is finite.
-    #[inline(always)]
-    fn largest(values: &[f32]) -> u32 {
+crate::kernels::avx2_where_present! {
+    /// The largest `|v|` of `values` as bits (0 for none); built for AVX2 where present (the
+    /// baseline x86-64 target has no vector unsigned maximum).
+    fn largest_magnitude_bits(values: &[f32]) -> u32 {
         values
             .iter()
             .map(|v| v.to_bits() & 0x7fff_ffff)
             .max()
             .unwrap_or(0)
     }
-    #[cfg(target_arch = "x86_64")]
-    let largest = {
-        // The baseline x86-64 target has no vector unsigned maximum.
-        #[target_feature(enable = "avx2")]
-        fn avx2(values: &[f32]) -> u32 {
-            largest(values)
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            #[allow(unsafe_code)]
-            unsafe {
-                avx2(values)
-            }
-        } else {
-            largest(values)
-        }
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let largest = largest(values);
+}
+
+/// Check that every value is finite.
+pub(crate) fn check_finite(what: &'static str, values: &[f32]) -> Result<()> {
+    // One pass without an early exit first (it vectorises; `position` does not): the largest
+    // magnitude's bits are below those of infinity exactly when every value is finite.
+    let largest = largest_magnitude_bits(values);
     if largest < f32::INFINITY.to_bits() {
         return Ok(());
     }

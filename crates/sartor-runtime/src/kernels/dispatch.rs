@@ -94,6 +94,12 @@ impl Isa {
         })
     }
 
+    /// Whether this instruction set includes AVX2.
+    #[cfg(target_arch = "x86_64")]
+    fn has_avx2(self) -> bool {
+        self != Self::portable()
+    }
+
     /// A short name for reports.
     pub(crate) fn name(self) -> &'static str {
         match self.0 {
@@ -105,6 +111,46 @@ impl Isa {
         }
     }
 }
+
+/// Whether [`avx2_where_present!`] functions take their AVX2 build: the CPU has AVX2 and
+/// [`Isa::best`] is not the portable code (`SARTOR_RUNTIME_ISA=portable` runs them as written).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn avx2_allowed() -> bool {
+    Isa::best().has_avx2()
+}
+
+/// `fn name(args) -> ret { body }`, built twice: as written, and with AVX2 enabled, which runs
+/// where [`avx2_allowed`]. For loops of plain arithmetic that the baseline x86-64 target
+/// vectorises poorly (no vector rounding, unsigned maximum or float-to-integer steps); IEEE
+/// arithmetic that Rust never contracts gives the same bits in both builds. Arguments are
+/// plain identifiers (no patterns, no `self`). The one place of the crate's `unsafe` outside
+/// the kernels below.
+macro_rules! avx2_where_present {
+    (
+        $(#[$attr:meta])*
+        $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block
+    ) => {
+        $(#[$attr])*
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[inline(always)]
+            fn written($($arg: $ty),*) $(-> $ret)? $body
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx2")]
+                fn avx2($($arg: $ty),*) $(-> $ret)? {
+                    written($($arg),*)
+                }
+                if $crate::kernels::avx2_allowed() {
+                    // SAFETY: `avx2_allowed` found AVX2 on this CPU.
+                    #[allow(unsafe_code)]
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            written($($arg),*)
+        }
+    };
+}
+pub(crate) use avx2_where_present;
 
 /// The kernels of one instruction set, written once for its vector type: each ISA module
 /// defines `V` (a vector of `W` f32 lanes), `R = LANES / W` vectors per lane sum, `add`, `mul`,

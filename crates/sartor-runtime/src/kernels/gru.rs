@@ -99,13 +99,12 @@ fn unit(x: [f32; 3], g: [f32; 3], h: f32) -> f32 {
     (1.0 - z) * n + z * h
 }
 
-/// [`unit()`] of every unit of one sequence: `gx` and `gh` hold the `r`, `z` and `n` rows one
-/// after the other, `hs` the state (updated). Compiled for AVX2 where the CPU has it (the
-/// baseline x86-64 target lacks the vector float-to-integer and rounding steps the loop needs);
-/// the same bits either way.
-fn units(gx: &[f32], gh: &[f32], hs: &mut [f32]) {
-    #[inline(always)]
-    fn run(gx: &[f32], gh: &[f32], hs: &mut [f32]) {
+super::avx2_where_present! {
+    /// [`unit()`] of every unit of one sequence: `gx` and `gh` hold the `r`, `z` and `n` rows
+    /// one after the other, `hs` the state (updated). Built for AVX2 where present (the
+    /// baseline x86-64 target lacks the vector rounding and integer steps the loop needs); the
+    /// same bits either way.
+    fn units(gx: &[f32], gh: &[f32], hs: &mut [f32]) {
         let hid = hs.len();
         // The three gates' rows as slices, so that the loop vectorises.
         let (xr, xz, xn) = (&gx[..hid], &gx[hid..2 * hid], &gx[2 * hid..3 * hid]);
@@ -114,22 +113,6 @@ fn units(gx: &[f32], gh: &[f32], hs: &mut [f32]) {
             *hj = unit([xr[j], xz[j], xn[j]], [hr[j], hz[j], hn[j]], *hj);
         }
     }
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        fn avx2(gx: &[f32], gh: &[f32], hs: &mut [f32]) {
-            run(gx, gh, hs);
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            #[allow(unsafe_code)]
-            unsafe {
-                avx2(gx, gh, hs)
-            };
-            return;
-        }
-    }
-    run(gx, gh, hs);
 }
 
 impl GruCell {

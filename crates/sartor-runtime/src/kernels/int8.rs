@@ -222,7 +222,9 @@ fn group<E: IntEngine>(
         }
     } else {
         // Long rows come from memory: the eight rows an eighth of the block apart, each stream
-        // running on through its own part of the weights, as in `rows.rs` (the paper-size GRU
+        // running on through its own part of the weights, as in `rows.rs` but over the whole
+        // block (its blocks of `SPREAD_ROWS` rows measured no faster here: 0.73–0.74 → 0.76 ms
+        // on the AMD EPYC VM, where these weights sit in L3) (the paper-size GRU
         // + dense int8 step took 1.16–1.28 → 1.03–1.07 ms on one thread, 0.82–0.84 →
         // 0.66–0.73 on two; a batch of eight on two threads 3.65–3.69 → 3.37–3.43; alternating
         // builds, `cargo bench --bench kernels -- gru1500_out13272`). Several inputs, or one

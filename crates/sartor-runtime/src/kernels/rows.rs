@@ -21,7 +21,8 @@
 //! The single-vector path streams each weight row once with the conversion fused into the dot
 //! product, four rows at a time (four concurrent memory streams, each input chunk loaded once:
 //! one stream per row left a third of the memory bandwidth unused on an Intel Xeon), eight at
-//! a time, an eighth of the rows apart, for rows of [`EIGHT_ROWS_FROM`] columns or more (on
+//! a time, an eighth of a block of [`SPREAD_ROWS`] rows apart, for rows of [`EIGHT_ROWS_FROM`]
+//! columns or more (on
 //! the AMD EPYC VM the paper-size 13,272 × 1,500 product took 5.0–6.4 ms in f32 with four
 //! streams, 4.5–5.0 with eight; the shipped model's rows of 64 to 256 columns, which live in
 //! cache, took twice as long with eight). The batched path tiles the work so that everything

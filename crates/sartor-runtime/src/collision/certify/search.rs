@@ -362,22 +362,7 @@ impl Search {
     /// distance plus the slack, read back with [`Search::faces`] and [`Search::best`]; `warm`:
     /// per point, a face to start from (`u32::MAX`: none).
     pub(crate) fn run(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            #[target_feature(enable = "avx2")]
-            fn avx2(search: &mut Search, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
-                search.run_impl(frame, points, warm);
-            }
-            if is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 (checked just above).
-                #[allow(unsafe_code)]
-                unsafe {
-                    avx2(self, frame, points, warm)
-                };
-                return;
-            }
-        }
-        self.run_impl(frame, points, warm);
+        search_points(self, frame, points, warm);
     }
 
     #[inline(always)]
@@ -429,6 +414,13 @@ impl Search {
     /// not trusted) and the face at it.
     pub(crate) fn best(&self, i: usize) -> (f32, u32) {
         (self.near[i].best2, self.near[i].best_face)
+    }
+}
+
+crate::kernels::avx2_where_present! {
+    /// [`Search::run`], built for AVX2 where present (the lane tests vectorise on 256 bits).
+    fn search_points(search: &mut Search, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
+        search.run_impl(frame, points, warm);
     }
 }
 
