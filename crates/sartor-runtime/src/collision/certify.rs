@@ -203,6 +203,8 @@ pub(crate) struct Frame {
     /// cluster's box this frame (relative).
     cluster_faces: Vec<u32>,
     cluster_box: Vec<([f32; 3], [f32; 3])>,
+    /// Per face, its cluster (the index of its block of `cluster_faces`).
+    face_cluster: Vec<u32>,
     /// Per face in cluster order, what the search reads of it this frame (contiguous).
     search_faces: Vec<search::SearchFace>,
     /// The same faces as the search's tree (boxes and planes in lanes).
@@ -299,6 +301,10 @@ impl Certifier {
         let mut cluster_faces = groups(&centroids, search::CLUSTER);
         cluster_faces.retain(|&f| f != u32::MAX);
         let n_clusters = faces.len().div_ceil(search::CLUSTER);
+        let mut face_cluster = vec![0u32; faces.len()];
+        for (k, &f) in cluster_faces.iter().enumerate() {
+            face_cluster[f as usize] = (k / search::CLUSTER) as u32;
+        }
         let mut fan_offsets = vec![0u32; n_vertices + 1];
         for t in faces {
             for &v in t {
@@ -330,6 +336,7 @@ impl Certifier {
             frame: Frame {
                 faces: faces.to_vec(),
                 cluster_faces,
+                face_cluster,
                 cluster_box: vec![([0.0; 3], [0.0; 3]); n_clusters],
                 search_faces: vec![search::SearchFace::default(); faces.len()],
                 tree: search::Tree::default(),

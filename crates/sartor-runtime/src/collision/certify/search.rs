@@ -6,23 +6,33 @@
 //! each level is a block of [`W`] boxes stored lane by lane, so that a point tests a whole
 //! group of clusters, or a whole cluster's faces (box and plane bound), in a few vector
 //! instructions. A point starts from the face it was nearest last frame: the distance to it
-//! bounds the search at once, and a cloth vertex near the body visits about three groups and
-//! three clusters. Per point the search keeps its nearest distance `b` in f32 and every face
-//! within `b` + [`SLACK_M`]: the f32 distances are within a micrometre of the f64 ones, so
-//! that list holds every face the f64 query could return, and
-//! [`sartor_core::MeshProximity::nearest_among`] on it is the exact query's answer (same faces,
-//! same arithmetic, same tie rule). A point with more near-ties than a list holds, or only
-//! sliver faces near, is searched against every face.
+//! bounds the search at once. The points are then taken in packets of up to [`PACKET`] whose
+//! warm faces lie in the same or the next clusters (a counting sort by that cluster): a packet
+//! walks the two upper levels once, for the box of its points and the largest of their
+//! reaches, and each of its points tests only the clusters that walk gathered (every cluster
+//! within the point's own reach is among them). A packet that gathers more than
+//! [`PACKET_CLUSTERS`] (points far apart or far from the body) walks the tree point by point,
+//! as do points without a warm face. A cloth vertex near the body then tests one or two blocks
+//! of gathered cluster boxes, about three clusters and three or four faces. Per point the
+//! search keeps its nearest distance `b` in f32 and every face within `b` + [`SLACK_M`]: the
+//! f32 distances are within a micrometre of the f64 ones, so that list holds every face the
+//! f64 query could return, and [`sartor_core::MeshProximity::nearest_among`] on it is the exact
+//! query's answer (same faces, same arithmetic, same tie rule). A point with more near-ties
+//! than a list holds, or only sliver faces near, is searched against every face.
 //!
 //! It replaces a sweep of the face clusters over a grid of the cloth vertices, with reaches
 //! of 2, 4 and 15 cm (cluster-major): on the shipped model's walk the point-major tree
 //! search made the post-process 12–15 % faster per frame (no second and third reach for its
 //! loose cloth), on the trained 8,710-triangle export it measured the same as the sweep. It
-//! costs about 250 ns per point on the AMD EPYC VM. Tried and not kept: keeping each list
-//! 4 mm wider within the margin, so that a pushed vertex's next pass could reuse it (the
-//! wider first pass cost more than the later passes saved: 1.40 → 1.49 ms on the shipped
-//! walk), visiting points in the order of their warm face's cluster (no change), and the
-//! search compiled for AVX-512 (no faster).
+//! cost about 250 ns per point on the AMD EPYC VM. The packets took the shipped model's
+//! post-process from 0.89–0.90 to 0.84–0.85 ms (`cargo bench --bench postprocess`, two rounds
+//! of alternating builds) and the certified one of `cargo xtask bench runtime --triangles 8710`
+//! from 2.00–2.01 to 1.63–1.90 ms (two rounds; the frames' own post-process 5–10 % faster);
+//! packets of 8 or 32 points, or a cap of 32 or 128 clusters, measured the same. Tried and not
+//! kept: keeping each list 4 mm wider within the margin, so that a pushed vertex's next pass
+//! could reuse it (the wider first pass cost more than the later passes saved: 1.40 → 1.49 ms
+//! on the shipped walk), visiting points in the order of their warm face's cluster without
+//! sharing the walk (no change), and the search compiled for AVX-512 (no faster).
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
@@ -156,6 +166,10 @@ pub(super) struct Tree {
 const W: usize = 16;
 /// Clusters per group of the tree's top level.
 const GROUP: usize = 16;
+/// Points per packet of the search (see [`Search::gather`]).
+const PACKET: usize = 16;
+/// Most clusters a packet gathers; past it its points search the tree one by one.
+const PACKET_CLUSTERS: usize = 64;
 
 /// `W` boxes, lane by lane.
 #[derive(Clone, Copy, Debug)]
@@ -184,6 +198,20 @@ impl BoxBlock {
             let (l, h) = (&self.lo[k], &self.hi[k]);
             for j in 0..W {
                 let d = fmax(fmax(l[j] - x[k], x[k] - h[j]), 0.0);
+                d2[j] += d * d;
+            }
+        }
+        d2
+    }
+
+    /// Distance² from the box `[lo, hi]` to each box.
+    #[inline(always)]
+    fn distance2_box(&self, lo: &[f32; 3], hi: &[f32; 3]) -> [f32; W] {
+        let mut d2 = [0.0f32; W];
+        for k in 0..3 {
+            let (l, h) = (&self.lo[k], &self.hi[k]);
+            for j in 0..W {
+                let d = fmax(fmax(l[j] - hi[k], lo[k] - h[j]), 0.0);
                 d2[j] += d * d;
             }
         }
@@ -288,6 +316,65 @@ impl Tree {
         }
     }
 
+    /// [`Tree::search`] over the clusters `clusters` (whose boxes `boxes` holds in lanes)
+    /// only: every cluster within the point's reach must be among them.
+    #[inline(always)]
+    fn search_among(
+        &self,
+        faces: &[SearchFace],
+        clusters: &[u32],
+        boxes: &[BoxBlock],
+        x: &[f32; 3],
+        near: &mut Near,
+    ) {
+        for (b, block) in boxes.iter().enumerate() {
+            let lb2 = block.distance2(x);
+            let mut hit = within(&lb2, near.reach2);
+            while hit != 0 {
+                let l = hit.trailing_zeros() as usize;
+                hit &= hit - 1;
+                if lb2[l] > near.reach2 {
+                    continue;
+                }
+                if self.search_cluster(faces, clusters[b * W + l] as usize, x, near) {
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Push onto `out` every cluster whose box lies within `reach2` (squared) of the box
+    /// `[lo, hi]`, in the tree's order; `false` (and `out` partial) past [`PACKET_CLUSTERS`].
+    fn clusters_near(&self, lo: &[f32; 3], hi: &[f32; 3], reach2: f32, out: &mut Vec<u32>) -> bool {
+        for (top, block) in self.groups.iter().enumerate() {
+            let mut groups = within(&block.distance2_box(lo, hi), reach2);
+            while groups != 0 {
+                let g = groups.trailing_zeros() as usize;
+                groups &= groups - 1;
+                let group = top * W + g;
+                let mut clusters = within(&self.clusters[group].distance2_box(lo, hi), reach2);
+                while clusters != 0 {
+                    let c = clusters.trailing_zeros() as usize;
+                    clusters &= clusters - 1;
+                    if out.len() == PACKET_CLUSTERS {
+                        return false;
+                    }
+                    out.push((group * GROUP + c) as u32);
+                }
+            }
+        }
+        true
+    }
+
+    /// Cluster `c`'s box.
+    fn cluster_box(&self, c: usize) -> ([f32; 3], [f32; 3]) {
+        let (block, l) = (&self.clusters[c / GROUP], c % GROUP);
+        (
+            [0, 1, 2].map(|k| block.lo[k][l]),
+            [0, 1, 2].map(|k| block.hi[k][l]),
+        )
+    }
+
     /// [`Tree::search`] within cluster `c`; `true` when the list overflowed.
     #[inline(always)]
     fn search_cluster(
@@ -351,6 +438,14 @@ fn box2(lo: &[f32; 3], hi: &[f32; 3], x: &[f32; 3]) -> f32 {
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Search {
     near: Vec<Near>,
+    /// The points in the order of their warm face's cluster, those without one last
+    /// ([`Search::sort_by_warm_cluster`]); `n_warm`: how many have one.
+    order: Vec<u32>,
+    n_warm: usize,
+    counts: Vec<u32>,
+    /// A packet's clusters within its reach ([`Search::gather`]), and their boxes in lanes.
+    packet_clusters: Vec<u32>,
+    packet_boxes: Vec<BoxBlock>,
     /// Per point, its range of `spill` when its list overflowed even against every face
     /// (`(0, 0)`: none); the faces within reach, unbounded.
     spilled: Vec<(u32, u32)>,
@@ -369,30 +464,131 @@ impl Search {
     fn run_impl(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
         let n = points.len();
         self.near.clear();
+        // Finite: a face at infinity (a buried face, a padding slot) never passes.
+        self.near.extend(
+            points
+                .iter()
+                .zip(warm)
+                .map(|(x, &w)| Near::from_warm(frame, x, w, f32::MAX)),
+        );
         self.spilled.clear();
         self.spilled.resize(n, (0, 0));
         self.spill.clear();
-        for (i, x) in points.iter().enumerate() {
-            let w = warm[i];
-            // Finite: a face at infinity (a buried face, a padding slot) never passes.
-            let mut near = Near::from_warm(frame, x, w, f32::MAX);
-            frame.tree.search(&frame.search_faces, x, &mut near);
-            // More near-ties than a list holds, or only sliver faces near: every face.
-            if near.overflowed() || near.best_face == u32::MAX {
-                near = search_all(frame, x, w);
-                if near.overflowed() {
-                    // More near-ties than a list holds (a point at a region vertex of high
-                    // valence): every face within reach, unbounded.
-                    let start = self.spill.len() as u32;
-                    for f in 0..frame.faces.len() as u32 {
-                        if !frame.buried[f as usize] && frame.distance2(f, x).0 <= near.reach2 {
-                            self.spill.push(f);
-                        }
-                    }
-                    self.spilled[i] = (start, self.spill.len() as u32);
+        self.sort_by_warm_cluster(frame);
+        let order = std::mem::take(&mut self.order);
+        let (mut start, n_warm) = (0, self.n_warm);
+        while start < n {
+            // A packet: points of the same warm cluster, then of the next ones, up to PACKET.
+            let end = if start < n_warm {
+                (start + PACKET).min(n_warm)
+            } else {
+                n
+            };
+            let packet = &order[start..end];
+            if start < n_warm && self.gather(frame, points, packet) {
+                for &i in packet {
+                    let i = i as usize;
+                    frame.tree.search_among(
+                        &frame.search_faces,
+                        &self.packet_clusters,
+                        &self.packet_boxes,
+                        &points[i],
+                        &mut self.near[i],
+                    );
+                }
+            } else {
+                for &i in packet {
+                    let i = i as usize;
+                    frame
+                        .tree
+                        .search(&frame.search_faces, &points[i], &mut self.near[i]);
                 }
             }
-            self.near.push(near);
+            for &i in packet {
+                self.finish(frame, &points[i as usize], warm[i as usize], i as usize);
+            }
+            start = end;
+        }
+        self.order = order;
+    }
+
+    /// The points in the order of their warm face's cluster (counting sort, stable), those
+    /// without a warm face last: `order`, with `n_warm` the points that have one.
+    fn sort_by_warm_cluster(&mut self, frame: &Frame) {
+        let n_clusters = frame.cluster_box.len();
+        self.counts.clear();
+        self.counts.resize(n_clusters + 2, 0);
+        let key = |near: &Near| {
+            if near.best_face == u32::MAX {
+                n_clusters
+            } else {
+                frame.face_cluster[near.best_face as usize] as usize
+            }
+        };
+        for near in &self.near {
+            self.counts[key(near) + 1] += 1;
+        }
+        for c in 1..self.counts.len() {
+            self.counts[c] += self.counts[c - 1];
+        }
+        self.n_warm = self.counts[n_clusters] as usize;
+        self.order.clear();
+        self.order.resize(self.near.len(), 0);
+        for (i, near) in self.near.iter().enumerate() {
+            let slot = &mut self.counts[key(near)];
+            self.order[*slot as usize] = i as u32;
+            *slot += 1;
+        }
+    }
+
+    /// The clusters within the largest reach of `packet`'s points of their box, into
+    /// `packet_clusters` and `packet_boxes`; `false` when more than [`PACKET_CLUSTERS`] are.
+    fn gather(&mut self, frame: &Frame, points: &[[f32; 3]], packet: &[u32]) -> bool {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        let mut reach2 = 0.0f32;
+        for &i in packet {
+            let x = &points[i as usize];
+            for k in 0..3 {
+                lo[k] = lo[k].min(x[k]);
+                hi[k] = hi[k].max(x[k]);
+            }
+            reach2 = fmax(reach2, self.near[i as usize].reach2);
+        }
+        self.packet_clusters.clear();
+        if !frame
+            .tree
+            .clusters_near(&lo, &hi, reach2, &mut self.packet_clusters)
+        {
+            return false;
+        }
+        let n_blocks = self.packet_clusters.len().div_ceil(W);
+        self.packet_boxes.clear();
+        self.packet_boxes.resize(n_blocks, BoxBlock::default());
+        for (k, &c) in self.packet_clusters.iter().enumerate() {
+            let (l, h) = frame.tree.cluster_box(c as usize);
+            self.packet_boxes[k / W].set(k % W, &l, &h);
+        }
+        true
+    }
+
+    /// Point `i`'s search against every face where the tree's left its list overflowed or
+    /// found only slivers.
+    fn finish(&mut self, frame: &Frame, x: &[f32; 3], warm: u32, i: usize) {
+        let near = &mut self.near[i];
+        // More near-ties than a list holds, or only sliver faces near: every face.
+        if near.overflowed() || near.best_face == u32::MAX {
+            *near = search_all(frame, x, warm);
+            if near.overflowed() {
+                // More near-ties than a list holds (a point at a region vertex of high
+                // valence): every face within reach, unbounded.
+                let start = self.spill.len() as u32;
+                for f in 0..frame.faces.len() as u32 {
+                    if !frame.buried[f as usize] && frame.distance2(f, x).0 <= near.reach2 {
+                        self.spill.push(f);
+                    }
+                }
+                self.spilled[i] = (start, self.spill.len() as u32);
+            }
         }
     }
 
