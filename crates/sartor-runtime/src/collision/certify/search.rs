@@ -300,17 +300,9 @@ impl Tree {
                     continue;
                 }
                 let group = top * W + g;
-                let clb2 = self.clusters[group].distance2(x);
-                let mut clusters = within(&clb2, near.reach2);
-                while clusters != 0 {
-                    let c = clusters.trailing_zeros() as usize;
-                    clusters &= clusters - 1;
-                    if clb2[c] > near.reach2 {
-                        continue;
-                    }
-                    if self.search_cluster(faces, group * GROUP + c, x, near) {
-                        return;
-                    }
+                let cluster = |c: usize| group * GROUP + c;
+                if self.search_block(faces, &self.clusters[group], cluster, x, near) {
+                    return;
                 }
             }
         }
@@ -328,19 +320,35 @@ impl Tree {
         near: &mut Near,
     ) {
         for (b, block) in boxes.iter().enumerate() {
-            let lb2 = block.distance2(x);
-            let mut hit = within(&lb2, near.reach2);
-            while hit != 0 {
-                let l = hit.trailing_zeros() as usize;
-                hit &= hit - 1;
-                if lb2[l] > near.reach2 {
-                    continue;
-                }
-                if self.search_cluster(faces, clusters[b * W + l] as usize, x, near) {
-                    return;
-                }
+            let cluster = |l: usize| clusters[b * W + l] as usize;
+            if self.search_block(faces, block, cluster, x, near) {
+                return;
             }
         }
+    }
+
+    /// Search the clusters of `block` (cluster boxes; lane `l` is cluster `cluster(l)`) within
+    /// the reach, in lane order; `true` when the list overflowed.
+    #[inline(always)]
+    fn search_block(
+        &self,
+        faces: &[SearchFace],
+        block: &BoxBlock,
+        cluster: impl Fn(usize) -> usize,
+        x: &[f32; 3],
+        near: &mut Near,
+    ) -> bool {
+        let lb2 = block.distance2(x);
+        let mut hit = within(&lb2, near.reach2);
+        while hit != 0 {
+            let l = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            // The reach may have shrunk since the mask was taken.
+            if lb2[l] <= near.reach2 && self.search_cluster(faces, cluster(l), x, near) {
+                return true;
+            }
+        }
+        false
     }
 
     /// Push onto `out` every cluster whose box lies within `reach2` (squared) of the box
