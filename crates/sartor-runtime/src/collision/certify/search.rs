@@ -1,38 +1,42 @@
 //! The certified query's search: for each point, the region faces within its nearest distance
 //! plus a slack (see the parent module's docs for the proof the answers feed).
 //!
-//! The region's faces form a tree rebuilt per frame ([`Tree`]): the spatial clusters of
-//! [`CLUSTER`] faces of [`Frame`] (fixed at rest, by median splits), in groups of [`GROUP`];
-//! each level is a block of [`W`] boxes stored lane by lane, so that a point tests a whole
-//! group of clusters, or a whole cluster's faces (box and plane bound), in a few vector
-//! instructions. A point starts from the face it was nearest last frame: the distance to it
-//! bounds the search at once. The points are then taken in packets of up to [`PACKET`] whose
-//! warm faces lie in the same or the next clusters (a counting sort by that cluster): a packet
-//! walks the two upper levels once, for the box of its points and the largest of their
-//! reaches, and each of its points tests only the clusters that walk gathered (every cluster
-//! within the point's own reach is among them). A packet that gathers more than
-//! [`PACKET_CLUSTERS`] (points far apart or far from the body) walks the tree point by point,
-//! as do points without a warm face. A cloth vertex near the body then tests one or two blocks
-//! of gathered cluster boxes, about three clusters and three or four faces. Per point the
-//! search keeps its nearest distance `b` in f32 and every face within `b` + [`SLACK_M`]: the
-//! f32 distances are within a micrometre of the f64 ones, so that list holds every face the
-//! f64 query could return, and [`sartor_core::MeshProximity::nearest_among`] on it is the exact
-//! query's answer (same faces, same arithmetic, same tie rule). A point with more near-ties
-//! than a list holds, or only sliver faces near, is searched against every face.
+//! The region's faces form a tree rebuilt per frame ([`Tree`]): the spatial clusters of [`CLUSTER`]
+//! faces of [`Frame`] (fixed at rest, by median splits), in groups of [`GROUP`]; each level is a
+//! block of [`W`] boxes stored lane by lane, so that a point tests a whole group of clusters, or a
+//! whole cluster's faces (a bound from the box, the plane and the edges' planes:
+//! [`FaceBlock::distance2`]), in a few vector instructions. A point starts from the face it was
+//! nearest last frame: the distance to it bounds the search at once. The points are then taken in
+//! packets of up to [`PACKET`] whose warm faces lie in the same or the next clusters (a counting
+//! sort by that cluster): a packet walks the two upper levels once, for the box of its points and
+//! the largest of their reaches, and each of its points tests only the clusters that walk gathered
+//! (every cluster within the point's own reach is among them). A packet that gathers more than
+//! [`PACKET_CLUSTERS`] (points far apart or far from the body) walks the tree point by point, as do
+//! points without a warm face. A cloth vertex then tests one or two blocks of gathered cluster
+//! boxes and about three clusters, and computes the distance of about one face besides its warm
+//! face's (8,710-triangle run: 0.9 per point). Per point the search keeps its nearest distance `b`
+//! in f32 and every face within `b` + [`SLACK_M`]: the f32 distances are within a micrometre of the
+//! f64 ones, so that list holds every face the f64 query could return, and
+//! [`sartor_core::MeshProximity::nearest_among`] on it is the exact query's answer (same faces,
+//! same arithmetic, same tie rule). A point with more near-ties than a list holds, or only sliver
+//! faces near, is searched against every face.
 //!
-//! It replaces a sweep of the face clusters over a grid of the cloth vertices, with reaches
-//! of 2, 4 and 15 cm (cluster-major): on the shipped model's walk the point-major tree
-//! search made the post-process 12–15 % faster per frame (no second and third reach for its
-//! loose cloth), on the trained 8,710-triangle export it measured the same as the sweep. It
-//! cost about 250 ns per point on the AMD EPYC VM. The packets took the shipped model's
-//! post-process from 0.89–0.90 to 0.84–0.85 ms (`cargo bench --bench postprocess`, two rounds
-//! of alternating builds) and the certified one of `cargo xtask bench runtime --triangles 8710`
-//! from 2.00–2.01 to 1.63–1.90 ms (two rounds; the frames' own post-process 5–10 % faster);
-//! packets of 8 or 32 points, or a cap of 32 or 128 clusters, measured the same. Tried and not
-//! kept: keeping each list 4 mm wider within the margin, so that a pushed vertex's next pass
-//! could reuse it (the wider first pass cost more than the later passes saved: 1.40 → 1.49 ms
-//! on the shipped walk), visiting points in the order of their warm face's cluster without
-//! sharing the walk (no change), and the search compiled for AVX-512 (no faster).
+//! It replaces a sweep of the face clusters over a grid of the cloth vertices, with reaches of 2, 4
+//! and 15 cm (cluster-major): on the shipped model's walk the point-major tree search made the
+//! post-process 12–15 % faster per frame (no second and third reach for its loose cloth), on the
+//! trained 8,710-triangle export it measured the same as the sweep. It cost about 250 ns per point
+//! on the AMD EPYC VM. The packets took the shipped model's post-process from 0.89–0.90 to
+//! 0.84–0.85 ms (`cargo bench --bench postprocess`, two rounds of alternating builds) and the
+//! certified one of `cargo xtask bench runtime --triangles 8710` from 2.00–2.01 to 1.63–1.90 ms
+//! (two rounds; the frames' own post-process 5–10 % faster); packets of 8 or 32 points, or a cap of
+//! 32 or 128 clusters, measured the same. With the box and the plane alone about 3.4 faces per
+//! point passed the bound and needed their distance, 1.3 of them close enough to stay
+//! (8,710-triangle run); the edges' planes cut them to 0.9: the shipped model's post-process 0.83–0.84
+//! → 0.75–0.76 ms, the 8,710-triangle one 1.70–1.76 → 1.20–1.47 ms (two rounds each, alternating
+//! builds). Tried and not kept: keeping each list 4 mm wider within the margin, so that a pushed
+//! vertex's next pass could reuse it (the wider first pass cost more than the later passes saved:
+//! 1.40 → 1.49 ms on the shipped walk), visiting points in the order of their warm face's cluster
+//! without sharing the walk (no change), and the search compiled for AVX-512 (no faster).
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
@@ -148,13 +152,13 @@ impl Near {
 
 /// The region's faces as a three-level tree rebuilt per frame: groups of [`GROUP`] clusters,
 /// clusters of [`CLUSTER`] faces (the spatial clusters of [`Frame`]'s `cluster_faces`), and the
-/// faces. Each level is stored in blocks of [`W`] boxes (and, for the faces, planes), lane by
-/// lane, so that one point tests a whole cluster, or a whole group of clusters, at once, from
-/// a few adjacent cache lines.
+/// faces. Each level is stored in blocks of [`W`] boxes (and, for the faces, planes and edge
+/// planes), lane by lane, so that one point tests a whole cluster, or a whole group of clusters, at
+/// once, from a few adjacent cache lines.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Tree {
-    /// Per cluster, its faces (padded with boxes at infinity), with their planes `(n, o)` (`n`
-    /// and `o` zero for a sliver, which its plane bounds nothing).
+    /// Per cluster, its faces (padded with boxes at infinity), with their planes `(n, o)` and
+    /// edge planes (zero for a sliver, which its planes bound nothing).
     faces: Vec<FaceBlock>,
     /// Per group, its clusters' boxes (padded).
     clusters: Vec<BoxBlock>,
@@ -244,12 +248,68 @@ impl BoxBlock {
     }
 }
 
-/// A cluster's faces: boxes and planes, lane by lane.
+/// A cluster's faces: boxes, planes and edge planes, lane by lane.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
 struct FaceBlock {
     boxes: BoxBlock,
     plane: [[f32; W]; 4],
+    /// Per edge `(m, c)`: `m` the unit normal of the edge in the face's plane, pointing away
+    /// from the face, and `c` the larger of `m·v` over the edge's ends, so that
+    /// `m·x − c` bounds the distance of `x`'s projection from the face (zero for a sliver).
+    edges: [[[f32; W]; 4]; 3],
+}
+
+impl FaceBlock {
+    /// A lower bound of the distance² from `x` to each face: the box's, or the plane's
+    /// distance with the projection's distance beyond the farthest edge (for any point `y` of
+    /// the face, `|x − y|² = h² + |P(x − y)|²` with `P` the projection onto the plane, and
+    /// `|P(x − y)| ≥ m·(x − y) ≥ m·x − c` for each edge).
+    #[inline(always)]
+    fn distance2(&self, x: &[f32; 3]) -> [f32; W] {
+        let mut lb2 = self.boxes.distance2(x);
+        let [nx, ny, nz, o] = &self.plane;
+        let edge = |[mx, my, mz, c]: &[[f32; W]; 4], l: usize| {
+            mx[l] * x[0] + my[l] * x[1] + mz[l] * x[2] - c[l]
+        };
+        for l in 0..W {
+            let h = nx[l] * x[0] + ny[l] * x[1] + nz[l] * x[2] - o[l];
+            let [e0, e1, e2] = &self.edges;
+            let s = fmax(fmax(fmax(edge(e0, l), edge(e1, l)), edge(e2, l)), 0.0);
+            lb2[l] = fmax(lb2[l], h * h + s * s);
+        }
+        lb2
+    }
+
+    /// Set lane `l`'s plane and edge planes from face `sf` (left zero for a sliver).
+    fn set_planes(&mut self, l: usize, sf: &SearchFace) {
+        if !sf.plane[3].is_finite() {
+            return;
+        }
+        for j in 0..4 {
+            self.plane[j][l] = sf.plane[j];
+        }
+        let n = [sf.plane[0], sf.plane[1], sf.plane[2]];
+        let dot = |u: &[f32; 3], v: &[f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        for (k, edge) in self.edges.iter_mut().enumerate() {
+            let (a, b) = (&sf.tri[k], &sf.tri[(k + 1) % 3]);
+            let e = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let m = [
+                e[1] * n[2] - e[2] * n[1],
+                e[2] * n[0] - e[0] * n[2],
+                e[0] * n[1] - e[1] * n[0],
+            ];
+            let len = dot(&m, &m).sqrt();
+            if len.is_nan() || len <= 0.0 {
+                continue;
+            }
+            let m = m.map(|v| v / len);
+            for j in 0..3 {
+                edge[j][l] = m[j];
+            }
+            edge[3][l] = dot(&m, a).max(dot(&m, b));
+        }
+    }
 }
 
 impl Tree {
@@ -267,11 +327,7 @@ impl Tree {
             let block = &mut self.faces[k / CLUSTER];
             let l = k % CLUSTER;
             block.boxes.set(l, &sf.lo, &sf.hi);
-            if sf.plane[3].is_finite() {
-                for j in 0..4 {
-                    block.plane[j][l] = sf.plane[j];
-                }
-            }
+            block.set_planes(l, sf);
         }
         for (c, (lo, hi)) in clusters.iter().enumerate() {
             let g = c / GROUP;
@@ -392,13 +448,7 @@ impl Tree {
         x: &[f32; 3],
         near: &mut Near,
     ) -> bool {
-        let block = &self.faces[c];
-        let mut lb2 = block.boxes.distance2(x);
-        let [nx, ny, nz, o] = &block.plane;
-        for l in 0..W {
-            let h = nx[l] * x[0] + ny[l] * x[1] + nz[l] * x[2] - o[l];
-            lb2[l] = fmax(lb2[l], h * h);
-        }
+        let lb2 = self.faces[c].distance2(x);
         let e = c * CLUSTER;
         let mut hit = within(&lb2, near.reach2);
         while hit != 0 {
@@ -428,11 +478,13 @@ impl Tree {
 /// The lanes of `lb2` within `reach2`, as bits.
 #[inline(always)]
 fn within(lb2: &[f32; W], reach2: f32) -> u32 {
-    let mut bits = 0u32;
+    // The sign bit of `reach2 − b` is set when `b` lies beyond the reach (`b` at infinity
+    // included; both are never NaN).
+    let mut beyond = 0u32;
     for (l, &b) in lb2.iter().enumerate() {
-        bits |= u32::from(b <= reach2) << l;
+        beyond |= ((reach2 - b).to_bits() >> 31) << l;
     }
-    bits
+    !beyond & ((1 << W) - 1)
 }
 
 /// Distance² from `x` to the box `[lo, hi]`.
@@ -717,15 +769,67 @@ mod tests {
     use super::*;
     use nalgebra::Vector3;
 
+    /// Uniform numbers in [0, 0.1) from `seed` (xorshift).
+    fn uniform(mut seed: u64) -> impl FnMut() -> f32 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f32 / (1u64 << 53) as f32 * 0.1
+        }
+    }
+
+    #[test]
+    fn the_face_blocks_bound_never_exceeds_the_distance_and_is_tight_beside_an_edge() {
+        let mut next = uniform(987654321);
+        let (mut tight, mut cases) = (0, 0);
+        for _ in 0..2_000 {
+            let mut pt = || [0.5 + next(), 0.5 + next(), 0.5 + next()];
+            let tri = [pt(), pt(), pt()];
+            let [a, b, c] = tri;
+            let (e1, e2) = (
+                [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+                [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
+            );
+            let n = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let n = n.map(|v| v / len);
+            let dot = |v: &[f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+            let face = SearchFace {
+                lo: [0, 1, 2].map(|k| a[k].min(b[k]).min(c[k])),
+                hi: [0, 1, 2].map(|k| a[k].max(b[k]).max(c[k])),
+                plane: [n[0], n[1], n[2], dot(&a).max(dot(&b)).max(dot(&c))],
+                tri,
+                face: 0,
+            };
+            let mut block = FaceBlock::default();
+            block.boxes.set(0, &face.lo, &face.hi);
+            block.set_planes(0, &face);
+            for _ in 0..20 {
+                let p = [
+                    0.45 + next() * 2.0,
+                    0.45 + next() * 2.0,
+                    0.45 + next() * 2.0,
+                ];
+                let lb = block.distance2(&p)[0].sqrt();
+                let d = distance2(&p, &tri).sqrt();
+                assert!(lb <= d + 1e-6, "bound {lb} beyond the distance {d}");
+                cases += 1;
+                tight += usize::from(lb >= d - 1e-6);
+            }
+        }
+        // Exact wherever the nearest point lies on the face or inside an edge (the box
+        // and plane alone are exact on the face only).
+        assert!(tight * 2 > cases, "tight in {tight} of {cases} cases");
+    }
+
     #[test]
     fn the_f32_distance_matches_the_f64_closest_point() {
-        let mut rng = 12345u64;
-        let mut next = || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f32 / (1u64 << 53) as f32 * 0.1
-        };
+        let mut next = uniform(12345);
         for _ in 0..20_000 {
             let mut pt = || [0.5 + next(), 0.5 + next(), 0.5 + next()];
             let (a, b, c, p) = (pt(), pt(), pt(), pt());
