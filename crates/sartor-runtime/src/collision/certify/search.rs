@@ -281,33 +281,48 @@ impl FaceBlock {
         lb2
     }
 
-    /// Set lane `l`'s plane and edge planes from face `sf` (left zero for a sliver).
-    fn set_planes(&mut self, l: usize, sf: &SearchFace) {
-        if !sf.plane[3].is_finite() {
-            return;
+    /// Set the lanes' boxes, planes and edge planes from `faces` (at most [`W`]; the planes
+    /// zero for a sliver, whose planes bound nothing). The edges are computed lane by lane, so
+    /// that the square roots and divisions vectorise.
+    fn set_faces(&mut self, faces: &[SearchFace]) {
+        // Per corner, per axis, the lanes; and the planes' normals.
+        let mut t = [[[0.0f32; W]; 3]; 3];
+        for (l, sf) in faces.iter().enumerate() {
+            self.boxes.set(l, &sf.lo, &sf.hi);
+            let plane = if sf.plane[3].is_finite() {
+                sf.plane
+            } else {
+                [0.0; 4]
+            };
+            for j in 0..4 {
+                self.plane[j][l] = plane[j];
+            }
+            for (k, corner) in t.iter_mut().enumerate() {
+                for j in 0..3 {
+                    corner[j][l] = sf.tri[k][j];
+                }
+            }
         }
-        for j in 0..4 {
-            self.plane[j][l] = sf.plane[j];
-        }
-        let n = [sf.plane[0], sf.plane[1], sf.plane[2]];
-        let dot = |u: &[f32; 3], v: &[f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        let [nx, ny, nz, _] = &self.plane;
         for (k, edge) in self.edges.iter_mut().enumerate() {
-            let (a, b) = (&sf.tri[k], &sf.tri[(k + 1) % 3]);
-            let e = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let m = [
-                e[1] * n[2] - e[2] * n[1],
-                e[2] * n[0] - e[0] * n[2],
-                e[0] * n[1] - e[1] * n[0],
-            ];
-            let len = dot(&m, &m).sqrt();
-            if len.is_nan() || len <= 0.0 {
-                continue;
+            let (a, b) = (&t[k], &t[(k + 1) % 3]);
+            for l in 0..W {
+                let e = [b[0][l] - a[0][l], b[1][l] - a[1][l], b[2][l] - a[2][l]];
+                let m = [
+                    e[1] * nz[l] - e[2] * ny[l],
+                    e[2] * nx[l] - e[0] * nz[l],
+                    e[0] * ny[l] - e[1] * nx[l],
+                ];
+                let len2 = m[0] * m[0] + m[1] * m[1] + m[2] * m[2];
+                // Zero for a sliver's zero normal and for the padding lanes.
+                let inv = if len2 > 0.0 { 1.0 / len2.sqrt() } else { 0.0 };
+                let m = m.map(|v| v * inv);
+                let at = |p: &[[f32; W]; 3]| m[0] * p[0][l] + m[1] * p[1][l] + m[2] * p[2][l];
+                edge[0][l] = m[0];
+                edge[1][l] = m[1];
+                edge[2][l] = m[2];
+                edge[3][l] = fmax(at(a), at(b));
             }
-            let m = m.map(|v| v / len);
-            for j in 0..3 {
-                edge[j][l] = m[j];
-            }
-            edge[3][l] = dot(&m, a).max(dot(&m, b));
         }
     }
 }
@@ -316,18 +331,19 @@ impl Tree {
     /// The tree of `faces` (in cluster order) whose clusters have boxes `clusters`.
     pub(super) fn refit(&mut self, faces: &[SearchFace], clusters: &[([f32; 3], [f32; 3])]) {
         let n_groups = clusters.len().div_ceil(GROUP);
-        self.faces.clear();
-        self.faces.resize(clusters.len(), FaceBlock::default());
-        self.clusters.clear();
-        self.clusters.resize(n_groups, BoxBlock::default());
+        // The clusters never change: every lane of a face is set below, and the padding lanes
+        // keep their boxes at infinity from the first frame.
+        if self.faces.len() != clusters.len() {
+            self.faces.clear();
+            self.faces.resize(clusters.len(), FaceBlock::default());
+            self.clusters.clear();
+            self.clusters.resize(n_groups, BoxBlock::default());
+        }
         self.groups.clear();
         self.groups
             .resize(n_groups.div_ceil(W), BoxBlock::default());
-        for (k, sf) in faces.iter().enumerate() {
-            let block = &mut self.faces[k / CLUSTER];
-            let l = k % CLUSTER;
-            block.boxes.set(l, &sf.lo, &sf.hi);
-            block.set_planes(l, sf);
+        for (block, faces) in self.faces.iter_mut().zip(faces.chunks(CLUSTER)) {
+            block.set_faces(faces);
         }
         for (c, (lo, hi)) in clusters.iter().enumerate() {
             let g = c / GROUP;
@@ -807,8 +823,7 @@ mod tests {
                 face: 0,
             };
             let mut block = FaceBlock::default();
-            block.boxes.set(0, &face.lo, &face.hi);
-            block.set_planes(0, &face);
+            block.set_faces(&[face]);
             for _ in 0..20 {
                 let p = [
                     0.45 + next() * 2.0,
