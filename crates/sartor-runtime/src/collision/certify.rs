@@ -205,8 +205,6 @@ pub(crate) struct Frame {
     cluster_box: Vec<([f32; 3], [f32; 3])>,
     /// Per face, its cluster (the index of its block of `cluster_faces`).
     face_cluster: Vec<u32>,
-    /// Per face in cluster order, what the search reads of it this frame (contiguous).
-    search_faces: Vec<search::SearchFace>,
     /// The same faces as the search's tree (boxes and planes in lanes).
     tree: search::Tree,
     /// Per region vertex, the faces around it (CSR).
@@ -338,7 +336,6 @@ impl Certifier {
                 cluster_faces,
                 face_cluster,
                 cluster_box: vec![([0.0; 3], [0.0; 3]); n_clusters],
-                search_faces: vec![search::SearchFace::default(); faces.len()],
                 tree: search::Tree::default(),
                 fan_offsets,
                 fan,
@@ -494,23 +491,25 @@ impl Frame {
         for (c, bounds) in self.cluster_box.iter_mut().enumerate() {
             let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
             let end = ((c + 1) * search::CLUSTER).min(self.cluster_faces.len());
-            for k in c * search::CLUSTER..end {
-                let f = self.cluster_faces[k];
-                let fi = f as usize;
-                let (a, b) = (data.lo[fi], data.hi[fi]);
+            for &f in &self.cluster_faces[c * search::CLUSTER..end] {
+                let (a, b) = (data.lo[f as usize], data.hi[f as usize]);
                 l = [0, 1, 2].map(|k| l[k].min(a[k]));
                 h = [0, 1, 2].map(|k| h[k].max(b[k]));
-                self.search_faces[k] = search::SearchFace {
-                    lo: a,
-                    hi: b,
-                    plane: data.plane[fi],
-                    tri: self.faces[fi].map(|v| self.rel[v as usize]),
-                    face: f,
-                };
             }
             *bounds = (l, h);
         }
-        self.tree.refit(&self.search_faces, &self.cluster_box);
+        let (faces, rel) = (&self.faces, &self.rel);
+        let face = |f: u32| {
+            let f = f as usize;
+            search::SearchFace {
+                lo: data.lo[f],
+                hi: data.hi[f],
+                plane: data.plane[f],
+                tri: faces[f].map(|v| rel[v as usize]),
+            }
+        };
+        self.tree
+            .refit(&self.cluster_faces, face, &self.cluster_box);
         if !with_grid {
             return true;
         }
@@ -581,11 +580,10 @@ impl Frame {
         if self.find_buried {
             self.mark_buried();
             // The search never reaches a buried face (a box at infinity).
-            for (k, sf) in self.search_faces.iter_mut().enumerate() {
-                if self.buried[sf.face as usize] {
-                    sf.lo = [f32::INFINITY; 3];
-                    sf.hi = [f32::INFINITY; 3];
-                    self.tree.set_face_box(k, sf.lo, sf.hi);
+            for (k, &f) in self.cluster_faces.iter().enumerate() {
+                if self.buried[f as usize] {
+                    self.tree
+                        .set_face_box(k, [f32::INFINITY; 3], [f32::INFINITY; 3]);
                 }
             }
         }

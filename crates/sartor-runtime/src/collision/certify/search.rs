@@ -40,8 +40,9 @@
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
-//! (relative f32 corners, boxes, planes, in cluster order) but never its grid. Buried faces
-//! (where [`Frame`] seeks them) have a box at infinity there and are never on a list.
+//! (relative f32 corners, boxes, planes, and the faces in cluster order) but never its grid.
+//! Buried faces (where [`Frame`] seeks them) have a box at infinity in the tree and are never
+//! on a list.
 
 use super::{Frame, GUARD_M, fmax};
 
@@ -54,14 +55,13 @@ const LIST: usize = 8;
 /// ones.
 const SLACK_M: f32 = GUARD_M;
 
-/// What the search reads of a face: its box, plane and corners (relative), and its index.
+/// What the tree's bounds read of a face: its box, plane and corners (relative).
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct SearchFace {
     pub(super) lo: [f32; 3],
     pub(super) hi: [f32; 3],
     pub(super) plane: [f32; 4],
     pub(super) tri: [[f32; 3]; 3],
-    pub(super) face: u32,
 }
 
 /// One vertex's nearest f32 distance and the faces within it plus the slack.
@@ -284,10 +284,10 @@ impl FaceBlock {
     /// Set the lanes' boxes, planes and edge planes from `faces` (at most [`W`]; the planes
     /// zero for a sliver, whose planes bound nothing). The edges are computed lane by lane, so
     /// that the square roots and divisions vectorise.
-    fn set_faces(&mut self, faces: &[SearchFace]) {
-        // Per corner, per axis, the lanes; and the planes' normals.
+    fn set_faces(&mut self, faces: impl Iterator<Item = SearchFace>) {
+        // Per corner, per axis, the lanes.
         let mut t = [[[0.0f32; W]; 3]; 3];
-        for (l, sf) in faces.iter().enumerate() {
+        for (l, sf) in faces.take(W).enumerate() {
             self.boxes.set(l, &sf.lo, &sf.hi);
             let plane = if sf.plane[3].is_finite() {
                 sf.plane
@@ -328,8 +328,14 @@ impl FaceBlock {
 }
 
 impl Tree {
-    /// The tree of `faces` (in cluster order) whose clusters have boxes `clusters`.
-    pub(super) fn refit(&mut self, faces: &[SearchFace], clusters: &[([f32; 3], [f32; 3])]) {
+    /// The tree of the faces `ids` (in cluster order; `face(f)` what it reads of face `f`)
+    /// whose clusters have boxes `clusters`.
+    pub(super) fn refit(
+        &mut self,
+        ids: &[u32],
+        face: impl Fn(u32) -> SearchFace,
+        clusters: &[([f32; 3], [f32; 3])],
+    ) {
         let n_groups = clusters.len().div_ceil(GROUP);
         // The clusters never change: every lane of a face is set below, and the padding lanes
         // keep their boxes at infinity from the first frame.
@@ -342,8 +348,8 @@ impl Tree {
         self.groups.clear();
         self.groups
             .resize(n_groups.div_ceil(W), BoxBlock::default());
-        for (block, faces) in self.faces.iter_mut().zip(faces.chunks(CLUSTER)) {
-            block.set_faces(faces);
+        for (block, ids) in self.faces.iter_mut().zip(ids.chunks(CLUSTER)) {
+            block.set_faces(ids.iter().map(|&f| face(f)));
         }
         for (c, (lo, hi)) in clusters.iter().enumerate() {
             let g = c / GROUP;
@@ -361,7 +367,7 @@ impl Tree {
     /// within it, their faces within it, each tested against the reach as it stands (it
     /// shrinks as faces are found). Stops when the list overflows.
     #[inline(always)]
-    fn search(&self, faces: &[SearchFace], x: &[f32; 3], near: &mut Near) {
+    fn search(&self, frame: &Frame, x: &[f32; 3], near: &mut Near) {
         for (top, block) in self.groups.iter().enumerate() {
             let glb2 = block.distance2(x);
             let mut groups = within(&glb2, near.reach2);
@@ -373,7 +379,7 @@ impl Tree {
                 }
                 let group = top * W + g;
                 let cluster = |c: usize| group * GROUP + c;
-                if self.search_block(faces, &self.clusters[group], cluster, x, near) {
+                if self.search_block(frame, &self.clusters[group], cluster, x, near) {
                     return;
                 }
             }
@@ -385,7 +391,7 @@ impl Tree {
     #[inline(always)]
     fn search_among(
         &self,
-        faces: &[SearchFace],
+        frame: &Frame,
         clusters: &[u32],
         boxes: &[BoxBlock],
         x: &[f32; 3],
@@ -393,7 +399,7 @@ impl Tree {
     ) {
         for (b, block) in boxes.iter().enumerate() {
             let cluster = |l: usize| clusters[b * W + l] as usize;
-            if self.search_block(faces, block, cluster, x, near) {
+            if self.search_block(frame, block, cluster, x, near) {
                 return;
             }
         }
@@ -404,7 +410,7 @@ impl Tree {
     #[inline(always)]
     fn search_block(
         &self,
-        faces: &[SearchFace],
+        frame: &Frame,
         block: &BoxBlock,
         cluster: impl Fn(usize) -> usize,
         x: &[f32; 3],
@@ -416,7 +422,7 @@ impl Tree {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
             // The reach may have shrunk since the mask was taken.
-            if lb2[l] <= near.reach2 && self.search_cluster(faces, cluster(l), x, near) {
+            if lb2[l] <= near.reach2 && self.search_cluster(frame, cluster(l), x, near) {
                 return true;
             }
         }
@@ -457,13 +463,7 @@ impl Tree {
 
     /// [`Tree::search`] within cluster `c`; `true` when the list overflowed.
     #[inline(always)]
-    fn search_cluster(
-        &self,
-        faces: &[SearchFace],
-        c: usize,
-        x: &[f32; 3],
-        near: &mut Near,
-    ) -> bool {
+    fn search_cluster(&self, frame: &Frame, c: usize, x: &[f32; 3], near: &mut Near) -> bool {
         let lb2 = self.faces[c].distance2(x);
         let e = c * CLUSTER;
         let mut hit = within(&lb2, near.reach2);
@@ -474,15 +474,12 @@ impl Tree {
             if lb2[l] > near.reach2 {
                 continue;
             }
-            let sf = &faces[e + l];
-            if sf.face == near.warm {
+            let f = frame.cluster_faces[e + l];
+            if f == near.warm {
                 continue;
             }
-            if sf.plane[3].is_infinite() {
-                near.offer(sf.face, box2(&sf.lo, &sf.hi, x), false);
-            } else {
-                near.offer(sf.face, distance2(x, &sf.tri), true);
-            }
+            let (d2, exact) = frame.distance2(f, x);
+            near.offer(f, d2, exact);
             if near.overflowed() {
                 return true;
             }
@@ -565,7 +562,7 @@ impl Search {
                 for &i in packet {
                     let i = i as usize;
                     frame.tree.search_among(
-                        &frame.search_faces,
+                        frame,
                         &self.packet_clusters,
                         &self.packet_boxes,
                         &points[i],
@@ -575,9 +572,7 @@ impl Search {
             } else {
                 for &i in packet {
                     let i = i as usize;
-                    frame
-                        .tree
-                        .search(&frame.search_faces, &points[i], &mut self.near[i]);
+                    frame.tree.search(frame, &points[i], &mut self.near[i]);
                 }
             }
             for &i in packet {
@@ -820,10 +815,9 @@ mod tests {
                 hi: [0, 1, 2].map(|k| a[k].max(b[k]).max(c[k])),
                 plane: [n[0], n[1], n[2], dot(&a).max(dot(&b)).max(dot(&c))],
                 tri,
-                face: 0,
             };
             let mut block = FaceBlock::default();
-            block.set_faces(&[face]);
+            block.set_faces(std::iter::once(face));
             for _ in 0..20 {
                 let p = [
                     0.45 + next() * 2.0,
