@@ -1076,20 +1076,23 @@ impl Frame {
         for (i, (out, warm)) in outcomes.iter_mut().zip(warm.iter_mut()).enumerate() {
             let x = &points[i];
             let (best2, best_face) = search.best(i);
-            stats.candidates += search.faces(i).count();
-            // A vertex with a crease face among its candidates is never certified (`settle`).
-            let crease = search.faces(i).any(|g| self.crease[g as usize]);
+            s.candidates.clear();
+            s.candidates.extend(search.faces(i));
+            stats.candidates += s.candidates.len();
+            // A vertex with a crease face among its candidates is never certified (`settle`);
+            // there are none where no face is buried.
+            let crease = self.n_buried > 0 && s.candidates.iter().any(|&g| self.crease[g as usize]);
             if !crease
                 && best2 >= front2
-                && search.faces(i).all(|g| self.fans_in_front(g, x, GUARD_M))
+                && s.candidates
+                    .iter()
+                    .all(|&g| self.fans_in_front(g, x, GUARD_M))
             {
                 *out = Some(Outcome::Certified);
                 *warm = best_face;
                 stats.certified += 1;
                 continue;
             }
-            s.candidates.clear();
-            s.candidates.extend(search.faces(i));
             let q = cloth[i].cast::<f64>();
             *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 *warm = nearest.face;

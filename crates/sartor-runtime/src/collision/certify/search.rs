@@ -710,6 +710,7 @@ fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
 impl Frame {
     /// Distance² from `x` (relative) to face `f` in f32, and whether it is exact (for a sliver,
     /// the distance² to its box: a lower bound).
+    #[inline(always)]
     pub(super) fn distance2(&self, f: u32, x: &[f32; 3]) -> (f32, bool) {
         let fi = f as usize;
         if self.data.plane[fi][3].is_infinite() {
