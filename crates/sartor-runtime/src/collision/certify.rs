@@ -502,8 +502,6 @@ impl Frame {
         let face = |f: u32| {
             let f = f as usize;
             search::SearchFace {
-                lo: data.lo[f],
-                hi: data.hi[f],
                 plane: data.plane[f],
                 tri: faces[f].map(|v| rel[v as usize]),
             }
@@ -579,11 +577,10 @@ impl Frame {
         grid.start[0] = 0;
         if self.find_buried {
             self.mark_buried();
-            // The search never reaches a buried face (a box at infinity).
+            // The search never reaches a buried face.
             for (k, &f) in self.cluster_faces.iter().enumerate() {
                 if self.buried[f as usize] {
-                    self.tree
-                        .set_face_box(k, [f32::INFINITY; 3], [f32::INFINITY; 3]);
+                    self.tree.take_out(k);
                 }
             }
         }

@@ -4,7 +4,7 @@
 //! The region's faces form a tree rebuilt per frame ([`Tree`]): the spatial clusters of [`CLUSTER`]
 //! faces of [`Frame`] (fixed at rest, by median splits), in groups of [`GROUP`]; each level is a
 //! block of [`W`] boxes stored lane by lane, so that a point tests a whole group of clusters, or a
-//! whole cluster's faces (a bound from the box, the plane and the edges' planes:
+//! whole cluster's faces (a bound from the plane and the edges' planes:
 //! [`FaceBlock::distance2`]), in a few vector instructions. A point starts from the face it was
 //! nearest last frame: the distance to it bounds the search at once. The points are then taken in
 //! packets of up to [`PACKET`] whose warm faces lie in the same or the next clusters (a counting
@@ -31,18 +31,19 @@
 //! (two rounds; the frames' own post-process 5–10 % faster); packets of 8 or 32 points, or a cap of
 //! 32 or 128 clusters, measured the same. With the box and the plane alone about 3.4 faces per
 //! point passed the bound and needed their distance, 1.3 of them close enough to stay
-//! (8,710-triangle run); the edges' planes cut them to 0.9: the shipped model's post-process 0.83–0.84
-//! → 0.75–0.76 ms, the 8,710-triangle one 1.70–1.76 → 1.20–1.47 ms (two rounds each, alternating
-//! builds). Tried and not kept: keeping each list 4 mm wider within the margin, so that a pushed
-//! vertex's next pass could reuse it (the wider first pass cost more than the later passes saved:
-//! 1.40 → 1.49 ms on the shipped walk), visiting points in the order of their warm face's cluster
-//! without sharing the walk (no change), and the search compiled for AVX-512 (no faster).
+//! (8,710-triangle run); the edges' planes cut them to 0.9: the shipped model's post-process
+//! 0.83–0.84 → 0.75–0.76 ms, the 8,710-triangle one 1.70–1.76 → 1.20–1.47 ms (two rounds each,
+//! alternating builds). The faces' own boxes then bounded nothing the planes did not (dropped: the
+//! same 0.65 ms on the shipped model, 1.26–1.27 → 1.20 ms at 8,710 triangles). Tried and not kept:
+//! keeping each list 4 mm wider within the margin, so that a pushed vertex's next pass could reuse
+//! it (the wider first pass cost more than the later passes saved: 1.40 → 1.49 ms on the shipped
+//! walk), visiting points in the order of their warm face's cluster without sharing the walk (no
+//! change), and the search compiled for AVX-512 (no faster).
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
 //! (relative f32 corners, boxes, planes, and the faces in cluster order) but never its grid.
-//! Buried faces (where [`Frame`] seeks them) have a box at infinity in the tree and are never
-//! on a list.
+//! Buried faces (where [`Frame`] seeks them) are out of the tree's search and never on a list.
 
 use super::{Frame, GUARD_M, fmax};
 
@@ -55,11 +56,9 @@ const LIST: usize = 8;
 /// ones.
 const SLACK_M: f32 = GUARD_M;
 
-/// What the tree's bounds read of a face: its box, plane and corners (relative).
+/// What the tree's bounds read of a face: its plane and corners (relative).
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct SearchFace {
-    pub(super) lo: [f32; 3],
-    pub(super) hi: [f32; 3],
     pub(super) plane: [f32; 4],
     pub(super) tri: [[f32; 3]; 3],
 }
@@ -152,13 +151,13 @@ impl Near {
 
 /// The region's faces as a three-level tree rebuilt per frame: groups of [`GROUP`] clusters,
 /// clusters of [`CLUSTER`] faces (the spatial clusters of [`Frame`]'s `cluster_faces`), and the
-/// faces. Each level is stored in blocks of [`W`] boxes (and, for the faces, planes and edge
-/// planes), lane by lane, so that one point tests a whole cluster, or a whole group of clusters, at
-/// once, from a few adjacent cache lines.
+/// faces. Each level is stored in blocks of [`W`] boxes (for the faces, planes and edge planes),
+/// lane by lane, so that one point tests a whole cluster, or a whole group of clusters, at once,
+/// from a few adjacent cache lines.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Tree {
-    /// Per cluster, its faces (padded with boxes at infinity), with their planes `(n, o)` and
-    /// edge planes (zero for a sliver, which its planes bound nothing).
+    /// Per cluster, its faces' planes `(n, o)` and edge planes (padded with faces out of every
+    /// search; zero for a sliver, which its planes bound nothing).
     faces: Vec<FaceBlock>,
     /// Per group, its clusters' boxes (padded).
     clusters: Vec<BoxBlock>,
@@ -248,11 +247,13 @@ impl BoxBlock {
     }
 }
 
-/// A cluster's faces: boxes, planes and edge planes, lane by lane.
-#[derive(Clone, Copy, Debug, Default)]
+/// A cluster's faces: planes and edge planes, lane by lane.
+#[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 struct FaceBlock {
-    boxes: BoxBlock,
+    /// Per face `(n, o)`: `n·x − o` its distance from its plane (see [`Frame`]'s planes);
+    /// `n`, `o` zero for a sliver (it bounds nothing) and `o` at −∞ for a face out of every
+    /// search (a padding lane, a buried face).
     plane: [[f32; W]; 4],
     /// Per edge `(m, c)`: `m` the unit normal of the edge in the face's plane, pointing away
     /// from the face, and `c` the larger of `m·v` over the edge's ends, so that
@@ -260,14 +261,27 @@ struct FaceBlock {
     edges: [[[f32; W]; 4]; 3],
 }
 
+impl Default for FaceBlock {
+    /// Every lane out of every search.
+    fn default() -> Self {
+        let mut plane = [[0.0; W]; 4];
+        plane[3] = [f32::NEG_INFINITY; W];
+        Self {
+            plane,
+            edges: [[[0.0; W]; 4]; 3],
+        }
+    }
+}
+
 impl FaceBlock {
-    /// A lower bound of the distance² from `x` to each face: the box's, or the plane's
-    /// distance with the projection's distance beyond the farthest edge (for any point `y` of
-    /// the face, `|x − y|² = h² + |P(x − y)|²` with `P` the projection onto the plane, and
-    /// `|P(x − y)| ≥ m·(x − y) ≥ m·x − c` for each edge).
+    /// A lower bound of the distance² from `x` to each face: the plane's distance with the
+    /// projection's distance beyond the farthest edge (for any point `y` of the face,
+    /// `|x − y|² = h² + |P(x − y)|²` with `P` the projection onto the plane, and
+    /// `|P(x − y)| ≥ m·(x − y) ≥ m·x − c` for each edge); zero for a sliver, `+∞` for a face out
+    /// of the search.
     #[inline(always)]
     fn distance2(&self, x: &[f32; 3]) -> [f32; W] {
-        let mut lb2 = self.boxes.distance2(x);
+        let mut lb2 = [0.0f32; W];
         let [nx, ny, nz, o] = &self.plane;
         let edge = |[mx, my, mz, c]: &[[f32; W]; 4], l: usize| {
             mx[l] * x[0] + my[l] * x[1] + mz[l] * x[2] - c[l]
@@ -276,19 +290,18 @@ impl FaceBlock {
             let h = nx[l] * x[0] + ny[l] * x[1] + nz[l] * x[2] - o[l];
             let [e0, e1, e2] = &self.edges;
             let s = fmax(fmax(fmax(edge(e0, l), edge(e1, l)), edge(e2, l)), 0.0);
-            lb2[l] = fmax(lb2[l], h * h + s * s);
+            lb2[l] = h * h + s * s;
         }
         lb2
     }
 
-    /// Set the lanes' boxes, planes and edge planes from `faces` (at most [`W`]; the planes
-    /// zero for a sliver, whose planes bound nothing). The edges are computed lane by lane, so
-    /// that the square roots and divisions vectorise.
+    /// Set the lanes' planes and edge planes from `faces` (at most [`W`]; zero for a sliver,
+    /// whose planes bound nothing). The edges are computed lane by lane, so that the square
+    /// roots and divisions vectorise.
     fn set_faces(&mut self, faces: impl Iterator<Item = SearchFace>) {
         // Per corner, per axis, the lanes.
         let mut t = [[[0.0f32; W]; 3]; 3];
         for (l, sf) in faces.take(W).enumerate() {
-            self.boxes.set(l, &sf.lo, &sf.hi);
             let plane = if sf.plane[3].is_finite() {
                 sf.plane
             } else {
@@ -358,9 +371,9 @@ impl Tree {
         }
     }
 
-    /// Set the box of face slot `k` (a box at infinity takes a face out of every search).
-    pub(super) fn set_face_box(&mut self, k: usize, lo: [f32; 3], hi: [f32; 3]) {
-        self.faces[k / CLUSTER].boxes.set(k % CLUSTER, &lo, &hi);
+    /// Take face slot `k` out of every search (until the next refit).
+    pub(super) fn take_out(&mut self, k: usize) {
+        self.faces[k / CLUSTER].plane[3][k % CLUSTER] = f32::NEG_INFINITY;
     }
 
     /// Offer `near` every face within its reach of `x`: the groups within it, their clusters
@@ -812,8 +825,6 @@ mod tests {
             let n = n.map(|v| v / len);
             let dot = |v: &[f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
             let face = SearchFace {
-                lo: [0, 1, 2].map(|k| a[k].min(b[k]).min(c[k])),
-                hi: [0, 1, 2].map(|k| a[k].max(b[k]).max(c[k])),
                 plane: [n[0], n[1], n[2], dot(&a).max(dot(&b)).max(dot(&c))],
                 tri,
             };
