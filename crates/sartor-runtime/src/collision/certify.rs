@@ -1073,8 +1073,7 @@ impl Frame {
         for (i, (out, warm)) in outcomes.iter_mut().zip(warm.iter_mut()).enumerate() {
             let x = &points[i];
             let (best2, best_face) = search.best(i);
-            s.candidates.clear();
-            s.candidates.extend(search.faces(i));
+            search.faces_into(i, &mut s.candidates);
             stats.candidates += s.candidates.len();
             // A vertex with a crease face among its candidates is never certified (`settle`);
             // there are none where no face is buried.
@@ -1139,8 +1138,7 @@ impl Frame {
         rel.extend(points.iter().map(|p| self.relative(p)));
         search.run(self, rel, warm);
         for (k, p) in points.iter().enumerate() {
-            s.candidates.clear();
-            s.candidates.extend(search.faces(k));
+            search.faces_into(k, &mut s.candidates);
             let q = p.cast::<f64>();
             let hit = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 let c = proximity.signed(&q, &nearest);
@@ -1489,7 +1487,9 @@ mod tests {
         let rel = certifier.frame.relative(&points[0]);
         let mut search = Search::default();
         search.run(&certifier.frame, &[rel], &[u32::MAX]);
-        assert_eq!(search.faces(0).filter(|&g| g < n).count(), n as usize);
+        let mut faces = Vec::new();
+        search.faces_into(0, &mut faces);
+        assert_eq!(faces.iter().filter(|&&g| g < n).count(), n as usize);
     }
 
     #[test]

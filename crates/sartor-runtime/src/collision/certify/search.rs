@@ -92,6 +92,7 @@ impl Near {
 
     /// [`Near::new`] with the point's warm face offered first (when it is a face of the
     /// region and not buried); the search does not offer it again.
+    #[inline(always)]
     fn from_warm(frame: &Frame, x: &[f32; 3], warm: u32, limit2: f32) -> Self {
         let mut near = Self::new(limit2);
         if (warm as usize) < frame.faces.len() && !frame.buried[warm as usize] {
@@ -137,15 +138,6 @@ impl Near {
 
     fn overflowed(&self) -> bool {
         self.len as usize > LIST
-    }
-
-    /// The faces still within reach.
-    fn faces(&self) -> impl Iterator<Item = u32> + '_ {
-        let reach2 = self.reach2;
-        self.list[..(self.len as usize).min(LIST)]
-            .iter()
-            .filter(move |e| e.1 <= reach2)
-            .map(|e| e.0)
     }
 }
 
@@ -540,7 +532,7 @@ pub(crate) struct Search {
 
 impl Search {
     /// For each of `points` (relative to `frame`'s grid corner), the faces within its nearest
-    /// distance plus the slack, read back with [`Search::faces`] and [`Search::best`]; `warm`:
+    /// distance plus the slack, read back with [`Search::faces_into`] and [`Search::best`]; `warm`:
     /// per point, a face to start from (`u32::MAX`: none).
     pub(crate) fn run(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
         search_points(self, frame, points, warm);
@@ -676,18 +668,21 @@ impl Search {
         }
     }
 
-    /// Point `i`'s faces within its nearest distance plus the slack (never empty for a region
-    /// with a face).
-    pub(crate) fn faces(&self, i: usize) -> impl Iterator<Item = u32> + '_ {
+    /// Point `i`'s faces within its nearest distance plus the slack, into `out` (cleared
+    /// first; never empty for a region with a face).
+    pub(crate) fn faces_into(&self, i: usize, out: &mut Vec<u32>) {
+        out.clear();
         let (a, b) = self.spilled[i];
-        let list = if a < b {
-            None
-        } else {
-            Some(self.near[i].faces())
-        };
-        list.into_iter()
-            .flatten()
-            .chain(self.spill[a as usize..b as usize].iter().copied())
+        if a < b {
+            out.extend_from_slice(&self.spill[a as usize..b as usize]);
+            return;
+        }
+        let near = &self.near[i];
+        for &(f, d2) in &near.list[..(near.len as usize).min(LIST)] {
+            if d2 <= near.reach2 {
+                out.push(f);
+            }
+        }
     }
 
     /// Point `i`'s nearest f32 distance² (`∞` if only sliver faces are near: their distance is
