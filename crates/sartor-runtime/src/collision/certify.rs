@@ -455,39 +455,8 @@ impl Frame {
                 [0, 1, 2].map(|k| hi[k].max(centre[k])),
             );
         }
-        let data = &mut self.data;
-        for (f, t) in self.faces.iter().enumerate() {
-            let [a, b, c] = t.map(|v| self.rel[v as usize]);
-            // Edges from the f64 positions (the exact query's own), then f32: the normal's
-            // direction error stays below ~1e-5 for faces that pass the sliver test.
-            let [pa, pb, pc] = t.map(|v| posed[v as usize]);
-            let (e1, e2) = ((pb - pa).cast::<f32>(), (pc - pa).cast::<f32>());
-            let mut l = [0.0f32; 3];
-            let mut h = [0.0f32; 3];
-            for k in 0..3 {
-                l[k] = a[k].min(b[k]).min(c[k]);
-                h[k] = a[k].max(b[k]).max(c[k]);
-            }
-            data.lo[f] = l;
-            data.hi[f] = h;
-            data.centroid[f] = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
-            let n = [
-                e1[1] * e2[2] - e1[2] * e2[1],
-                e1[2] * e2[0] - e1[0] * e2[2],
-                e1[0] * e2[1] - e1[1] * e2[0],
-            ];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let scale = ((e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
-                * (e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
-                .sqrt();
-            data.plane[f] = if len > MIN_SINE * scale && len > 0.0 {
-                let n = n.map(|x| x / len);
-                let dot = |v: [f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
-                [n[0], n[1], n[2], dot(a).max(dot(b)).max(dot(c))]
-            } else {
-                [0.0, 0.0, 0.0, f32::INFINITY]
-            };
-        }
+        face_data(&self.faces, &self.rel, posed, &mut self.data);
+        let data = &self.data;
         for (c, bounds) in self.cluster_box.iter_mut().enumerate() {
             let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
             let end = ((c + 1) * search::CLUSTER).min(self.cluster_faces.len());
@@ -1351,6 +1320,54 @@ fn ray_triangle(
 #[inline(always)]
 fn fmax(a: f32, b: f32) -> f32 {
     if a > b { a } else { b }
+}
+
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+crate::kernels::avx2_where_present! {
+    /// Each face's box, centroid and plane (see [`Faces`]) from its corners `rel` (relative,
+    /// f32) and `posed` (f64), built for AVX2 where present (same arithmetic, same bits:
+    /// nothing is contracted).
+    fn face_data(faces: &[[u32; 3]], rel: &[[f32; 3]], posed: &[Vector3<f64>], data: &mut Faces) {
+        for (f, &[u, v, w]) in faces.iter().enumerate() {
+            let (u, v, w) = (u as usize, v as usize, w as usize);
+            let (a, b, c) = (rel[u], rel[v], rel[w]);
+            // Edges from the f64 positions (the exact query's own), then f32: the normal's
+            // direction error stays below ~1e-5 for faces that pass the sliver test.
+            let (e1, e2) = ((posed[v] - posed[u]).cast::<f32>(), (posed[w] - posed[u]).cast::<f32>());
+            let mut l = [0.0f32; 3];
+            let mut h = [0.0f32; 3];
+            for k in 0..3 {
+                l[k] = fmin(fmin(a[k], b[k]), c[k]);
+                h[k] = fmax(fmax(a[k], b[k]), c[k]);
+            }
+            data.lo[f] = l;
+            data.hi[f] = h;
+            data.centroid[f] = [
+                (a[0] + b[0] + c[0]) / 3.0,
+                (a[1] + b[1] + c[1]) / 3.0,
+                (a[2] + b[2] + c[2]) / 3.0,
+            ];
+            let n = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let scale = ((e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+                * (e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
+                .sqrt();
+            data.plane[f] = if len > MIN_SINE * scale && len > 0.0 {
+                let n = [n[0] / len, n[1] / len, n[2] / len];
+                let dot = |v: [f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+                [n[0], n[1], n[2], fmax(fmax(dot(a), dot(b)), dot(c))]
+            } else {
+                [0.0, 0.0, 0.0, f32::INFINITY]
+            };
+        }
+    }
 }
 
 impl Grid {
