@@ -2,9 +2,11 @@
 //! body, nominal shape) on the procedural walk, one thread: milliseconds per frame of the
 //! post-process alone (posing the body region and pushing the cloth out), per query, and the
 //! whole frame with the default query. `certified-2threads` is the default query with its first
-//! pass split over a pool of two threads (every other entry runs on one). `certified-buried` is the certified query as a body
+//! pass split over a pool of two threads; `certified-buried` is the certified query as a body
 //! shape beyond the model's training shapes gets it (the faces buried inside another body part
-//! sought every frame). Each iteration is the next frame of the clip, so the
+//! sought every frame). The frames run the network in f32 on one thread, and in int8 on one
+//! thread and on the pool of two (`-int8-2threads`: the network's products and the
+//! post-process's first pass split). Each iteration is the next frame of the clip, so the
 //! temporal caches see real motion.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
@@ -17,7 +19,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use sartor_core::{BodyModel, Pose};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
-    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
+    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism, Precision,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -36,11 +38,15 @@ fn animator(
     interpenetration: Interpenetration,
     faces: bool,
     parallelism: Parallelism,
+    precision: Precision,
 ) -> GarmentAnimator {
     let dir = data("models/default");
     let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
-    let network =
-        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let options = NetworkOptions {
+        precision,
+        ..NetworkOptions::default()
+    };
+    let network = Arc::new(GarmentNetwork::load_with(&dir, options).expect("model"));
     let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
     let options = AnimatorOptions {
         parallelism,
@@ -96,7 +102,7 @@ fn post_process(c: &mut Criterion) {
         ),
         ("bvh", CollisionQuery::EXACT_BVH, within, false, seq),
     ] {
-        let mut avatar = animator(query, interpenetration, faces, parallelism);
+        let mut avatar = animator(query, interpenetration, faces, parallelism, Precision::F32);
         let mut k = 0;
         group.bench_function(name, |b| {
             b.iter_custom(|iters| {
@@ -113,14 +119,33 @@ fn post_process(c: &mut Criterion) {
         });
     }
     group.finish();
-    let mut avatar = animator(CollisionQuery::Certified, within, false, seq);
-    let mut k = 0;
-    c.bench_function("frame/shipped-4210-certified", |b| {
-        b.iter(|| {
-            avatar.frame(&poses[k % poses.len()]).expect("frame");
-            k += 1;
-        })
-    });
+    // The whole frame: f32 on one thread, and int8 on one thread and on a pool of two.
+    for (name, precision, parallelism) in [
+        ("frame/shipped-4210-certified", Precision::F32, seq),
+        ("frame/shipped-4210-certified-int8", Precision::Int8, seq),
+        (
+            "frame/shipped-4210-certified-int8-2threads",
+            Precision::Int8,
+            Parallelism::Rayon,
+        ),
+    ] {
+        let mut avatar = animator(
+            CollisionQuery::Certified,
+            within,
+            false,
+            parallelism,
+            precision,
+        );
+        let mut k = 0;
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                pool.install(|| {
+                    avatar.frame(&poses[k % poses.len()]).expect("frame");
+                    k += 1;
+                })
+            })
+        });
+    }
 }
 
 criterion_group!(benches, post_process);
