@@ -598,7 +598,7 @@ impl Search {
             if near.best_face == u32::MAX {
                 n_clusters
             } else {
-                frame.face_cluster[near.best_face as usize] as usize
+                frame.face_slot[near.best_face as usize] as usize / CLUSTER
             }
         };
         for near in &self.near {
