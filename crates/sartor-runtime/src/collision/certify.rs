@@ -1045,9 +1045,8 @@ impl Frame {
             let (best2, best_face) = search.best(i);
             search.faces_into(i, &mut s.candidates);
             stats.candidates += s.candidates.len();
-            // A vertex with a crease face among its candidates is never certified (`settle`);
-            // there are none where no face is buried.
-            let crease = self.n_buried > 0 && s.candidates.iter().any(|&g| self.crease[g as usize]);
+            // A vertex with a crease face among its candidates is never certified (`settle`).
+            let crease = s.candidates.iter().any(|&g| self.crease[g as usize]);
             if !crease
                 && best2 >= front2
                 && s.candidates.iter().all(|&g| self.in_front(g, x, GUARD_M))

@@ -188,15 +188,7 @@ impl BoxBlock {
     /// Distance² from `x` to each box.
     #[inline(always)]
     fn distance2(&self, x: &[f32; 3]) -> [f32; W] {
-        let mut d2 = [0.0f32; W];
-        for k in 0..3 {
-            let (l, h) = (&self.lo[k], &self.hi[k]);
-            for j in 0..W {
-                let d = fmax(fmax(l[j] - x[k], x[k] - h[j]), 0.0);
-                d2[j] += d * d;
-            }
-        }
-        d2
+        self.distance2_box(x, x)
     }
 
     /// Distance² from the box `[lo, hi]` to each box.
@@ -343,7 +335,7 @@ impl Tree {
     ) {
         let n_groups = clusters.len().div_ceil(GROUP);
         // The clusters never change: every lane of a face is set below, and the padding lanes
-        // keep their boxes at infinity from the first frame.
+        // stay out of every search (planes at −∞, boxes at infinity) from the first frame.
         if self.faces.len() != clusters.len() {
             self.faces.clear();
             self.faces.resize(clusters.len(), FaceBlock::default());
@@ -647,7 +639,7 @@ impl Search {
         true
     }
 
-    /// Point `i`'s search against every face where the tree's left its list overflowed or
+    /// Point `i`'s search against every face where the tree search overflowed its list or
     /// found only slivers.
     fn finish(&mut self, frame: &Frame, x: &[f32; 3], warm: u32, i: usize) {
         let near = &mut self.near[i];
@@ -789,14 +781,11 @@ mod tests {
     use super::*;
     use nalgebra::Vector3;
 
-    /// Uniform numbers in [0, 0.1) from `seed` (xorshift).
-    fn uniform(mut seed: u64) -> impl FnMut() -> f32 {
-        move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f32 / (1u64 << 53) as f32 * 0.1
-        }
+    /// Uniform numbers in [0, 0.1) from `seed`.
+    fn uniform(seed: u64) -> impl FnMut() -> f32 {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        move || rng.random_range(0.0..0.1)
     }
 
     #[test]
@@ -806,21 +795,20 @@ mod tests {
         for _ in 0..2_000 {
             let mut pt = || [0.5 + next(), 0.5 + next(), 0.5 + next()];
             let tri = [pt(), pt(), pt()];
-            let [a, b, c] = tri;
-            let (e1, e2) = (
-                [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-                [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-            );
-            let n = [
-                e1[1] * e2[2] - e1[2] * e2[1],
-                e1[2] * e2[0] - e1[0] * e2[2],
-                e1[0] * e2[1] - e1[1] * e2[0],
-            ];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let n = n.map(|v| v / len);
-            let dot = |v: &[f32; 3]| n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+            // The plane as the frame makes it.
+            let mut data = super::super::Faces {
+                lo: vec![[0.0; 3]],
+                hi: vec![[0.0; 3]],
+                plane: vec![[0.0; 4]],
+                centroid: vec![[0.0; 3]],
+            };
+            let posed = tri.map(|p| Vector3::new(p[0], p[1], p[2]).cast::<f64>());
+            super::super::face_data(&[[0, 1, 2]], &tri, &posed, &mut data);
+            if data.plane[0][3].is_infinite() {
+                continue; // A sliver: its planes bound nothing.
+            }
             let face = SearchFace {
-                plane: [n[0], n[1], n[2], dot(&a).max(dot(&b)).max(dot(&c))],
+                plane: data.plane[0],
                 tri,
             };
             let mut block = FaceBlock::default();
