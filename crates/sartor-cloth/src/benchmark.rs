@@ -71,7 +71,10 @@ pub struct SequenceBenchmark {
     /// Share of substeps whose self-collision detection rebuilt its candidate lists, %.
     #[serde(default)]
     pub self_collision_builds_percent: f64,
-    /// Looking up the frozen membrane stiffness and bending coefficients, ms per frame.
+    /// Looking up the frozen membrane stiffness and bending coefficients apart from the
+    /// assembly, ms per frame: for Newton iterations after the first and for hinges without the
+    /// Gauss–Newton Hessian (the first iteration looks them up while it assembles, and its
+    /// time is in `assemble_ms_per_frame`).
     #[serde(default)]
     pub coefficients_ms_per_frame: f64,
     /// Friction, new positions and the projection fallback (its queries included), ms per

@@ -167,8 +167,9 @@ impl TabulatedMembrane {
         let top = n as f64 - 1.0 - 1e-5;
         let coord = |x: f64| -> (usize, f64) {
             let x = x.clamp(0.0, top);
-            // x ∈ [0, 29): the floor is an index in [0, 28].
-            let i = (x.floor() as usize).min(n - 2);
+            // x ∈ [0, 29): its floor, the cast's truncation (a call to libm's `floor` on
+            // x86-64's baseline), is an index in [0, 28].
+            let i = (x as usize).min(n - 2);
             (i, x - i as f64)
         };
         let (ai, a) = coord((g[(0, 0)] + 0.25) * n as f64);
@@ -296,8 +297,9 @@ impl BendingModel {
             Self::Tabulated(table) => {
                 let curv = theta_rad * edge_length_m / area_sum_m2;
                 let mut value = (curv / 2.0 * 0.2).min(4.0);
-                // C's `(int)` truncates toward zero; then the index is clamped to [0, 3].
-                let value_i = (value.trunc() as i64).clamp(0, 3);
+                // C's `(int)` truncates toward zero, as the cast does; then the index is clamped
+                // to [0, 3].
+                let value_i = (value as i64).clamp(0, 3);
                 value -= value_i as f64;
                 let mut bias = (edge_angle_rad * 4.0 / std::f64::consts::PI).abs();
                 if bias > 4.0 {
@@ -306,7 +308,7 @@ impl BendingModel {
                 if bias > 2.0 {
                     bias = 4.0 - bias;
                 }
-                let bias_id = (bias.trunc() as i64).clamp(0, 1);
+                let bias_id = (bias as i64).clamp(0, 1);
                 bias -= bias_id as f64;
                 let (b, v) = (bias_id as usize, value_i as usize);
                 let d = &table.ke;

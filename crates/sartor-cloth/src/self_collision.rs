@@ -155,8 +155,9 @@ impl Cells {
     /// The cell coordinates of `p`, clamped to the grid.
     fn coords(&self, p: &Vector3<f64>) -> [usize; 3] {
         [0, 1, 2].map(|k| {
-            let c = ((p[k] - self.origin[k]) * self.inv_cell).floor();
-            (c.max(0.0) as usize).min(self.dims[k] - 1)
+            // Clamped at 0 first, the cast's truncation is the floor (and NaN lands in cell 0).
+            let c = ((p[k] - self.origin[k]) * self.inv_cell).max(0.0);
+            (c as usize).min(self.dims[k] - 1)
         })
     }
 

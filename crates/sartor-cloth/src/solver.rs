@@ -206,7 +206,8 @@ pub struct StepStats {
     pub self_collision_secs: f64,
     /// Whether the self-collision detection rebuilt its candidate lists (else it reused them).
     pub self_collision_built: bool,
-    /// Time looking up the frozen membrane stiffness and bending coefficients, s.
+    /// Time looking up the frozen membrane stiffness and bending coefficients apart from the
+    /// assembly (which looks them up itself in the first Newton iteration), s.
     pub coefficients_secs: f64,
     /// Time in friction, the new positions and the projection fallback (its queries
     /// included), s.
@@ -388,6 +389,11 @@ struct Shared<'a> {
     hinge_slots: &'a [[u32; 16]],
     stiffness: &'a [StrainStiffness],
     coefficient: &'a [f64],
+    /// Whether `x` is the state the coefficients are frozen at (the first Newton iteration):
+    /// the membrane stiffness and the Gauss–Newton hinges' coefficients are then looked up
+    /// here, from the strain and angle the derivatives compute anyway, not read from
+    /// `stiffness` and `coefficient` (bitwise the same numbers).
+    frozen_here: bool,
     x: &'a [Vector3<f64>],
     v_plus: &'a [Vector3<f64>],
     velocities: &'a [Vector3<f64>],
@@ -506,10 +512,15 @@ impl Shared<'_> {
         }
         // The first slot of vertex `i`'s row.
         let first = |i: u32| pattern.row(i as usize).start;
+        let material = self.cloth.material();
         for &t in &share.triangles {
             let (t, f) = (t as usize, faces[t as usize]);
-            let d =
-                membranes[t].derivatives(&gather(self.x, f), &self.stiffness[t], Projection::Psd);
+            let (m, xt) = (&membranes[t], gather(self.x, f));
+            let d = if self.frozen_here {
+                m.derivatives_frozen_here(&xt, material.membrane(), Projection::Psd)
+            } else {
+                m.derivatives(&xt, &self.stiffness[t], Projection::Psd)
+            };
             let slots = &self.tri_slots[t];
             for a in 0..3 {
                 if let Some(k) = out.place(share, f[a]) {
@@ -544,7 +555,12 @@ impl Shared<'_> {
             if bending_hessian == BendingHessian::GaussNewton {
                 // ARCSim's Hessian (the default): its sixteen blocks made where they are added,
                 // the same numbers as `derivatives` gives without holding them all.
-                if let Some(d) = h.gauss_newton(&x, self.coefficient[e]) {
+                let d = if self.frozen_here {
+                    h.gauss_newton_frozen_here(&x, material.bending())
+                } else {
+                    h.gauss_newton(&x, self.coefficient[e])
+                };
+                if let Some(d) = d {
                     add(&d.gradient, &|a, b| d.block(a, b));
                 }
             } else {
@@ -1051,8 +1067,12 @@ impl Simulator {
         let start = Instant::now();
         let mut stats = StepStats::default();
         let par = self.config.parallelism;
+        // The first Newton iteration linearises at `x` itself, where the coefficients are frozen:
+        // its assembly looks them up (see `Shared::frozen_here`); they are stored only for the
+        // iterations after it, and for hinges whose Hessian is not the Gauss–Newton one.
+        let gauss_newton = self.config.bending_hessian == BendingHessian::GaussNewton;
         let t_coefficients = Instant::now();
-        self.freeze_coefficients();
+        self.freeze_coefficients(false, !gauss_newton);
         stats.coefficients_secs = t_coefficients.elapsed().as_secs_f64();
         let t_collision = Instant::now();
         (stats.self_collision_secs, stats.self_collision_built) = self.find_contacts(colliders);
@@ -1076,11 +1096,16 @@ impl Simulator {
             .iter_mut()
             .for_each(|v| *v = Vector3::zeros());
         for iteration in 0..self.config.newton_iterations {
+            if iteration == 1 {
+                let t_coefficients = Instant::now();
+                self.freeze_coefficients(true, gauss_newton);
+                stats.coefficients_secs += t_coefficients.elapsed().as_secs_f64();
+            }
             let t_assemble = Instant::now();
             for i in 0..n {
                 self.ws.x_iter[i] = self.x[i] + self.ws.v_plus[i] * h;
             }
-            self.assemble_system(h);
+            self.assemble_system(h, iteration == 0);
             stats.assemble_secs += t_assemble.elapsed().as_secs_f64();
             // Warm start: the current velocity continued by the last step's acceleration,
             // v + a h, as the guess for v⁺ (Δ = v + a h − v⁺). The system and its tolerance
@@ -1207,22 +1232,26 @@ impl Simulator {
         Ok(stats)
     }
 
-    /// Look up the per-step material stiffness and bending coefficients at the current state.
-    fn freeze_coefficients(&mut self) {
+    /// Look up the per-step material stiffness (`membranes`) and bending coefficients
+    /// (`hinges`) at the current state.
+    fn freeze_coefficients(&mut self, membranes: bool, hinges: bool) {
         let par = self.config.parallelism;
         let x = &self.x;
         let material = self.sim_cloth.material();
-        let membranes = self.sim_cloth.membranes();
-        let faces = self.sim_cloth.faces();
-        for_each_indexed(&mut self.ws.tri_stiffness, par, |t, k| {
-            *k = material
-                .membrane()
-                .stiffness(&membranes[t].green_strain(&gather(x, faces[t])));
-        });
-        let hinges = self.sim_cloth.hinges();
-        for_each_indexed(&mut self.ws.hinge_coefficient, par, |e, c| {
-            *c = hinges[e].coefficient(&gather(x, hinges[e].vertices), material.bending());
-        });
+        if membranes {
+            let (rest, faces) = (self.sim_cloth.membranes(), self.sim_cloth.faces());
+            for_each_indexed(&mut self.ws.tri_stiffness, par, |t, k| {
+                *k = material
+                    .membrane()
+                    .stiffness(&rest[t].green_strain(&gather(x, faces[t])));
+            });
+        }
+        if hinges {
+            let rest = self.sim_cloth.hinges();
+            for_each_indexed(&mut self.ws.hinge_coefficient, par, |e, c| {
+                *c = rest[e].coefficient(&gather(x, rest[e].vertices), material.bending());
+            });
+        }
     }
 
     /// Obstacle contacts (at the start positions, against the end-of-substep obstacles) and
@@ -1301,7 +1330,7 @@ impl Simulator {
     /// The gradient of the potential and its PSD Hessian at `x_iter`, then the system
     /// `A = M (1 + h α) + h (h + β) K` and `rhs = −r(v⁺)` with pinned vertices eliminated: row
     /// by row, in shares of the rows (see [`Share`]; one share when sequential).
-    fn assemble_system(&mut self, h: f64) {
+    fn assemble_system(&mut self, h: f64, frozen_here: bool) {
         let par = self.config.parallelism;
         let penalty = self.config.contact_penalty;
         let ws = &mut self.ws;
@@ -1321,6 +1350,7 @@ impl Simulator {
             hinge_slots: &self.hinge_slots,
             stiffness: &ws.tri_stiffness,
             coefficient: &ws.hinge_coefficient,
+            frozen_here,
             x,
             v_plus: &ws.v_plus,
             velocities: &self.v,
