@@ -303,13 +303,7 @@ mod tests {
     #[test]
     fn the_gradient_only_angle_is_bitwise_the_full_one() {
         // Hinges from flat to folded, regular to sliver, seeded by a simple LCG.
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::energy::uniform(0x2545_F491_4F6C_DD1D);
         for _ in 0..500 {
             let x: [Vector3<f64>; 4] =
                 std::array::from_fn(|_| Vector3::new(next(), next(), next()) * 0.02);
@@ -340,13 +334,7 @@ mod tests {
         // and used at x, against the two calls the frozen path makes.
         let material = crate::material::Material::gray_interlock();
         let model = material.bending();
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::energy::uniform(0x9E37_79B9_7F4A_7C15);
         let mut compared = 0;
         for k in 0..500 {
             let x: [Vector3<f64>; 4] =

@@ -210,13 +210,7 @@ mod tests {
             &Vector3::y(),
         )
         .expect("a proper triangle");
-        let mut state = 0xD1B5_4A32_D192_ED03u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::energy::uniform(0xD1B5_4A32_D192_ED03);
         for k in 0..300 {
             let stretch = 0.8 + 0.5 * (next() + 0.5);
             let x = [
