@@ -678,13 +678,11 @@ impl Frame {
         let [nx, ny, nz] = grid.dims;
         let n_cells = nx * ny * nz;
         grid.cell_state.clear();
-        grid.cell_state.extend(grid.start.windows(2).map(|w| {
-            if w[1] > w[0] {
-                CELL_BLOCKED
-            } else {
-                CELL_UNKNOWN
-            }
-        }));
+        grid.cell_state.extend(
+            grid.start
+                .windows(2)
+                .map(|w| if w[1] > w[0] { CELL_BLOCKED } else { CELL_UNKNOWN }),
+        );
         debug_assert_eq!(grid.cell_state.len(), n_cells);
         for (l, &centre) in self.loop_centre.iter().enumerate() {
             let caps = &self.caps[self.loop_caps[l] as usize..self.loop_caps[l + 1] as usize];
@@ -1781,8 +1779,8 @@ mod tests {
         // shapes, where an arm sinks into a heavy torso, along a walk: each face's buried-face
         // ray stopped in the first exterior cell gives the answer of the ray walked to the
         // grid's edge.
-        let dir =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman");
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../datasets/body/makehuman");
         let body = sartor_core::BodyModel::load(&dir).expect("built-in body");
         let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
         let rest = body.template().positions().to_vec();
@@ -1801,11 +1799,7 @@ mod tests {
             }
         }
         assert!(buried > 0, "some faces are buried");
-        assert_eq!(
-            certifier.frame.whole_ray_disagreements,
-            Some(0),
-            "{buried} buried"
-        );
+        assert_eq!(certifier.frame.whole_ray_disagreements, Some(0), "{buried} buried");
     }
 
     #[test]
