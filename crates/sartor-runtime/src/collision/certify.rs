@@ -118,23 +118,7 @@ struct Grid {
     plane: [Vec<f32>; 4],
     /// Per face, its cell range (lower and upper corner), computed once per frame.
     ranges: Vec<([u32; 3], [u32; 3])>,
-    /// Per cell: [`CELL_EXTERIOR`] when no face or cap reaches it and it connects to the
-    /// grid's border through such cells, so that every point in it lies outside the region;
-    /// [`CELL_BLOCKED`] when a face's or cap's box reaches it (see [`Frame::mark_exterior`]).
-    cell_state: Vec<u8>,
-    /// Scratch of [`Frame::mark_exterior`]'s flood.
-    flood: Vec<u32>,
 }
-
-/// [`Grid::cell_state`]: not reached by the flood (empty inside, or not yet known).
-const CELL_UNKNOWN: u8 = 0;
-/// [`Grid::cell_state`]: a face's or cap's box reaches the cell.
-const CELL_BLOCKED: u8 = 1;
-/// [`Grid::cell_state`]: empty and connected to the border through empty cells: outside.
-const CELL_EXTERIOR: u8 = 2;
-/// A buried-face ray stops in an exterior cell only where it runs at least this far inside
-/// it, metres: the stop, halfway through, lies then well clear of every face in f32.
-const MIN_EXTERIOR_RUN_M: f32 = 1e-3;
 
 /// The posed region's faces relative to the grid corner, in f32.
 #[derive(Clone, Debug, Default)]
@@ -260,10 +244,6 @@ pub(crate) struct Frame {
     loop_box: Vec<([f32; 3], [f32; 3])>,
     /// Per boundary loop, its range of `caps` (`caps` is sorted by loop).
     loop_caps: Vec<u32>,
-    /// Tests: [`Frame::mark_buried`] also walks every face's ray to the grid's edge and counts
-    /// the faces whose two answers differ (`Some(count)` turns it on).
-    #[cfg(test)]
-    whole_ray_disagreements: Option<usize>,
 }
 
 /// The certified query's state (see the module docs).
@@ -386,8 +366,6 @@ impl Certifier {
                         Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)
                     }),
                     ranges: vec![([0; 3], [0; 3]); n_f],
-                    cell_state: Vec::with_capacity(MAX_CELLS),
-                    flood: Vec::with_capacity(MAX_CELLS),
                 },
                 find_buried: buried,
                 buried: vec![false; n_f],
@@ -401,8 +379,6 @@ impl Certifier {
                 loop_centre: vec![[0.0; 3]; n_loops],
                 loop_box: vec![([0.0; 3], [0.0; 3]); n_loops],
                 loop_caps,
-                #[cfg(test)]
-                whole_ray_disagreements: None,
             },
             scratch: Scratch::new(n_f, n_vertices),
             search: Search::default(),
@@ -577,7 +553,6 @@ impl Frame {
         }
         grid.start[0] = 0;
         if self.find_buried {
-            self.mark_exterior();
             self.mark_buried();
             // The search never reaches a buried face.
             for (k, &f) in self.cluster_faces.iter().enumerate() {
@@ -608,19 +583,6 @@ impl Frame {
             self.buried[f] = buried;
             self.n_buried += usize::from(buried);
         }
-        #[cfg(test)]
-        if let Some(count) = self.whole_ray_disagreements {
-            let mut whole = vec![0u32; seen.len()];
-            let differ = (0..self.faces.len())
-                .filter(|&f| {
-                    let inside = self.buried_ray(f).is_some_and(|(o, d)| {
-                        self.ray_winding(o, d, f as u32, &mut whole, f as u32 + 1) > 0
-                    });
-                    inside != self.buried[f]
-                })
-                .count();
-            self.whole_ray_disagreements = Some(count + differ);
-        }
         self.ray_seen = seen;
         self.crease.fill(false);
         if self.n_buried == 0 {
@@ -646,132 +608,17 @@ impl Frame {
     /// Whether the ray from face `f`'s centroid along its normal starts inside another part
     /// ([`Frame::ray_winding`] above zero).
     fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
-        let Some((o, d)) = self.buried_ray(f) else {
-            return false;
-        };
-        // `seen[g] == f + 1`: face g was tested for this ray.
-        self.ray_winding_to_exterior(o, d, f as u32, seen, f as u32 + 1) > 0
-    }
-
-    /// The start and direction of face `f`'s buried-face ray ([`BURIED_START_M`] in front of
-    /// its centroid, along its unit normal); `None` for a face without a normal.
-    fn buried_ray(&self, f: usize) -> Option<([f32; 3], [f32; 3])> {
         let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
         let n = cross(sub(b, a), sub(c, a));
         let len = dot(n, n).sqrt();
         if len.is_nan() || len <= 0.0 {
-            return None;
+            return false;
         }
         let d = n.map(|x| x / len);
         let centroid = self.data.centroid[f];
         let o = [0, 1, 2].map(|k| centroid[k] + d[k] * BURIED_START_M);
-        Some((o, d))
-    }
-
-    /// Mark the grid's exterior cells ([`Grid::cell_state`]): a cell no face's or cap's box
-    /// reaches contains no part of the closed region's surface, so the winding number is the
-    /// same at each of its points; flooding such cells from the grid's border (outside the
-    /// region's box, by construction a cell beyond it on each side) through their faces
-    /// finds those whose winding number is zero.
-    fn mark_exterior(&mut self) {
-        let grid = &mut self.grid;
-        let [nx, ny, nz] = grid.dims;
-        let n_cells = nx * ny * nz;
-        grid.cell_state.clear();
-        grid.cell_state.extend(
-            grid.start
-                .windows(2)
-                .map(|w| if w[1] > w[0] { CELL_BLOCKED } else { CELL_UNKNOWN }),
-        );
-        debug_assert_eq!(grid.cell_state.len(), n_cells);
-        for (l, &centre) in self.loop_centre.iter().enumerate() {
-            let caps = &self.caps[self.loop_caps[l] as usize..self.loop_caps[l + 1] as usize];
-            for &[a, b, _] in caps {
-                let (pa, pb) = (self.rel[a as usize], self.rel[b as usize]);
-                let lo = [0, 1, 2].map(|k| pa[k].min(pb[k]).min(centre[k]));
-                let hi = [0, 1, 2].map(|k| pa[k].max(pb[k]).max(centre[k]));
-                let (a, b) = grid.range(&lo, &hi);
-                for z in a[2]..=b[2] {
-                    for y in a[1]..=b[1] {
-                        let row = (z * ny + y) * nx;
-                        grid.cell_state[row + a[0]..=row + b[0]].fill(CELL_BLOCKED);
-                    }
-                }
-            }
-        }
-        let flood = &mut grid.flood;
-        flood.clear();
-        let state = &mut grid.cell_state;
-        let mut seed = |c: usize, flood: &mut Vec<u32>| {
-            if state[c] == CELL_UNKNOWN {
-                state[c] = CELL_EXTERIOR;
-                flood.push(c as u32);
-            }
-        };
-        for z in 0..nz {
-            for y in 0..ny {
-                for x in 0..nx {
-                    if x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 {
-                        seed((z * ny + y) * nx + x, flood);
-                    }
-                }
-            }
-        }
-        while let Some(c) = flood.pop() {
-            let c = c as usize;
-            let (x, y, z) = (c % nx, (c / nx) % ny, c / (nx * ny));
-            if x > 0 {
-                seed(c - 1, flood);
-            }
-            if x + 1 < nx {
-                seed(c + 1, flood);
-            }
-            if y > 0 {
-                seed(c - nx, flood);
-            }
-            if y + 1 < ny {
-                seed(c + nx, flood);
-            }
-            if z > 0 {
-                seed(c - nx * ny, flood);
-            }
-            if z + 1 < nz {
-                seed(c + nx * ny, flood);
-            }
-        }
-    }
-
-    /// [`Frame::ray_winding`] from `o`, stopped where the ray first runs through an exterior
-    /// cell ([`Frame::mark_exterior`]): the winding number there is zero, so the crossings
-    /// before it give the number at `o`. The same number as the whole ray wherever the
-    /// crossings are counted consistently; most rays from the exposed surface stop a cell or
-    /// two from their start instead of running to the grid's edge.
-    fn ray_winding_to_exterior(
-        &self,
-        o: [f32; 3],
-        d: [f32; 3],
-        skip: u32,
-        seen: &mut [u32],
-        mark: u32,
-    ) -> i32 {
-        // The crossings (`t`, ±1) until the stop; a ray with more falls back to the whole walk.
-        const MOST: usize = 64;
-        let mut crossings = [(0.0f32, 0i32); MOST];
-        let mut n = 0;
-        let stop = self.walk_ray(o, d, skip, seen, mark, true, |t, leaves| {
-            if n < MOST {
-                crossings[n] = (t, if leaves { 1 } else { -1 });
-            }
-            n += 1;
-        });
-        if n > MOST {
-            return self.ray_winding(o, d, skip, seen, mark.wrapping_add(u32::MAX / 2));
-        }
-        crossings[..n]
-            .iter()
-            .filter(|&&(t, _)| t < stop)
-            .map(|&(_, s)| s)
-            .sum()
+        // `seen[g] == f + 1`: face g was tested for this ray.
+        self.ray_winding(o, d, f as u32, seen, f as u32 + 1) > 0
     }
 
     /// The region's winding number at `o` (relative) counted along the ray `o + t d` (`d`
@@ -780,21 +627,16 @@ impl Frame {
     /// it crosses.
     fn ray_winding(&self, o: [f32; 3], d: [f32; 3], skip: u32, seen: &mut [u32], mark: u32) -> i32 {
         let mut winding = 0;
-        self.walk_ray(o, d, skip, seen, mark, false, |_, leaves| {
+        self.walk_ray(o, d, skip, seen, mark, |leaves| {
             winding += if leaves { 1 } else { -1 };
         });
         winding
     }
 
     /// Walk the ray `o + t d` (relative, `d` unit, `t` up to [`BURIED_RAY_M`]) through the grid
-    /// cell by cell (Amanatides and Woo), telling `cross` the `t` of each face it crosses (but
-    /// `skip`) and whether it leaves or enters the part behind it there. A face in several
-    /// cells is tested once (`seen[g] == mark` once tested). With `stop_outside`, the walk
-    /// stops in the first exterior cell ([`Frame::mark_exterior`]) the ray runs at least
-    /// [`MIN_EXTERIOR_RUN_M`] through, and returns the `t` halfway through it: every crossing
-    /// before that `t` has been told (and some after it may have been). Else it returns
-    /// infinity.
-    #[allow(clippy::too_many_arguments)]
+    /// cell by cell (Amanatides and Woo), telling `cross` whether it leaves or enters the part
+    /// behind each face it crosses (but `skip`). A face in several cells is tested once
+    /// (`seen[g] == mark` once tested).
     fn walk_ray(
         &self,
         o: [f32; 3],
@@ -802,9 +644,8 @@ impl Frame {
         skip: u32,
         seen: &mut [u32],
         mark: u32,
-        stop_outside: bool,
-        mut cross: impl FnMut(f32, bool),
-    ) -> f32 {
+        mut cross: impl FnMut(bool),
+    ) {
         let grid = &self.grid;
         let cell = grid.cell_m;
         let mut idx = [0i64; 3];
@@ -835,7 +676,7 @@ impl Frame {
                 if let Some((t, leaves)) = ray_triangle(o, d, pb, pa, centre)
                     && t < BURIED_RAY_M
                 {
-                    cross(t, leaves);
+                    cross(leaves);
                 }
             }
         }
@@ -847,12 +688,6 @@ impl Frame {
             && (0..nz).contains(&idx[2])
         {
             let c = ((idx[2] * ny + idx[1]) * nx + idx[0]) as usize;
-            if stop_outside && grid.cell_state[c] == CELL_EXTERIOR {
-                let t_exit = t_next[0].min(t_next[1]).min(t_next[2]);
-                if t_exit - t_enter >= MIN_EXTERIOR_RUN_M {
-                    return 0.5 * (t_enter + t_exit);
-                }
-            }
             let (c0, c1) = (grid.start[c] as usize, grid.start[c + 1] as usize);
             let mut e = c0;
             while e < c1 {
@@ -890,7 +725,7 @@ impl Frame {
                     if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
                         && t < BURIED_RAY_M
                     {
-                        cross(t, leaves);
+                        cross(leaves);
                     }
                 }
                 e += LANES;
@@ -906,7 +741,6 @@ impl Frame {
             idx[k] += step[k];
             t_next[k] += t_delta[k];
         }
-        f32::INFINITY
     }
 
     /// `p` relative to the grid corner, in f32.
@@ -1771,35 +1605,6 @@ mod tests {
             proximity.closest(&q).signed_distance_m > 0.0,
             "the full surface reads outside"
         );
-    }
-
-    #[test]
-    fn rays_stopped_outside_agree_with_whole_rays_on_heavy_walking_bodies() {
-        // The built-in MakeHuman body (every face, its cuts closed by caps) beyond the training
-        // shapes, where an arm sinks into a heavy torso, along a walk: each face's buried-face
-        // ray stopped in the first exterior cell gives the answer of the ray walked to the
-        // grid's edge.
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../datasets/body/makehuman");
-        let body = sartor_core::BodyModel::load(&dir).expect("built-in body");
-        let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
-        let rest = body.template().positions().to_vec();
-        let mut certifier = Certifier::new(&rest, body.faces(), &[Vector3::zeros()], true);
-        certifier.frame.whole_ray_disagreements = Some(0);
-        let mut buried = 0;
-        for (component, value) in [(0, 3.0), (4, -5.0), (1, -3.0)] {
-            let mut betas = vec![0.0; body.n_betas()];
-            betas[component] = value;
-            for k in [0, 8, 16, 24] {
-                let posed = body
-                    .posed_vertices(&betas, &walk.frames()[k])
-                    .expect("posed");
-                certifier.update(&posed);
-                buried += certifier.frame.n_buried;
-            }
-        }
-        assert!(buried > 0, "some faces are buried");
-        assert_eq!(certifier.frame.whole_ray_disagreements, Some(0), "{buried} buried");
     }
 
     #[test]
