@@ -309,10 +309,10 @@ mod tests {
                 std::array::from_fn(|_| Vector3::new(next(), next(), next()) * 0.02);
             let full = dihedral_angle_derivatives(&x);
             let fast = dihedral_angle_gradient(&x);
-            assert_eq!(
-                dihedral_angle(&x).to_bits(),
-                fast.map_or(dihedral_angle(&x), |(v, _)| v).to_bits(),
-            );
+            if let Some((v, _)) = fast {
+                // The angle `coefficient` freezes is the one the Gauss–Newton step uses.
+                assert_eq!(dihedral_angle(&x).to_bits(), v.to_bits());
+            }
             match (full, fast) {
                 (Some(full), Some((v, g))) => {
                     assert_eq!(full.v.to_bits(), v.to_bits());
@@ -328,6 +328,7 @@ mod tests {
             }
         }
     }
+
     #[test]
     fn the_step_s_first_hinge_is_bitwise_the_frozen_one() {
         // Gray interlock's tabulated bending (ke depends on θ and l): coefficient frozen at x
