@@ -43,7 +43,11 @@
 //! # The work
 //!
 //! Per frame, the posed region's faces get f32 boxes, planes and corners relative to a corner of
-//! its box, and a three-level tree of boxes over its spatial clusters of 16 faces (`search.rs`).
+//! its box, and a three-level tree of boxes over its spatial clusters of 16 faces (`search.rs`),
+//! both in one pass over the clusters, lane by lane (`search::build`; face by face and then the
+//! tree, the same bits, took 74 µs of the shipped model's 556 µs post-process, and the one pass
+//! took that post-process to 513–516 µs from 546–562, `cargo bench --bench postprocess`,
+//! alternating builds).
 //! Each cloth vertex searches it, started from the face it was nearest last frame, and keeps its
 //! f32 nearest distance and every face within it plus 10 µm: that list is `C` above (f32 distances
 //! are within a micrometre of the f64 ones). The certificate is tested over the list's faces, and a
@@ -463,28 +467,16 @@ impl Frame {
                 [0, 1, 2].map(|k| hi[k].max(centre[k])),
             );
         }
-        face_data(&self.faces, &self.rel, posed, &mut self.data);
+        search::build(
+            &mut self.tree,
+            &self.cluster_faces,
+            &self.faces,
+            &self.rel,
+            posed,
+            &mut self.data,
+            &mut self.cluster_box,
+        );
         let data = &self.data;
-        for (c, bounds) in self.cluster_box.iter_mut().enumerate() {
-            let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            let end = ((c + 1) * search::CLUSTER).min(self.cluster_faces.len());
-            for &f in &self.cluster_faces[c * search::CLUSTER..end] {
-                let (a, b) = (data.lo[f as usize], data.hi[f as usize]);
-                l = [0, 1, 2].map(|k| l[k].min(a[k]));
-                h = [0, 1, 2].map(|k| h[k].max(b[k]));
-            }
-            *bounds = (l, h);
-        }
-        let (faces, rel) = (&self.faces, &self.rel);
-        let face = |f: u32| {
-            let f = f as usize;
-            search::SearchFace {
-                plane: data.plane[f],
-                tri: faces[f].map(|v| rel[v as usize]),
-            }
-        };
-        self.tree
-            .refit(&self.cluster_faces, face, &self.cluster_box);
         if !with_grid {
             return true;
         }
@@ -1324,10 +1316,10 @@ fn fmin(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
+#[cfg(test)]
 crate::kernels::avx2_where_present! {
     /// Each face's box, centroid and plane (see [`Faces`]) from its corners `rel` (relative,
-    /// f32) and `posed` (f64), built for AVX2 where present (same arithmetic, same bits:
-    /// nothing is contracted).
+    /// f32) and `posed` (f64), face by face: the reference for `search::build`.
     fn face_data(faces: &[[u32; 3]], rel: &[[f32; 3]], posed: &[Vector3<f64>], data: &mut Faces) {
         for (f, &[u, v, w]) in faces.iter().enumerate() {
             let (u, v, w) = (u as usize, v as usize, w as usize);

@@ -45,7 +45,9 @@
 //! (relative f32 corners, boxes, planes, and the faces in cluster order) but never its grid.
 //! Buried faces (where [`Frame`] seeks them) are out of the tree's search and never on a list.
 
-use super::{Frame, GUARD_M, fmax};
+use nalgebra::Vector3;
+
+use super::{Faces, Frame, GUARD_M, fmax, fmin};
 
 /// Faces per cluster of the search (see [`Frame`]'s `cluster_faces`).
 pub(super) const CLUSTER: usize = 16;
@@ -57,6 +59,7 @@ const LIST: usize = 8;
 const SLACK_M: f32 = GUARD_M;
 
 /// What the tree's bounds read of a face: its plane and corners (relative).
+#[cfg(test)]
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct SearchFace {
     pub(super) plane: [f32; 4],
@@ -282,6 +285,7 @@ impl FaceBlock {
     /// Set the lanes' planes and edge planes from `faces` (at most [`W`]; zero for a sliver,
     /// whose planes bound nothing). The edges are computed lane by lane, so that the square
     /// roots and divisions vectorise.
+    #[cfg(test)]
     fn set_faces(&mut self, faces: impl Iterator<Item = SearchFace>) {
         // Per corner, per axis, the lanes.
         let mut t = [[[0.0f32; W]; 3]; 3];
@@ -300,6 +304,14 @@ impl FaceBlock {
                 }
             }
         }
+        self.set_edges(&t);
+    }
+
+    /// The edge planes from the lanes' corners `t` (per corner, per axis) and the planes'
+    /// normals (zero for a sliver and a padding lane: then zero too). Computed lane by lane,
+    /// so that the square roots and divisions vectorise.
+    #[inline(always)]
+    fn set_edges(&mut self, t: &[[[f32; W]; 3]; 3]) {
         let [nx, ny, nz, _] = &self.plane;
         for (k, edge) in self.edges.iter_mut().enumerate() {
             let (a, b) = (&t[k], &t[(k + 1) % 3]);
@@ -326,28 +338,40 @@ impl FaceBlock {
 
 impl Tree {
     /// The tree of the faces `ids` (in cluster order; `face(f)` what it reads of face `f`)
-    /// whose clusters have boxes `clusters`.
+    /// whose clusters have boxes `clusters`: the reference for [`build`], which makes the same
+    /// tree from the corners in one pass.
+    #[cfg(test)]
     pub(super) fn refit(
         &mut self,
         ids: &[u32],
         face: impl Fn(u32) -> SearchFace,
         clusters: &[([f32; 3], [f32; 3])],
     ) {
-        let n_groups = clusters.len().div_ceil(GROUP);
-        // The clusters never change: every lane of a face is set below, and the padding lanes
-        // stay out of every search (planes at −∞, boxes at infinity) from the first frame.
-        if self.faces.len() != clusters.len() {
+        self.size(clusters.len());
+        for (block, ids) in self.faces.iter_mut().zip(ids.chunks(CLUSTER)) {
+            block.set_faces(ids.iter().map(|&f| face(f)));
+        }
+        self.refit_boxes(clusters);
+    }
+
+    /// Blocks for `n_clusters` clusters (the clusters never change: every lane of a face is
+    /// set each frame, and the padding lanes stay out of every search, planes at −∞ and boxes
+    /// at infinity, from the first frame).
+    fn size(&mut self, n_clusters: usize) {
+        let n_groups = n_clusters.div_ceil(GROUP);
+        if self.faces.len() != n_clusters {
             self.faces.clear();
-            self.faces.resize(clusters.len(), FaceBlock::default());
+            self.faces.resize(n_clusters, FaceBlock::default());
             self.clusters.clear();
             self.clusters.resize(n_groups, BoxBlock::default());
         }
         self.groups.clear();
         self.groups
             .resize(n_groups.div_ceil(W), BoxBlock::default());
-        for (block, ids) in self.faces.iter_mut().zip(ids.chunks(CLUSTER)) {
-            block.set_faces(ids.iter().map(|&f| face(f)));
-        }
+    }
+
+    /// The two upper levels from the clusters' boxes.
+    fn refit_boxes(&mut self, clusters: &[([f32; 3], [f32; 3])]) {
         for (c, (lo, hi)) in clusters.iter().enumerate() {
             let g = c / GROUP;
             self.clusters[g].set(c % GROUP, lo, hi);
@@ -691,6 +715,106 @@ crate::kernels::avx2_where_present! {
     }
 }
 
+crate::kernels::avx2_where_present! {
+    /// The frame's face data and the search's tree in one pass over the clusters: for the
+    /// faces `ids` (in cluster order) of `faces`, from their corners `rel` (relative, f32) and
+    /// `posed` (f64), each face's box, centroid and plane into `data` (see [`super::Faces`]),
+    /// each cluster's box into `cluster_box`, and the tree's blocks. The arithmetic runs lane
+    /// by lane over a cluster's faces, so that it vectorises; per face it is that of
+    /// `face_data` and [`FaceBlock::set_faces`] (the test references), so the same bits.
+    pub(super) fn build(
+        tree: &mut Tree,
+        ids: &[u32],
+        faces: &[[u32; 3]],
+        rel: &[[f32; 3]],
+        posed: &[Vector3<f64>],
+        data: &mut Faces,
+        cluster_box: &mut [([f32; 3], [f32; 3])]
+    ) {
+        tree.size(cluster_box.len());
+        for ((block, slots), bounds) in tree.faces.iter_mut().zip(ids.chunks(CLUSTER)).zip(cluster_box.iter_mut()) {
+            // Per corner, per axis, the lanes; the two edges from the first corner in f64,
+            // then f32 (the exact query's own positions).
+            let mut t = [[[0.0f32; W]; 3]; 3];
+            let mut e = [[[0.0f32; W]; 3]; 2];
+            for (l, &f) in slots.iter().enumerate() {
+                let [u, v, w] = faces[f as usize].map(|i| i as usize);
+                for (k, corner) in [u, v, w].into_iter().enumerate() {
+                    for j in 0..3 {
+                        t[k][j][l] = rel[corner][j];
+                    }
+                }
+                let (e1, e2) = (posed[v] - posed[u], posed[w] - posed[u]);
+                for j in 0..3 {
+                    e[0][j][l] = e1[j] as f32;
+                    e[1][j][l] = e2[j] as f32;
+                }
+            }
+            let mut lo = [[0.0f32; W]; 3];
+            let mut hi = [[0.0f32; W]; 3];
+            let mut centroid = [[0.0f32; W]; 3];
+            let mut plane = [[0.0f32; W]; 4];
+            let mut sliver = [false; W];
+            let [a, b, c] = &t;
+            let [e1, e2] = &e;
+            for l in 0..W {
+                for k in 0..3 {
+                    lo[k][l] = fmin(fmin(a[k][l], b[k][l]), c[k][l]);
+                    hi[k][l] = fmax(fmax(a[k][l], b[k][l]), c[k][l]);
+                    centroid[k][l] = (a[k][l] + b[k][l] + c[k][l]) / 3.0;
+                }
+                let n = [
+                    e1[1][l] * e2[2][l] - e1[2][l] * e2[1][l],
+                    e1[2][l] * e2[0][l] - e1[0][l] * e2[2][l],
+                    e1[0][l] * e2[1][l] - e1[1][l] * e2[0][l],
+                ];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                let scale = ((e1[0][l] * e1[0][l] + e1[1][l] * e1[1][l] + e1[2][l] * e1[2][l])
+                    * (e2[0][l] * e2[0][l] + e2[1][l] * e2[1][l] + e2[2][l] * e2[2][l]))
+                    .sqrt();
+                let ok = len > super::MIN_SINE * scale && len > 0.0;
+                let n = [n[0] / len, n[1] / len, n[2] / len];
+                let dot = |p: &[[f32; W]; 3]| n[0] * p[0][l] + n[1] * p[1][l] + n[2] * p[2][l];
+                let o = fmax(fmax(dot(a), dot(b)), dot(c));
+                sliver[l] = !ok;
+                // A sliver's planes bound nothing (zero); the frame's plane marks it with
+                // `o = +∞` below.
+                for j in 0..3 {
+                    plane[j][l] = if ok { n[j] } else { 0.0 };
+                }
+                plane[3][l] = if ok { o } else { 0.0 };
+            }
+            for (l, &f) in slots.iter().enumerate() {
+                let f = f as usize;
+                data.lo[f] = [0, 1, 2].map(|k| lo[k][l]);
+                data.hi[f] = [0, 1, 2].map(|k| hi[k][l]);
+                data.centroid[f] = [0, 1, 2].map(|k| centroid[k][l]);
+                data.plane[f] = if sliver[l] {
+                    [0.0, 0.0, 0.0, f32::INFINITY]
+                } else {
+                    [0, 1, 2, 3].map(|j| plane[j][l])
+                };
+            }
+            // The padding lanes: out of every search.
+            for l in slots.len()..W {
+                for j in 0..3 {
+                    plane[j][l] = 0.0;
+                }
+                plane[3][l] = f32::NEG_INFINITY;
+            }
+            block.plane = plane;
+            block.set_edges(&t);
+            let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for s in 0..slots.len() {
+                l = [0, 1, 2].map(|k| l[k].min(lo[k][s]));
+                h = [0, 1, 2].map(|k| h[k].max(hi[k][s]));
+            }
+            *bounds = (l, h);
+        }
+        tree.refit_boxes(cluster_box);
+    }
+}
+
 /// [`Near`] for `x` against every face of `frame` (started from face `warm`, if any).
 fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
     let mut near = Near::from_warm(frame, x, warm, f32::INFINITY);
@@ -829,6 +953,108 @@ mod tests {
         // Exact wherever the nearest point lies on the face or inside an edge (the box
         // and plane alone are exact on the face only).
         assert!(tight * 2 > cases, "tight in {tight} of {cases} cases");
+    }
+
+    #[test]
+    fn the_one_pass_build_gives_the_bits_of_the_face_by_face_reference() {
+        // 70 triangles (four clusters and a partial one) over 150 corners, with slivers:
+        // collinear corners, a repeated corner and a face of zero size.
+        let mut next = uniform(4242);
+        let mut posed: Vec<Vector3<f64>> = (0..150)
+            .map(|_| Vector3::new(0.3 + next(), 0.2 + next(), 0.4 + next()).cast::<f64>())
+            .collect();
+        posed[2] = posed[0] + (posed[1] - posed[0]) * 0.5;
+        posed[5] = posed[4];
+        let mut faces: Vec<[u32; 3]> = (0..70)
+            .map(|f| [(2 * f) % 150, (2 * f + 1) % 150, (2 * f + 37) % 150].map(|v| v as u32))
+            .collect();
+        faces[0] = [0, 1, 2];
+        faces[1] = [3, 4, 5];
+        faces[2] = [6, 6, 6];
+        let origin = Vector3::new(0.25, 0.15, 0.35);
+        let rel: Vec<[f32; 3]> = posed
+            .iter()
+            .map(|p| {
+                let d = p - origin;
+                [d.x as f32, d.y as f32, d.z as f32]
+            })
+            .collect();
+        let ids: Vec<u32> = (0..70u32).rev().collect();
+        let n_clusters = 70usize.div_ceil(CLUSTER);
+        let empty = |n: usize| super::super::Faces {
+            lo: vec![[0.0; 3]; n],
+            hi: vec![[0.0; 3]; n],
+            plane: vec![[0.0; 4]; n],
+            centroid: vec![[0.0; 3]; n],
+        };
+        // The reference: face by face, then the tree from the frame's planes.
+        let mut want = empty(70);
+        super::super::face_data(&faces, &rel, &posed, &mut want);
+        let mut want_boxes = vec![([0.0f32; 3], [0.0f32; 3]); n_clusters];
+        for (c, b) in want_boxes.iter_mut().enumerate() {
+            let (mut l, mut h) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for &f in ids.iter().skip(c * CLUSTER).take(CLUSTER) {
+                l = [0, 1, 2].map(|k| l[k].min(want.lo[f as usize][k]));
+                h = [0, 1, 2].map(|k| h[k].max(want.hi[f as usize][k]));
+            }
+            *b = (l, h);
+        }
+        let mut want_tree = Tree::default();
+        let face = |f: u32| SearchFace {
+            plane: want.plane[f as usize],
+            tri: faces[f as usize].map(|v| rel[v as usize]),
+        };
+        want_tree.refit(&ids, face, &want_boxes);
+        // The one pass, twice (the second over blocks already sized).
+        let mut got = empty(70);
+        let mut got_boxes = vec![([0.0f32; 3], [0.0f32; 3]); n_clusters];
+        let mut tree = Tree::default();
+        for _ in 0..2 {
+            build(
+                &mut tree,
+                &ids,
+                &faces,
+                &rel,
+                &posed,
+                &mut got,
+                &mut got_boxes,
+            );
+        }
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let flat3 = |v: &[[f32; 3]]| bits(v.as_flattened());
+        assert_eq!(flat3(&got.lo), flat3(&want.lo));
+        assert_eq!(flat3(&got.hi), flat3(&want.hi));
+        assert_eq!(flat3(&got.centroid), flat3(&want.centroid));
+        assert_eq!(
+            bits(got.plane.as_flattened()),
+            bits(want.plane.as_flattened())
+        );
+        assert!(
+            want.plane[..3].iter().all(|p| p[3] == f32::INFINITY),
+            "three slivers"
+        );
+        let boxes = |b: &[([f32; 3], [f32; 3])]| {
+            b.iter()
+                .flat_map(|(l, h)| l.iter().chain(h))
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(boxes(&got_boxes), boxes(&want_boxes));
+        let block_bits = |t: &Tree| {
+            let mut v = Vec::new();
+            for b in &t.faces {
+                v.extend(bits(b.plane.as_flattened()));
+                for e in &b.edges {
+                    v.extend(bits(e.as_flattened()));
+                }
+            }
+            for b in t.clusters.iter().chain(&t.groups) {
+                v.extend(bits(b.lo.as_flattened()));
+                v.extend(bits(b.hi.as_flattened()));
+            }
+            v
+        };
+        assert_eq!(block_bits(&tree), block_bits(&want_tree));
     }
 
     #[test]
