@@ -781,13 +781,14 @@ mod int {
         __m128i, __m256i, __m512i, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
         _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
         _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16,
-        _mm256_permute2x128_si256, _mm256_setzero_si256, _mm256_storeu_si256, _mm512_add_epi32,
-        _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_extracti64x4_epi64,
-        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32, _mm512_setzero_si512,
+        _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_setzero_si256, _mm256_storeu_si256,
+        _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_extracti64x4_epi64,
+        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi32,
+        _mm512_setzero_si512, _mm512_storeu_si512,
     };
 
-    use super::super::int8::IntEngine;
     use super::super::int8::PortableInt;
+    use super::super::int8::{IntEngine, PAIR_PANEL, PairEngine};
 
     /// The sum of the eight 32-bit lanes.
     #[inline]
@@ -888,6 +889,79 @@ mod int {
         };
     }
 
+    /// The pair-panel engine on AVX2: rows 0–7 and 8–15 of a pair in two vectors.
+    pub(super) struct Avx2Pairs;
+
+    impl PairEngine for Avx2Pairs {
+        #[inline(always)]
+        fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
+            // SAFETY: only used inside the wrapper of `pairs_i8` with avx2, called only for an
+            // `Isa` made after detection found it.
+            unsafe { panel_avx2(q, xp) }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn panel_avx2(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
+        let (mut lo, mut hi) = (_mm256_setzero_si256(), _mm256_setzero_si256());
+        for (pair, &x) in q.as_chunks::<32>().0.iter().zip(xp) {
+            let x = _mm256_set1_epi32(x);
+            // SAFETY: `pair` is 32 readable bytes; each load reads 16 of them, unaligned.
+            let (a, b) = unsafe {
+                (
+                    _mm_loadu_si128(pair.as_ptr().cast::<__m128i>()),
+                    _mm_loadu_si128(pair.as_ptr().add(16).cast::<__m128i>()),
+                )
+            };
+            lo = _mm256_add_epi32(lo, _mm256_madd_epi16(_mm256_cvtepi8_epi16(a), x));
+            hi = _mm256_add_epi32(hi, _mm256_madd_epi16(_mm256_cvtepi8_epi16(b), x));
+        }
+        let mut out = [0i32; PAIR_PANEL];
+        // SAFETY: `out` is 16 writable i32; each store writes 8 of them, unaligned.
+        unsafe {
+            _mm256_storeu_si256(out.as_mut_ptr().cast::<__m256i>(), lo);
+            _mm256_storeu_si256(out.as_mut_ptr().add(8).cast::<__m256i>(), hi);
+        }
+        out
+    }
+
+    /// The pair-panel engine on AVX-512: a pair of 16 rows in one vector, two sums in flight.
+    pub(super) struct Avx512Pairs;
+
+    impl PairEngine for Avx512Pairs {
+        #[inline(always)]
+        fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
+            // SAFETY: only used inside the wrapper of `pairs_i8` with avx512f and avx512bw,
+            // called only for an `Isa` made after detection found them.
+            unsafe { panel_avx512(q, xp) }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx2")]
+    fn panel_avx512(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
+        let term = |pair: &[i8; 32], x: i32| {
+            // SAFETY: `pair` is 32 readable bytes, exactly what the load reads, unaligned.
+            let v = unsafe { _mm256_loadu_si256(pair.as_ptr().cast::<__m256i>()) };
+            _mm512_madd_epi16(_mm512_cvtepi8_epi16(v), _mm512_set1_epi32(x))
+        };
+        let (pairs, _) = q.as_chunks::<32>();
+        let (mut a, mut b) = (_mm512_setzero_si512(), _mm512_setzero_si512());
+        let (two, odd) = xp.as_chunks::<2>();
+        for (k, x) in two.iter().enumerate() {
+            a = _mm512_add_epi32(a, term(&pairs[2 * k], x[0]));
+            b = _mm512_add_epi32(b, term(&pairs[2 * k + 1], x[1]));
+        }
+        if let [x] = odd {
+            a = _mm512_add_epi32(a, term(&pairs[2 * two.len()], *x));
+        }
+        let mut out = [0i32; PAIR_PANEL];
+        // SAFETY: `out` is 16 writable i32, exactly what the store writes, unaligned.
+        unsafe { _mm512_storeu_si512(out.as_mut_ptr().cast(), _mm512_add_epi32(a, b)) };
+        out
+    }
+
     int_kernels!(
         "avx2",
         Avx2Int,
@@ -931,6 +1005,15 @@ dispatched!(
     rows_int::<PortableInt>,
     rows_int::<int::Avx2Int>,
     rows_int::<int::Avx512Int>
+);
+
+dispatched!(
+    /// int8 rows in pair panels with a per-row scale (`int8.rs`, [`int8::pairs_int`]).
+    pairs_i8,
+    i8,
+    int8::pairs_int::<int8::PortablePairs>,
+    int8::pairs_int::<int::Avx2Pairs>,
+    int8::pairs_int::<int::Avx512Pairs>
 );
 
 /// int8 rows with a per-row scale: the integer kernels of `int8.rs` for rows of more than 16

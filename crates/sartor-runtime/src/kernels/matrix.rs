@@ -32,8 +32,10 @@
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
-use super::dispatch::{Isa, panels_f16, panels_f32, panels_i8, rows_f16, rows_f32, rows_i8};
-use super::int8;
+use super::dispatch::{
+    Isa, pairs_i8, panels_f16, panels_f32, panels_i8, rows_f16, rows_f32, rows_i8,
+};
+use super::int8::{self, PAIR_PANEL};
 use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
 use super::rows::F16Bits;
 use crate::error::{Error, Result, check_len};
@@ -110,13 +112,19 @@ enum Layout {
     RowMajor,
     /// Panels of `PANEL` rows, each column by column (`panels.rs`): thin matrices.
     Panels,
+    /// int8 only: panels of `PAIR_PANEL` rows, column pair by column pair (`int8.rs`): rows
+    /// the integer kernels take that are read from cache.
+    Pairs,
 }
 
 impl Layout {
-    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows.
-    fn for_shape(rows: usize, cols: usize) -> Self {
+    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows; pair
+    /// panels for int8 matrices `int8::pairs_apply` takes; rows otherwise.
+    fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
         if (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
             Self::Panels
+        } else if precision == Precision::Int8 && int8::pairs_apply(rows, cols) {
+            Self::Pairs
         } else {
             Self::RowMajor
         }
@@ -144,7 +152,8 @@ impl Matrix {
         data: Vec<f32>,
         precision: Precision,
     ) -> Result<Self> {
-        Self::with_layout(rows, cols, data, precision, Layout::for_shape(rows, cols))
+        let layout = Layout::for_shape(rows, cols, precision);
+        Self::with_layout(rows, cols, data, precision, layout)
     }
 
     fn with_layout(
@@ -200,6 +209,16 @@ impl Matrix {
                 q: to_panels(&q, rows, cols),
                 scales,
             },
+            (Layout::Pairs, Storage::Int8 { q, scales }) => Storage::Int8 {
+                q: int8::to_pair_panels(&q, rows, cols),
+                scales,
+            },
+            (Layout::Pairs, _) => {
+                return Err(Error::invalid(
+                    "matrix",
+                    "pair panels hold int8 weights only",
+                ));
+            }
         };
         Ok(Self {
             rows,
@@ -248,7 +267,10 @@ impl Matrix {
                 .map(|h| half::f16::from_bits(h.0).to_f32())
                 .collect(),
             Storage::Int8 { q, scales } => {
-                let q = self.row_major(q);
+                let q = match self.layout {
+                    Layout::Pairs => int8::from_pair_panels(q, self.rows, self.cols),
+                    _ => self.row_major(q),
+                };
                 if self.cols == 0 {
                     return Vec::new();
                 }
@@ -265,6 +287,7 @@ impl Matrix {
         match self.layout {
             Layout::RowMajor => w.to_vec(),
             Layout::Panels => from_panels(w, self.rows, self.cols),
+            Layout::Pairs => unreachable!("pair panels hold int8 weights only"),
         }
     }
 
@@ -335,6 +358,7 @@ impl Matrix {
     ) {
         let cols = self.cols;
         let panels = self.layout == Layout::Panels;
+        let pairs = self.layout == Layout::Pairs;
         let task = |r0: usize, ys: &mut [f32]| {
             let r1 = r0 + ys.len() / batch;
             let b = bias.map(|b| &b[r0..r1]);
@@ -344,6 +368,14 @@ impl Matrix {
             } else {
                 r0 * cols..r1 * cols
             };
+            if let (Storage::Int8 { q, scales }, true) = (&self.storage, pairs) {
+                // Whole pair panels from `r0` (a multiple of PAIR_PANEL) to past `r1`.
+                let per_row = cols.div_ceil(2) * 2;
+                let span = r0 * per_row..r1.next_multiple_of(PAIR_PANEL) * per_row;
+                let s = Some(&scales[r0..r1]);
+                pairs_i8(isa, &q[span], cols, xs, batch, s, b, ys);
+                return;
+            }
             match (&self.storage, panels) {
                 (Storage::F32(w), false) => rows_f32(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::F32(w), true) => panels_f32(isa, &w[span], cols, xs, batch, None, b, ys),
@@ -359,14 +391,18 @@ impl Matrix {
                 }
             }
         };
-        let align = if panels { PANEL } else { 1 };
+        let align = match self.layout {
+            Layout::Panels => PANEL,
+            Layout::Pairs => PAIR_PANEL,
+            Layout::RowMajor => 1,
+        };
         // The integer kernels' products are worth splitting only from eight times the size:
         // the shipped model's int8 step (GRU 256, PCA 64: products of 10–20 µs) took 0.048 ms
         // on one thread and 0.065–0.069 on two with the lane kernels' threshold (the hand-off
         // cost more than the half product it saved), 0.050 with this one (`cargo xtask bench
         // runtime --anchors`, 2-core Intel Xeon VM).
         let integer =
-            matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
+            pairs || matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
         let work = if integer {
             cols.div_ceil(INT8_SPEEDUP)
         } else {
@@ -738,6 +774,77 @@ mod tests {
     }
 
     #[test]
+    fn int8_pair_panels_equal_the_row_kernels_bitwise() {
+        use crate::kernels::dispatch::Isa;
+        let mut rng = ChaCha8Rng::seed_from_u64(29);
+        // Odd and even widths, a partial last panel, the shipped model's products (GRU input
+        // 88 and state 256, PCA 64) and the widest rows stored so.
+        let sizes = [
+            (16, 17),
+            (17, 31),
+            (40, 64),
+            (33, 88),
+            (100, 256),
+            (21, 511),
+            (6_504, 64),
+        ];
+        for (rows, cols) in sizes {
+            assert!(int8::pairs_apply(rows, cols), "{rows} × {cols}");
+            let mut w = random(&mut rng, rows * cols, 1.0);
+            // A zero row (stored with scale 0).
+            w[cols..2 * cols].fill(0.0);
+            let pairs = Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::Pairs)
+                .expect("finite");
+            let plain =
+                Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::RowMajor)
+                    .expect("finite");
+            assert_eq!(
+                Matrix::from_f32(rows, cols, w, Precision::Int8).expect("finite"),
+                pairs
+            );
+            assert_eq!(pairs.to_f32(), plain.to_f32());
+            assert!(pairs.weight_bytes() >= plain.weight_bytes());
+            for batch in [1, 3, 17] {
+                let mut xs = random(&mut rng, batch * cols, 2.0);
+                if batch > 1 {
+                    // An input that is not finite (every row NaN), and one of zeros.
+                    xs[cols + 5] = f32::NAN;
+                    xs[2 * cols..3 * cols].fill(0.0);
+                }
+                let bias = random(&mut rng, rows, 0.5);
+                for &isa in &Isa::available() {
+                    for (b, par) in [
+                        (None, Parallelism::Sequential),
+                        (Some(&bias[..]), Parallelism::Rayon),
+                    ] {
+                        let run = |m: &Matrix| {
+                            let mut y = vec![0.5; rows * batch];
+                            m.run_rows(isa, &xs, batch, b, &mut y, par);
+                            y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                        };
+                        let got = run(&pairs);
+                        assert_eq!(
+                            got,
+                            run(&plain),
+                            "{rows} × {cols} batch {batch} {} bias {}",
+                            isa.name(),
+                            b.is_some()
+                        );
+                        if batch > 1 {
+                            assert!(
+                                got.iter()
+                                    .skip(1)
+                                    .step_by(batch)
+                                    .all(|&v| f32::from_bits(v).is_nan())
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn thin_matrices_in_panels_equal_the_row_kernels_bitwise() {
         use crate::kernels::dispatch::Isa;
         let mut rng = ChaCha8Rng::seed_from_u64(23);
@@ -776,8 +883,14 @@ mod tests {
                 let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
                     .expect("finite");
                 let chosen = Matrix::from_f32(rows, cols, w.clone(), precision).expect("finite");
-                let want = if cols <= THIN_COLS { &thin } else { &plain };
-                assert_eq!(&chosen, want, "{rows} × {cols}: the layout by width");
+                if precision == Precision::Int8 && int8::pairs_apply(rows, cols) {
+                    // int8 rows in pair panels (`int8_pair_panels_equal_the_row_kernels_bitwise`).
+                    assert_eq!(chosen.layout, Layout::Pairs, "{rows} × {cols}");
+                    assert_eq!(chosen.to_f32(), plain.to_f32());
+                } else {
+                    let want = if cols <= THIN_COLS { &thin } else { &plain };
+                    assert_eq!(&chosen, want, "{rows} × {cols}: the layout by width");
+                }
                 assert_eq!(thin.to_f32(), plain.to_f32());
                 // int8 rows wider than a panel multiply integers (`int8.rs`), panels of any
                 // width keep the lane rule: they agree only where panels are stored.
