@@ -59,7 +59,7 @@ use crate::error::{Error, Result};
 mod certify;
 
 pub use certify::CertifyStats;
-use certify::{Certifier, Outcome};
+use certify::{Certifier, Later, Outcome};
 
 /// Distance kept between cloth and body, metres: the paper's 2 mm.
 pub const DEFAULT_MARGIN_M: f64 = 0.002;
@@ -831,11 +831,18 @@ impl Collider {
         }
         let mut pushed = 0;
         let states = &mut self.vertices;
-        certifier.exact_points(&self.proximity, points, warm, |k, hit| {
+        let beyond = margin - REPUSH_SLACK_M;
+        certifier.later_points(&self.proximity, points, warm, beyond, |k, hit| {
             let i = moved[k] as usize;
             let (p, state) = (&mut cloth[i], &mut states[i]);
-            let Some(c) = hit else {
-                return;
+            let c = match hit {
+                None => return,
+                // Not inside the margin by more than the slack: not pushed again.
+                Some(Later::Beyond { face }) => {
+                    state.last_face = face;
+                    return;
+                }
+                Some(Later::Exact(c)) => c,
             };
             state.last_face = c.face;
             if c.signed_distance_m < margin - REPUSH_SLACK_M {

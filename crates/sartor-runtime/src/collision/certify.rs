@@ -972,14 +972,17 @@ impl Certifier {
         }
     }
 
-    /// The exact query's answer for each of `points` (`warm`: a face to start from per point,
-    /// `u32::MAX` for none), visited in order; for the later passes. Allocation-free.
-    pub(crate) fn exact_points(
+    /// For each of `points` (`warm`: a face to start from per point, `u32::MAX` for none),
+    /// visited in order: [`Later::Beyond`] where the exact query's signed distance is proven at
+    /// least `beyond_m`, its exact answer otherwise; for the later passes, which push only
+    /// points inside `beyond_m`. Allocation-free.
+    pub(crate) fn later_points(
         &mut self,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         warm: &[u32],
-        visit: impl FnMut(usize, Option<ClosestPoint>),
+        beyond_m: f64,
+        visit: impl FnMut(usize, Option<Later>),
     ) {
         let state = AnswerState {
             search: &mut self.search,
@@ -987,10 +990,30 @@ impl Certifier {
             scratch: &mut self.scratch,
         };
         self.frame
-            .answer_points(state, proximity, points, warm, visit);
+            .answer_points(state, proximity, points, warm, Some(beyond_m), visit);
     }
 
-    /// [`Certifier::exact_points`] without a starting face, with scratch of its own (for
+    /// The exact query's answer for each of `points` from `warm` faces (tests).
+    #[cfg(test)]
+    pub(crate) fn exact_points(
+        &mut self,
+        proximity: &MeshProximity,
+        points: &[Vector3<f32>],
+        warm: &[u32],
+        mut visit: impl FnMut(usize, Option<ClosestPoint>),
+    ) {
+        let state = AnswerState {
+            search: &mut self.search,
+            points: &mut self.points,
+            scratch: &mut self.scratch,
+        };
+        self.frame
+            .answer_points(state, proximity, points, warm, None, |k, hit| {
+                visit(k, hit.map(Later::exact))
+            });
+    }
+
+    /// [`Certifier::later_points`] without a starting face or a distance, with scratch of its own (for
     /// reports).
     pub(crate) fn exact_each(
         &self,
@@ -1005,8 +1028,11 @@ impl Certifier {
             scratch: &mut Scratch::for_frame(&self.frame),
         };
         let warm = vec![u32::MAX; points.len()];
+        let mut visit = visit;
         self.frame
-            .answer_points(state, proximity, points, &warm, visit);
+            .answer_points(state, proximity, points, &warm, None, |k, hit| {
+                visit(k, hit.map(Later::exact))
+            });
     }
 }
 
@@ -1078,15 +1104,39 @@ struct AnswerState<'a> {
     scratch: &'a mut Scratch,
 }
 
+/// What a later pass learns of a point ([`Certifier::later_points`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Later {
+    /// Proven outside and at least the asked distance from the region (the test of the first
+    /// pass's certificate on the exact nearest face: in front of every face whose normal
+    /// enters its pseudo-normal, and that face not a crease), with the face nearest to it.
+    Beyond { face: u32 },
+    /// The exact closest point.
+    Exact(ClosestPoint),
+}
+
+impl Later {
+    /// The exact answer (`Beyond` is only given where one was asked for).
+    fn exact(self) -> ClosestPoint {
+        match self {
+            Later::Exact(c) => c,
+            Later::Beyond { .. } => unreachable!("no distance was asked for"),
+        }
+    }
+}
+
 impl Frame {
-    /// The exact query's answer for each of `points` from `warm` faces, by the search.
+    /// The exact query's answer for each of `points` from `warm` faces, by the search; with
+    /// `beyond_m`, [`Later::Beyond`] where it is proven at least that, which skips the
+    /// pseudo-normal and [`Frame::settle`] (a later pass leaves such a point where it is).
     fn answer_points(
         &self,
         state: AnswerState<'_>,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         warm: &[u32],
-        mut visit: impl FnMut(usize, Option<ClosestPoint>),
+        beyond_m: Option<f64>,
+        mut visit: impl FnMut(usize, Option<Later>),
     ) {
         let AnswerState {
             search,
@@ -1100,8 +1150,17 @@ impl Frame {
             search.faces_into(k, &mut s.candidates);
             let q = p.cast::<f64>();
             let hit = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
+                // Positive by the planes of the faces of its pseudo-normal, and no crease (so
+                // `settle` keeps it): the exact answer's signed distance is the distance.
+                if let Some(limit) = beyond_m
+                    && nearest.distance_sq >= limit * limit
+                    && !self.crease[nearest.face as usize]
+                    && self.feature_in_front(&rel[k], &nearest, GUARD_M)
+                {
+                    return Later::Beyond { face: nearest.face };
+                }
                 let c = proximity.signed(&q, &nearest);
-                self.settle(proximity, &q, c, s)
+                Later::Exact(self.settle(proximity, &q, c, s))
             });
             visit(k, hit);
         }
@@ -1399,7 +1458,7 @@ mod tests {
         q: &Vector3<f64>,
     ) -> ClosestPoint {
         let mut out = None;
-        certifier.exact_points(proximity, &[q.cast::<f32>()], &[u32::MAX], |_, hit| {
+        certifier.exact_each(proximity, &[q.cast::<f32>()], |_, hit| {
             out = hit;
         });
         out.expect("an answer")
@@ -1456,6 +1515,29 @@ mod tests {
             checked[usize::from(d > 0.02) + usize::from(d > 0.1)] += 1;
         });
         assert!(checked.iter().all(|&n| n > 100), "{checked:?}");
+        // A later pass's answers: proven beyond 2 cm only where the exact query says so.
+        let (mut beyond, mut exact_beyond) = (0, 0);
+        certifier.later_points(&proximity, &points, &warm, 0.02, |k, hit| {
+            let exact = proximity.closest(&points[k].cast::<f64>());
+            match hit.expect("an answer") {
+                Later::Beyond { face } => {
+                    assert!(exact.signed_distance_m >= 0.02, "{:?}", points[k]);
+                    assert_eq!(face, exact.face);
+                    beyond += 1;
+                }
+                Later::Exact(c) => {
+                    assert_eq!(
+                        (c.face, c.signed_distance_m),
+                        (exact.face, exact.signed_distance_m)
+                    );
+                    exact_beyond += usize::from(c.signed_distance_m >= 0.02);
+                }
+            }
+        });
+        assert!(
+            beyond > 100,
+            "{beyond} proven beyond, {exact_beyond} answered"
+        );
     }
 
     #[test]
