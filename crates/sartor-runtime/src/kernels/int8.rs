@@ -320,9 +320,9 @@ impl PairEngine for PortablePairs {
 /// contract of the module docs: each input quantised once, then 16 rows at a time summed in
 /// vector lanes — no sum across lanes at the end of a row, as the row kernels need, and the
 /// output of 16 rows side by side. The same sums and the same `output` as [`rows_int`], so the
-/// same bits: on the shipped model's int8 products (6,504 × 64, 768 × 88, 768 × 256) about
-/// 4×, 4× and 1.6× faster than the row kernels (`int8.rs` bench notes in `matrix.rs`).
-/// Lengths are checked by the caller.
+/// same bits: on the shipped model's int8 products 6,504 × 64 12.9–16.2 → 4.5 µs, 768 × 88
+/// 2.7–3.2 → 0.9, 768 × 256 3.0–3.5 → 2.5 against the row kernels (`cargo bench -p
+/// sartor-runtime --bench kernels`, AMD EPYC VM). Lengths are checked by the caller.
 #[inline(always)]
 pub(crate) fn pairs_int<E: PairEngine>(
     q: &[i8],
