@@ -741,6 +741,16 @@ impl Frame {
         [d.x as f32, d.y as f32, d.z as f32]
     }
 
+    /// Whether the exact query's answer at `x` (relative), whose nearest face is `nearest`, is
+    /// outside at a distance² of at least `limit2`: far enough, in front of every face of its
+    /// pseudo-normal, and that face not a crease (so [`Frame::settle`] keeps it).
+    #[inline(always)]
+    fn proven_beyond(&self, x: &[f32; 3], nearest: &NearestFace, limit2: f64) -> bool {
+        nearest.distance_sq >= limit2
+            && !self.crease[nearest.face as usize]
+            && self.feature_in_front(x, nearest, GUARD_M)
+    }
+
     /// Whether `x` (relative) is in front of every face whose normal enters the pseudo-normal
     /// of `nearest`'s feature, by more than `front`: then that pseudo-normal, a positive blend
     /// of those normals, has the exact query's sign positive.
@@ -1013,13 +1023,13 @@ impl Certifier {
             });
     }
 
-    /// [`Certifier::later_points`] without a starting face or a distance, with scratch of its own (for
-    /// reports).
+    /// The exact query's answer for each of `points`, without a starting face, with scratch of
+    /// its own (for reports).
     pub(crate) fn exact_each(
         &self,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
-        visit: impl FnMut(usize, Option<ClosestPoint>),
+        mut visit: impl FnMut(usize, Option<ClosestPoint>),
     ) {
         let mut search = Search::default();
         let state = AnswerState {
@@ -1028,7 +1038,6 @@ impl Certifier {
             scratch: &mut Scratch::for_frame(&self.frame),
         };
         let warm = vec![u32::MAX; points.len()];
-        let mut visit = visit;
         self.frame
             .answer_points(state, proximity, points, &warm, None, |k, hit| {
                 visit(k, hit.map(Later::exact))
@@ -1077,10 +1086,7 @@ impl Frame {
             let q = cloth[i].cast::<f64>();
             *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
                 *warm = nearest.face;
-                if !crease
-                    && nearest.distance_sq >= margin2
-                    && self.feature_in_front(x, &nearest, GUARD_M)
-                {
+                if !crease && self.proven_beyond(x, &nearest, margin2) {
                     stats.certified += 1;
                     Outcome::Certified
                 } else {
@@ -1153,9 +1159,7 @@ impl Frame {
                 // Positive by the planes of the faces of its pseudo-normal, and no crease (so
                 // `settle` keeps it): the exact answer's signed distance is the distance.
                 if let Some(limit) = beyond_m
-                    && nearest.distance_sq >= limit * limit
-                    && !self.crease[nearest.face as usize]
-                    && self.feature_in_front(&rel[k], &nearest, GUARD_M)
+                    && self.proven_beyond(&rel[k], &nearest, limit * limit)
                 {
                     return Later::Beyond { face: nearest.face };
                 }

@@ -111,6 +111,27 @@ fn output(sum: i32, step: Option<f32>, scale: f32, bias: Option<f32>) -> f32 {
     }
 }
 
+/// [`output`] for `N` rows side by side of one finite input (step `t`; row `r`'s scale
+/// `scale(r)`, its bias `bias[r]`): the same arithmetic in the same order, so the same bits, in
+/// a form the compiler vectorises.
+#[inline(always)]
+fn outputs<const N: usize>(
+    sums: &[i32; N],
+    t: f32,
+    scale: impl Fn(usize) -> f32,
+    bias: Option<&[f32]>,
+    ys: &mut [f32; N],
+) {
+    let d: [f32; N] = std::array::from_fn(|r| scale(r) * (sums[r] as f32 * t));
+    match bias {
+        Some(b) => {
+            let b: &[f32; N] = b.try_into().expect("a bias per row");
+            *ys = std::array::from_fn(|r| d[r] + b[r]);
+        }
+        None => *ys = d,
+    }
+}
+
 /// Rows from this many columns on are read eight streams apart (see `group`).
 const STRIDED_FROM: usize = 512;
 /// Quantised inputs a batch holds at once: 24 KB on the stack (eight inputs of 1,500).
@@ -209,16 +230,13 @@ fn group<E: IntEngine>(
                 std::array::from_fn(|r| &w[(i0 + r) * cols..(i0 + r + 1) * cols]);
             let sums = E::dot8(rows, input(0));
             let ys: &mut [f32; 8] = (&mut ys_t[i0..i0 + 8]).try_into().expect("eight rows");
-            let d: [f32; 8] = std::array::from_fn(|r| scales(i0 + r) * (sums[r] as f32 * t));
-            match bias {
-                Some(b) => {
-                    let b: &[f32; 8] = b[i0..i0 + 8].try_into().expect("eight rows");
-                    for r in 0..8 {
-                        ys[r] = d[r] + b[r];
-                    }
-                }
-                None => *ys = d,
-            }
+            outputs(
+                &sums,
+                t,
+                |r| scales(i0 + r),
+                bias.map(|b| &b[i0..i0 + 8]),
+                ys,
+            );
         }
     } else {
         // Long rows come from memory: the eight rows an eighth of the block apart, each stream
@@ -361,26 +379,18 @@ pub(crate) fn pairs_int<E: PairEngine>(
                 }
                 continue;
             };
-            // A whole panel of one finite input: the arithmetic of `output`, 16 rows side by
-            // side (the compiler vectorises it).
+            // A whole panel of one finite input: its 16 outputs side by side.
             let ys: &mut [f32; PAIR_PANEL] = (&mut ys_t[i0..i0 + PAIR_PANEL])
                 .try_into()
                 .expect("a whole panel");
-            let d: [f32; PAIR_PANEL] = match scales {
+            let b = bias.map(|b| &b[i0..i0 + PAIR_PANEL]);
+            match scales {
                 Some(s) => {
                     let s: &[f32; PAIR_PANEL] =
                         s[i0..i0 + PAIR_PANEL].try_into().expect("a whole panel");
-                    std::array::from_fn(|r| s[r] * (sums[r] as f32 * t))
+                    outputs(&sums, t, |r| s[r], b, ys);
                 }
-                None => std::array::from_fn(|r| 1.0 * (sums[r] as f32 * t)),
-            };
-            match bias {
-                Some(b) => {
-                    let b: &[f32; PAIR_PANEL] =
-                        b[i0..i0 + PAIR_PANEL].try_into().expect("a whole panel");
-                    *ys = std::array::from_fn(|r| d[r] + b[r]);
-                }
-                None => *ys = d,
+                None => outputs(&sums, t, |_| 1.0, b, ys),
             }
         }
     }
