@@ -98,8 +98,8 @@ pub(crate) fn check_len(what: &'static str, got: usize, expected: usize) -> Resu
     }
 }
 
-crate::kernels::avx2_where_present! {
-    /// The largest `|v|` of `values` as bits (0 for none); built for AVX2 where present (the
+crate::kernels::widest_where_present! {
+    /// The largest `|v|` of `values` as bits (0 for none); built for the widest vectors present (the
     /// baseline x86-64 target has no vector unsigned maximum).
     fn largest_magnitude_bits(values: &[f32]) -> u32 {
         values

@@ -1380,7 +1380,7 @@ fn fmin(a: f32, b: f32) -> f32 {
 }
 
 #[cfg(test)]
-crate::kernels::avx2_where_present! {
+crate::kernels::widest_where_present! {
     /// Each face's box, centroid and plane (see [`Faces`]) from its corners `rel` (relative,
     /// f32) and `posed` (f64), face by face: the reference for `search::build`.
     fn face_data(faces: &[[u32; 3]], rel: &[[f32; 3]], posed: &[Vector3<f64>], data: &mut Faces) {

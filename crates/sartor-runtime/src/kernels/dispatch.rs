@@ -54,9 +54,15 @@ pub(crate) struct Isa(Level);
 
 #[cfg(target_arch = "x86_64")]
 fn has_avx2() -> bool {
+    // The bit-manipulation extensions for the lane masks of `widest_where_present!`
+    // functions (every AVX2 CPU has them).
     is_x86_feature_detected!("avx2")
         && is_x86_feature_detected!("fma")
         && is_x86_feature_detected!("f16c")
+        && is_x86_feature_detected!("bmi1")
+        && is_x86_feature_detected!("bmi2")
+        && is_x86_feature_detected!("lzcnt")
+        && is_x86_feature_detected!("popcnt")
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -66,6 +72,7 @@ fn has_avx512() -> bool {
         && is_x86_feature_detected!("avx512f")
         && is_x86_feature_detected!("avx512bw")
         && is_x86_feature_detected!("avx512vl")
+        && is_x86_feature_detected!("avx512dq")
 }
 
 impl Isa {
@@ -107,12 +114,6 @@ impl Isa {
         })
     }
 
-    /// Whether this instruction set includes AVX2.
-    #[cfg(target_arch = "x86_64")]
-    fn has_avx2(self) -> bool {
-        self != Self::portable()
-    }
-
     /// A short name for reports.
     pub(crate) fn name(self) -> &'static str {
         match self.0 {
@@ -125,20 +126,29 @@ impl Isa {
     }
 }
 
-/// Whether [`avx2_where_present!`] functions take their AVX2 build: the CPU has AVX2 and
-/// [`Isa::best`] is not the portable code (`SARTOR_RUNTIME_ISA=portable` runs them as written).
+/// Which build [`widest_where_present!`] functions take: 2 for AVX-512, 1 for AVX2, 0 as
+/// written, by [`Isa::best`] (`SARTOR_RUNTIME_ISA=portable` runs them as written).
 #[cfg(target_arch = "x86_64")]
-pub(crate) fn avx2_allowed() -> bool {
-    Isa::best().has_avx2()
+pub(crate) fn widest_level() -> u8 {
+    match Isa::best().0 {
+        Level::Portable => 0,
+        Level::Avx2 => 1,
+        Level::Avx512 => 2,
+    }
 }
 
-/// `fn name(args) -> ret { body }`, built twice: as written, and with AVX2 enabled, which runs
-/// where [`avx2_allowed`]. For loops of plain arithmetic that the baseline x86-64 target
-/// vectorises poorly (no vector rounding, unsigned maximum or float-to-integer steps); IEEE
-/// arithmetic that Rust never contracts gives the same bits in both builds. Arguments are
-/// plain identifiers (no patterns, no `self`). The one place of the crate's `unsafe` outside
-/// the kernels below.
-macro_rules! avx2_where_present {
+/// `fn name(args) -> ret { body }`, built three times: as written, with AVX2 enabled and with
+/// AVX-512 enabled, the widest that [`Isa::best`] allows running. For loops of plain arithmetic
+/// that the baseline x86-64 target vectorises poorly (no vector rounding, unsigned maximum or
+/// float-to-integer steps) and lane tests that AVX-512's mask registers answer in one
+/// instruction; IEEE arithmetic that Rust never contracts gives the same bits in every build.
+/// Arguments are plain identifiers (no patterns, no `self`). The one place of the crate's
+/// `unsafe` outside the kernels below.
+///
+/// The certified post-process's search gains from the AVX-512 build on the AMD EPYC (Zen 5) VM:
+/// the shipped model's post-process 511–517 → 499–509 µs (`cargo bench --bench postprocess`,
+/// alternating builds, three rounds; the extensions for bit scans added 1–2 % of that).
+macro_rules! widest_where_present {
     (
         $(#[$attr:meta])*
         $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block
@@ -149,21 +159,29 @@ macro_rules! avx2_where_present {
             fn written($($arg: $ty),*) $(-> $ret)? $body
             #[cfg(target_arch = "x86_64")]
             {
-                #[target_feature(enable = "avx2")]
+                #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
                 fn avx2($($arg: $ty),*) $(-> $ret)? {
                     written($($arg),*)
                 }
-                if $crate::kernels::avx2_allowed() {
-                    // SAFETY: `avx2_allowed` found AVX2 on this CPU.
+                #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+                fn avx512($($arg: $ty),*) $(-> $ret)? {
+                    written($($arg),*)
+                }
+                match $crate::kernels::widest_level() {
+                    // SAFETY: `widest_level` found these features on this CPU (`has_avx512`).
                     #[allow(unsafe_code)]
-                    return unsafe { avx2($($arg),*) };
+                    2 => return unsafe { avx512($($arg),*) },
+                    // SAFETY: `widest_level` found these features on this CPU (`has_avx2`).
+                    #[allow(unsafe_code)]
+                    1 => return unsafe { avx2($($arg),*) },
+                    _ => {}
                 }
             }
             written($($arg),*)
         }
     };
 }
-pub(crate) use avx2_where_present;
+pub(crate) use widest_where_present;
 
 /// The kernels of one instruction set, written once for its vector type: each ISA module
 /// defines `V` (a vector of `W` f32 lanes), `R = LANES / W` vectors per lane sum, `add`, `mul`,

@@ -99,9 +99,9 @@ fn unit(x: [f32; 3], g: [f32; 3], h: f32) -> f32 {
     (1.0 - z) * n + z * h
 }
 
-super::avx2_where_present! {
+super::widest_where_present! {
     /// [`unit()`] of every unit of one sequence: `gx` and `gh` hold the `r`, `z` and `n` rows
-    /// one after the other, `hs` the state (updated). Built for AVX2 where present (the
+    /// one after the other, `hs` the state (updated). Built for the widest vectors present (the
     /// baseline x86-64 target lacks the vector rounding and integer steps the loop needs); the
     /// same bits either way.
     fn units(gx: &[f32], gh: &[f32], hs: &mut [f32]) {

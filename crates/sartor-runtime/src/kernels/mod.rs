@@ -15,8 +15,8 @@ mod panels;
 mod rows;
 
 #[cfg(target_arch = "x86_64")]
-pub(crate) use dispatch::avx2_allowed;
-pub(crate) use dispatch::avx2_where_present;
+pub(crate) use dispatch::widest_level;
+pub(crate) use dispatch::widest_where_present;
 pub use gru::{GruCell, GruScratch};
 pub use matrix::{INT8_ZERO_ROW, Linear, Matrix, Parallelism, Precision};
 pub use mlp::{Mlp, MlpScratch, OutputLayer, OutputScratch};

@@ -38,7 +38,8 @@
 //! keeping each list 4 mm wider within the margin, so that a pushed vertex's next pass could reuse
 //! it (the wider first pass cost more than the later passes saved: 1.40 → 1.49 ms on the shipped
 //! walk), visiting points in the order of their warm face's cluster without sharing the walk (no
-//! change), and the search compiled for AVX-512 (no faster).
+//! change), and the search compiled for AVX-512 (no faster on the Intel Xeon VM; on the AMD EPYC Zen 5 VM
+//! 1–3 % faster, so it is built for the widest vectors present).
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
@@ -708,14 +709,15 @@ impl Search {
     }
 }
 
-crate::kernels::avx2_where_present! {
-    /// [`Search::run`], built for AVX2 where present (the lane tests vectorise on 256 bits).
+crate::kernels::widest_where_present! {
+    /// [`Search::run`], built for the widest vectors present (the lane tests vectorise; AVX-512
+    /// answers them in mask registers).
     fn search_points(search: &mut Search, frame: &Frame, points: &[[f32; 3]], warm: &[u32]) {
         search.run_impl(frame, points, warm);
     }
 }
 
-crate::kernels::avx2_where_present! {
+crate::kernels::widest_where_present! {
     /// The frame's face data and the search's tree in one pass over the clusters: for the
     /// faces `ids` (in cluster order) of `faces`, from their corners `rel` (relative, f32) and
     /// `posed` (f64), each face's box, centroid and plane into `data` (see [`super::Faces`]),
