@@ -1166,8 +1166,21 @@ impl Frame {
         } = state;
         rel.clear();
         rel.extend(points.iter().map(|p| self.relative(p)));
-        search.run(self, rel, warm, None);
+        // The sweep proves points beyond `beyond_m` as the first pass's beyond the margin.
+        let sweep = beyond_m
+            .filter(|_| self.n_buried == 0)
+            .map(|b| (b as f32 + GUARD_M).powi(2));
+        search.run(self, rel, warm, sweep);
         for (k, p) in points.iter().enumerate() {
+            if search.swept(k) {
+                visit(
+                    k,
+                    Some(Later::Beyond {
+                        face: search.best(k).1,
+                    }),
+                );
+                continue;
+            }
             search.faces_into(k, &mut s.candidates);
             let q = p.cast::<f64>();
             let hit = proximity.nearest_among(&q, &s.candidates).map(|nearest| {

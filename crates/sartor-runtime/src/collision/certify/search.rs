@@ -596,15 +596,16 @@ impl Tree {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
             let (lb2, height) = self.faces[cluster(l)].bound_and_height(x);
-            let mut bad = 0u32;
+            // A boolean, not a mask of bits: it compiles to vector compares and one test.
+            let mut bad = false;
             for k in 0..W {
                 // Within reach and either not in front of the plane or within `front2`. A
                 // sliver (zero plane: height 0) is never clear; a face out of the search
                 // (bound at infinity) never within reach.
                 let clear = height[k] > GUARD_M && lb2[k] >= front2;
-                bad |= u32::from(lb2[k] <= reach2 && !clear) << k;
+                bad |= lb2[k] <= reach2 && !clear;
             }
-            if bad != 0 {
+            if bad {
                 return false;
             }
         }
