@@ -137,6 +137,58 @@ pub(crate) fn widest_level() -> u8 {
     }
 }
 
+/// Which lanes of 16 lie at most a threshold, as bits: the certified search's lane masks
+/// ([`LaneMask::at_most`]). Plain Rust builds the mask by shifting each lane's sign into place,
+/// which LLVM compiles to a horizontal OR of the 16 lanes even in an AVX-512 build; where AVX-512
+/// runs ([`widest_level`] 2) one compare into a mask register gives it. The same bits either way
+/// for lanes that are not NaN.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct LaneMask {
+    /// Only set where [`widest_level`] found AVX-512.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    avx512: bool,
+}
+
+impl LaneMask {
+    /// The mask for this CPU and [`Isa::best`].
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        return Self {
+            avx512: widest_level() == 2,
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        Self::default()
+    }
+
+    /// Bit `l` set where `v[l] ≤ t`, for a positive finite `t` and no NaN lane (the search's
+    /// reach is a positive square; bounds at infinity lie beyond it).
+    #[inline(always)]
+    pub(crate) fn at_most(self, v: &[f32; 16], t: f32) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx512 {
+            // SAFETY: `avx512` is only set where `widest_level` found AVX-512 on this CPU.
+            return unsafe { at_most_avx512(v, t) };
+        }
+        // The sign bit of `t − b` is set exactly when `b > t` (`b` at infinity included).
+        let mut beyond = 0u32;
+        for (l, &b) in v.iter().enumerate() {
+            beyond |= ((t - b).to_bits() >> 31) << l;
+        }
+        !beyond & 0xffff
+    }
+}
+
+/// [`LaneMask::at_most`] with AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn at_most_avx512(v: &[f32; 16], t: f32) -> u32 {
+    use std::arch::x86_64::{_CMP_LE_OQ, _mm512_cmp_ps_mask, _mm512_loadu_ps, _mm512_set1_ps};
+    // SAFETY: the load reads the 16 floats of `v`.
+    let lanes = unsafe { _mm512_loadu_ps(v.as_ptr()) };
+    u32::from(_mm512_cmp_ps_mask::<_CMP_LE_OQ>(lanes, _mm512_set1_ps(t)))
+}
+
 /// `fn name(args) -> ret { body }`, built three times: as written, with AVX2 enabled and with
 /// AVX-512 enabled, the widest that [`Isa::best`] allows running. For loops of plain arithmetic
 /// that the baseline x86-64 target vectorises poorly (no vector rounding, unsigned maximum or
@@ -1060,6 +1112,32 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn the_lane_masks_agree_with_a_plain_comparison() {
+        // Random lanes with ties, zeros of both signs and infinities, against positive finite
+        // thresholds among them: the plain mask, and (on an AVX-512 CPU) the compare into a
+        // mask register.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let special = [0.0, -0.0, f32::INFINITY, f32::MAX, 1e-30, 0.25];
+        let masks = [LaneMask::default(), LaneMask::detect()];
+        for _ in 0..2_000 {
+            let v: [f32; 16] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => special[rng.random_range(0..special.len())],
+                _ => rng.random_range(-1.0..1.0f32).powi(2),
+            });
+            // A positive finite threshold (the plain mask reads `∞ − ∞` as beyond, and
+            // `−0 − 0` too).
+            let t = Some(v[rng.random_range(0..16)])
+                .filter(|&t| t > 0.0 && rng.random_bool(0.5))
+                .unwrap_or(special[rng.random_range(3..special.len())])
+                .min(f32::MAX);
+            let want = (0..16).fold(0u32, |m, l| m | (u32::from(v[l] <= t) << l));
+            for mask in masks {
+                assert_eq!(mask.at_most(&v, t), want, "{mask:?} {v:?} {t}");
+            }
+        }
+    }
 
     #[test]
     fn every_isa_matches_the_portable_kernels_bitwise() {

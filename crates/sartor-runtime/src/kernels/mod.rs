@@ -14,6 +14,7 @@ mod mlp;
 mod panels;
 mod rows;
 
+pub(crate) use dispatch::LaneMask;
 #[cfg(target_arch = "x86_64")]
 pub(crate) use dispatch::widest_level;
 pub(crate) use dispatch::widest_where_present;

@@ -65,6 +65,7 @@
 use nalgebra::Vector3;
 
 use super::{Faces, Frame, GUARD_M, fmax, fmin};
+use crate::kernels::LaneMask;
 
 /// Faces per cluster of the search (see [`Frame`]'s `cluster_faces`).
 pub(super) const CLUSTER: usize = 16;
@@ -178,6 +179,8 @@ pub(super) struct Tree {
     clusters: Vec<BoxBlock>,
     /// The groups' boxes (padded).
     groups: Vec<BoxBlock>,
+    /// How the lane tests make their masks on this CPU.
+    mask: LaneMask,
 }
 
 /// Lanes of the tree's tests: one cluster's faces, one group's clusters.
@@ -387,6 +390,7 @@ impl Tree {
     /// set each frame, and the padding lanes stay out of every search, planes at −∞ and boxes
     /// at infinity, from the first frame).
     fn size(&mut self, n_clusters: usize) {
+        self.mask = LaneMask::detect();
         let n_groups = n_clusters.div_ceil(GROUP);
         if self.faces.len() != n_clusters {
             self.faces.clear();
@@ -420,7 +424,7 @@ impl Tree {
     fn search(&self, frame: &Frame, x: &[f32; 3], near: &mut Near) {
         for (top, block) in self.groups.iter().enumerate() {
             let glb2 = block.distance2(x);
-            let mut groups = within(&glb2, near.reach2);
+            let mut groups = self.within(&glb2, near.reach2);
             while groups != 0 {
                 let g = groups.trailing_zeros() as usize;
                 groups &= groups - 1;
@@ -467,7 +471,7 @@ impl Tree {
         near: &mut Near,
     ) -> bool {
         let lb2 = block.distance2(x);
-        let mut hit = within(&lb2, near.reach2);
+        let mut hit = self.within(&lb2, near.reach2);
         while hit != 0 {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
@@ -484,12 +488,12 @@ impl Tree {
     #[inline(always)]
     fn clusters_near(&self, lo: &[f32; 3], hi: &[f32; 3], reach2: f32, out: &mut Vec<u32>) -> bool {
         for (top, block) in self.groups.iter().enumerate() {
-            let mut groups = within(&block.distance2_box(lo, hi), reach2);
+            let mut groups = self.within(&block.distance2_box(lo, hi), reach2);
             while groups != 0 {
                 let g = groups.trailing_zeros() as usize;
                 groups &= groups - 1;
                 let group = top * W + g;
-                let mut clusters = within(&self.clusters[group].distance2_box(lo, hi), reach2);
+                let mut clusters = self.within(&self.clusters[group].distance2_box(lo, hi), reach2);
                 while clusters != 0 {
                     let c = clusters.trailing_zeros() as usize;
                     clusters &= clusters - 1;
@@ -518,7 +522,7 @@ impl Tree {
     fn search_cluster(&self, frame: &Frame, c: usize, x: &[f32; 3], near: &mut Near) -> bool {
         let lb2 = self.faces[c].distance2(x);
         let e = c * CLUSTER;
-        let mut hit = within(&lb2, near.reach2);
+        let mut hit = self.within(&lb2, near.reach2);
         while hit != 0 {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
@@ -547,7 +551,7 @@ impl Tree {
     #[inline(always)]
     fn sweep(&self, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
         for (top, block) in self.groups.iter().enumerate() {
-            let mut groups = within(&block.distance2(x), reach2);
+            let mut groups = self.within(&block.distance2(x), reach2);
             while groups != 0 {
                 let g = groups.trailing_zeros() as usize;
                 groups &= groups - 1;
@@ -591,7 +595,7 @@ impl Tree {
         reach2: f32,
         front2: f32,
     ) -> bool {
-        let mut hit = within(&block.distance2(x), reach2);
+        let mut hit = self.within(&block.distance2(x), reach2);
         while hit != 0 {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
@@ -613,16 +617,12 @@ impl Tree {
     }
 }
 
-/// The lanes of `lb2` within `reach2`, as bits.
-#[inline(always)]
-fn within(lb2: &[f32; W], reach2: f32) -> u32 {
-    // The sign bit of `reach2 − b` is set when `b` lies beyond the reach (`b` at infinity
-    // included; both are never NaN).
-    let mut beyond = 0u32;
-    for (l, &b) in lb2.iter().enumerate() {
-        beyond |= ((reach2 - b).to_bits() >> 31) << l;
+impl Tree {
+    /// The lanes of `lb2` within `reach2`, as bits (never NaN: a bound at infinity is beyond).
+    #[inline(always)]
+    fn within(&self, lb2: &[f32; W], reach2: f32) -> u32 {
+        self.mask.at_most(lb2, reach2)
     }
-    !beyond & ((1 << W) - 1)
 }
 
 /// Distance² from `x` to the box `[lo, hi]`.
