@@ -130,6 +130,8 @@ struct Grid {
 /// The posed region's faces relative to the grid corner, in f32.
 #[derive(Clone, Debug, Default)]
 struct Faces {
+    /// Boxes and centroids: written only where the grid is built (buried faces sought);
+    /// elsewhere [`Frame::face_box`] reads a box from the corners.
     lo: Vec<[f32; 3]>,
     hi: Vec<[f32; 3]>,
     /// `(n, o)`: `n·x − o = min_j (x − v_j)·n` over the corners, `o = +∞` for a sliver.
@@ -482,6 +484,8 @@ impl Frame {
             posed,
             &mut self.data,
             &mut self.cluster_box,
+            // Boxes and centroids for the grid and the rays only.
+            with_grid,
         );
         let data = &self.data;
         if !with_grid {
@@ -1776,6 +1780,15 @@ mod tests {
         // A's +x side (2 faces), B's −x side (2), on each of B's four long sides the triangle
         // whose centroid is in A (4), the whole of C (12).
         assert_eq!((n_buried, frame.n_buried), (20, 20));
+        // The boxes the grid was built from are those the search reads off the corners.
+        for k in 0..f.len() {
+            let (lo, hi) = frame.face_box(k);
+            let bits = |b: [f32; 3]| b.map(f32::to_bits);
+            assert_eq!(
+                (bits(lo), bits(hi)),
+                (bits(frame.data.lo[k]), bits(frame.data.hi[k]))
+            );
+        }
         // The query answers from the exposed surface: a point inside B, just in front of A's
         // buried +x side, is inside (the closest exposed face is B's), not 1 mm outside A.
         let proximity = MeshProximity::new(&v, &f).expect("mesh");

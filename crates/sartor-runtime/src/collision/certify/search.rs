@@ -906,7 +906,8 @@ crate::kernels::widest_where_present! {
         rel: &[[f32; 3]],
         posed: &[Vector3<f64>],
         data: &mut Faces,
-        cluster_box: &mut [([f32; 3], [f32; 3])]
+        cluster_box: &mut [([f32; 3], [f32; 3])],
+        boxes: bool
     ) {
         tree.size(cluster_box.len());
         for ((block, slots), bounds) in tree.faces.iter_mut().zip(ids.chunks(CLUSTER)).zip(cluster_box.iter_mut()) {
@@ -963,9 +964,11 @@ crate::kernels::widest_where_present! {
             }
             for (l, &f) in slots.iter().enumerate() {
                 let f = f as usize;
-                data.lo[f] = [0, 1, 2].map(|k| lo[k][l]);
-                data.hi[f] = [0, 1, 2].map(|k| hi[k][l]);
-                data.centroid[f] = [0, 1, 2].map(|k| centroid[k][l]);
+                if boxes {
+                    data.lo[f] = [0, 1, 2].map(|k| lo[k][l]);
+                    data.hi[f] = [0, 1, 2].map(|k| hi[k][l]);
+                    data.centroid[f] = [0, 1, 2].map(|k| centroid[k][l]);
+                }
                 data.plane[f] = if sliver[l] {
                     [0.0, 0.0, 0.0, f32::INFINITY]
                 } else {
@@ -999,7 +1002,10 @@ fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
     // A bounded list cannot overflow here by more than exact ties: when it does, every face
     // within reach is kept in a second, unbounded pass below.
     for f in (0..frame.faces.len()).filter(|&f| !frame.buried[f]) {
-        if f as u32 == near.warm || box2(&data.lo[f], &data.hi[f], x) > near.reach2 {
+        if f as u32 == near.warm || {
+            let (lo, hi) = frame.face_box(f);
+            box2(&lo, &hi, x) > near.reach2
+        } {
             continue;
         }
         let (d2, exact) = frame.distance2(f as u32, x);
@@ -1009,13 +1015,26 @@ fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
 }
 
 impl Frame {
+    /// Face `f`'s box (relative), from its corners: the bits of the box `build` writes into
+    /// the face data where the grid needs it (the search reads it only for slivers and the
+    /// rare search against every face).
+    #[inline(always)]
+    pub(super) fn face_box(&self, f: usize) -> ([f32; 3], [f32; 3]) {
+        let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
+        (
+            [0, 1, 2].map(|k| fmin(fmin(a[k], b[k]), c[k])),
+            [0, 1, 2].map(|k| fmax(fmax(a[k], b[k]), c[k])),
+        )
+    }
+
     /// Distance² from `x` (relative) to face `f` in f32, and whether it is exact (for a sliver,
     /// the distance² to its box: a lower bound).
     #[inline(always)]
     pub(super) fn distance2(&self, f: u32, x: &[f32; 3]) -> (f32, bool) {
         let fi = f as usize;
         if self.data.plane[fi][3].is_infinite() {
-            return (box2(&self.data.lo[fi], &self.data.hi[fi], x), false);
+            let (lo, hi) = self.face_box(fi);
+            return (box2(&lo, &hi, x), false);
         }
         let tri = self.faces[fi].map(|v| self.rel[v as usize]);
         (distance2(x, &tri), true)
@@ -1306,6 +1325,7 @@ mod tests {
                 &posed,
                 &mut got,
                 &mut got_boxes,
+                true,
             );
         }
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
