@@ -998,7 +998,6 @@ crate::kernels::widest_where_present! {
 /// [`Near`] for `x` against every face of `frame` (started from face `warm`, if any).
 fn search_all(frame: &Frame, x: &[f32; 3], warm: u32) -> Near {
     let mut near = Near::from_warm(frame, x, warm, f32::INFINITY);
-    let data = &frame.data;
     // A bounded list cannot overflow here by more than exact ties: when it does, every face
     // within reach is kept in a second, unbounded pass below.
     for f in (0..frame.faces.len()).filter(|&f| !frame.buried[f]) {
