@@ -1074,28 +1074,10 @@ fn distance2_lanes(
         let d6 = dot(&ac, &cp);
         let vb = d5 * d2 - d1 * d6;
         let va = d3 * d6 - d5 * d4;
-        let on_ab = {
-            let v = d1 / (d1 - d3);
-            norm2(&[ap[0] - ab[0] * v, ap[1] - ab[1] * v, ap[2] - ab[2] * v])
-        };
-        let on_ac = {
-            let w = d2 / (d2 - d6);
-            norm2(&[ap[0] - ac[0] * w, ap[1] - ac[1] * w, ap[2] - ac[2] * w])
-        };
-        let on_bc = {
-            let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-            let bc = sub(&c, &b);
-            norm2(&[bp[0] - bc[0] * w, bp[1] - bc[1] * w, bp[2] - bc[2] * w])
-        };
-        let inside = {
-            let denom = 1.0 / (va + vb + vc);
-            let (v, w) = (vb * denom, vc * denom);
-            norm2(&[
-                ap[0] - ab[0] * v - ac[0] * w,
-                ap[1] - ab[1] * v - ac[1] * w,
-                ap[2] - ab[2] * v - ac[2] * w,
-            ])
-        };
+        let on_ab = edge2(&ap, &ab, d1 / (d1 - d3));
+        let on_ac = edge2(&ap, &ac, d2 / (d2 - d6));
+        let on_bc = edge2(&bp, &sub(&c, &b), (d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        let inside = face2(&ap, &ab, &ac, [va, vb, vc]);
         *out = if d1 <= 0.0 && d2 <= 0.0 {
             norm2(&ap)
         } else if d3 >= 0.0 && d4 <= d3 {
@@ -1141,8 +1123,7 @@ fn distance2(p: &[f32; 3], [a, b, c]: &[[f32; 3]; 3]) -> f32 {
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return norm2(&[ap[0] - ab[0] * v, ap[1] - ab[1] * v, ap[2] - ab[2] * v]);
+        return edge2(&ap, &ab, d1 / (d1 - d3));
     }
     let cp = sub(p, c);
     let d5 = dot(&ab, &cp);
@@ -1152,22 +1133,33 @@ fn distance2(p: &[f32; 3], [a, b, c]: &[[f32; 3]; 3]) -> f32 {
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return norm2(&[ap[0] - ac[0] * w, ap[1] - ac[1] * w, ap[2] - ac[2] * w]);
+        return edge2(&ap, &ac, d2 / (d2 - d6));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        let bc = sub(c, b);
-        return norm2(&[bp[0] - bc[0] * w, bp[1] - bc[1] * w, bp[2] - bc[2] * w]);
+        return edge2(&bp, &sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6)));
     }
+    face2(&ap, &ab, &ac, [va, vb, vc])
+}
+
+/// `|p − e·t|²`: [`distance2`]'s answer on an edge (`p` from the edge's start, `e` along it).
+#[inline(always)]
+fn edge2(p: &[f32; 3], e: &[f32; 3], t: f32) -> f32 {
+    let r = [p[0] - e[0] * t, p[1] - e[1] * t, p[2] - e[2] * t];
+    r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+}
+
+/// [`distance2`]'s answer inside the face, from its barycentric weights `[va, vb, vc]`.
+#[inline(always)]
+fn face2(ap: &[f32; 3], ab: &[f32; 3], ac: &[f32; 3], [va, vb, vc]: [f32; 3]) -> f32 {
     let denom = 1.0 / (va + vb + vc);
     let (v, w) = (vb * denom, vc * denom);
-    norm2(&[
+    let r = [
         ap[0] - ab[0] * v - ac[0] * w,
         ap[1] - ab[1] * v - ac[1] * w,
         ap[2] - ab[2] * v - ac[2] * w,
-    ])
+    ];
+    r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
 }
 
 #[cfg(test)]
