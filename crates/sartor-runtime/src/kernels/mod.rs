@@ -22,9 +22,9 @@ pub use gru::{GruCell, GruScratch};
 pub use matrix::{INT8_ZERO_ROW, Linear, Matrix, Parallelism, Precision};
 pub use mlp::{Mlp, MlpScratch, OutputLayer, OutputScratch};
 
-/// The instruction set the kernels dispatch to on this CPU (`avx2` or `portable`), for reports.
-/// Detected once; the environment variable `SARTOR_RUNTIME_ISA` (`portable` or `avx2`) picks a
-/// supported one instead.
+/// The instruction set the kernels dispatch to on this CPU (`avx512`, `avx2` or `portable`), for
+/// reports. Detected once; the environment variable `SARTOR_RUNTIME_ISA` (`portable`, `avx2` or
+/// `avx512`) picks a supported one instead.
 pub fn instruction_set() -> &'static str {
     dispatch::Isa::best().name()
 }
