@@ -50,8 +50,8 @@
 //! a bound beyond the margin (both read from the lanes the bound is computed in; a sliver is
 //! never clear). Every face within the nearest distance plus the slack is among them, so this
 //! is the parent module's proof over more faces; where it holds no face distance is computed
-//! and no list is kept, and where it fails the vertex is searched as above. It needs a frame
-//! without crease faces (no buried faces). On the shipped model's walk it proves 84 % of the
+//! and no list is kept, and where it fails the vertex is searched as above. A crease face in
+//! reach (where buried faces are sought) fails it, as it fails the list's certificate. On the shipped model's walk it proves 84 % of the
 //! vertices; the post-process 491–504 → 405–420 µs and the int8 frame 527–533 → 440–443 µs
 //! (`cargo bench --bench postprocess`, alternating builds, two rounds); at 8,710 triangles the
 //! certified post-process of `cargo xtask bench runtime --triangles 8710` 0.87 → 0.76 ms, with
@@ -181,6 +181,10 @@ pub(super) struct Tree {
     groups: Vec<BoxBlock>,
     /// How the lane tests make their masks on this CPU.
     mask: LaneMask,
+    /// Per cluster, `+∞` for its crease faces this frame, zero for the others (the sweep
+    /// proves no point with one in reach; see the parent module); empty where no buried faces
+    /// are sought. f32 lanes, so that the sweep's test stays in vector registers.
+    crease: Vec<[f32; W]>,
 }
 
 /// Lanes of the tree's tests: one cluster's faces, one group's clusters.
@@ -417,6 +421,17 @@ impl Tree {
         self.faces[k / CLUSTER].plane[3][k % CLUSTER] = f32::NEG_INFINITY;
     }
 
+    /// No crease faces (before [`Tree::mark_crease`] marks this frame's).
+    pub(super) fn clear_creases(&mut self) {
+        self.crease.clear();
+        self.crease.resize(self.faces.len(), [0.0; W]);
+    }
+
+    /// Face slot `k` is a crease face this frame: the sweep proves no point with it in reach.
+    pub(super) fn mark_crease(&mut self, k: usize) {
+        self.crease[k / CLUSTER][k % CLUSTER] = f32::INFINITY;
+    }
+
     /// Offer `near` every face within its reach of `x`: the groups within it, their clusters
     /// within it, their faces within it, each tested against the reach as it stands (it
     /// shrinks as faces are found). Stops when the list overflows.
@@ -599,14 +614,17 @@ impl Tree {
         while hit != 0 {
             let l = hit.trailing_zeros() as usize;
             hit &= hit - 1;
-            let (lb2, height) = self.faces[cluster(l)].bound_and_height(x);
+            let c = cluster(l);
+            let (lb2, height) = self.faces[c].bound_and_height(x);
+            // No crease face is clear (none when no buried faces are sought).
+            let crease = self.crease.get(c).unwrap_or(&[0.0; W]);
             // A boolean, not a mask of bits: it compiles to vector compares and one test.
             let mut bad = false;
             for k in 0..W {
-                // Within reach and either not in front of the plane or within `front2`. A
-                // sliver (zero plane: height 0) is never clear; a face out of the search
-                // (bound at infinity) never within reach.
-                let clear = height[k] > GUARD_M && lb2[k] >= front2;
+                // Within reach and either not in front of the plane or within `front2`, or a
+                // crease face. A sliver (zero plane: height 0) is never clear; a face out of
+                // the search (bound at infinity) never within reach.
+                let clear = height[k] - crease[k] > GUARD_M && lb2[k] >= front2;
                 bad |= lb2[k] <= reach2 && !clear;
             }
             if bad {
@@ -662,8 +680,8 @@ impl Search {
     /// The proof is the parent module's, over more faces than it needs: every face within the
     /// nearest distance plus the slack lies within the reach (the warm face's distance plus the
     /// slack bounds the nearest one), so each face holding the closest point is in front, and
-    /// the nearest face's bound is beyond the margin. Only for a frame without buried faces (no
-    /// crease faces).
+    /// the nearest face's bound is beyond the margin; and no crease face may be in reach (where
+    /// buried faces are sought), as the list's certificate asks.
     pub(crate) fn run(
         &mut self,
         frame: &Frame,
