@@ -1603,6 +1603,29 @@ mod tests {
         }
     }
 
+    /// The certified query run twice over the region `(v, f)`: the second time from the first
+    /// run's warm faces, with every cloth point moved up to 3 mm (`next`: uniform in [0, 1)).
+    fn warm_second_frame(
+        v: &[Vector3<f64>],
+        f: &[[u32; 3]],
+        cloth: &mut [Vector3<f32>],
+        buried: bool,
+        margin: f64,
+        next: &mut impl FnMut() -> f64,
+    ) -> (MeshProximity, Certifier, CertifyStats, Vec<Option<Outcome>>) {
+        let proximity = MeshProximity::new(v, f).expect("mesh");
+        let mut certifier = Certifier::new(v, f, cloth, buried);
+        certifier.update(v);
+        certifier.run(&proximity, cloth, margin, Parallelism::Sequential);
+        for p in cloth.iter_mut() {
+            *p += Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5).cast() * 0.006;
+        }
+        let stats = certifier.run(&proximity, cloth, margin, Parallelism::Sequential);
+        let mut outcomes = vec![None; cloth.len()];
+        certifier.for_each_outcome(|k, o| outcomes[k] = o);
+        (proximity, certifier, stats, outcomes)
+    }
+
     #[test]
     fn the_sweep_proves_no_point_behind_a_flat_surface() {
         // A flat open grid and points on both sides of it, up to 3 cm away, run twice: the
@@ -1635,17 +1658,9 @@ mod tests {
                 Vector3::new(0.02 + 0.16 * next(), 0.02 + 0.16 * next(), z).cast()
             })
             .collect();
-        let proximity = MeshProximity::new(&v, &f).expect("mesh");
-        let mut certifier = Certifier::new(&v, &f, &cloth, false);
-        certifier.update(&v);
         let margin = 0.002;
-        certifier.run(&proximity, &cloth, margin, Parallelism::Sequential);
-        for p in &mut cloth {
-            *p += Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5).cast() * 0.006;
-        }
-        let stats = certifier.run(&proximity, &cloth, margin, Parallelism::Sequential);
-        let mut outcomes = vec![None; cloth.len()];
-        certifier.for_each_outcome(|k, o| outcomes[k] = o);
+        let (proximity, _, stats, outcomes) =
+            warm_second_frame(&v, &f, &mut cloth, false, margin, &mut next);
         check(&cloth, &outcomes, &proximity, margin);
         assert!(stats.swept > 1_500 && stats.exact > 1_500, "{stats:?}");
     }
@@ -1825,18 +1840,10 @@ mod tests {
                 p.cast()
             })
             .collect();
-        let proximity = MeshProximity::new(&v, &f).expect("mesh");
-        let mut certifier = Certifier::new(&v, &f, &cloth, true);
-        certifier.update(&v);
         let margin = 0.002;
-        certifier.run(&proximity, &cloth, margin, Parallelism::Sequential);
-        for p in &mut cloth {
-            *p += Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5).cast() * 0.006;
-        }
-        let stats = certifier.run(&proximity, &cloth, margin, Parallelism::Sequential);
+        let (proximity, certifier, stats, outcomes) =
+            warm_second_frame(&v, &f, &mut cloth, true, margin, &mut next);
         assert!(stats.buried_faces > 0, "{stats:?}");
-        let mut outcomes = vec![None; cloth.len()];
-        certifier.for_each_outcome(|k, o| outcomes[k] = o);
         let mut exact = vec![None; cloth.len()];
         certifier.exact_each(&proximity, &cloth, |k, hit| exact[k] = hit);
         for ((p, o), e) in cloth.iter().zip(&outcomes).zip(&exact) {
