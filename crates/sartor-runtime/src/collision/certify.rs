@@ -42,8 +42,9 @@
 //!
 //! # The work
 //!
-//! Per frame, the posed region's faces get f32 boxes, planes and corners relative to a corner of
-//! its box, and a three-level tree of boxes over its spatial clusters of 16 faces (`search.rs`),
+//! Per frame, the posed region's faces get f32 planes and corners relative to a corner of its box
+//! (boxes and centroids too where buried faces are sought: the grid and the rays read them), and
+//! a three-level tree of boxes over its spatial clusters of 16 faces (`search.rs`),
 //! both in one pass over the clusters, lane by lane (`search::build`; face by face and then the
 //! tree, the same bits, took 74 µs of the shipped model's 556 µs post-process, and the one pass
 //! took that post-process to 513–516 µs from 546–562, `cargo bench --bench postprocess`,
