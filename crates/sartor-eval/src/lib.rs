@@ -60,7 +60,7 @@ pub use slice::{
     RegressionSlice, SLICE_FILE, SliceCheck, TOLERANCE, check_slice, read_slice, slice_error_mm,
     write_slice,
 };
-pub use timing::{FrameTiming, mean, median, thread_cpu_ns, time_frames};
+pub use timing::{FrameTiming, mean, median, thread_cpu_ns, time_frames, time_stages};
 pub use tradeoff::{
     TradeoffOptions, TradeoffPoint, TradeoffReport, mark_pareto, plot_tradeoff, sweep_model,
 };
