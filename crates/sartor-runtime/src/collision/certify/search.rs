@@ -97,8 +97,6 @@ struct Near {
     len: u8,
     /// The face offered first (the point's warm face): the search does not offer it again.
     warm: u32,
-    /// Proven by the sweep ([`Tree::sweep`]): no list was made.
-    swept: bool,
 }
 
 impl Near {
@@ -110,7 +108,6 @@ impl Near {
             list: [(u32::MAX, f32::INFINITY); LIST],
             len: 0,
             warm: u32::MAX,
-            swept: false,
         }
     }
 
@@ -163,7 +160,45 @@ impl Near {
     fn overflowed(&self) -> bool {
         self.len as usize > LIST
     }
+
+    /// [`Near::from_warm`] (limit `f32::MAX`) again from what it left in `best`: a warm face
+    /// at an exact distance is the best and the list's one face; otherwise made anew.
+    #[inline(always)]
+    fn from_best(best: Best, frame: &Frame, x: &[f32; 3], warm: u32) -> Self {
+        if best.face == u32::MAX {
+            return Self::from_warm(frame, x, warm, f32::MAX);
+        }
+        let mut near = Self::new(f32::MAX);
+        (near.best2, near.best_face, near.reach2) = (best.best2, best.face, best.reach2);
+        near.list[0] = (best.face, best.best2);
+        near.len = 1;
+        near.warm = best.face;
+        near
+    }
 }
+
+/// What a point's search keeps of its [`Near`]: its nearest f32 distance², the face at it, and
+/// its reach. Apart from the lists, so that the per-point state every point reads and writes
+/// (the sweep's, for most of them) stays small: 12 bytes, not the list's 80.
+#[derive(Clone, Copy, Debug)]
+struct Best {
+    best2: f32,
+    face: u32,
+    reach2: f32,
+}
+
+impl From<&Near> for Best {
+    fn from(near: &Near) -> Self {
+        Self {
+            best2: near.best2,
+            face: near.best_face,
+            reach2: near.reach2,
+        }
+    }
+}
+
+/// The range of a point swept ([`Search::swept`]): it has no list.
+const SWEPT: (u32, u32) = (u32::MAX, u32::MAX);
 
 /// The region's faces as a three-level tree rebuilt per frame: groups of [`GROUP`] clusters,
 /// clusters of [`CLUSTER`] faces (the spatial clusters of [`Frame`]'s `cluster_faces`), and the
@@ -653,7 +688,11 @@ fn box2(lo: &[f32; 3], hi: &[f32; 3], x: &[f32; 3]) -> f32 {
 /// The search's state: per-point answers, reused between calls.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Search {
-    near: Vec<Near>,
+    best: Vec<Best>,
+    /// Per point, its range of `lists` ([`SWEPT`]: swept, no list): the faces within its reach,
+    /// in the order the points were searched.
+    range: Vec<(u32, u32)>,
+    lists: Vec<u32>,
     /// The points in the order of their warm face's cluster, those without one last
     /// ([`Search::sort_by_warm_cluster`]); `n_warm`: how many have one.
     order: Vec<u32>,
@@ -662,10 +701,6 @@ pub(crate) struct Search {
     /// A packet's clusters within its reach ([`Search::gather`]), and their boxes in lanes.
     packet_clusters: Vec<u32>,
     packet_boxes: Vec<BoxBlock>,
-    /// Per point, its range of `spill` when its list overflowed even against every face
-    /// (`(0, 0)`: none); the faces within reach, unbounded.
-    spilled: Vec<(u32, u32)>,
-    spill: Vec<u32>,
 }
 
 impl Search {
@@ -695,13 +730,13 @@ impl Search {
     /// Whether point `i` of the last [`Search::run`] was proven beyond the margin by the sweep
     /// (its list is then not made; [`Search::best`] is its warm face).
     pub(crate) fn swept(&self, i: usize) -> bool {
-        self.near[i].swept
+        self.range[i] == SWEPT
     }
 
     #[inline(always)]
     fn run_impl(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32], sweep: Option<f32>) {
         let n = points.len();
-        self.near.clear();
+        self.best.clear();
         // Finite: a face at infinity (a buried face, a padding slot) never passes. The warm
         // faces' distances in lanes of points (`distance2_lanes`: the same bits as
         // `distance2`, without its branches); a point without a usable warm face, or whose
@@ -728,21 +763,21 @@ impl Search {
                 }
             }
             let d2 = distance2_lanes(&p, &t);
-            self.near
+            self.best
                 .extend(points.iter().zip(warm).enumerate().map(|(l, (x, &w))| {
                     if usable(w) {
+                        // `Near::from_warm`'s answer, from the lanes' distance.
                         let mut near = Near::new(f32::MAX);
                         near.offer(w, d2[l], true);
-                        near.warm = w;
-                        near
+                        Best::from(&near)
                     } else {
-                        Near::from_warm(frame, x, w, f32::MAX)
+                        Best::from(&Near::from_warm(frame, x, w, f32::MAX))
                     }
                 }));
         }
-        self.spilled.clear();
-        self.spilled.resize(n, (0, 0));
-        self.spill.clear();
+        self.range.clear();
+        self.range.resize(n, (0, 0));
+        self.lists.clear();
         self.sort_by_warm_cluster(frame);
         let order = std::mem::take(&mut self.order);
         let (mut start, n_warm) = (0, self.n_warm);
@@ -755,35 +790,44 @@ impl Search {
             };
             let packet = &order[start..end];
             if start < n_warm && self.gather(frame, points, packet) {
-                let (clusters, boxes) = (&self.packet_clusters[..], &self.packet_boxes[..]);
                 for &i in packet {
-                    let (x, near) = (&points[i as usize], &mut self.near[i as usize]);
+                    let (i, best) = (i as usize, self.best[i as usize]);
+                    let x = &points[i];
                     if let Some(front2) = sweep
-                        && near.best_face != u32::MAX
-                        && frame
-                            .tree
-                            .sweep_among(clusters, boxes, x, near.reach2, front2)
+                        && best.face != u32::MAX
+                        && frame.tree.sweep_among(
+                            &self.packet_clusters,
+                            &self.packet_boxes,
+                            x,
+                            best.reach2,
+                            front2,
+                        )
                     {
-                        near.swept = true;
+                        self.range[i] = SWEPT;
                         continue;
                     }
-                    frame.tree.search_among(frame, clusters, boxes, x, near);
+                    let mut near = Near::from_best(best, frame, x, warm[i]);
+                    let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
+                    frame
+                        .tree
+                        .search_among(frame, clusters, boxes, x, &mut near);
+                    self.finish(frame, x, warm[i], i, near);
                 }
             } else {
                 for &i in packet {
-                    let (x, near) = (&points[i as usize], &mut self.near[i as usize]);
+                    let (i, best) = (i as usize, self.best[i as usize]);
+                    let x = &points[i];
                     if let Some(front2) = sweep
-                        && near.best_face != u32::MAX
-                        && frame.tree.sweep(x, near.reach2, front2)
+                        && best.face != u32::MAX
+                        && frame.tree.sweep(x, best.reach2, front2)
                     {
-                        near.swept = true;
+                        self.range[i] = SWEPT;
                         continue;
                     }
-                    frame.tree.search(frame, x, near);
+                    let mut near = Near::from_best(best, frame, x, warm[i]);
+                    frame.tree.search(frame, x, &mut near);
+                    self.finish(frame, x, warm[i], i, near);
                 }
-            }
-            for &i in packet {
-                self.finish(frame, &points[i as usize], warm[i as usize], i as usize);
             }
             start = end;
         }
@@ -797,24 +841,24 @@ impl Search {
         let n_clusters = frame.cluster_box.len();
         self.counts.clear();
         self.counts.resize(n_clusters + 2, 0);
-        let key = |near: &Near| {
-            if near.best_face == u32::MAX {
+        let key = |best: &Best| {
+            if best.face == u32::MAX {
                 n_clusters
             } else {
-                frame.face_slot[near.best_face as usize] as usize / CLUSTER
+                frame.face_slot[best.face as usize] as usize / CLUSTER
             }
         };
-        for near in &self.near {
-            self.counts[key(near) + 1] += 1;
+        for best in &self.best {
+            self.counts[key(best) + 1] += 1;
         }
         for c in 1..self.counts.len() {
             self.counts[c] += self.counts[c - 1];
         }
         self.n_warm = self.counts[n_clusters] as usize;
         self.order.clear();
-        self.order.resize(self.near.len(), 0);
-        for (i, near) in self.near.iter().enumerate() {
-            let slot = &mut self.counts[key(near)];
+        self.order.resize(self.best.len(), 0);
+        for (i, best) in self.best.iter().enumerate() {
+            let slot = &mut self.counts[key(best)];
             self.order[*slot as usize] = i as u32;
             *slot += 1;
         }
@@ -832,7 +876,7 @@ impl Search {
                 lo[k] = lo[k].min(x[k]);
                 hi[k] = hi[k].max(x[k]);
             }
-            reach2 = fmax(reach2, self.near[i as usize].reach2);
+            reach2 = fmax(reach2, self.best[i as usize].reach2);
         }
         self.packet_clusters.clear();
         if !frame
@@ -851,48 +895,49 @@ impl Search {
         true
     }
 
-    /// Point `i`'s search against every face where the tree search overflowed its list or
-    /// found only slivers.
-    fn finish(&mut self, frame: &Frame, x: &[f32; 3], warm: u32, i: usize) {
-        let near = &mut self.near[i];
+    /// Point `i`'s answer from its tree search `near`: searched against every face where the
+    /// tree search overflowed its list or found only slivers; its best, and its faces within
+    /// reach onto `lists`.
+    fn finish(&mut self, frame: &Frame, x: &[f32; 3], warm: u32, i: usize, mut near: Near) {
+        let start = self.lists.len() as u32;
         // More near-ties than a list holds, or only sliver faces near: every face.
         if near.overflowed() || near.best_face == u32::MAX {
-            *near = search_all(frame, x, warm);
-            if near.overflowed() {
-                // More near-ties than a list holds (a point at a region vertex of high
-                // valence): every face within reach, unbounded.
-                let start = self.spill.len() as u32;
-                for f in 0..frame.faces.len() as u32 {
-                    if !frame.buried[f as usize] && frame.distance2(f, x).0 <= near.reach2 {
-                        self.spill.push(f);
-                    }
-                }
-                self.spilled[i] = (start, self.spill.len() as u32);
-            }
+            near = search_all(frame, x, warm);
         }
+        if near.overflowed() {
+            // More near-ties than a list holds (a point at a region vertex of high valence):
+            // every face within reach, unbounded.
+            for f in 0..frame.faces.len() as u32 {
+                if !frame.buried[f as usize] && frame.distance2(f, x).0 <= near.reach2 {
+                    self.lists.push(f);
+                }
+            }
+        } else {
+            let list = &near.list[..near.len as usize];
+            self.lists.extend(
+                list.iter()
+                    .filter(|&&(_, d2)| d2 <= near.reach2)
+                    .map(|&(f, _)| f),
+            );
+        }
+        self.range[i] = (start, self.lists.len() as u32);
+        self.best[i] = Best::from(&near);
     }
 
     /// Point `i`'s faces within its nearest distance plus the slack, into `out` (cleared
-    /// first; never empty for a region with a face).
+    /// first; never empty for a region with a face, unless the point was swept).
     pub(crate) fn faces_into(&self, i: usize, out: &mut Vec<u32>) {
         out.clear();
-        let (a, b) = self.spilled[i];
-        if a < b {
-            out.extend_from_slice(&self.spill[a as usize..b as usize]);
-            return;
-        }
-        let near = &self.near[i];
-        for &(f, d2) in &near.list[..(near.len as usize).min(LIST)] {
-            if d2 <= near.reach2 {
-                out.push(f);
-            }
+        let (a, b) = self.range[i];
+        if self.range[i] != SWEPT {
+            out.extend_from_slice(&self.lists[a as usize..b as usize]);
         }
     }
 
     /// Point `i`'s nearest f32 distance² (`∞` if only sliver faces are near: their distance is
-    /// not trusted) and the face at it.
+    /// not trusted) and the face at it (for a swept point, its warm face's).
     pub(crate) fn best(&self, i: usize) -> (f32, u32) {
-        (self.near[i].best2, self.near[i].best_face)
+        (self.best[i].best2, self.best[i].face)
     }
 }
 
