@@ -392,6 +392,10 @@ pub(crate) struct Collider {
     moved: Vec<u32>,
     moved_points: Vec<Vector3<f32>>,
     moved_warm: Vec<u32>,
+    /// The certified query's: the vertices whose state a pass of this frame may have set
+    /// (moved, or a plane; duplicates allowed); every other vertex's state is clear, so the
+    /// passes touch only these and the vertices answered exactly.
+    dirty: Vec<u32>,
     /// [`CollisionOptions::faces`], and its scratch: per cloth vertex the largest push of its
     /// triangles.
     faces: bool,
@@ -532,6 +536,7 @@ impl Collider {
             moved: Vec::with_capacity(cloth_rest.len()),
             moved_points: Vec::with_capacity(cloth_rest.len()),
             moved_warm: Vec::with_capacity(cloth_rest.len()),
+            dirty: Vec::new(),
             faces: options.faces,
             face_push: vec![Vector3::zeros(); cloth_rest.len()],
         })
@@ -686,10 +691,11 @@ impl Collider {
             }
         }
         let mut moved = 0;
-        for ((p, state), d) in cloth
+        for (i, ((p, state), d)) in cloth
             .iter_mut()
             .zip(&mut self.vertices)
             .zip(&mut self.face_push)
+            .enumerate()
         {
             if *d != Vector3::zeros() {
                 *p = (p.cast::<f64>() + *d).cast::<f32>();
@@ -697,6 +703,9 @@ impl Collider {
                 state.moved = true;
                 state.plane = None;
                 moved += 1;
+                if self.certifier.is_some() {
+                    self.dirty.push(i as u32);
+                }
             }
         }
         moved
@@ -787,20 +796,25 @@ impl Collider {
         let margin = self.margin_m;
         let mut pushed = 0;
         let states = &mut self.vertices;
-        certifier.for_each_outcome(|i, outcome| {
-            let (p, state) = (&mut cloth[i], &mut states[i]);
+        // Last frame's states cleared: a certified vertex needs no push and is not visited.
+        for &i in &self.dirty {
+            let state = &mut states[i as usize];
             state.moved = false;
             state.plane = None;
-            if let Some(Outcome::Exact(c)) = outcome {
-                state.last_face = c.face;
-                if c.signed_distance_m < margin {
-                    let q = p.cast::<f64>();
-                    let b = c.normal.dot(&q) + margin - c.signed_distance_m;
-                    *p = push(&q, &c.normal, b, None).cast::<f32>();
-                    state.plane = Some((c.normal, b));
-                    state.moved = true;
-                    pushed += 1;
-                }
+        }
+        self.dirty.clear();
+        let dirty = &mut self.dirty;
+        certifier.for_each_exact(|i, c| {
+            let (p, state) = (&mut cloth[i], &mut states[i]);
+            state.last_face = c.face;
+            if c.signed_distance_m < margin {
+                let q = p.cast::<f64>();
+                let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                *p = push(&q, &c.normal, b, None).cast::<f32>();
+                state.plane = Some((c.normal, b));
+                state.moved = true;
+                dirty.push(i as u32);
+                pushed += 1;
             }
         });
         pushed
@@ -821,11 +835,15 @@ impl Collider {
         moved.clear();
         points.clear();
         warm.clear();
-        for (i, (p, state)) in cloth.iter().zip(&mut self.vertices).enumerate() {
+        // Only a dirty vertex can have moved; in vertex order, once each.
+        self.dirty.sort_unstable();
+        self.dirty.dedup();
+        for &i in &self.dirty {
+            let state = &mut self.vertices[i as usize];
             if state.moved {
                 state.moved = false;
-                moved.push(i as u32);
-                points.push(*p);
+                moved.push(i);
+                points.push(cloth[i as usize]);
                 warm.push(state.last_face);
             }
         }

@@ -188,6 +188,47 @@ pub(crate) enum Outcome {
     Exact(ClosestPoint),
 }
 
+/// What one run found for its points: per point its kind, and the exact answers apart, in
+/// point order. A run writes a record for every cloth vertex, most of them certified: one byte
+/// each, not an `Option<Outcome>`'s 96 (some 400 KB a frame at 8,710 triangles, written and
+/// read again).
+#[derive(Clone, Debug, Default)]
+struct Outcomes {
+    /// Per point: [`NO_FACE`], [`CERTIFIED`] or [`EXACT`].
+    kind: Vec<u8>,
+    /// `(point, answer)` of each point of kind [`EXACT`], in point order.
+    exact: Vec<(u32, ClosestPoint)>,
+}
+
+/// [`Outcomes::kind`]: no face near enough to answer (`None`), [`Outcome::Certified`],
+/// [`Outcome::Exact`].
+const NO_FACE: u8 = 0;
+const CERTIFIED: u8 = 1;
+const EXACT: u8 = 2;
+
+impl Outcomes {
+    fn resize(&mut self, n: usize) {
+        self.kind.resize(n, NO_FACE);
+    }
+
+    /// `visit(point, outcome)` for every point, in order.
+    fn visit(&self, mut visit: impl FnMut(usize, Option<Outcome>)) {
+        let mut exact = self.exact.iter();
+        for (i, &kind) in self.kind.iter().enumerate() {
+            let outcome = match kind {
+                CERTIFIED => Some(Outcome::Certified),
+                EXACT => {
+                    let &(k, c) = exact.next().expect("an exact answer per exact point");
+                    debug_assert_eq!(k as usize, i);
+                    Some(Outcome::Exact(c))
+                }
+                _ => None,
+            };
+            visit(i, outcome);
+        }
+    }
+}
+
 /// Counts of the certified query in one frame (for reports and tests).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CertifyStats {
@@ -268,12 +309,12 @@ pub(crate) struct Certifier {
     search: Search,
     /// The search's per cloth vertex warm faces and outcomes, and its points (relative).
     vertex_warm: Vec<u32>,
-    vertex_outcomes: Vec<Option<Outcome>>,
+    vertex_outcomes: Outcomes,
     points: Vec<[f32; 3]>,
     /// The same for the cloth triangles' centroids ([`Certifier::run_points`]), sized on first
     /// use.
     face_warm: Vec<u32>,
-    face_outcomes: Vec<Option<Outcome>>,
+    face_outcomes: Outcomes,
     /// Per part of a first pass split over threads, its own search, points and scratch
     /// (made on the first split pass).
     parts: Vec<Part>,
@@ -285,6 +326,8 @@ struct Part {
     search: Search,
     points: Vec<[f32; 3]>,
     scratch: Scratch,
+    /// Its points' exact answers (appended to the run's in part order).
+    exact: Vec<(u32, ClosestPoint)>,
 }
 
 /// A first pass is split over threads only from this many points: at about 250 ns of search
@@ -397,10 +440,13 @@ impl Certifier {
             scratch: Scratch::new(n_f, n_vertices),
             search: Search::default(),
             vertex_warm: vec![u32::MAX; cloth_rest.len()],
-            vertex_outcomes: vec![None; cloth_rest.len()],
+            vertex_outcomes: Outcomes {
+                kind: vec![NO_FACE; cloth_rest.len()],
+                exact: Vec::new(),
+            },
             points: Vec::with_capacity(cloth_rest.len()),
             face_warm: Vec::new(),
-            face_outcomes: Vec::new(),
+            face_outcomes: Outcomes::default(),
             parts: Vec::new(),
         }
     }
@@ -915,9 +961,16 @@ impl Certifier {
 
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
     /// fixed order.
-    pub(crate) fn for_each_outcome(&self, mut visit: impl FnMut(usize, Option<Outcome>)) {
-        for (v, &o) in self.vertex_outcomes.iter().enumerate() {
-            visit(v, o);
+    #[cfg(test)]
+    pub(crate) fn for_each_outcome(&self, visit: impl FnMut(usize, Option<Outcome>)) {
+        self.vertex_outcomes.visit(visit);
+    }
+
+    /// `visit(vertex, answer)` for every cloth vertex of the last [`Certifier::run`] answered
+    /// exactly (not certified), in vertex order: the others need no push.
+    pub(crate) fn for_each_exact(&self, mut visit: impl FnMut(usize, &ClosestPoint)) {
+        for (v, c) in &self.vertex_outcomes.exact {
+            visit(*v as usize, c);
         }
     }
 }
@@ -938,10 +991,11 @@ impl Certifier {
         par: Parallelism,
     ) -> CertifyStats {
         let (warm, outcomes) = if triangles {
-            (&mut self.face_warm[..], &mut self.face_outcomes[..])
+            (&mut self.face_warm[..], &mut self.face_outcomes)
         } else {
-            (&mut self.vertex_warm[..], &mut self.vertex_outcomes[..])
+            (&mut self.vertex_warm[..], &mut self.vertex_outcomes)
         };
+        outcomes.exact.clear();
         let threads = match par {
             Parallelism::Sequential => 1,
             Parallelism::Rayon => rayon::current_num_threads(),
@@ -953,7 +1007,8 @@ impl Certifier {
                 points: &mut self.points,
                 scratch: &mut self.scratch,
             };
-            return frame.certify(state, proximity, points, (warm, outcomes), margin_m);
+            let out = (warm, &mut outcomes.kind[..], &mut outcomes.exact, 0);
+            return frame.certify(state, proximity, points, out, margin_m);
         }
         let n_parts = PARTS_PER_THREAD * threads;
         let chunk = points.len().div_ceil(n_parts);
@@ -962,22 +1017,30 @@ impl Certifier {
                 search: Search::default(),
                 points: Vec::with_capacity(chunk),
                 scratch: Scratch::for_frame(frame),
+                exact: Vec::new(),
             });
         }
-        points
+        let stats = points
             .par_chunks(chunk)
             .zip(warm.par_chunks_mut(chunk))
-            .zip(outcomes.par_chunks_mut(chunk))
+            .zip(outcomes.kind.par_chunks_mut(chunk))
             .zip(self.parts.par_iter_mut())
-            .map(|(((points, warm), outcomes), part)| {
+            .enumerate()
+            .map(|(k, (((points, warm), kind), part))| {
                 let state = AnswerState {
                     search: &mut part.search,
                     points: &mut part.points,
                     scratch: &mut part.scratch,
                 };
-                frame.certify(state, proximity, points, (warm, outcomes), margin_m)
+                part.exact.clear();
+                let out = (warm, kind, &mut part.exact, k * chunk);
+                frame.certify(state, proximity, points, out, margin_m)
             })
-            .reduce(CertifyStats::default, CertifyStats::merged)
+            .reduce(CertifyStats::default, CertifyStats::merged);
+        for part in &self.parts[..points.len().div_ceil(chunk)] {
+            outcomes.exact.extend_from_slice(&part.exact);
+        }
+        stats
     }
 
     /// [`Certifier::run`] for other points than the cloth vertices: the cloth triangles'
@@ -989,14 +1052,12 @@ impl Certifier {
         points: &[Vector3<f32>],
         margin_m: f64,
         par: Parallelism,
-        mut visit: impl FnMut(usize, Option<Outcome>),
+        visit: impl FnMut(usize, Option<Outcome>),
     ) {
         self.face_warm.resize(points.len(), u32::MAX);
-        self.face_outcomes.resize(points.len(), None);
+        self.face_outcomes.resize(points.len());
         self.certify_into(proximity, points, true, margin_m, par);
-        for (k, &o) in self.face_outcomes.iter().enumerate() {
-            visit(k, o);
-        }
+        self.face_outcomes.visit(visit);
     }
 
     /// For each of `points` (`warm`: a face to start from per point, `u32::MAX` for none),
@@ -1064,13 +1125,14 @@ impl Certifier {
 
 impl Frame {
     /// Certify or answer each of `cloth` (see [`Certifier::certify_into`]), starting from and
-    /// updating `warm`, writing `outcomes`.
+    /// updating `warm`, writing each point's kind into `kinds` and its exact answer, if any, onto
+    /// `exact` (`cloth[i]` is point `offset + i` there).
     fn certify(
         &self,
         state: AnswerState<'_>,
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
-        (warm, outcomes): (&mut [u32], &mut [Option<Outcome>]),
+        (warm, kinds, exact, offset): PointOutcomes<'_>,
         margin_m: f64,
     ) -> CertifyStats {
         let AnswerState {
@@ -1084,10 +1146,10 @@ impl Frame {
         search.run(self, points, warm, Some(front2));
         let margin2 = margin_m * margin_m;
         let mut stats = CertifyStats::default();
-        for (i, (out, warm)) in outcomes.iter_mut().zip(warm.iter_mut()).enumerate() {
+        for (i, (kind, warm)) in kinds.iter_mut().zip(warm.iter_mut()).enumerate() {
             if search.swept(i) {
                 // Proven beyond the margin from the warm face, which stays.
-                *out = Some(Outcome::Certified);
+                *kind = CERTIFIED;
                 stats.certified += 1;
                 stats.swept += 1;
                 continue;
@@ -1102,23 +1164,27 @@ impl Frame {
                 && best2 >= front2
                 && s.candidates.iter().all(|&g| self.in_front(g, x, GUARD_M))
             {
-                *out = Some(Outcome::Certified);
+                *kind = CERTIFIED;
                 *warm = best_face;
                 stats.certified += 1;
                 continue;
             }
             let q = cloth[i].cast::<f64>();
-            *out = proximity.nearest_among(&q, &s.candidates).map(|nearest| {
-                *warm = nearest.face;
-                if !crease && self.proven_beyond(x, &nearest, margin2) {
-                    stats.certified += 1;
-                    Outcome::Certified
-                } else {
-                    stats.exact += 1;
-                    let c = proximity.signed(&q, &nearest);
-                    Outcome::Exact(self.settle(proximity, &q, c, s))
+            *kind = match proximity.nearest_among(&q, &s.candidates) {
+                None => NO_FACE,
+                Some(nearest) => {
+                    *warm = nearest.face;
+                    if !crease && self.proven_beyond(x, &nearest, margin2) {
+                        stats.certified += 1;
+                        CERTIFIED
+                    } else {
+                        stats.exact += 1;
+                        let c = proximity.signed(&q, &nearest);
+                        exact.push(((offset + i) as u32, self.settle(proximity, &q, c, s)));
+                        EXACT
+                    }
                 }
-            });
+            };
         }
         CertifyStats {
             buried_faces: self.n_buried,
@@ -1126,6 +1192,15 @@ impl Frame {
         }
     }
 }
+
+/// Where [`Frame::certify`] reads and writes per point: the warm faces, the kinds, the exact
+/// answers, and the first point's index among the run's.
+type PointOutcomes<'a> = (
+    &'a mut [u32],
+    &'a mut [u8],
+    &'a mut Vec<(u32, ClosestPoint)>,
+    usize,
+);
 
 /// What [`Frame::answer_points`] works in: the search, the relative points, scratch.
 struct AnswerState<'a> {
