@@ -1004,10 +1004,13 @@ impl Frame {
     /// towards the front and the back): one ray through the region's open cut, or grazing an
     /// edge, misses a crossing.
     fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3], s: &mut Scratch) -> bool {
-        let mut votes = 0;
-        for dir in [d, [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
+        let mark = s.next();
+        let mut votes = usize::from(self.ray_winding(x, d, u32::MAX, &mut s.face_stamp, mark) > 0);
+        // Up and down: axis rays, which stop past their row's last face.
+        for up in [true, false] {
             let mark = s.next();
-            votes += usize::from(self.ray_winding(x, dir, u32::MAX, &mut s.face_stamp, mark) > 0);
+            let winding = self.axis_winding(x, 2, up, u32::MAX, &mut s.face_stamp, mark);
+            votes += usize::from(winding > 0);
         }
         votes >= 2
     }
