@@ -675,11 +675,9 @@ impl Frame {
         self.n_buried = 0;
         let mut seen = std::mem::take(&mut self.ray_seen);
         seen.fill(0);
-        for f in 0..self.faces.len() {
-            let buried = self.ray_starts_inside(f, &mut seen);
-            self.buried[f] = buried;
-            self.n_buried += usize::from(buried);
-        }
+        let mut buried = std::mem::take(&mut self.buried);
+        self.n_buried = buried_faces(self, &mut seen, &mut buried);
+        self.buried = buried;
         self.ray_seen = seen;
         self.crease.fill(false);
         if self.n_buried == 0 {
@@ -704,6 +702,7 @@ impl Frame {
 
     /// Whether the ray from face `f`'s centroid along its normal starts inside another part
     /// ([`Frame::ray_winding`] above zero).
+    #[inline(always)]
     fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
         let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
         let n = cross(sub(b, a), sub(c, a));
@@ -728,6 +727,7 @@ impl Frame {
     /// along the normal walks to the grid's edge. A face the ray crosses at `x` has a box
     /// holding `x`, so it is in `x`'s cell, in this row (the cells are indexed as the entries
     /// are, a product with the inverse cell size, monotone).
+    #[inline(always)]
     fn axis_winding(
         &self,
         o: [f32; 3],
@@ -815,6 +815,7 @@ impl Frame {
     /// Tell `cross` of each crossing of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) through
     /// the caps that close the region's cuts, and whether it leaves through it; `meets`: whether
     /// the ray meets a cap's box (a cap whose box it misses is not tested).
+    #[inline(always)]
     fn cross_caps(
         &self,
         o: [f32; 3],
@@ -1533,6 +1534,19 @@ impl Frame {
     }
 }
 
+crate::kernels::widest_where_present! {
+    /// [`Frame::ray_starts_inside`] of every face into `buried`, and how many are: built for
+    /// the widest vectors present (the rays' lane box tests).
+    fn buried_faces(frame: &Frame, seen: &mut [u32], buried: &mut [bool]) -> usize {
+        let mut n = 0;
+        for (f, b) in buried.iter_mut().enumerate() {
+            *b = frame.ray_starts_inside(f, seen);
+            n += usize::from(*b);
+        }
+        n
+    }
+}
+
 /// The boundary of the region (`faces` over `n_vertices`), to close its cuts: per boundary edge
 /// `(a, b, loop)` as its face orders it, sorted by loop, and the vertices of each loop (CSR
 /// offsets and vertices), from sartor-core's `MeshTopology::boundary_loops`.
@@ -1559,14 +1573,17 @@ fn lanes(v: &[f32], e: usize) -> &[f32; LANES] {
         .expect("a slice of LANES values is an array of LANES")
 }
 
+#[inline(always)]
 fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
+#[inline(always)]
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+#[inline(always)]
 fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
@@ -1606,6 +1623,7 @@ fn slab(o: f32, inv: f32, lo: f32, hi: f32) -> (f32, f32) {
 
 /// Where the ray `o + t d` (t > 0) meets triangle `(a, b, c)` (Möller and Trumbore), and
 /// whether it meets it from behind (along the triangle's normal `(b − a) × (c − a)`).
+#[inline(always)]
 fn ray_triangle(
     o: [f32; 3],
     d: [f32; 3],
