@@ -847,7 +847,9 @@ impl Frame {
     /// The region's winding number at `o` (relative) counted along the ray `o + t d` (`d`
     /// unit, `t` up to [`BURIED_RAY_M`]): the faces it leaves through minus those it enters
     /// through (`skip` not counted). Exact for a closed surface whatever the number of layers
-    /// it crosses.
+    /// it crosses. The queries' rays run along the axes since 2026-11-30
+    /// ([`Frame::axis_winding`]); this general walk is the tests' reference.
+    #[cfg(test)]
     fn ray_winding(&self, o: [f32; 3], d: [f32; 3], skip: u32, seen: &mut [u32], mark: u32) -> i32 {
         let mut winding = 0;
         self.walk_ray(o, d, skip, seen, mark, |leaves| {
@@ -856,6 +858,7 @@ impl Frame {
         winding
     }
 
+    #[cfg(test)]
     /// Walk the ray `o + t d` (relative, `d` unit, `t` up to [`BURIED_RAY_M`]) through the grid
     /// cell by cell (Amanatides and Woo), telling `cross` whether it leaves or enters the part
     /// behind each face it crosses (but `skip`). A face in several cells is tested once
@@ -1001,23 +1004,24 @@ impl Frame {
         nx * x[0] + ny * x[1] + nz * x[2] - o > front
     }
 
-    /// Whether `x` (relative) lies inside the region by a vote of three rays (along `d`, and
-    /// towards the front and the back): one ray through the region's open cut, or grazing an
-    /// edge, misses a crossing.
+    /// Whether `x` (relative) lies inside the region by a vote of three rays (along the
+    /// horizontal axis nearest `d` on its side, up and down; axis rays, which stop past their
+    /// row's last face: [`Frame::axis_winding`]): one ray grazing an edge can miss a crossing.
+    /// Until 2026-11-30 the first ray ran along `d` itself, to the grid's edge.
     fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3], s: &mut Scratch) -> bool {
-        let mark = s.next();
-        let mut votes = usize::from(self.ray_winding(x, d, u32::MAX, &mut s.face_stamp, mark) > 0);
-        // Up and down: axis rays, which stop past their row's last face.
-        for up in [true, false] {
+        let k = if d[0].abs() >= d[1].abs() { 0 } else { 1 };
+        let mut votes = 0;
+        for (k, positive) in [(k, d[k] > 0.0), (2, true), (2, false)] {
             let mark = s.next();
-            let winding = self.axis_winding(x, 2, up, u32::MAX, &mut s.face_stamp, mark);
+            let winding = self.axis_winding(x, k, positive, u32::MAX, &mut s.face_stamp, mark);
             votes += usize::from(winding > 0);
         }
         votes >= 2
     }
 
     /// The answer `c` for `q`, unless `c`'s face is a crease face (exposed, next to a buried
-    /// one) and `q` lies inside a body part by the winding number along `c`'s normal: then the
+    /// one) and `q` lies inside a body part by the rays' vote ([`Frame::inside_by_rays`], the
+    /// first ray on the side of `c`'s normal): then the
     /// way out, the nearest point of an exposed face within [`SETTLE_M`] whose landing point
     /// ([`EXIT_CHECK_M`] beyond it, away from `q`) lies outside by the same ray test. Its
     /// answer reads `q` as inside by that distance, along the direction to it. `c` if no exit
