@@ -793,23 +793,41 @@ impl Frame {
                     hit |= u32::from(holds & ahead[l]) << l;
                 }
                 hit &= (1u32 << (c1 - e).min(LANES)) - 1;
-                while hit != 0 {
-                    let l = hit.trailing_zeros() as usize;
-                    hit &= hit - 1;
-                    let g = grid.entries[e + l];
-                    if g == skip || seen[g as usize] == mark {
-                        continue;
-                    }
-                    seen[g as usize] = mark;
-                    let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
-                    if let Some((_, leaves)) = ray_triangle(o, d, p, q, r) {
-                        cross(leaves);
-                    }
-                }
+                self.cross_hits(o, d, (hit, e), (skip, mark), seen, &mut cross);
                 e += LANES;
             }
         }
         winding
+    }
+
+    /// Tell `cross` of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) crossing the face of entry
+    /// `e + l`, for each bit `l` of `hit` (each face once per ray: `seen[g] == mark` once
+    /// tested; never `skip`), and whether it leaves through it.
+    #[inline(always)]
+    fn cross_hits(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        (mut hit, e): (u32, usize),
+        (skip, mark): (u32, u32),
+        seen: &mut [u32],
+        cross: &mut impl FnMut(bool),
+    ) {
+        while hit != 0 {
+            let l = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            let g = self.grid.entries[e + l];
+            if g == skip || seen[g as usize] == mark {
+                continue;
+            }
+            seen[g as usize] = mark;
+            let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
+            if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
+                && t < BURIED_RAY_M
+            {
+                cross(leaves);
+            }
+        }
     }
 
     /// Tell `cross` of each crossing of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) through
@@ -858,11 +876,11 @@ impl Frame {
         winding
     }
 
-    #[cfg(test)]
     /// Walk the ray `o + t d` (relative, `d` unit, `t` up to [`BURIED_RAY_M`]) through the grid
     /// cell by cell (Amanatides and Woo), telling `cross` whether it leaves or enters the part
     /// behind each face it crosses (but `skip`). A face in several cells is tested once
     /// (`seen[g] == mark` once tested).
+    #[cfg(test)]
     fn walk_ray(
         &self,
         o: [f32; 3],
@@ -925,21 +943,7 @@ impl Frame {
                     hit |= u32::from(t0 <= t1) << l;
                 }
                 hit &= (1u32 << (c1 - e).min(LANES)) - 1;
-                while hit != 0 {
-                    let l = hit.trailing_zeros() as usize;
-                    hit &= hit - 1;
-                    let g = grid.entries[e + l];
-                    if g == skip || seen[g as usize] == mark {
-                        continue;
-                    }
-                    seen[g as usize] = mark;
-                    let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
-                    if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
-                        && t < BURIED_RAY_M
-                    {
-                        cross(leaves);
-                    }
-                }
+                self.cross_hits(o, d, (hit, e), (skip, mark), seen, &mut cross);
                 e += LANES;
             }
             let k = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
