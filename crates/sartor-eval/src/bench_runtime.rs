@@ -26,9 +26,9 @@ use sartor_core::{BodyModel, MODEL_HEADER, Pose, PoseFeatureSpec, RootFeature};
 use sartor_motion::cmu_mb_body_joints as feature_joints;
 use sartor_runtime::{
     AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, FeatureBlock,
-    GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig, GruWeights, MeanStd,
-    ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats, OutputKind, Parallelism,
-    PcaWeights, Precision, RotationEncoding, instruction_set,
+    GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig, GruWeights,
+    Interpenetration, MeanStd, ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats,
+    OutputKind, Parallelism, PcaWeights, Precision, RotationEncoding, instruction_set,
 };
 use serde::Serialize;
 
@@ -534,35 +534,52 @@ fn post_process(
             },
         ),
     ];
-    let collision = |query, passes, faces| CollisionOptions {
+    let within = CollisionOptions::default().interpenetration;
+    let collision = |query, passes, (faces, interpenetration)| CollisionOptions {
         query,
         passes,
         faces,
+        interpenetration,
         ..CollisionOptions::default()
     };
     // Every query as the vertex passes alone, then the default one with the triangles pushed
-    // out too (`CollisionOptions::faces`, off by default).
+    // out too (`CollisionOptions::faces`, off by default), and as a body beyond the training
+    // shapes gets it (the faces buried inside another part sought every frame).
     let queries = queries
         .into_iter()
-        .map(|(name, query)| (name, query, false))
-        .chain(std::iter::once((
-            "certified, triangles pushed too (faces)".to_string(),
-            CollisionQuery::Certified,
-            true,
-        )));
+        .map(|(name, query)| (name, query, (false, within)))
+        .chain([
+            (
+                "certified, triangles pushed too (faces)".to_string(),
+                CollisionQuery::Certified,
+                (true, within),
+            ),
+            (
+                "certified, buried faces sought (a body beyond the training shapes)".to_string(),
+                CollisionQuery::Certified,
+                (false, Interpenetration::Always),
+            ),
+        ]);
     let passes_on = CollisionOptions::default().passes;
     // Collisions before the post-process (detect only), and the BVH's result per frame.
     let mut detect = avatar(
         scene,
         network,
-        options(par, Some(collision(CollisionQuery::EXACT_BVH, 0, false))),
+        options(
+            par,
+            Some(collision(CollisionQuery::EXACT_BVH, 0, (false, within))),
+        ),
     )?;
     let mut bvh = avatar(
         scene,
         network,
         options(
             par,
-            Some(collision(CollisionQuery::EXACT_BVH, passes_on, false)),
+            Some(collision(
+                CollisionQuery::EXACT_BVH,
+                passes_on,
+                (false, within),
+            )),
         ),
     )?;
     let (mut inside_before, mut near_before) = (0, 0);
@@ -575,12 +592,12 @@ fn post_process(
         reference.push(bvh.frame(pose)?.to_vec());
     }
     let mut results = Vec::new();
-    for (k, (name, query, faces)) in queries.enumerate() {
+    for (k, (name, query, variant)) in queries.enumerate() {
         let passes = if k == 0 { 0 } else { passes_on };
         let mut timed = avatar(
             scene,
             network,
-            options(par, Some(collision(query, passes, faces))),
+            options(par, Some(collision(query, passes, variant))),
         )?;
         let ms = time_frames(&mut timed, poses, args.warmup, args.frames)?
             .cpu_ms
@@ -588,14 +605,14 @@ fn post_process(
         let mut staged = avatar(
             scene,
             network,
-            options(par, Some(collision(query, passes, faces))),
+            options(par, Some(collision(query, passes, variant))),
         )?;
         let (_, stages) = time_stages(&mut staged, poses, args.warmup, args.frames)?;
         let stage_ms = stages.map(|t| t.post_process_ms);
         let mut a = avatar(
             scene,
             network,
-            options(par, Some(collision(query, passes, faces))),
+            options(par, Some(collision(query, passes, variant))),
         )?;
         let (mut inside, mut near, mut differing) = (0, 0, 0);
         for (pose, want) in poses.iter().take(args.frames).zip(&reference) {
