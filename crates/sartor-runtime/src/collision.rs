@@ -536,7 +536,8 @@ impl Collider {
             moved: Vec::with_capacity(cloth_rest.len()),
             moved_points: Vec::with_capacity(cloth_rest.len()),
             moved_warm: Vec::with_capacity(cloth_rest.len()),
-            dirty: Vec::new(),
+            // At most every vertex pushed by the first pass and by the triangles' pass.
+            dirty: Vec::with_capacity(2 * cloth_rest.len()),
             faces: options.faces,
             face_push: vec![Vector3::zeros(); cloth_rest.len()],
         })

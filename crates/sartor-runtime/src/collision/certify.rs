@@ -29,12 +29,13 @@
 //!
 //! The region the proof and the answers read is the *exposed* surface: per frame, a face whose
 //! centroid lies inside another part (the winding number along an axis ray on its normal's side,
-//! walked through the grid) is taken out of the search, so no candidate list holds it, while the pseudo-normals
-//! stay those of the whole region. A closest point on an edge or a corner of a buried face also
-//! lies on an exposed face that shares a vertex with it (a crease face), and a vertex with a crease
-//! face among its candidates is never certified: the proof above needs every face holding the
-//! closest point on the list. Its answer is checked by the same ray test (`Frame::settle`): inside,
-//! it gets the nearest way out whose landing point the ray test reads as outside.
+//! walked through the grid) is taken out of the search, so no candidate list holds it, while the
+//! pseudo-normals stay those of the whole region. A closest point on an edge or a corner of a
+//! buried face also lies on an exposed face that shares a vertex with it (a crease face), and a
+//! vertex with a crease face among its candidates is never certified: the proof above needs every
+//! face holding the closest point on the list. Its answer is checked by the same ray test
+//! (`Frame::settle`): inside, it gets the nearest way out whose landing point the ray test reads as
+//! outside.
 //!
 //! The region is open where the garment's body region is cut (neck, waist, arms); for the ray
 //! tests each cut is closed by a fan of triangles from its boundary loop to the loop's centre,
@@ -52,13 +53,13 @@
 //! Each cloth vertex searches it, started from the face it was nearest last frame, and keeps its
 //! f32 nearest distance and every face within it plus 10 µm: that list is `C` above (f32 distances
 //! are within a micrometre of the f64 ones). The certificate is tested over the list's faces, and a
-//! vertex that fails it gets `MeshProximity::nearest_among` of the list. Before that, a vertex
-//! with a warm face is *swept* (`search.rs`): the same certificate over every face whose bound
-//! lies within the warm face's distance, tested in the search's lanes without a list, which
-//! proves most vertices at a fraction of the cost (never one with a crease face in reach). The later passes and the
-//! reports search the points they ask about the same way. Only where buried faces are sought is the
-//! region also put in a uniform grid (each face in every cell its box overlaps; a counting sort):
-//! the rays and the way out of a part walk it.
+//! vertex that fails it gets `MeshProximity::nearest_among` of the list. Before that, a vertex with
+//! a warm face is *swept* (`search.rs`): the same certificate over every face whose bound lies
+//! within the warm face's distance, tested in the search's lanes without a list, which proves most
+//! vertices at a fraction of the cost (never one with a crease face in reach). The later passes and
+//! the reports search the points they ask about the same way. Only where buried faces are sought is
+//! the region also put in a uniform grid (each face in every cell its box overlaps; a counting
+//! sort): the rays and the way out of a part walk it.
 //!
 //! The f32 arithmetic is covered by a 10 µm guard on every comparison (coordinates relative to
 //! the region's box, within metres; f32 rounding of the planes and distances is below a
@@ -700,8 +701,8 @@ impl Frame {
         self.vertex_touches_buried = touches;
     }
 
-    /// Whether the ray from face `f`'s centroid along its normal starts inside another part
-    /// ([`Frame::ray_winding`] above zero).
+    /// Whether the ray from just in front of face `f`'s centroid, along the axis nearest its
+    /// normal, starts inside another part (a winding number above zero).
     #[inline(always)]
     fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
         let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
@@ -720,11 +721,13 @@ impl Frame {
         self.axis_winding(o, k, d[k] > 0.0, f as u32, seen, f as u32 + 1) > 0
     }
 
-    /// [`Frame::ray_winding`] along the ray from `o` along axis `k` (towards `+∞` when
-    /// `positive`). The ray stays in one row of cells, which it walks from its start to the
-    /// row's last cell with an entry ([`Grid::occupied`]): past it there is no face to cross,
-    /// so a ray from an exposed face out into the open stops within a cell or two, where one
-    /// along the normal walks to the grid's edge. A face the ray crosses at `x` has a box
+    /// The region's winding number at `o` (relative) counted along the ray from `o` along axis
+    /// `k` (towards `+∞` when `positive`): the faces it leaves through minus those it enters
+    /// through (`skip` not counted), as the tests' general walk `Frame::ray_winding` counts
+    /// it. The ray stays in one row of cells, which it walks from its start to the row's last
+    /// cell with an entry ([`Grid::last`]): past it there is no face to cross, so a ray from
+    /// an exposed face out into the open stops within a cell or two, where one along the
+    /// normal walks to the grid's edge. A face the ray crosses at `x` has a box
     /// holding `x`, so it is in `x`'s cell, in this row (the cells are indexed as the entries
     /// are, a product with the inverse cell size, monotone).
     #[inline(always)]
@@ -1110,7 +1113,7 @@ impl Frame {
 }
 
 impl Certifier {
-    /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_outcome`]):
+    /// Certify or answer every cloth vertex (read back with [`Certifier::for_each_exact`]):
     /// one search of the region's faces per vertex (see `search.rs`); under
     /// [`Parallelism::Rayon`] the vertices are split over the threads (each vertex's outcome is
     /// its own, so the split changes no bit).

@@ -43,19 +43,19 @@
 //!
 //! # The sweep
 //!
-//! In the first pass most vertices are proven beyond the margin, and for them the list is more
-//! than the proof needs. A vertex with a warm face is first *swept* ([`Tree::sweep`]): over the
-//! clusters within its reach (the warm face's distance plus the slack), every face whose bound
-//! lies within the reach must have the vertex in front of its plane by more than the guard and
-//! a bound beyond the margin (both read from the lanes the bound is computed in; a sliver is
-//! never clear). Every face within the nearest distance plus the slack is among them, so this
-//! is the parent module's proof over more faces; where it holds no face distance is computed
-//! and no list is kept, and where it fails the vertex is searched as above. A crease face in
-//! reach (where buried faces are sought) fails it, as it fails the list's certificate. On the shipped model's walk it proves 84 % of the
-//! vertices; the post-process 491–504 → 405–420 µs and the int8 frame 527–533 → 440–443 µs
+//! In the first pass most vertices are proven beyond the margin, and for them the list is more than
+//! the proof needs. A vertex with a warm face is first *swept* ([`Tree::sweep`]): over the clusters
+//! within its reach (the warm face's distance plus the slack), every face whose bound lies within
+//! the reach must have the vertex in front of its plane by more than the guard and a bound beyond
+//! the margin (both read from the lanes the bound is computed in; a sliver is never clear). Every
+//! face within the nearest distance plus the slack is among them, so this is the parent module's
+//! proof over more faces; where it holds no face distance is computed and no list is kept, and
+//! where it fails the vertex is searched as above. A crease face in reach (where buried faces are
+//! sought) fails it, as it fails the list's certificate. On the shipped model's walk it proves 84 %
+//! of the vertices; the post-process 491–504 → 405–420 µs and the int8 frame 527–533 → 440–443 µs
 //! (`cargo bench --bench postprocess`, alternating builds, two rounds); at 8,710 triangles the
-//! certified post-process of `cargo xtask bench runtime --triangles 8710` 0.87 → 0.76 ms, with
-//! the same answers as the exact query.
+//! certified post-process of `cargo xtask bench runtime --triangles 8710` 0.87 → 0.76 ms, with the
+//! same answers as the exact query.
 //!
 //! The search serves the vertices of one frame (the first pass), the vertices a pass moved
 //! (the later ones), and any points a report asks about; it reads the face data of [`Frame`]
@@ -961,7 +961,7 @@ crate::kernels::widest_where_present! {
     /// `posed` (f64), each face's box, centroid and plane into `data` (see [`super::Faces`]),
     /// each cluster's box into `cluster_box`, and the tree's blocks. The arithmetic runs lane
     /// by lane over a cluster's faces, so that it vectorises; per face it is that of
-    /// `face_data` and [`FaceBlock::set_faces`] (the test references), so the same bits.
+    /// `face_data` and `FaceBlock::set_faces` (the test references), so the same bits.
     pub(super) fn build(
         tree: &mut Tree,
         ids: &[u32],
