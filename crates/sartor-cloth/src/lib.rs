@@ -57,6 +57,7 @@ mod garment;
 mod linsolve;
 mod material;
 mod mesh_collider;
+mod prefetch;
 mod relax;
 mod self_collision;
 mod sequence;
