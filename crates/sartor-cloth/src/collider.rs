@@ -7,6 +7,7 @@
 //! cloth within the same substep; the surface velocity enters friction.
 
 use nalgebra::Vector3;
+use sartor_core::NearFaces;
 
 /// The closest surface point of an obstacle to a query point.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,6 +50,38 @@ pub trait Collider: Sync {
     ) -> Option<Contact> {
         let _ = hint;
         self.closest_within(p, max_distance_m)
+    }
+
+    /// [`Collider::closest_within_hinted`] that also lists in `near` what the queries that
+    /// follow at nearly the same point need: every feature within the answer's distance plus
+    /// `margin_m` (see [`Collider::closest_within_near`]). The default lists nothing.
+    fn closest_within_listing(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        margin_m: f64,
+        near: &mut NearFaces,
+    ) -> Option<Contact> {
+        let _ = margin_m;
+        near.clear();
+        self.closest_within_hinted(p, max_distance_m, hint)
+    }
+
+    /// The answer of [`Collider::closest_within_hinted`] from the features `near` listed by
+    /// [`Collider::closest_within_listing`] (not empty). Exact while, since the listing, the
+    /// point has moved by at most half the listing's margin relative to the obstacle: with a
+    /// [`MotionBound`] read `(T₀, R₀)` at the listing and `(T, R)` now, while
+    /// `|Δx − (T − T₀)| + (R − R₀)` is at most that.
+    fn closest_within_near(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        near: &NearFaces,
+    ) -> Option<Contact> {
+        let _ = near;
+        self.closest_within_hinted(p, max_distance_m, hint)
     }
 
     /// A bound on the obstacle's motion, for callers that skip the queries of points known to

@@ -1,7 +1,7 @@
 //! A deforming triangle-mesh obstacle (a body), on sartor-core's closest-point query.
 
 use nalgebra::Vector3;
-use sartor_core::MeshProximity;
+use sartor_core::{ClosestPoint, MeshProximity, NearFaces};
 
 use crate::collider::{Collider, Contact, MotionBound};
 use crate::{Error, Result};
@@ -128,9 +128,19 @@ impl MeshCollider {
         &self.velocities
     }
 
+    /// How far the tree search of a query with `max_distance_m` reaches: deep enough inside.
+    fn search_radius(&self, max_distance_m: f64) -> f64 {
+        max_distance_m.max(0.0).max(self.search_depth_m)
+    }
+
     fn contact(&self, p: Vector3<f64>, max_distance_m: f64, hint: &mut u32) -> Option<Contact> {
-        let radius = max_distance_m.max(0.0).max(self.search_depth_m);
+        let radius = self.search_radius(max_distance_m);
         let c = self.proximity.closest_within_hinted(&p, radius, hint)?;
+        self.to_contact(p, max_distance_m, c)
+    }
+
+    /// The contact of the query answer `c` at `p` (`None` beyond `max_distance_m` outside).
+    fn to_contact(&self, p: Vector3<f64>, max_distance_m: f64, c: ClosestPoint) -> Option<Contact> {
         if c.signed_distance_m > max_distance_m {
             return None;
         }
@@ -175,6 +185,31 @@ impl Collider for MeshCollider {
         hint: &mut u32,
     ) -> Option<Contact> {
         self.contact(p, max_distance_m, hint)
+    }
+
+    fn closest_within_listing(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        margin_m: f64,
+        near: &mut NearFaces,
+    ) -> Option<Contact> {
+        let radius = self.search_radius(max_distance_m);
+        let c = (self.proximity).closest_within_listing(&p, radius, hint, margin_m, near)?;
+        self.to_contact(p, max_distance_m, c)
+    }
+
+    fn closest_within_near(
+        &self,
+        p: Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        near: &NearFaces,
+    ) -> Option<Contact> {
+        let radius = self.search_radius(max_distance_m);
+        let c = (self.proximity).closest_within_near(&p, radius, hint, near)?;
+        self.to_contact(p, max_distance_m, c)
     }
 
     fn motion_bound(&self) -> Option<MotionBound> {

@@ -61,7 +61,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use sartor_core::Parallelism;
+use sartor_core::{NearFaces, Parallelism};
 use serde::{Deserialize, Serialize};
 
 use crate::cloth::Cloth;
@@ -257,6 +257,8 @@ struct Workspace {
     query: Vec<Option<Contact>>,
     /// Per collider and vertex, what the last queries left (see [`QueryState`]).
     query_state: Vec<QueryState>,
+    /// Per collider and vertex, the features listed near it (see [`NearState`]).
+    near_state: Vec<NearState>,
     /// Per collider, the identity of its [`Collider::motion_bound`] the clearances refer to.
     collider_identity: Vec<Option<u64>>,
     self_contacts: Vec<SelfContact>,
@@ -727,6 +729,13 @@ fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N
 /// their clearance bound runs out (see [`QueryState`]), m.
 const CLEARANCE_LOOKAHEAD_M: f64 = 0.02;
 
+/// The margin of the features listed near a vertex (see [`QueryState`]), m.
+const NEAR_MARGIN_M: f64 = 4e-3;
+
+/// The listed features serve while the vertex has moved by at most this since, m: under half
+/// [`NEAR_MARGIN_M`], so that the roundings of the motion's measure cannot matter.
+const NEAR_REUSE_M: f64 = 0.49 * NEAR_MARGIN_M;
+
 /// What the queries of one vertex against one collider leave for the next ones.
 ///
 /// - `hint`: the collider's hint ([`Collider::closest_within_hinted`]): work saved, answers
@@ -783,24 +792,81 @@ impl QueryState {
     }
 }
 
-/// Apply `f(i, &mut a_i, &mut b_i)` to every pair of items, on rayon's pool or not.
-fn for_each_pair<A: Send, B: Send>(
-    a: &mut [A],
-    b: &mut [B],
+/// The collider's features near one vertex, listed with a margin of [`NEAR_MARGIN_M`] when the
+/// vertex was at `anchor_m + T` and the collider's [`MotionBound`] read `(T, travel_m)`
+/// ([`Collider::closest_within_listing`]). The vertex's queries take their answer from them
+/// ([`Collider::closest_within_near`]: the same answer, no tree walk) while its motion since,
+/// measured as for the clearance ([`QueryState`]), is at most [`NEAR_REUSE_M`]. Apart from
+/// [`QueryState`], which every substep reads for every vertex: only queried vertices touch these.
+#[derive(Clone, Copy, Debug)]
+struct NearState {
+    faces: NearFaces,
+    anchor_m: Vector3<f64>,
+    travel_m: f64,
+}
+
+impl NearState {
+    const NONE: Self = Self {
+        faces: NearFaces::EMPTY,
+        anchor_m: Vector3::new(0.0, 0.0, 0.0),
+        travel_m: 0.0,
+    };
+
+    /// The collider's answer for the vertex at `x` (`closest_within_hinted` with
+    /// `lookahead_m` and the vertex's `hint`): from the listed features while they serve, else
+    /// by a query that lists them anew. Without a motion bound, a plain query.
+    fn query(
+        &mut self,
+        collider: &dyn Collider,
+        x: &Vector3<f64>,
+        lookahead_m: f64,
+        hint: &mut u32,
+        motion: Option<&MotionBound>,
+    ) -> Option<Contact> {
+        let Some(m) = motion else {
+            return collider.closest_within_hinted(*x, lookahead_m, hint);
+        };
+        let moved = (x - m.translation_m - self.anchor_m).norm() + (m.travel_m - self.travel_m);
+        if !self.faces.is_empty() && moved <= NEAR_REUSE_M {
+            return collider.closest_within_near(*x, lookahead_m, hint, &self.faces);
+        }
+        self.anchor_m = x - m.translation_m;
+        self.travel_m = m.travel_m;
+        collider.closest_within_listing(*x, lookahead_m, hint, NEAR_MARGIN_M, &mut self.faces)
+    }
+}
+
+/// Query the vertices at `x` against `collider`, with `lookahead_m` as the queries' distance:
+/// `asked(bound)` of each vertex's clearance bound ([`QueryState::bound`]) says whether it is
+/// queried and, if so, below what signed distance its answer is kept in `query` (else `None`).
+#[allow(clippy::too_many_arguments)]
+fn query_vertices(
+    query: &mut [Option<Contact>],
+    states: &mut [QueryState],
+    near: &mut [NearState],
     par: Parallelism,
-    f: impl Fn(usize, &mut A, &mut B) + Sync,
+    collider: &dyn Collider,
+    x: &[Vector3<f64>],
+    motion: Option<&MotionBound>,
+    lookahead_m: f64,
+    asked: impl Fn(f64) -> Option<f64> + Sync,
 ) {
+    let one =
+        |i: usize,
+         ((q, state), near): ((&mut Option<Contact>, &mut QueryState), &mut NearState)| {
+            let Some(keep_below) = asked(state.bound(&x[i], motion)) else {
+                *q = None;
+                return;
+            };
+            let c = near.query(collider, &x[i], lookahead_m, &mut state.hint, motion);
+            state.record(c.as_ref(), lookahead_m, &x[i], motion);
+            *q = c.filter(|c| c.distance_m < keep_below);
+        };
     match par {
-        Parallelism::Sequential => a
-            .iter_mut()
-            .zip(b)
-            .enumerate()
-            .for_each(|(i, (x, y))| f(i, x, y)),
-        Parallelism::Rayon => a
-            .par_iter_mut()
-            .zip(b)
-            .enumerate()
-            .for_each(|(i, (x, y))| f(i, x, y)),
+        Parallelism::Sequential => (query.iter_mut().zip(states).zip(near).enumerate())
+            .for_each(|(i, items)| one(i, items)),
+        Parallelism::Rayon => (query.par_iter_mut().zip(states).zip(near).enumerate())
+            .for_each(|(i, items)| one(i, items)),
     }
 }
 
@@ -861,6 +927,7 @@ impl Simulator {
             obstacle_contacts: Vec::new(),
             query: vec![None; n],
             query_state: Vec::new(),
+            near_state: Vec::new(),
             collider_identity: Vec::new(),
             self_contacts: Vec::new(),
             grid: SelfCollisionGrid::default(),
@@ -1309,6 +1376,8 @@ impl Simulator {
             self.ws
                 .query_state
                 .resize(n * colliders.len(), QueryState::UNKNOWN);
+            self.ws.near_state.clear();
+            (self.ws.near_state).resize(n * colliders.len(), NearState::NONE);
             self.ws.collider_identity.clear();
             self.ws.collider_identity.resize(colliders.len(), None);
         }
@@ -1321,18 +1390,25 @@ impl Simulator {
             let identity = motion.map(|m| m.identity);
             if self.ws.collider_identity[ci] != identity {
                 states.iter_mut().for_each(|s| s.clearance_m = 0.0);
+                self.ws.near_state[ci * n..(ci + 1) * n]
+                    .iter_mut()
+                    .for_each(|s| s.faces.clear());
                 self.ws.collider_identity[ci] = identity;
             }
             let motion = motion.as_ref();
-            for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
-                if state.bound(&x[i], motion) >= thickness {
-                    *q = None;
-                    return;
-                }
-                let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
-                state.record(c.as_ref(), lookahead, &x[i], motion);
-                *q = c.filter(|c| c.distance_m < thickness);
-            });
+            let near = &mut self.ws.near_state[ci * n..(ci + 1) * n];
+            let query = &mut self.ws.query;
+            query_vertices(
+                query,
+                states,
+                near,
+                par,
+                *collider,
+                x,
+                motion,
+                lookahead,
+                |bound| (bound < thickness).then_some(thickness),
+            );
             for (i, q) in self.ws.query.iter().enumerate() {
                 if let Some(c) = q {
                     self.ws.obstacle_contacts.push(ObstacleContact {
@@ -1477,15 +1553,19 @@ impl Simulator {
             // The same collider pose as the contact query: only the vertex moved.
             let motion = collider.motion_bound();
             let motion = motion.as_ref();
-            for_each_pair(&mut self.ws.query, states, par, |i, q, state| {
-                if !every && state.bound(&x[i], motion) > 0.0 {
-                    *q = None;
-                    return;
-                }
-                let c = collider.closest_within_hinted(x[i], lookahead, &mut state.hint);
-                state.record(c.as_ref(), lookahead, &x[i], motion);
-                *q = c.filter(|c| c.distance_m < -tolerance);
-            });
+            let near = &mut self.ws.near_state[ci * n..(ci + 1) * n];
+            let query = &mut self.ws.query;
+            query_vertices(
+                query,
+                states,
+                near,
+                par,
+                *collider,
+                x,
+                motion,
+                lookahead,
+                |bound| (every || bound <= 0.0).then_some(-tolerance),
+            );
             for (i, q) in self.ws.query.iter().enumerate() {
                 let Some(c) = q else { continue };
                 if self.pins[i] {

@@ -72,7 +72,7 @@ pub use phenotype::{
     MacroPart, MacroRule, MacroTarget, MacroVariable, PHENOTYPE_HEADER, PHENOTYPE_TENSORS,
     PartialPhenotype, Phenotype, PhenotypeRequest, PhenotypeSampling, PhenotypeSpace, SLIDERS,
 };
-pub use proximity::{ClosestFeature, ClosestPoint, MeshProximity, NearestFace};
+pub use proximity::{ClosestFeature, ClosestPoint, MeshProximity, NearFaces, NearestFace};
 pub use skeleton::{
     FPS, Pose, PosedSkeleton, Skeleton, canonical, interpolate_pose, split_heading,
 };

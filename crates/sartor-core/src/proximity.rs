@@ -346,6 +346,95 @@ impl MeshProximity {
         hit
     }
 
+    /// [`Self::closest_within_hinted`] that also lists, in `near`, every face within the
+    /// answer's distance plus `margin_m` of `p`, nearest first (ties by face index): with them
+    /// [`Self::closest_within_near`] answers the queries that follow at a point that has moved,
+    /// relative to the mesh, by at most `margin_m / 2`. One walk of the tree, bounded by the
+    /// hint's distance plus the margin. `near` is left empty when there is no answer, no
+    /// usable hint, or more faces than fit.
+    pub fn closest_within_listing(
+        &self,
+        p: &Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        margin_m: f64,
+        near: &mut NearFaces,
+    ) -> Option<ClosestPoint> {
+        near.len = 0;
+        if !self.tree_current || (*hint as usize) >= self.faces.len() {
+            return self.closest_within_hinted(p, max_distance_m, hint);
+        }
+        let tri = self.tri(&self.faces[*hint as usize]);
+        let d = (closest_on_triangle(p, &tri).0 - p).norm();
+        // `closest_within_hinted`'s bound, and every face within it plus the margin.
+        let bound = max_distance_m.min(d * (1.0 + 1e-9) + 1e-12);
+        let reach = bound + margin_m;
+        let reach2 = reach * reach;
+        let mut found = [(0.0f64, 0u32); GATHER];
+        let mut n = 0;
+        let mut fits = true;
+        let mut best_d2 = bound * bound;
+        let mut best: Option<(u32, Vector3<f64>, [f64; 3], ClosestFeature)> = None;
+        self.for_each_face_near(p, reach, |f| {
+            let tri = self.tri(&self.faces[f as usize]);
+            let (q, bary, feature) = closest_on_triangle(p, &tri);
+            let d2 = (q - p).norm_squared();
+            if d2 > reach2 {
+                return;
+            }
+            // `consider`'s rule, without its box test (the face is computed anyway).
+            let better = d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0));
+            if better || (best.is_none() && d2 <= best_d2) {
+                best_d2 = d2;
+                best = Some((f, q, bary, feature));
+            }
+            if n == GATHER {
+                fits = false;
+                return;
+            }
+            found[n] = (d2, f);
+            n += 1;
+        });
+        let (face, point, barycentric, feature) = best?;
+        *hint = face;
+        if fits {
+            let keep = (best_d2.sqrt() + margin_m).powi(2);
+            let found = &mut found[..n];
+            found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let kept = found.iter().take_while(|e| e.0 <= keep).count();
+            if kept <= NearFaces::CAPACITY {
+                for (slot, &(_, f)) in near.faces.iter_mut().zip(found[..kept].iter()) {
+                    *slot = f;
+                }
+                near.len = kept as u8;
+            }
+        }
+        Some(self.answer(p, face, point, barycentric, feature))
+    }
+
+    /// The answer of [`Self::closest_within_hinted`] from the faces `near` listed by
+    /// [`Self::closest_within_listing`] alone, no tree walk. The same answer (face, tie rule,
+    /// sign), provided that since the listing the point has moved by at most half the listing's
+    /// margin relative to the mesh: by at most `m / 2` plus the farthest any point of the mesh
+    /// has moved, with `m` the margin. (Each face's distance then changed by at most `m / 2`:
+    /// the face listed nearest is still within `d + m / 2`, an unlisted one still beyond it.)
+    /// `hint` becomes the face found.
+    pub fn closest_within_near(
+        &self,
+        p: &Vector3<f64>,
+        max_distance_m: f64,
+        hint: &mut u32,
+        near: &NearFaces,
+    ) -> Option<ClosestPoint> {
+        let nearest = self.nearest_among(p, near.faces())?;
+        // `closest_within`'s acceptance: the squared distance within the squared bound.
+        if nearest.distance_sq > max_distance_m * max_distance_m {
+            return None;
+        }
+        *hint = nearest.face;
+        Some(self.signed(p, &nearest))
+    }
+
     /// Closest point to `p` among the triangles `faces` only (indices into [`Self::faces`]),
     /// with the same tie rule, sign and normal as [`Self::closest`]; `None` when `faces` is
     /// empty. For callers that know in advance which few triangles can be closest (e.g. a
@@ -504,6 +593,44 @@ impl MeshProximity {
             signed_distance_m: sign * d,
             normal,
         }
+    }
+}
+
+/// The most faces [`MeshProximity::closest_within_listing`] gathers within its reach.
+const GATHER: usize = 32;
+
+/// The faces of a mesh near a point, nearest first, as [`MeshProximity::closest_within_listing`]
+/// lists them for [`MeshProximity::closest_within_near`]; at most [`NearFaces::CAPACITY`] (a
+/// cache line with the count).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NearFaces {
+    len: u8,
+    faces: [u32; Self::CAPACITY],
+}
+
+impl NearFaces {
+    /// The most faces a list holds.
+    pub const CAPACITY: usize = 15;
+
+    /// No list.
+    pub const EMPTY: Self = Self {
+        len: 0,
+        faces: [0; Self::CAPACITY],
+    };
+
+    /// The faces listed (none: no list).
+    pub fn faces(&self) -> &[u32] {
+        &self.faces[..self.len as usize]
+    }
+
+    /// Whether nothing is listed.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Forget the list.
+    pub fn clear(&mut self) {
+        self.len = 0;
     }
 }
 

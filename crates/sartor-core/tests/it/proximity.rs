@@ -5,7 +5,7 @@
 //! faces within a radius and the faces whose box is, against a filter of every face.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use sartor_core::{BodyModel, MeshProximity, Pose, vertex_normals};
+use sartor_core::{BodyModel, MeshProximity, NearFaces, Pose, vertex_normals};
 
 /// Points around `positions`: each 13th vertex offset along its normal from 5 cm in to 5 cm
 /// out, and points up to a metre beyond the body's box.
@@ -131,4 +131,91 @@ fn the_tree_query_answers_as_every_triangle_on_the_body_posed_moved_and_far_away
     checked += agree(&tree, &far, b.faces());
     println!("{checked} points, each asked five ways");
     assert!(checked > 3000, "{checked}");
+}
+
+#[test]
+fn the_faces_listed_near_a_point_answer_as_the_tree_until_it_has_moved_half_the_margin() {
+    // Points within 1 cm of the built-in body, each listed with a 4 mm margin; then the body
+    // moves (a translation, and every vertex departing from it by up to `travel`) and the point
+    // moves by `step` relative to the translation. While `step + travel` is at most half the
+    // margin, the listed faces give the tree's answer bit for bit; moved four times as far, they
+    // must fail somewhere (else this test could not catch a list cut too short).
+    let b = BodyModel::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
+    )
+    .expect("the built-in body");
+    let rest = b
+        .posed_vertices(
+            &vec![0.0; b.n_betas()],
+            &Pose::rest(b.skeleton().n_joints()),
+        )
+        .expect("rest pose");
+    let faces = b.faces();
+    let normals = vertex_normals(&rest, faces);
+    let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let mut unit = move || {
+        let v = Vector3::new(next(), next(), next());
+        let v = v / v.norm().max(1e-9);
+        (v, next() + 0.5)
+    };
+    let margin = 4e-3;
+    let translation = Vector3::new(0.013, -0.004, 0.021);
+    let (mut listed, mut failed_far) = (0, 0);
+    for scale in [0.49, 2.0] {
+        let mut tree = MeshProximity::new(&rest, faces).expect("body");
+        let mut lists = Vec::new();
+        for (p, n) in rest.iter().zip(&normals).step_by(7) {
+            let (u, s) = unit();
+            let q = p + n * (0.02 * s - 0.01) + u * 0.002;
+            let mut hint = tree.closest(&q).face;
+            let mut near = NearFaces::EMPTY;
+            let exact = tree.closest_within_hinted(&q, 0.05, &mut hint.clone());
+            let got = tree.closest_within_listing(&q, 0.05, &mut hint, margin, &mut near);
+            assert_eq!(got, exact, "the listing query answers as the tree");
+            if !near.is_empty() {
+                lists.push((q, near));
+            }
+        }
+        // Half the allowance for the body's departure from the translation, half for the point.
+        let allowance = scale * margin;
+        let moved: Vec<Vector3<f64>> = rest
+            .iter()
+            .map(|p| {
+                let (u, s) = unit();
+                p + translation + u * (0.5 * allowance * s)
+            })
+            .collect();
+        tree.update_positions_refit(&moved).expect("same size");
+        let mut wrong = 0;
+        for (q, near) in &lists {
+            let (u, s) = unit();
+            let q = q + translation + u * (0.5 * allowance * s);
+            let mut hint = u32::MAX;
+            let exact = tree.closest_within_hinted(&q, 0.05, &mut hint);
+            let mut hint = u32::MAX;
+            let from_list = tree.closest_within_near(&q, 0.05, &mut hint, near);
+            if scale < 0.5 {
+                assert_eq!(from_list, exact, "{q}");
+            } else if from_list != exact {
+                wrong += 1;
+            }
+        }
+        if scale < 0.5 {
+            listed = lists.len();
+        } else {
+            failed_far = wrong;
+        }
+    }
+    println!("{listed} points listed; moved four times as far, {failed_far} wrong");
+    assert!(listed > 500, "{listed}");
+    assert!(
+        failed_far > 0,
+        "lists moved beyond their margin never failed"
+    );
 }
