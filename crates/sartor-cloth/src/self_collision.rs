@@ -285,22 +285,45 @@ fn check_face(
     let tx = faces[f].map(|i| x[i as usize]);
     let (lo, hi, reach) = face_box(&tx, radius_m);
     let (lo, hi) = (lo.add_scalar(-reach), hi.add_scalar(reach));
-    for &v in list {
-        let p = &x[v as usize];
-        if !in_box(p, &lo, &hi) {
-            continue;
+    // The box test of [`LANES`] candidates into a mask first, without a branch per candidate,
+    // then the plane test of those that passed, in list order: the same pairs in the same
+    // order. (A branch on each candidate's box test cost more than the tests: self-collision
+    // 314 → 221–226 ms per frame at 26,066 triangles and 27.3–28.3 → 24.9–25.3 at 8,710, one
+    // thread, alternating builds of `cargo xtask bench sim`, the same cloth.)
+    for group in list.chunks(LANES) {
+        let mut mask = 0u32;
+        for (l, &v) in group.iter().enumerate() {
+            mask |= u32::from(in_box(&x[v as usize], &lo, &hi)) << l;
         }
-        let Some(d) = vertex_triangle(p, &tx) else {
-            continue;
-        };
-        if d.abs() < radius_m {
-            found.push(Found {
-                vertex: v,
-                side: u8::from(d < 0.0),
-                face: f as u32,
-                distance_m: d.abs(),
-            });
+        while mask != 0 {
+            let v = group[mask.trailing_zeros() as usize];
+            mask &= mask - 1;
+            check_pair(x, &tx, radius_m, f, v, found);
         }
+    }
+}
+
+/// The plane test of vertex `v` against face `f` (corners at `tx`), a pair in `found` if it
+/// passes.
+#[inline]
+fn check_pair(
+    x: &[Vector3<f64>],
+    tx: &[Vector3<f64>; 3],
+    radius_m: f64,
+    f: usize,
+    v: u32,
+    found: &mut Vec<Found>,
+) {
+    let Some(d) = vertex_triangle(&x[v as usize], tx) else {
+        return;
+    };
+    if d.abs() < radius_m {
+        found.push(Found {
+            vertex: v,
+            side: u8::from(d < 0.0),
+            face: f as u32,
+            distance_m: d.abs(),
+        });
     }
 }
 
