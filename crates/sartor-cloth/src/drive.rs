@@ -38,8 +38,8 @@
 //!
 //! A frame fails on a [`StepFailure`](crate::StepFailure) (NaN, energy blow-up, solver
 //! non-convergence) or when a cloth vertex ends it more than
-//! [`DriveConfig::penetration_tolerance_m`] inside the body region, or the garment has moved more than [`LEFT_BODY_M`] away from the body (left behind
-//! by a jump in the motion). The frame is then redone from its start with
+//! [`DriveConfig::penetration_tolerance_m`] inside the body region, or the garment has moved
+//! more than [`LEFT_BODY_M`] away from the body (left behind by a jump in the motion). The frame is then redone from its start with
 //! [`RetryConfig::substep_factor`] times more substeps, up to
 //! [`RetryConfig::max_frame_retries`] times; the following frames go back to the configured
 //! substeps. A frame that still fails fails the sequence

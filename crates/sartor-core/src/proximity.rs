@@ -383,11 +383,7 @@ impl MeshProximity {
                 return;
             }
             // `consider`'s rule, without its box test (the face is computed anyway).
-            let better = d2 < best_d2 || (d2 == best_d2 && best.is_some_and(|b| f < b.0));
-            if better || (best.is_none() && d2 <= best_d2) {
-                best_d2 = d2;
-                best = Some((f, q, bary, feature));
-            }
+            take_if_better((f, q, bary, feature), d2, &mut best_d2, &mut best);
             if n == GATHER {
                 fits = false;
                 return;
@@ -499,12 +495,7 @@ impl MeshProximity {
             return;
         }
         let (q, bary, feature) = closest_on_triangle(p, &tri);
-        let d2 = (q - p).norm_squared();
-        let better = d2 < *best_d2 || (d2 == *best_d2 && best.is_some_and(|b| f < b.0));
-        if better || (best.is_none() && d2 <= *best_d2) {
-            *best_d2 = d2;
-            *best = Some((f, q, bary, feature));
-        }
+        take_if_better((f, q, bary, feature), (q - p).norm_squared(), best_d2, best);
     }
 
     /// Every triangle within `radius_m` of `p`, as `(face, distance_m)` sorted by distance
@@ -593,6 +584,23 @@ impl MeshProximity {
             signed_distance_m: sign * d,
             normal,
         }
+    }
+}
+
+/// The closest-point rule of every query: face `candidate` at squared distance `d2` becomes
+/// the best if it is nearer than `best_d2`, or as near with a smaller index; with no best yet,
+/// any face within `best_d2` (the query's bound) is taken.
+#[inline]
+fn take_if_better(
+    candidate: (u32, Vector3<f64>, [f64; 3], ClosestFeature),
+    d2: f64,
+    best_d2: &mut f64,
+    best: &mut Option<(u32, Vector3<f64>, [f64; 3], ClosestFeature)>,
+) {
+    let better = d2 < *best_d2 || (d2 == *best_d2 && best.is_some_and(|b| candidate.0 < b.0));
+    if better || (best.is_none() && d2 <= *best_d2) {
+        *best_d2 = d2;
+        *best = Some(candidate);
     }
 }
 
