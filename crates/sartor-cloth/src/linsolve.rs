@@ -114,6 +114,11 @@ impl BlockPattern {
         self.row_offsets[i]..self.row_offsets[i + 1]
     }
 
+    /// The first slot of row `i`, for `i` in `0..=n_rows()` (`n_blocks()` for `n_rows()`).
+    pub fn row_start(&self, i: usize) -> usize {
+        self.row_offsets[i]
+    }
+
     pub fn cols(&self) -> &[u32] {
         &self.cols
     }

@@ -57,6 +57,7 @@
 //! After the first step nothing is allocated (except when the number of contacts exceeds every
 //! earlier step's).
 
+use std::ops::Range;
 use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
@@ -281,28 +282,29 @@ struct Workspace {
     linear: LinearWorkspace,
 }
 
-/// A share of the assembly: a set of vertices (rows of the system; in the parallel assembly a
-/// spatially compact part of the cloth, one per thread) and every element with a vertex among
-/// them, in index order. Each share sums its own rows' contributions in the order of a
-/// sequential scatter (triangles, then hinges, by index; then the contacts in list order): bit
-/// for bit the same sums, on any number of shares. An element across two shares is computed by
-/// both.
+/// A share of the assembly: a range of vertices (rows of the system; in the parallel assembly a
+/// contiguous run of the simulator's Morton order, hence a spatially compact part of the cloth,
+/// one per thread) and every element with a vertex among them, in index order. Each share sums
+/// its own rows' contributions in the order of a sequential scatter (triangles, then hinges, by
+/// index; then the contacts in list order): bit for bit the same sums, on any number of
+/// shares. An element across two shares is computed by both.
 #[derive(Clone, Debug)]
 struct Share {
-    /// Its rows, ascending.
-    rows: Vec<u32>,
-    /// Per vertex of the cloth, its place in `rows` (`u32::MAX`: another share's).
-    local: Vec<u32>,
+    /// Its rows.
+    rows: Range<usize>,
     triangles: Vec<u32>,
     hinges: Vec<u32>,
 }
 
 impl Share {
-    /// `count` shares of about equal work (element-vertex incidences): recursive halving of
-    /// the cloth at rest along its longest axis, so that few elements straddle two shares.
+    /// `count` shares of about equal work (element-vertex incidences), each a contiguous range
+    /// of the cloth's vertices: in the simulator's numbering (a Morton order of the rest shape)
+    /// a compact part of the cloth, so that few elements straddle two shares, and a share's
+    /// rows are one piece of the system, reached by plain indexing (rows handed out one by one
+    /// through a lookup made the assembly's fill 11 % slower: 129 against 116.5 ms per frame
+    /// at 8,710 triangles, one thread).
     fn split(cloth: &Cloth, count: usize) -> Vec<Self> {
-        let rest = cloth.rest_mesh().positions();
-        let n = rest.len();
+        let n = cloth.n_vertices();
         let mut weight = vec![0usize; n];
         for f in cloth.faces() {
             for &v in f {
@@ -314,59 +316,25 @@ impl Share {
                 weight[v as usize] += 1;
             }
         }
-        fn halve(
-            idx: &mut [u32],
-            parts: usize,
-            rest: &[Vector3<f64>],
-            weight: &[usize],
-            out: &mut Vec<Vec<u32>>,
-        ) {
-            if parts <= 1 || idx.len() <= 1 {
-                let mut rows = idx.to_vec();
-                rows.sort_unstable();
-                out.push(rows);
-                return;
+        let count = count.max(1);
+        let total: usize = weight.iter().sum();
+        // Share `k` ends at the first vertex where the running weight reaches `(k + 1) / count`
+        // of the total.
+        let mut ends = Vec::with_capacity(count);
+        let mut acc = 0usize;
+        for (i, w) in weight.iter().enumerate() {
+            while ends.len() + 1 < count && acc * count >= total * (ends.len() + 1) {
+                ends.push(i);
             }
-            let (mut lo, mut hi) = (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            );
-            for &i in idx.iter() {
-                lo = lo.inf(&rest[i as usize]);
-                hi = hi.sup(&rest[i as usize]);
-            }
-            let axis = (hi - lo).imax();
-            idx.sort_unstable_by(|&a, &b| {
-                rest[a as usize][axis]
-                    .total_cmp(&rest[b as usize][axis])
-                    .then(a.cmp(&b))
-            });
-            let left_parts = parts / 2;
-            let total: usize = idx.iter().map(|&i| weight[i as usize]).sum();
-            let (mut acc, mut cut) = (0usize, idx.len());
-            for (k, &i) in idx.iter().enumerate() {
-                if acc * parts >= total * left_parts {
-                    cut = k;
-                    break;
-                }
-                acc += weight[i as usize];
-            }
-            let cut = cut.clamp(1, idx.len() - 1);
-            let (left, right) = idx.split_at_mut(cut);
-            halve(left, left_parts, rest, weight, out);
-            halve(right, parts - left_parts, rest, weight, out);
+            acc += w;
         }
-        let mut idx: Vec<u32> = (0..n as u32).collect();
-        let mut groups = Vec::new();
-        halve(&mut idx, count.max(1), rest, &weight, &mut groups);
-        groups
-            .into_iter()
-            .map(|rows| {
-                let mut local = vec![u32::MAX; n];
-                for (k, &i) in rows.iter().enumerate() {
-                    local[i as usize] = k as u32;
-                }
-                let touches = |vs: &[u32]| vs.iter().any(|&v| local[v as usize] != u32::MAX);
+        ends.resize(count, n);
+        let mut first = 0;
+        ends.into_iter()
+            .map(|end| {
+                let rows = first..end;
+                first = end;
+                let touches = |vs: &[u32]| vs.iter().any(|&v| rows.contains(&(v as usize)));
                 Self {
                     triangles: (0..cloth.faces().len() as u32)
                         .filter(|&t| touches(&cloth.faces()[t as usize]))
@@ -375,7 +343,6 @@ impl Share {
                         .filter(|&e| touches(&cloth.hinges()[e as usize].vertices))
                         .collect(),
                     rows,
-                    local,
                 }
             })
             .collect()
@@ -383,7 +350,7 @@ impl Share {
 }
 
 /// How many elements ahead the assembly prefetches the blocks it will add to (see
-/// [`RowAccess::prefetch`]). At 26,066 triangles the system (13 MB) is far larger than the
+/// [`Rows::prefetch`]). At 26,066 triangles the system (13 MB) is far larger than the
 /// core's cache, and the additions waited for their blocks: assembly 863–944 → 710–761 ms per
 /// frame on one thread, the same bits (`cargo xtask bench sim --sizes 26066 --frames 5`, AMD
 /// EPYC VM, builds alternated). At 8,710 triangles no change.
@@ -414,15 +381,17 @@ struct Shared<'a> {
     h: f64,
 }
 
-/// One row of the system being filled: its vertex, its blocks (its slots of the pattern), its
-/// gradient and right-hand side.
-struct RowMut<'a> {
-    vertex: usize,
-    /// The slot of `system[0]` in the system's numbering.
+/// A share's rows of the system being filled: rows `first..first + gradient.len()`, their
+/// blocks (from the system's slot `first_slot` on), gradients and right-hand sides. `WHOLE`:
+/// the share is every row, and every vertex is its own without a test (the sequential
+/// assembly; the test cost it 6 %, 121 → 129 ms per frame at 8,710 triangles).
+struct Rows<'a, const WHOLE: bool> {
+    pattern: &'a BlockPattern,
+    first: usize,
     first_slot: usize,
     system: &'a mut [Matrix3<f64>],
-    gradient: &'a mut Vector3<f64>,
-    rhs: &'a mut Vector3<f64>,
+    gradient: &'a mut [Vector3<f64>],
+    rhs: &'a mut [Vector3<f64>],
 }
 
 /// A row's blocks, gradient and right-hand side.
@@ -432,99 +401,79 @@ type RowParts<'a> = (
     &'a mut Vector3<f64>,
 );
 
-/// How a share reaches its rows: its vertices in order, the place of a vertex among them, and
-/// a row's blocks and vectors. [`Whole`] is every row of the system in place (the sequential
-/// assembly); a `[RowMut]` is a share's rows handed out one by one (the parallel one).
-trait RowAccess {
+impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
+    /// The rows of `range`, cut from the front of the rest of the system (`system`,
+    /// `gradient`, `rhs`: the rows from `range.start` on), which keeps what follows them.
+    fn take(
+        pattern: &'a BlockPattern,
+        range: Range<usize>,
+        system: &mut &'a mut [Matrix3<f64>],
+        gradient: &mut &'a mut [Vector3<f64>],
+        rhs: &mut &'a mut [Vector3<f64>],
+    ) -> Self {
+        let first_slot = pattern.row_start(range.start);
+        let blocks = pattern.row_start(range.end) - first_slot;
+        let rows = range.len();
+        let (system_here, system_rest) = std::mem::take(system).split_at_mut(blocks);
+        let (gradient_here, gradient_rest) = std::mem::take(gradient).split_at_mut(rows);
+        let (rhs_here, rhs_rest) = std::mem::take(rhs).split_at_mut(rows);
+        (*system, *gradient, *rhs) = (system_rest, gradient_rest, rhs_rest);
+        Self {
+            pattern,
+            first: range.start,
+            first_slot,
+            system: system_here,
+            gradient: gradient_here,
+            rhs: rhs_here,
+        }
+    }
+
     /// Rows this share fills.
-    fn count(&self) -> usize;
-    /// The vertex of its `k`-th row.
-    fn vertex(&self, k: usize) -> usize;
-    /// The place of vertex `i` among its rows, if it is this share's.
-    fn place(&self, share: &Share, i: u32) -> Option<usize>;
-    /// The `k`-th row's blocks, gradient and right-hand side.
-    fn row(&mut self, k: usize) -> RowParts<'_>;
-    /// Start loading into the cache block `slot` (in the system's numbering) of vertex `i`'s
-    /// row, if the row is this share's: the assembly asks for the blocks of the element
-    /// [`PREFETCH_AHEAD`] places ahead of the one it adds.
-    fn prefetch(&self, share: &Share, i: u32, slot: u32);
-}
-
-/// Every row of the system, in place.
-struct Whole<'a> {
-    pattern: &'a BlockPattern,
-    system: &'a mut [Matrix3<f64>],
-    gradient: &'a mut [Vector3<f64>],
-    rhs: &'a mut [Vector3<f64>],
-}
-
-impl RowAccess for Whole<'_> {
     fn count(&self) -> usize {
         self.gradient.len()
     }
 
+    /// The vertex of its `k`-th row.
     fn vertex(&self, k: usize) -> usize {
-        k
+        self.first + k
     }
 
+    /// The place of vertex `i` among its rows, if it is this share's.
     #[inline(always)]
-    fn place(&self, _: &Share, i: u32) -> Option<usize> {
-        Some(i as usize)
+    fn place(&self, i: u32) -> Option<usize> {
+        let k = (i as usize).wrapping_sub(self.first);
+        (WHOLE || k < self.gradient.len()).then_some(k)
     }
 
+    /// The `k`-th row's blocks, gradient and right-hand side.
     #[inline(always)]
     fn row(&mut self, k: usize) -> RowParts<'_> {
-        let slots = self.pattern.row(k);
+        let slots = self.pattern.row(self.first + k);
         (
-            &mut self.system[slots],
+            &mut self.system[slots.start - self.first_slot..slots.end - self.first_slot],
             &mut self.gradient[k],
             &mut self.rhs[k],
         )
     }
 
+    /// Start loading into the cache block `slot` (in the system's numbering) of vertex `i`'s
+    /// row, if the row is this share's: the assembly asks for the blocks of the element
+    /// [`PREFETCH_AHEAD`] places ahead of the one it adds.
     #[inline(always)]
-    fn prefetch(&self, _: &Share, _: u32, slot: u32) {
-        crate::prefetch::prefetch(self.system.as_ptr().wrapping_add(slot as usize));
-    }
-}
-
-impl RowAccess for [RowMut<'_>] {
-    fn count(&self) -> usize {
-        self.len()
-    }
-
-    fn vertex(&self, k: usize) -> usize {
-        self[k].vertex
-    }
-
-    #[inline(always)]
-    fn place(&self, share: &Share, i: u32) -> Option<usize> {
-        let k = share.local[i as usize];
-        (k != u32::MAX).then_some(k as usize)
-    }
-
-    #[inline(always)]
-    fn prefetch(&self, share: &Share, i: u32, slot: u32) {
-        if let Some(k) = self.place(share, i) {
-            let row = &self[k];
-            let at = (slot as usize).wrapping_sub(row.first_slot);
-            crate::prefetch::prefetch(row.system.as_ptr().wrapping_add(at));
+    fn prefetch(&self, i: u32, slot: u32) {
+        if self.place(i).is_some() {
+            let at = (slot as usize).wrapping_sub(self.first_slot);
+            crate::prefetch::prefetch(self.system.as_ptr().wrapping_add(at));
         }
-    }
-
-    #[inline(always)]
-    fn row(&mut self, k: usize) -> RowParts<'_> {
-        let r = &mut self[k];
-        (&mut *r.system, &mut *r.gradient, &mut *r.rhs)
     }
 }
 
 impl Shared<'_> {
-    /// Fill `share`'s rows (`out`, in the order of `share.rows`): the stiffness `K` (in the
+    /// Fill `share`'s rows (`out`): the stiffness `K` (in the
     /// system's blocks, scaled into `A` at the end) and gradient summed over its elements
     /// (triangles, then hinges, by index), then the obstacle contacts and the self-contacts (in
     /// list order), then the system and right-hand side of those rows.
-    fn fill<R: RowAccess + ?Sized>(&self, share: &Share, out: &mut R) {
+    fn fill<const WHOLE: bool>(&self, share: &Share, out: &mut Rows<'_, WHOLE>) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
             self.cloth.membranes(),
@@ -546,7 +495,7 @@ impl Shared<'_> {
             if let Some(&ahead) = share.triangles.get(n + PREFETCH_AHEAD) {
                 let (f, slots) = (faces[ahead as usize], &self.tri_slots[ahead as usize]);
                 for (k, &slot) in slots.iter().enumerate() {
-                    out.prefetch(share, f[k / 3], slot);
+                    out.prefetch(f[k / 3], slot);
                 }
             }
             let (t, f) = (t as usize, faces[t as usize]);
@@ -558,7 +507,7 @@ impl Shared<'_> {
             };
             let slots = &self.tri_slots[t];
             for a in 0..3 {
-                if let Some(k) = out.place(share, f[a]) {
+                if let Some(k) = out.place(f[a]) {
                     let (stiffness, gradient, _) = out.row(k);
                     *gradient += d.gradient[a];
                     let first = first(f[a]);
@@ -576,7 +525,7 @@ impl Shared<'_> {
                     &self.hinge_slots[ahead as usize],
                 );
                 for (k, &slot) in slots.iter().enumerate() {
-                    out.prefetch(share, v[k / 4], slot);
+                    out.prefetch(v[k / 4], slot);
                 }
             }
             let (e, h) = (e as usize, &hinges[e as usize]);
@@ -586,7 +535,7 @@ impl Shared<'_> {
             let mut add = |gradient: &[Vector3<f64>; 4],
                            block: &dyn Fn(usize, usize) -> Matrix3<f64>| {
                 for a in 0..4 {
-                    if let Some(k) = out.place(share, h.vertices[a]) {
+                    if let Some(k) = out.place(h.vertices[a]) {
                         let (stiffness, g, _) = out.row(k);
                         *g += gradient[a];
                         let first = first(h.vertices[a]);
@@ -615,7 +564,7 @@ impl Shared<'_> {
         let penalty = self.config.contact_penalty;
         let diag = |i: usize| pattern.diag_slot(i) - pattern.row(i).start;
         for c in self.obstacle_contacts {
-            if let Some(k) = out.place(share, c.vertex) {
+            if let Some(k) = out.place(c.vertex) {
                 let i = c.vertex as usize;
                 let d = c.derivatives(&self.x[i], &penalty);
                 let (stiffness, gradient, _) = out.row(k);
@@ -626,7 +575,7 @@ impl Shared<'_> {
         for (c, d) in self.self_contacts.iter().zip(self.self_out) {
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             for a in 0..4 {
-                if let Some(k) = out.place(share, idx[a]) {
+                if let Some(k) = out.place(idx[a]) {
                     let (stiffness, gradient, _) = out.row(k);
                     *gradient += d.gradient[a];
                     stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
@@ -1479,42 +1428,38 @@ impl Simulator {
             self_out: &ws.self_out,
             h,
         };
+        let (mut system, mut gradient, mut rhs) =
+            (&mut ws.system[..], &mut ws.gradient[..], &mut ws.rhs[..]);
+        let pattern = &self.pattern;
         if let Parallelism::Sequential = par {
-            let mut whole = Whole {
-                pattern: &self.pattern,
-                system: &mut ws.system,
-                gradient: &mut ws.gradient,
-                rhs: &mut ws.rhs,
-            };
-            shared.fill(&self.everything, &mut whole);
+            let share = &self.everything;
+            let mut rows = Rows::<true>::take(
+                pattern,
+                share.rows.clone(),
+                &mut system,
+                &mut gradient,
+                &mut rhs,
+            );
+            shared.fill(share, &mut rows);
             return;
         }
-        // Each row's blocks and vectors, handed to the share that owns the row.
-        let shares = &self.shares;
-        let mut work: Vec<Vec<RowMut<'_>>> = shares
+        // Each share's rows: consecutive pieces of the system.
+        let mut work: Vec<Rows<'_, false>> = self
+            .shares
             .iter()
-            .map(|s| Vec::with_capacity(s.rows.len()))
+            .map(|share| {
+                Rows::take(
+                    pattern,
+                    share.rows.clone(),
+                    &mut system,
+                    &mut gradient,
+                    &mut rhs,
+                )
+            })
             .collect();
-        let mut a = &mut ws.system[..];
-        for (i, (gradient, rhs)) in ws.gradient.iter_mut().zip(ws.rhs.iter_mut()).enumerate() {
-            let len = self.pattern.row(i).len();
-            let (system, a_rest) = std::mem::take(&mut a).split_at_mut(len);
-            a = a_rest;
-            let owner = shares
-                .iter()
-                .position(|s| s.local[i] != u32::MAX)
-                .expect("every row has a share");
-            work[owner].push(RowMut {
-                vertex: i,
-                first_slot: self.pattern.row(i).start,
-                system,
-                gradient,
-                rhs,
-            });
-        }
         work.par_iter_mut()
-            .zip(shares)
-            .for_each(|(rows, share)| shared.fill(share, rows.as_mut_slice()));
+            .zip(&self.shares)
+            .for_each(|(rows, share)| shared.fill(share, rows));
     }
 
     /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]).
@@ -1582,5 +1527,70 @@ impl Simulator {
             }
         }
         moved
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloth::rectangle_sheet;
+
+    /// The shares of a 40 × 30 sheet in the simulator's numbering: consecutive ranges that
+    /// cover every vertex once, of about equal work, each listing exactly the elements that
+    /// touch it, with few elements in two shares.
+    #[test]
+    fn shares_are_consecutive_balanced_and_list_what_they_touch() {
+        let sheet = rectangle_sheet(Vector3::zeros(), Vector3::x(), Vector3::y() * 0.75, 40, 30)
+            .expect("a sheet");
+        let cloth =
+            Cloth::new(sheet, crate::material::Material::gray_interlock(), None).expect("a cloth");
+        let cloth = cloth
+            .renumbered(&cloth.spatial_order())
+            .expect("a permutation");
+        let n = cloth.n_vertices();
+        let weight = |rows: &Range<usize>| {
+            let count = |vs: &[u32]| vs.iter().filter(|&&v| rows.contains(&(v as usize))).count();
+            cloth.faces().iter().map(|f| count(f)).sum::<usize>()
+                + cloth
+                    .hinges()
+                    .iter()
+                    .map(|h| count(&h.vertices))
+                    .sum::<usize>()
+        };
+        let total = weight(&(0..n));
+        let heaviest = (0..n).map(|v| weight(&(v..v + 1))).max().unwrap_or(0) as f64;
+        for count in [1, 2, 3, 8] {
+            let shares = Share::split(&cloth, count);
+            assert_eq!(shares.len(), count);
+            let mut next = 0;
+            for share in &shares {
+                assert_eq!(share.rows.start, next, "{count} shares: consecutive");
+                next = share.rows.end;
+                // Within the heaviest vertex's weight of an equal part.
+                let w = weight(&share.rows) as f64;
+                assert!(
+                    (w - total as f64 / count as f64).abs() <= heaviest,
+                    "{count} shares: {w} of {total}"
+                );
+                let touches = |vs: &[u32]| vs.iter().any(|&v| share.rows.contains(&(v as usize)));
+                let triangles: Vec<u32> = (0..cloth.faces().len() as u32)
+                    .filter(|&t| touches(&cloth.faces()[t as usize]))
+                    .collect();
+                assert_eq!(share.triangles, triangles);
+                let hinges: Vec<u32> = (0..cloth.hinges().len() as u32)
+                    .filter(|&e| touches(&cloth.hinges()[e as usize].vertices))
+                    .collect();
+                assert_eq!(share.hinges, hinges);
+            }
+            assert_eq!(next, n, "{count} shares cover every vertex");
+            let listed: usize = shares.iter().map(|s| s.triangles.len()).sum();
+            let extra = listed - cloth.faces().len();
+            // A straight cut across the sheet's short side straddles 60 triangles; a cut along
+            // the Morton order is a staircase, up to twice as long.
+            assert!(
+                extra <= 2 * 60 * (count - 1),
+                "{count} shares: {extra} triangles listed more than once"
+            );
+        }
     }
 }
