@@ -293,6 +293,14 @@ fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Paralle
     }
 }
 
+/// The block-diagonal preconditioner's block for the diagonal block `d`: its inverse, or where
+/// it has none the inverse of its diagonal (1 for a zero).
+fn inverse_block(d: &Matrix3<f64>) -> Matrix3<f64> {
+    d.try_inverse().unwrap_or_else(|| {
+        Matrix3::from_diagonal(&d.diagonal().map(|v| if v != 0.0 { 1.0 / v } else { 1.0 }))
+    })
+}
+
 /// Reusable state of the two solvers for one pattern.
 pub(crate) struct LinearWorkspace {
     // Cholesky: lower-triangular scalar CSC and where each entry comes from.
@@ -487,13 +495,44 @@ impl LinearWorkspace {
     ) -> Result<LinearSolveStats, StepFailure> {
         let start = Instant::now();
         let n = pattern.n_rows();
-        for i in 0..n {
-            let d = values[pattern.diag_slot(i)];
-            self.inverse_diagonal[i] = d.try_inverse().unwrap_or_else(|| {
-                Matrix3::from_diagonal(&d.diagonal().map(|v| if v != 0.0 { 1.0 / v } else { 1.0 }))
-            });
+        let stats = |iterations, relative_residual| LinearSolveStats {
+            iterations,
+            relative_residual,
+            factor_secs: 0.0,
+            solve_secs: start.elapsed().as_secs_f64(),
+        };
+        // Preconditioned by the block diagonal. Each iteration is three passes over the
+        // vertices in chunks of `CHUNK`: (1) q = A p with the chunk's share of p·q; (2) the x
+        // and r updates, z = P⁻¹ r, with the chunk's shares of r·z and r·r; (3) p = z + β p.
+        // Every dot product is summed per chunk and then over the chunks in order: the same
+        // numbers on any thread count, and the same as separate dot products. With rayon the
+        // set-up and the loop run on a team of threads, one range of chunks each ([`team`]).
+        let threads = match par {
+            Parallelism::Sequential => 1,
+            Parallelism::Rayon => rayon::current_num_threads().min(n.div_ceil(CHUNK)),
+        };
+        if threads > 1 {
+            let problem = team::Problem {
+                pattern,
+                values,
+                b,
+                max_iterations,
+                relative_tolerance,
+            };
+            let state = team::State {
+                x,
+                inverse_diagonal: &mut self.inverse_diagonal,
+                residual: &mut self.residual,
+                preconditioned: &mut self.preconditioned,
+                product: &mut self.product,
+                direction: &mut self.direction,
+            };
+            let (iterations, relative) = team::iterate(threads, &problem, state)?;
+            return Ok(stats(iterations, relative));
         }
-        // The CG loop, preconditioned by the block diagonal.
+        for (i, inverse) in self.inverse_diagonal.iter_mut().enumerate() {
+            *inverse = inverse_block(&values[pattern.diag_slot(i)]);
+        }
         block_matvec(pattern, values, x, &mut self.product, par);
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
@@ -512,12 +551,6 @@ impl LinearWorkspace {
             self.preconditioned[i] = self.inverse_diagonal[i] * self.residual[i];
         }
         self.direction.copy_from_slice(&self.preconditioned);
-        let stats = |iterations, relative_residual| LinearSolveStats {
-            iterations,
-            relative_residual,
-            factor_secs: 0.0,
-            solve_secs: start.elapsed().as_secs_f64(),
-        };
         if b_norm == 0.0 {
             x.iter_mut().for_each(|v| *v = Vector3::zeros());
             return Ok(stats(0, 0.0));
@@ -525,37 +558,6 @@ impl LinearWorkspace {
         let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
         let mut relative = r_norm / b_norm;
         let mut iterations = 0;
-        // Each iteration is three passes over the vertices in chunks of `CHUNK`: (1) q = A p
-        // with the chunk's share of p·q; (2) the x and r updates, z = P⁻¹ r, with the chunk's
-        // shares of r·z and r·r; (3) p = z + β p. Every dot product is summed per chunk and
-        // then over the chunks in order: the same numbers on any thread count, and the same as
-        // separate dot products. With rayon the loop runs on a team of threads, one range of
-        // chunks each ([`team`]).
-        let threads = match par {
-            Parallelism::Sequential => 1,
-            Parallelism::Rayon => rayon::current_num_threads().min(n.div_ceil(CHUNK)),
-        };
-        if threads > 1 {
-            let problem = team::Problem {
-                pattern,
-                values,
-                inverse_diagonal: &self.inverse_diagonal,
-                rz,
-                relative,
-                b_norm,
-                max_iterations,
-                relative_tolerance,
-            };
-            let state = team::State {
-                x,
-                residual: &mut self.residual,
-                preconditioned: &mut self.preconditioned,
-                product: &mut self.product,
-                direction: &mut self.direction,
-            };
-            let (iterations, relative) = team::iterate(threads, &problem, state)?;
-            return Ok(stats(iterations, relative));
-        }
         while relative > relative_tolerance {
             if iterations == max_iterations || !relative.is_finite() {
                 return Err(StepFailure::SolverNotConverged {
@@ -754,37 +756,61 @@ mod tests {
         let b: Vec<Vector3<f64>> = (0..n)
             .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
             .collect();
-        let solve = |par, max_iterations| {
-            let mut ws = LinearWorkspace::new(&pattern);
-            let mut x = vec![Vector3::new(0.01, 0.0, -0.02); n];
-            let stats = ws.solve_cg(&pattern, &values, &b, &mut x, max_iterations, 1e-11, par);
+        // A guess near the solution, one worse than none (dropped by the set-up), and a zero
+        // right-hand side (its solution zero whatever the guess).
+        let zero = vec![Vector3::zeros(); n];
+        for (guess, b, what) in [
+            (Vector3::new(0.01, 0.0, -0.02), &b, "a near guess"),
             (
-                stats.map(|s| (s.iterations, s.relative_residual.to_bits())),
-                x,
-            )
-        };
-        let (sequential, x_sequential) = solve(Parallelism::Sequential, 500);
-        assert!(sequential.as_ref().is_ok_and(|s| s.0 > 5), "{sequential:?}");
-        let (short, _) = solve(Parallelism::Sequential, 3);
-        for threads in 1..=7 {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .expect("pool");
-            let (stats, x) = pool.install(|| solve(Parallelism::Rayon, 500));
-            assert_eq!(stats, sequential, "{threads} threads");
-            assert!(x == x_sequential, "{threads} threads: another x");
-            // The same failure, at the same iteration, when the cap is hit.
-            let (failed, _) = pool.install(|| solve(Parallelism::Rayon, 3));
-            assert!(
-                matches!(
-                    (&failed, &short),
-                    (Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: a }),
-                     Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: b }))
-                    if a.to_bits() == b.to_bits()
-                ),
-                "{threads} threads: {failed:?} against {short:?}"
-            );
+                Vector3::new(40.0, -30.0, 20.0),
+                &b,
+                "a guess worse than none",
+            ),
+            (Vector3::new(0.01, 0.0, -0.02), &zero, "b = 0"),
+        ] {
+            let solve = |par, max_iterations| {
+                let mut ws = LinearWorkspace::new(&pattern);
+                let mut x = vec![guess; n];
+                let stats = ws.solve_cg(&pattern, &values, b, &mut x, max_iterations, 1e-11, par);
+                (
+                    stats.map(|s| (s.iterations, s.relative_residual.to_bits())),
+                    x,
+                )
+            };
+            let (sequential, x_sequential) = solve(Parallelism::Sequential, 500);
+            if b == &zero {
+                assert_eq!(sequential, Ok((0, 0)), "{what}");
+                assert!(x_sequential == zero, "{what}");
+            } else {
+                assert!(
+                    sequential.as_ref().is_ok_and(|s| s.0 > 5),
+                    "{what}: {sequential:?}"
+                );
+            }
+            let (short, _) = solve(Parallelism::Sequential, 3);
+            for threads in 1..=7 {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool");
+                let (stats, x) = pool.install(|| solve(Parallelism::Rayon, 500));
+                assert_eq!(stats, sequential, "{what}, {threads} threads");
+                assert!(x == x_sequential, "{what}, {threads} threads: another x");
+                if b == &zero {
+                    continue;
+                }
+                // The same failure, at the same iteration, when the cap is hit.
+                let (failed, _) = pool.install(|| solve(Parallelism::Rayon, 3));
+                assert!(
+                    matches!(
+                        (&failed, &short),
+                        (Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: a }),
+                         Err(StepFailure::SolverNotConverged { iterations: 3, relative_residual: b }))
+                        if a.to_bits() == b.to_bits()
+                    ),
+                    "{what}, {threads} threads: {failed:?} against {short:?}"
+                );
+            }
         }
     }
 
