@@ -491,6 +491,9 @@ impl Shared<'_> {
         // The first slot of vertex `i`'s row.
         let first = |i: u32| pattern.row(i as usize).start;
         let material = self.cloth.material();
+        // The element's corners, gathered into one buffer that the derivatives read in place
+        // (see [`gather_into`]).
+        let mut xt = [Vector3::zeros(); 3];
         for (n, &t) in share.triangles.iter().enumerate() {
             if let Some(&ahead) = share.triangles.get(n + PREFETCH_AHEAD) {
                 let (f, slots) = (faces[ahead as usize], &self.tri_slots[ahead as usize]);
@@ -499,7 +502,8 @@ impl Shared<'_> {
                 }
             }
             let (t, f) = (t as usize, faces[t as usize]);
-            let (m, xt) = (&membranes[t], gather(self.x, f));
+            let m = &membranes[t];
+            gather_into(self.x, f, &mut xt);
             let d = if self.frozen_here {
                 m.derivatives_frozen_here(&xt, material.membrane(), Projection::Psd)
             } else {
@@ -518,6 +522,7 @@ impl Shared<'_> {
             }
         }
         let bending_hessian = self.config.bending_hessian;
+        let mut x = [Vector3::zeros(); 4];
         for (n, &e) in share.hinges.iter().enumerate() {
             if let Some(&ahead) = share.hinges.get(n + PREFETCH_AHEAD) {
                 let (v, slots) = (
@@ -529,7 +534,7 @@ impl Shared<'_> {
                 }
             }
             let (e, h) = (e as usize, &hinges[e as usize]);
-            let x = gather(self.x, h.vertices);
+            gather_into(self.x, h.vertices, &mut x);
             let slots = &self.hinge_slots[e];
             // The hinge's rows of the system, each block made by `block(a, b)`.
             let mut add = |gradient: &[Vector3<f64>; 4],
@@ -672,6 +677,17 @@ pub struct Simulator {
 
 fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N] {
     idx.map(|i| x[i as usize])
+}
+
+/// [`gather`] into `out`, for the assembly's hot loops, which reuse one buffer: a gathered
+/// array returned by value was copied on, in 16-byte pieces across the 24-byte vectors just
+/// stored, and each piece waited for its two stores to retire (a store-to-load forwarding
+/// failure).
+#[inline(always)]
+fn gather_into<const N: usize>(x: &[Vector3<f64>], idx: [u32; N], out: &mut [Vector3<f64>; N]) {
+    for (o, &i) in out.iter_mut().zip(&idx) {
+        *o = x[i as usize];
+    }
 }
 
 /// Obstacles farther than the contact thickness plus this are not looked at again until
