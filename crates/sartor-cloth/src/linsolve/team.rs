@@ -118,9 +118,17 @@ pub(super) fn iterate(
             }))
         })
         .collect();
+    // The calling thread takes the first rows, the next pool thread the next, and so on: the
+    // parallel assembly fills its first share on the calling thread and hands the next to the
+    // others in the same way, so that each thread solves on the rows it has just written
+    // rather than reading them from another core's cache.
+    let caller = rayon::current_thread_index();
     let results = rayon::broadcast(|ctx| {
+        let slot = caller.map_or(ctx.index(), |c| {
+            (ctx.index() + ctx.num_threads() - c) % ctx.num_threads()
+        });
         let taken = slots
-            .get(ctx.index())
+            .get(slot)
             .and_then(|slot| slot.lock().expect("unpoisoned").take());
         taken.map(|own| shared.work(own))
     });
