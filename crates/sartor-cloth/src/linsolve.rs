@@ -276,21 +276,13 @@ mod simd {
     }
 }
 
-/// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic).
-fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>], partial: &mut [f64], par: Parallelism) -> f64 {
-    let chunk_dot = |(ca, cb): (&[Vector3<f64>], &[Vector3<f64>])| -> f64 {
-        ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum()
-    };
-    match par {
-        Parallelism::Sequential => a.chunks(CHUNK).zip(b.chunks(CHUNK)).map(chunk_dot).sum(),
-        Parallelism::Rayon => {
-            partial
-                .par_iter_mut()
-                .zip(a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)))
-                .for_each(|(p, pair)| *p = chunk_dot(pair));
-            partial.iter().sum()
-        }
-    }
+/// `Σ a_i · b_i`, summed per fixed chunk and then in chunk order (deterministic; the team
+/// sums its threads' chunks the same way).
+fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+    a.chunks(CHUNK)
+        .zip(b.chunks(CHUNK))
+        .map(|(ca, cb)| ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum::<f64>())
+        .sum()
 }
 
 /// The block-diagonal preconditioner's block for the diagonal block `d`: its inverse, or where
@@ -319,7 +311,6 @@ pub(crate) struct LinearWorkspace {
     direction: Vec<Vector3<f64>>,
     product: Vec<Vector3<f64>>,
     inverse_diagonal: Vec<Matrix3<f64>>,
-    partial: Vec<f64>,
     pair_partial: Vec<(f64, f64)>,
 }
 
@@ -365,7 +356,6 @@ impl LinearWorkspace {
             direction: vec![Vector3::zeros(); n],
             product: vec![Vector3::zeros(); n],
             inverse_diagonal: vec![Matrix3::identity(); n],
-            partial: vec![0.0; n.div_ceil(CHUNK)],
             pair_partial: vec![(0.0, 0.0); n.div_ceil(CHUNK)],
         }
     }
@@ -530,18 +520,25 @@ impl LinearWorkspace {
             let (iterations, relative) = team::iterate(threads, &problem, state)?;
             return Ok(stats(iterations, relative));
         }
+        // One thread from here on (on rayon too when the rows fit in one chunk).
         for (i, inverse) in self.inverse_diagonal.iter_mut().enumerate() {
             *inverse = inverse_block(&values[pattern.diag_slot(i)]);
         }
-        block_matvec(pattern, values, x, &mut self.product, par);
+        block_matvec(
+            pattern,
+            values,
+            x,
+            &mut self.product,
+            Parallelism::Sequential,
+        );
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
         }
-        let b_norm = dot(b, b, &mut self.partial, par).sqrt();
+        let b_norm = dot(b, b).sqrt();
         // A guess worse than none (its residual above |b|, e.g. the previous velocity when the
         // body has just changed direction) is dropped: CG then starts from zero, whose residual
         // is `b` itself.
-        let mut r_norm = dot(&self.residual, &self.residual, &mut self.partial, par).sqrt();
+        let mut r_norm = dot(&self.residual, &self.residual).sqrt();
         if r_norm > b_norm {
             x.iter_mut().for_each(|v| *v = Vector3::zeros());
             self.residual.copy_from_slice(b);
@@ -555,7 +552,7 @@ impl LinearWorkspace {
             x.iter_mut().for_each(|v| *v = Vector3::zeros());
             return Ok(stats(0, 0.0));
         }
-        let mut rz = dot(&self.residual, &self.preconditioned, &mut self.partial, par);
+        let mut rz = dot(&self.residual, &self.preconditioned);
         let mut relative = r_norm / b_norm;
         let mut iterations = 0;
         while relative > relative_tolerance {
