@@ -3,7 +3,9 @@
 //! precision, on one thread and on rayon's pool; batch 1 and batch 8 (8 avatars sharing one
 //! pass over the weights — divide by 8 for the time per avatar).
 //!
-//! `pca_basis` times the thin PCA decode at the ranks `sartor tradeoff` sweeps.
+//! `pca_basis` times the thin PCA decode at the ranks `sartor tradeoff` sweeps; `shipped` one
+//! wrinkle step (GRU and output layer, batch 1, one thread) of the shipped model in
+//! `datasets/models/default`, per precision, when it is there.
 //!
 //! `cargo bench -p sartor-runtime --bench kernels -- --warm-up-time 1 --measurement-time 3`
 
@@ -13,7 +15,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sartor_runtime::{
-    GruCell, Linear, Matrix, OutputLayer, Parallelism, Precision, instruction_set,
+    GarmentNetwork, GruCell, Linear, Matrix, OutputLayer, Parallelism, Precision, instruction_set,
 };
 
 const INPUT: usize = 160;
@@ -157,5 +159,47 @@ fn pca_basis(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench, pca_basis);
+/// One wrinkle step of the shipped model (normalisation, GRU, PCA output, checks), batch 1,
+/// one thread, over a loop of 64 made-up inputs so that the state keeps moving.
+fn shipped(c: &mut Criterion) {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/models/default");
+    if !dir.join("model.json").exists() {
+        eprintln!("shipped: no model at {}, skipped", dir.display());
+        return;
+    }
+    let mut group = c.benchmark_group("shipped");
+    for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+        let net = GarmentNetwork::load(&dir, precision).expect("the shipped model loads");
+        let mut ws = net.workspace(1);
+        let mut state = net.initial_state();
+        let mut out = vec![0.0f32; net.output_size()];
+        let n_in = net.input_size();
+        let xs: Vec<Vec<f32>> = (0..64)
+            .map(|f| {
+                (0..n_in)
+                    .map(|i| ((i * 7 + f * 13) % 11) as f32 * 0.05 - 0.25)
+                    .collect()
+            })
+            .collect();
+        let mut f = 0;
+        group.bench_function(precision.name(), |b| {
+            b.iter(|| {
+                f = (f + 1) % xs.len();
+                net.wrinkle_step(
+                    black_box(&xs[f]),
+                    &mut state,
+                    &mut out,
+                    &mut ws,
+                    Parallelism::Sequential,
+                )
+                .expect("finite");
+                black_box(&out);
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, pca_basis, shipped);
 criterion_main!(benches);

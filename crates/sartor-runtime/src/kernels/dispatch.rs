@@ -851,14 +851,14 @@ mod int {
         __m128i, __m256i, __m512i, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
         _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
         _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16,
-        _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_setzero_si256, _mm256_storeu_si256,
+        _mm256_permute2x128_si256, _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_storeu_si256,
         _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_extracti64x4_epi64,
-        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi32,
+        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi64,
         _mm512_setzero_si512, _mm512_storeu_si512,
     };
 
     use super::super::int8::PortableInt;
-    use super::super::int8::{IntEngine, PAIR_PANEL, PairEngine};
+    use super::super::int8::{IntEngine, QUAD_BYTES, QUAD_PANEL, QuadEngine};
 
     /// The sum of the eight 32-bit lanes.
     #[inline]
@@ -959,77 +959,79 @@ mod int {
         };
     }
 
-    /// The pair-panel engine on AVX2: rows 0–7 and 8–15 of a pair in two vectors.
-    pub(super) struct Avx2Pairs;
+    /// The sums `S_r` of a panel from 32 lanes holding each row's two half sums side by side
+    /// (row `r` in lanes `2r` and `2r + 1`).
+    #[inline(always)]
+    fn halves(lanes: [i32; 2 * QUAD_PANEL]) -> [i32; QUAD_PANEL] {
+        // Two halves of an exact sum within `i32`: each is a partial sum of it, so neither
+        // leaves `i32` and neither does their sum.
+        std::array::from_fn(|r| lanes[2 * r] + lanes[2 * r + 1])
+    }
 
-    impl PairEngine for Avx2Pairs {
+    /// The quad-panel engine on AVX2: a quad of four rows widened to 16 bits in one vector,
+    /// `vpmaddwd` against the quad's four inputs (each row's two half sums in two lanes).
+    pub(super) struct Avx2Quads;
+
+    impl QuadEngine for Avx2Quads {
         #[inline(always)]
-        fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
-            // SAFETY: only used inside the wrapper of `pairs_i8` with avx2, called only for an
+        fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+            // SAFETY: only used inside the wrapper of `quads_i8` with avx2, called only for an
             // `Isa` made after detection found it.
-            unsafe { panel_avx2(q, xp) }
+            unsafe { panel_avx2(q, words) }
         }
     }
 
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn panel_avx2(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
-        let (mut lo, mut hi) = (_mm256_setzero_si256(), _mm256_setzero_si256());
-        for (pair, &x) in q.as_chunks::<32>().0.iter().zip(xp) {
-            let x = _mm256_set1_epi32(x);
-            // SAFETY: `pair` is 32 readable bytes; each load reads 16 of them, unaligned.
-            let (a, b) = unsafe {
-                (
-                    _mm_loadu_si128(pair.as_ptr().cast::<__m128i>()),
-                    _mm_loadu_si128(pair.as_ptr().add(16).cast::<__m128i>()),
-                )
-            };
-            lo = _mm256_add_epi32(lo, _mm256_madd_epi16(_mm256_cvtepi8_epi16(a), x));
-            hi = _mm256_add_epi32(hi, _mm256_madd_epi16(_mm256_cvtepi8_epi16(b), x));
+    fn panel_avx2(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+        let mut acc = [_mm256_setzero_si256(); 4];
+        for (quad, &w) in q.as_chunks::<QUAD_BYTES>().0.iter().zip(words) {
+            let x = _mm256_set1_epi64x(w as i64);
+            for (k, a) in acc.iter_mut().enumerate() {
+                // SAFETY: bytes `16k … 16k + 15` of the 64-byte quad, read unaligned.
+                let v = unsafe { _mm_loadu_si128(quad.as_ptr().add(16 * k).cast::<__m128i>()) };
+                *a = _mm256_add_epi32(*a, _mm256_madd_epi16(_mm256_cvtepi8_epi16(v), x));
+            }
         }
-        let mut out = [0i32; PAIR_PANEL];
-        // SAFETY: `out` is 16 writable i32; each store writes 8 of them, unaligned.
-        unsafe {
-            _mm256_storeu_si256(out.as_mut_ptr().cast::<__m256i>(), lo);
-            _mm256_storeu_si256(out.as_mut_ptr().add(8).cast::<__m256i>(), hi);
+        let mut lanes = [0i32; 2 * QUAD_PANEL];
+        for (k, a) in acc.iter().enumerate() {
+            // SAFETY: lanes `8k … 8k + 7` of `lanes`, written unaligned.
+            unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().add(8 * k).cast::<__m256i>(), *a) };
         }
-        out
+        halves(lanes)
     }
 
-    /// The pair-panel engine on AVX-512: a pair of 16 rows in one vector, two sums in flight.
-    pub(super) struct Avx512Pairs;
+    /// The quad-panel engine on AVX-512 (avx512bw): a quad of eight rows widened to 16 bits in
+    /// one vector, as on AVX2.
+    pub(super) struct Avx512Quads;
 
-    impl PairEngine for Avx512Pairs {
+    impl QuadEngine for Avx512Quads {
         #[inline(always)]
-        fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
-            // SAFETY: only used inside the wrapper of `pairs_i8` with avx512f and avx512bw,
+        fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+            // SAFETY: only used inside the wrapper of `quads_i8` with avx512f and avx512bw,
             // called only for an `Isa` made after detection found them.
-            unsafe { panel_avx512(q, xp) }
+            unsafe { panel_avx512(q, words) }
         }
     }
 
     #[inline]
     #[target_feature(enable = "avx512f,avx512bw,avx2")]
-    fn panel_avx512(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
-        let term = |pair: &[i8; 32], x: i32| {
-            // SAFETY: `pair` is 32 readable bytes, exactly what the load reads, unaligned.
-            let v = unsafe { _mm256_loadu_si256(pair.as_ptr().cast::<__m256i>()) };
-            _mm512_madd_epi16(_mm512_cvtepi8_epi16(v), _mm512_set1_epi32(x))
-        };
-        let (pairs, _) = q.as_chunks::<32>();
-        let (mut a, mut b) = (_mm512_setzero_si512(), _mm512_setzero_si512());
-        let (two, odd) = xp.as_chunks::<2>();
-        for (k, x) in two.iter().enumerate() {
-            a = _mm512_add_epi32(a, term(&pairs[2 * k], x[0]));
-            b = _mm512_add_epi32(b, term(&pairs[2 * k + 1], x[1]));
+    fn panel_avx512(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+        let mut acc = [_mm512_setzero_si512(); 2];
+        for (quad, &w) in q.as_chunks::<QUAD_BYTES>().0.iter().zip(words) {
+            let x = _mm512_set1_epi64(w as i64);
+            for (k, a) in acc.iter_mut().enumerate() {
+                // SAFETY: bytes `32k … 32k + 31` of the 64-byte quad, read unaligned.
+                let v = unsafe { _mm256_loadu_si256(quad.as_ptr().add(32 * k).cast::<__m256i>()) };
+                *a = _mm512_add_epi32(*a, _mm512_madd_epi16(_mm512_cvtepi8_epi16(v), x));
+            }
         }
-        if let [x] = odd {
-            a = _mm512_add_epi32(a, term(&pairs[2 * two.len()], *x));
+        let mut lanes = [0i32; 2 * QUAD_PANEL];
+        for (k, a) in acc.iter().enumerate() {
+            // SAFETY: lanes `16k … 16k + 15` of `lanes`, written unaligned.
+            unsafe { _mm512_storeu_si512(lanes.as_mut_ptr().add(16 * k).cast(), *a) };
         }
-        let mut out = [0i32; PAIR_PANEL];
-        // SAFETY: `out` is 16 writable i32, exactly what the store writes, unaligned.
-        unsafe { _mm512_storeu_si512(out.as_mut_ptr().cast(), _mm512_add_epi32(a, b)) };
-        out
+        halves(lanes)
     }
 
     int_kernels!(
@@ -1078,12 +1080,12 @@ dispatched!(
 );
 
 dispatched!(
-    /// int8 rows in pair panels with a per-row scale (`int8.rs`, [`int8::pairs_int`]).
-    pairs_i8,
+    /// int8 rows in quad panels with a per-row scale (`int8.rs`, [`int8::quads_int`]).
+    quads_i8,
     i8,
-    int8::pairs_int::<int8::PortablePairs>,
-    int8::pairs_int::<int::Avx2Pairs>,
-    int8::pairs_int::<int::Avx512Pairs>
+    int8::quads_int::<int8::PortableQuads>,
+    int8::quads_int::<int::Avx2Quads>,
+    int8::quads_int::<int::Avx512Quads>
 );
 
 /// int8 rows with a per-row scale: the integer kernels of `int8.rs` for rows of more than 16

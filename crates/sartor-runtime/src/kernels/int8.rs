@@ -271,82 +271,93 @@ fn group<E: IntEngine>(
     }
 }
 
-/// Rows per panel of the pair layout (one 512-bit vector of 32-bit sums).
-pub(crate) const PAIR_PANEL: usize = 16;
+/// Rows per quad panel (one 512-bit vector of 32-bit sums).
+pub(crate) const QUAD_PANEL: usize = 16;
+/// Columns per quad: four 16-bit inputs fill one 64-bit word, which broadcast against a row's
+/// four weights widened to 16 bits gives the row two half sums (`vpmaddwd`).
+pub(crate) const QUAD: usize = 4;
+/// Bytes of one quad of a panel: [`QUAD`] weights of each of its [`QUAD_PANEL`] rows.
+pub(crate) const QUAD_BYTES: usize = QUAD * QUAD_PANEL;
 
-/// Whether int8 rows of this shape are stored in pair panels ([`pairs_int`]): rows the integer
+/// Whether int8 rows of this shape are stored in quad panels ([`quads_int`]): rows the integer
 /// kernels take ([`applies`]) shorter than [`STRIDED_FROM`] (read from cache, not memory), at
-/// least [`PAIR_PANEL`] of them.
-pub(crate) fn pairs_apply(rows: usize, cols: usize) -> bool {
-    applies(cols) && cols < STRIDED_FROM && rows >= PAIR_PANEL
+/// least [`QUAD_PANEL`] of them.
+pub(crate) fn quads_apply(rows: usize, cols: usize) -> bool {
+    applies(cols) && cols < STRIDED_FROM && rows >= QUAD_PANEL
 }
 
-/// Row-major int8 `rows × cols` → pair panels: [`PAIR_PANEL`] rows per panel, and within a
-/// panel the column pairs `(2j, 2j + 1)` one after another, each holding the pair of every row
-/// of the panel (32 bytes: row 0's two weights, row 1's, …). Element `(i, c)` goes to
-/// `((i / 16 · P + c / 2) · 16 + i % 16) · 2 + c % 2` with `P = ⌈cols / 2⌉` pairs; the last
-/// panel's missing rows and an odd last column are zero.
-pub(crate) fn to_pair_panels(q: &[i8], rows: usize, cols: usize) -> Vec<i8> {
-    let pairs = cols.div_ceil(2);
-    let mut out = vec![0i8; rows.div_ceil(PAIR_PANEL) * pairs * 2 * PAIR_PANEL];
+/// Row-major int8 `rows × cols` → quad panels: [`QUAD_PANEL`] rows per panel, and within a
+/// panel the column quads `(4j … 4j + 3)` one after another, each holding the quad of every row
+/// of the panel (64 bytes: row 0's four weights, row 1's, …). Element `(i, c)` goes to
+/// `((i / 16 · Q + c / 4) · 16 + i % 16) · 4 + c % 4` with `Q = ⌈cols / 4⌉` quads; the last
+/// panel's missing rows and the last quad's missing columns are zero.
+pub(crate) fn to_quad_panels(q: &[i8], rows: usize, cols: usize) -> Vec<i8> {
+    let quads = cols.div_ceil(QUAD);
+    let mut out = vec![0i8; rows.div_ceil(QUAD_PANEL) * quads * QUAD_BYTES];
     for (i, row) in q.chunks_exact(cols.max(1)).take(rows).enumerate() {
         for (c, &v) in row.iter().enumerate() {
-            out[pair_index(i, c, pairs)] = v;
+            out[quad_index(i, c, quads)] = v;
         }
     }
     out
 }
 
-/// The inverse of [`to_pair_panels`]: row-major `rows × cols`.
-pub(crate) fn from_pair_panels(p: &[i8], rows: usize, cols: usize) -> Vec<i8> {
-    let pairs = cols.div_ceil(2);
+/// The inverse of [`to_quad_panels`]: row-major `rows × cols`.
+pub(crate) fn from_quad_panels(p: &[i8], rows: usize, cols: usize) -> Vec<i8> {
+    let quads = cols.div_ceil(QUAD);
     let mut out = vec![0i8; rows * cols];
     for i in 0..rows {
         for c in 0..cols {
-            out[i * cols + c] = p[pair_index(i, c, pairs)];
+            out[i * cols + c] = p[quad_index(i, c, quads)];
         }
     }
     out
 }
 
-fn pair_index(i: usize, c: usize, pairs: usize) -> usize {
-    (((i / PAIR_PANEL) * pairs + c / 2) * PAIR_PANEL + i % PAIR_PANEL) * 2 + c % 2
+fn quad_index(i: usize, c: usize, quads: usize) -> usize {
+    (((i / QUAD_PANEL) * quads + c / QUAD) * QUAD_PANEL + i % QUAD_PANEL) * QUAD + c % QUAD
 }
 
-/// The sums of one pair panel: `q` its `P` pairs (32 bytes each), `xp[j]` the quantised inputs
-/// `2j` (low 16 bits) and `2j + 1` (high) of pair `j`; returns `S_r = Σ_c q_rc · x_q,c` for its
-/// 16 rows. Sums are exact, so an engine may add in any order.
-pub(crate) trait PairEngine {
-    fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL];
+/// The sums of one quad panel: `q` its quads ([`QUAD_BYTES`] each), `words[j]` the quantised
+/// inputs `4j … 4j + 3` of quad `j` as 16-bit integers (column `4j` in the low bits); returns
+/// `S_r = Σ_c q_rc · x_q,c` for its 16 rows. Sums are exact, so an engine may add in any order.
+pub(crate) trait QuadEngine {
+    fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL];
 }
 
-/// The safe-Rust engine of the pair panels.
-pub(crate) struct PortablePairs;
+/// The safe-Rust engine of the quad panels.
+pub(crate) struct PortableQuads;
 
-impl PairEngine for PortablePairs {
+impl QuadEngine for PortableQuads {
     #[inline(always)]
-    fn panel(q: &[i8], xp: &[i32]) -> [i32; PAIR_PANEL] {
-        let mut acc = [0i32; PAIR_PANEL];
-        for (pair, &x) in q.chunks_exact(2 * PAIR_PANEL).zip(xp) {
-            let (lo, hi) = (i32::from(x as i16), x >> 16);
+    fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+        let mut acc = [0i32; QUAD_PANEL];
+        for (quad, &w) in q.chunks_exact(QUAD_BYTES).zip(words) {
+            let x: [i32; QUAD] = std::array::from_fn(|c| i32::from((w >> (16 * c)) as u16 as i16));
             for (r, a) in acc.iter_mut().enumerate() {
-                *a += i32::from(pair[2 * r]) * lo + i32::from(pair[2 * r + 1]) * hi;
+                for (c, &xc) in x.iter().enumerate() {
+                    *a += i32::from(quad[QUAD * r + c]) * xc;
+                }
             }
         }
         acc
     }
 }
 
-/// int8 rows in pair panels (`q`: the panels from the first row's, which is a multiple of
-/// [`PAIR_PANEL`]; `cols` per row; one scale per row) times `batch` inputs, by the integer
+/// int8 rows in quad panels (`q`: the panels from the first row's, which is a multiple of
+/// [`QUAD_PANEL`]; `cols` per row; one scale per row) times `batch` inputs, by the integer
 /// contract of the module docs: each input quantised once, then 16 rows at a time summed in
 /// vector lanes — no sum across lanes at the end of a row, as the row kernels need, and the
 /// output of 16 rows side by side. The same sums and the same `output` as [`rows_int`], so the
-/// same bits: on the shipped model's int8 products 6,504 × 64 12.9–16.2 → 4.5 µs, 768 × 88
-/// 2.7–3.2 → 0.9, 768 × 256 3.0–3.5 → 2.5 against the row kernels (`cargo bench -p
-/// sartor-runtime --bench kernels`, AMD EPYC VM). Lengths are checked by the caller.
+/// same bits. Lengths are checked by the caller.
+///
+/// Four columns to a quad rather than two to a pair: one broadcast of the input per four
+/// columns, and per 64 bytes of weights two loads and two widenings into one pair of sums
+/// for each eight rows. The shipped model's 6,504 × 64 PCA decode took 4.6–4.9 → 3.8 µs, its
+/// whole int8 step 10.2–10.9 → 8.5–9.3 µs (three alternating rounds of `cargo bench -p
+/// sartor-runtime --bench kernels -- 'shipped/int8|pca_basis/6504x64/int8'`, AMD EPYC VM).
 #[inline(always)]
-pub(crate) fn pairs_int<E: PairEngine>(
+pub(crate) fn quads_int<E: QuadEngine>(
     q: &[i8],
     cols: usize,
     xs: &[f32],
@@ -356,26 +367,31 @@ pub(crate) fn pairs_int<E: PairEngine>(
     ys_t: &mut [f32],
 ) {
     debug_assert!(cols < STRIDED_FROM);
-    let pairs = cols.div_ceil(2);
+    let quads = cols.div_ceil(QUAD);
     let n_rows = ys_t.len() / batch;
     let mut buffer = [0i16; STRIDED_FROM];
-    let mut xp = [0i32; STRIDED_FROM / 2];
+    let mut words = [0u64; STRIDED_FROM / QUAD];
     for k in 0..batch {
         let step = quantize_input(&xs[k * cols..(k + 1) * cols], &mut buffer[..cols]);
-        buffer[cols] = 0;
-        for (j, x) in xp[..pairs].iter_mut().enumerate() {
-            let (lo, hi) = (buffer[2 * j] as u16, buffer[2 * j + 1] as u16);
-            *x = (u32::from(lo) | (u32::from(hi) << 16)) as i32;
+        buffer[cols..quads * QUAD].fill(0);
+        for (w, x) in words
+            .iter_mut()
+            .zip(buffer[..quads * QUAD].as_chunks::<QUAD>().0)
+        {
+            *w = x
+                .iter()
+                .enumerate()
+                .fold(0, |w, (c, &v)| w | u64::from(v as u16) << (16 * c));
         }
         for (p, panel) in q
-            .chunks_exact(pairs * 2 * PAIR_PANEL)
-            .take(n_rows.div_ceil(PAIR_PANEL))
+            .chunks_exact(quads * QUAD_BYTES)
+            .take(n_rows.div_ceil(QUAD_PANEL))
             .enumerate()
         {
-            let sums = E::panel(panel, &xp[..pairs]);
-            let i0 = p * PAIR_PANEL;
-            let n = PAIR_PANEL.min(n_rows - i0);
-            let (Some(t), true, 1) = (step, n == PAIR_PANEL, batch) else {
+            let sums = E::panel(panel, &words[..quads]);
+            let i0 = p * QUAD_PANEL;
+            let n = QUAD_PANEL.min(n_rows - i0);
+            let (Some(t), true, 1) = (step, n == QUAD_PANEL, batch) else {
                 for (r, &sum) in sums.iter().enumerate().take(n) {
                     let i = i0 + r;
                     let scale = scales.map_or(1.0, |s| s[i]);
@@ -384,14 +400,14 @@ pub(crate) fn pairs_int<E: PairEngine>(
                 continue;
             };
             // A whole panel of one finite input: its 16 outputs side by side.
-            let ys: &mut [f32; PAIR_PANEL] = (&mut ys_t[i0..i0 + PAIR_PANEL])
+            let ys: &mut [f32; QUAD_PANEL] = (&mut ys_t[i0..i0 + QUAD_PANEL])
                 .try_into()
                 .expect("a whole panel");
-            let b = bias.map(|b| &b[i0..i0 + PAIR_PANEL]);
+            let b = bias.map(|b| &b[i0..i0 + QUAD_PANEL]);
             match scales {
                 Some(s) => {
-                    let s: &[f32; PAIR_PANEL] =
-                        s[i0..i0 + PAIR_PANEL].try_into().expect("a whole panel");
+                    let s: &[f32; QUAD_PANEL] =
+                        s[i0..i0 + QUAD_PANEL].try_into().expect("a whole panel");
                     outputs(&sums, t, |r| s[r], b, ys);
                 }
                 None => outputs(&sums, t, |_| 1.0, b, ys),

@@ -33,9 +33,9 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, pairs_i8, panels_f16, panels_f32, panels_i8, rows_f16, rows_f32, rows_i8,
+    Isa, panels_f16, panels_f32, panels_i8, quads_i8, rows_f16, rows_f32, rows_i8,
 };
-use super::int8::{self, PAIR_PANEL};
+use super::int8::{self, QUAD, QUAD_PANEL};
 use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
 use super::rows::F16Bits;
 use crate::error::{Error, Result, check_len};
@@ -112,19 +112,19 @@ enum Layout {
     RowMajor,
     /// Panels of `PANEL` rows, each column by column (`panels.rs`): thin matrices.
     Panels,
-    /// int8 only: panels of `PAIR_PANEL` rows, column pair by column pair (`int8.rs`): rows
-    /// the integer kernels take that are read from cache.
-    Pairs,
+    /// int8 only: panels of `QUAD_PANEL` rows, four columns by four (`int8.rs`): rows the
+    /// integer kernels take that are read from cache.
+    Quads,
 }
 
 impl Layout {
-    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows; pair
-    /// panels for int8 matrices `int8::pairs_apply` takes; rows otherwise.
+    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows; quad
+    /// panels for int8 matrices `int8::quads_apply` takes; rows otherwise.
     fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
         if (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
             Self::Panels
-        } else if precision == Precision::Int8 && int8::pairs_apply(rows, cols) {
-            Self::Pairs
+        } else if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
+            Self::Quads
         } else {
             Self::RowMajor
         }
@@ -209,14 +209,14 @@ impl Matrix {
                 q: to_panels(&q, rows, cols),
                 scales,
             },
-            (Layout::Pairs, Storage::Int8 { q, scales }) => Storage::Int8 {
-                q: int8::to_pair_panels(&q, rows, cols),
+            (Layout::Quads, Storage::Int8 { q, scales }) => Storage::Int8 {
+                q: int8::to_quad_panels(&q, rows, cols),
                 scales,
             },
-            (Layout::Pairs, _) => {
+            (Layout::Quads, _) => {
                 return Err(Error::invalid(
                     "matrix",
-                    "pair panels hold int8 weights only",
+                    "quad panels hold int8 weights only",
                 ));
             }
         };
@@ -268,7 +268,7 @@ impl Matrix {
                 .collect(),
             Storage::Int8 { q, scales } => {
                 let q = match self.layout {
-                    Layout::Pairs => int8::from_pair_panels(q, self.rows, self.cols),
+                    Layout::Quads => int8::from_quad_panels(q, self.rows, self.cols),
                     _ => self.row_major(q),
                 };
                 if self.cols == 0 {
@@ -287,7 +287,7 @@ impl Matrix {
         match self.layout {
             Layout::RowMajor => w.to_vec(),
             Layout::Panels => from_panels(w, self.rows, self.cols),
-            Layout::Pairs => unreachable!("pair panels hold int8 weights only"),
+            Layout::Quads => unreachable!("quad panels hold int8 weights only"),
         }
     }
 
@@ -358,7 +358,7 @@ impl Matrix {
     ) {
         let cols = self.cols;
         let panels = self.layout == Layout::Panels;
-        let pairs = self.layout == Layout::Pairs;
+        let quads = self.layout == Layout::Quads;
         let task = |r0: usize, ys: &mut [f32]| {
             let r1 = r0 + ys.len() / batch;
             let b = bias.map(|b| &b[r0..r1]);
@@ -368,12 +368,12 @@ impl Matrix {
             } else {
                 r0 * cols..r1 * cols
             };
-            if let (Storage::Int8 { q, scales }, true) = (&self.storage, pairs) {
-                // Whole pair panels from `r0` (a multiple of PAIR_PANEL) to past `r1`.
-                let per_row = cols.div_ceil(2) * 2;
-                let span = r0 * per_row..r1.next_multiple_of(PAIR_PANEL) * per_row;
+            if let (Storage::Int8 { q, scales }, true) = (&self.storage, quads) {
+                // Whole quad panels from `r0` (a multiple of QUAD_PANEL) to past `r1`.
+                let per_row = cols.div_ceil(QUAD) * QUAD;
+                let span = r0 * per_row..r1.next_multiple_of(QUAD_PANEL) * per_row;
                 let s = Some(&scales[r0..r1]);
-                pairs_i8(isa, &q[span], cols, xs, batch, s, b, ys);
+                quads_i8(isa, &q[span], cols, xs, batch, s, b, ys);
                 return;
             }
             match (&self.storage, panels) {
@@ -393,7 +393,7 @@ impl Matrix {
         };
         let align = match self.layout {
             Layout::Panels => PANEL,
-            Layout::Pairs => PAIR_PANEL,
+            Layout::Quads => QUAD_PANEL,
             Layout::RowMajor => 1,
         };
         // The integer kernels' products are worth splitting only from eight times the size:
@@ -402,7 +402,7 @@ impl Matrix {
         // cost more than the half product it saved), 0.050 with this one (`cargo xtask bench
         // runtime --anchors`, 2-core Intel Xeon VM).
         let integer =
-            pairs || matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
+            quads || matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
         let work = if integer {
             cols.div_ceil(INT8_SPEEDUP)
         } else {
@@ -774,12 +774,15 @@ mod tests {
     }
 
     #[test]
-    fn int8_pair_panels_equal_the_row_kernels_bitwise() {
+    fn int8_quad_panels_equal_the_row_kernels_bitwise() {
         use crate::kernels::dispatch::Isa;
         let mut rng = ChaCha8Rng::seed_from_u64(29);
-        // Odd and even widths, a partial last panel, the shipped model's products (GRU input
-        // 88 and state 256, PCA 64) and the widest rows stored so.
+        // Widths of every remainder modulo 4 (a partial last quad), a partial last panel, the
+        // shipped model's products (GRU input 88 and state 256, PCA 64) and the widest rows
+        // stored so.
         let sizes = [
+            (16, 18),
+            (19, 19),
             (16, 17),
             (17, 31),
             (40, 64),
@@ -789,23 +792,33 @@ mod tests {
             (6_504, 64),
         ];
         for (rows, cols) in sizes {
-            assert!(int8::pairs_apply(rows, cols), "{rows} × {cols}");
+            assert!(int8::quads_apply(rows, cols), "{rows} × {cols}");
             let mut w = random(&mut rng, rows * cols, 1.0);
             // A zero row (stored with scale 0).
             w[cols..2 * cols].fill(0.0);
-            let pairs = Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::Pairs)
+            // The extremes of the integer contract: a row of the largest weights (all ±127
+            // after quantisation) meets an input whose largest values quantise to ±L.
+            for (c, v) in w[2 * cols..3 * cols].iter_mut().enumerate() {
+                *v = if c % 3 == 0 { -1.0 } else { 1.0 };
+            }
+            let quads = Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::Quads)
                 .expect("finite");
             let plain =
                 Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::RowMajor)
                     .expect("finite");
             assert_eq!(
                 Matrix::from_f32(rows, cols, w, Precision::Int8).expect("finite"),
-                pairs
+                quads
             );
-            assert_eq!(pairs.to_f32(), plain.to_f32());
-            assert!(pairs.weight_bytes() >= plain.weight_bytes());
+            assert_eq!(quads.to_f32(), plain.to_f32());
+            assert!(quads.weight_bytes() >= plain.weight_bytes());
             for batch in [1, 3, 17] {
                 let mut xs = random(&mut rng, batch * cols, 2.0);
+                // Input 0 at the extremes: ±2 against the row of ±127 (every product ±127 · L,
+                // the row's sum as far from zero as the signs allow).
+                for (c, x) in xs[..cols].iter_mut().enumerate() {
+                    *x = if c % 3 == 0 { -2.0 } else { 2.0 };
+                }
                 if batch > 1 {
                     // An input that is not finite (every row NaN), and one of zeros.
                     xs[cols + 5] = f32::NAN;
@@ -822,7 +835,7 @@ mod tests {
                             m.run_rows(isa, &xs, batch, b, &mut y, par);
                             y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
                         };
-                        let got = run(&pairs);
+                        let got = run(&quads);
                         assert_eq!(
                             got,
                             run(&plain),
@@ -883,9 +896,9 @@ mod tests {
                 let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
                     .expect("finite");
                 let chosen = Matrix::from_f32(rows, cols, w.clone(), precision).expect("finite");
-                if precision == Precision::Int8 && int8::pairs_apply(rows, cols) {
-                    // int8 rows in pair panels (`int8_pair_panels_equal_the_row_kernels_bitwise`).
-                    assert_eq!(chosen.layout, Layout::Pairs, "{rows} × {cols}");
+                if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
+                    // int8 rows in quad panels (`int8_quad_panels_equal_the_row_kernels_bitwise`).
+                    assert_eq!(chosen.layout, Layout::Quads, "{rows} × {cols}");
                     assert_eq!(chosen.to_f32(), plain.to_f32());
                 } else {
                     let want = if cols <= THIN_COLS { &thin } else { &plain };
