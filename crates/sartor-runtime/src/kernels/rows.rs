@@ -306,7 +306,8 @@ pub(crate) fn rows<E: Engine>(
         // f16, where the weights come from memory (`cargo bench --bench kernels --
         // gru1500_out13272`, 2-core Intel Xeon VM, alternating builds). The streams run
         // through blocks of `SPREAD_ROWS` rows rather than the whole matrix, so that the
-        // outputs and biases each stream writes and reads stay close too: on the AMD EPYC VM
+        // outputs and biases each stream wrote and read stayed close too (before the buffer
+        // below took them out of the streams' way): on the AMD EPYC VM
         // the same step took 3.82–3.93 → 3.21–3.28 ms in f32 with the bounds checks out of
         // `dotn` (`dispatch.rs`), of which the blocks gave about 7 % (f16 1.99 → 1.81–1.83).
         // Every row's sum is the same either way.
@@ -322,23 +323,26 @@ pub(crate) fn rows<E: Engine>(
         } else {
             0
         };
-        let mut sums = [0.0f32; SPREAD_ROWS];
-        for b0 in (0..whole).step_by(SPREAD_ROWS) {
-            let nb = SPREAD_ROWS.min(whole - b0);
-            let n8 = nb / 8;
-            for q in 0..n8 {
-                let row = |k: usize| {
-                    let i = b0 + q + k * n8;
-                    &w[i * cols..(i + 1) * cols]
-                };
-                let d = E::dot8(std::array::from_fn(row), xs);
-                for (k, d) in d.into_iter().enumerate() {
-                    sums[q + k * n8] = d;
+        if whole > 0 {
+            // Only long rows take the buffer (short ones, the shipped model's, skip zeroing it).
+            let mut sums = [0.0f32; SPREAD_ROWS];
+            for b0 in (0..whole).step_by(SPREAD_ROWS) {
+                let nb = SPREAD_ROWS.min(whole - b0);
+                let n8 = nb / 8;
+                for q in 0..n8 {
+                    let row = |k: usize| {
+                        let i = b0 + q + k * n8;
+                        &w[i * cols..(i + 1) * cols]
+                    };
+                    let d = E::dot8(std::array::from_fn(row), xs);
+                    for (k, d) in d.into_iter().enumerate() {
+                        sums[q + k * n8] = d;
+                    }
                 }
-            }
-            for (j, (y, &d)) in ys_t[b0..b0 + nb].iter_mut().zip(&sums).enumerate() {
-                let i = b0 + j;
-                *y = epilogue(d, scales.map(|s| s[i]), bias.map(|b| b[i]));
+                for (j, (y, &d)) in ys_t[b0..b0 + nb].iter_mut().zip(&sums).enumerate() {
+                    let i = b0 + j;
+                    *y = epilogue(d, scales.map(|s| s[i]), bias.map(|b| b[i]));
+                }
             }
         }
         let base = whole;
