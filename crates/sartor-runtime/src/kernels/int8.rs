@@ -86,6 +86,11 @@ pub(crate) trait IntEngine {
     fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
         w.map(|row| Self::dot(row, x))
     }
+    /// [`IntEngine::dot8`] for rows read from memory, each a stream that runs on into the
+    /// next row of its own: the SIMD engines prefetch ahead of each stream.
+    fn dot8_far(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
+        Self::dot8(w, x)
+    }
 }
 
 /// The safe-Rust engine (LLVM vectorises it; on WebAssembly with `simd128` too).
@@ -256,7 +261,11 @@ fn group<E: IntEngine>(
             let at = |r: usize| if spread { o + r * octs } else { 8 * o + r };
             let rows: [&[i8]; 8] = std::array::from_fn(|r| &w[at(r) * cols..(at(r) + 1) * cols]);
             for k in 0..steps.len() {
-                let sums = E::dot8(rows, input(k));
+                let sums = if spread {
+                    E::dot8_far(rows, input(k))
+                } else {
+                    E::dot8(rows, input(k))
+                };
                 for (r, &sum) in sums.iter().enumerate() {
                     ys_t[at(r) * batch + first + k] = out(at(r), k, sum);
                 }
