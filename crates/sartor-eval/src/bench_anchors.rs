@@ -306,8 +306,30 @@ const STREAMS: usize = 8;
 const LANES: usize = 8;
 
 /// Wrapping sum of `words`, read once as [`STREAMS`] concurrent streams over as many
-/// contiguous parts (the words left over after whole steps are added at the end).
+/// contiguous parts (the words left over after whole steps are added at the end), built for
+/// AVX2 where the CPU has it. The baseline x86-64 build (two words per add) was the limit, not
+/// the memory: on the AMD EPYC VM it read 109.5 MB in 3.6 ms, the AVX2 build in 2.4–2.5 (in
+/// the same process), and ONNX Runtime's paper-size step, which reads those bytes, ran under
+/// the baseline build's figure. (LLVM's AVX-512 build of this loop read 5 GB/s.)
 fn stream_sum(words: &[u64]) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        fn avx2(words: &[u64]) -> u64 {
+            stream_sum_as_built(words)
+        }
+        if is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (detected just above).
+            #[allow(unsafe_code)]
+            return unsafe { avx2(words) };
+        }
+    }
+    stream_sum_as_built(words)
+}
+
+/// [`stream_sum`] for the target features of its caller.
+#[inline(always)]
+fn stream_sum_as_built(words: &[u64]) -> u64 {
     let steps = words.len() / (STREAMS * LANES);
     let part = steps * LANES;
     let parts: [&[u64]; STREAMS] = std::array::from_fn(|k| &words[k * part..(k + 1) * part]);
