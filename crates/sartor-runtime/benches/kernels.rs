@@ -4,7 +4,7 @@
 //! pass over the weights — divide by 8 for the time per avatar).
 //!
 //! `pca_basis` times the thin PCA decode at the ranks `sartor tradeoff` sweeps; `shipped` one
-//! wrinkle step (GRU and output layer, batch 1, one thread) of the shipped model in
+//! wrinkle step (GRU and output layer, batch 1, one thread and rayon's pool) of the shipped model in
 //! `datasets/models/default`, per precision, when it is there.
 //!
 //! `cargo bench -p sartor-runtime --bench kernels -- --warm-up-time 1 --measurement-time 3`
@@ -160,7 +160,8 @@ fn pca_basis(c: &mut Criterion) {
 }
 
 /// One wrinkle step of the shipped model (normalisation, GRU, PCA output, checks), batch 1,
-/// one thread, over a loop of 64 made-up inputs so that the state keeps moving.
+/// on one thread and (`/rayon`) on rayon's pool, over a loop of 64 made-up inputs so that the
+/// state keeps moving.
 fn shipped(c: &mut Criterion) {
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/models/default");
@@ -183,20 +184,19 @@ fn shipped(c: &mut Criterion) {
             })
             .collect();
         let mut f = 0;
-        group.bench_function(precision.name(), |b| {
-            b.iter(|| {
-                f = (f + 1) % xs.len();
-                net.wrinkle_step(
-                    black_box(&xs[f]),
-                    &mut state,
-                    &mut out,
-                    &mut ws,
-                    Parallelism::Sequential,
-                )
-                .expect("finite");
-                black_box(&out);
-            })
-        });
+        for (par, suffix) in [
+            (Parallelism::Sequential, ""),
+            (Parallelism::Rayon, "/rayon"),
+        ] {
+            group.bench_function(format!("{}{suffix}", precision.name()), |b| {
+                b.iter(|| {
+                    f = (f + 1) % xs.len();
+                    net.wrinkle_step(black_box(&xs[f]), &mut state, &mut out, &mut ws, par)
+                        .expect("finite");
+                    black_box(&out);
+                })
+            });
+        }
     }
     group.finish();
 }

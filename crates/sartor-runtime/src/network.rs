@@ -12,6 +12,18 @@ use crate::kernels::{
 use crate::lowrank::truncated_svd;
 
 /// `x ↦ (x − mean) / std` into `out`.
+/// Whether a call of several products, some of which `splits` across rayon's threads, should
+/// first move onto rayon's pool and make them all from there: true for [`Parallelism::Rayon`]
+/// on a thread outside any pool. From outside, every split product is handed to the pool and
+/// waited for on its own (a wake-up each way), which on the AMD EPYC VM made the shipped
+/// model's step slower on two threads than on one: 46–61 µs in f32 against 39–41, 41–53 in f16
+/// against 26 (`cargo bench --bench kernels -- shipped`). Entered once: 30–38 and 25–26. A call
+/// whose products all stay on the calling thread does not move (entering cost the int8 step
+/// 8.5 → 20–21 µs).
+fn enters_pool(splits: bool, par: Parallelism) -> bool {
+    splits && par == Parallelism::Rayon && rayon::current_thread_index().is_none()
+}
+
 fn normalise(x: &[f32], stats: &MeanStd, out: &mut [f32]) {
     let n = stats.mean.len();
     for (o, xs) in out.chunks_exact_mut(n).zip(x.chunks_exact(n)) {
@@ -353,6 +365,9 @@ impl GarmentNetwork {
         check_len("betas", betas.len(), batch * self.n_betas())?;
         check_len("fit output", out.len(), batch * self.output_size())?;
         check_finite("betas", betas)?;
+        if enters_pool(self.fit.splits(batch, par), par) {
+            return rayon::scope(|_| self.fit_batch(betas, batch, out, ws, par));
+        }
         let x = &mut ws.fit_x[..batch * self.n_betas()];
         normalise(betas, &self.fit_in, x);
         if batch == 1 {
@@ -402,6 +417,10 @@ impl GarmentNetwork {
         check_len("wrinkle output", out.len(), batch * self.output_size())?;
         check_finite("wrinkle input", xs)?;
         check_finite("wrinkle state", states)?;
+        let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
+        if enters_pool(splits, par) {
+            return rayon::scope(|_| self.wrinkle_step_batch(xs, batch, states, out, ws, par));
+        }
         let x = &mut ws.wrinkle_x[..batch * n_in];
         normalise(xs, &self.wrinkle_in, x);
         self.gru.step_batch(x, batch, states, &mut ws.gru, par)?;

@@ -168,6 +168,11 @@ impl GruCell {
         &self.weight_hh
     }
 
+    /// Whether one of its products of `batch` inputs under `par` runs on more than one thread.
+    pub(crate) fn splits(&self, batch: usize, par: Parallelism) -> bool {
+        self.weight_ih.splits(batch, par) || self.weight_hh.splits(batch, par)
+    }
+
     /// Bytes held by the two weight matrices.
     pub fn weight_bytes(&self) -> usize {
         self.weight_ih.weight_bytes() + self.weight_hh.weight_bytes()

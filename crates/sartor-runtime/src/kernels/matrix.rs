@@ -346,6 +346,36 @@ impl Matrix {
         Ok(())
     }
 
+    /// Whether a product of `batch` inputs under `par` is split across threads (rows per task,
+    /// or `None` on the calling thread).
+    fn task_rows(&self, batch: usize, par: Parallelism) -> Option<usize> {
+        let align = match self.layout {
+            Layout::Panels => PANEL,
+            Layout::Quads => QUAD_PANEL,
+            Layout::RowMajor => 1,
+        };
+        // The integer kernels' products are worth splitting only from eight times the size:
+        // the shipped model's int8 step (GRU 256, PCA 64: products of 10–20 µs) took 0.048 ms
+        // on one thread and 0.065–0.069 on two with the lane kernels' threshold (the hand-off
+        // cost more than the half product it saved), 0.050 with this one (`cargo xtask bench
+        // runtime --anchors`, 2-core Intel Xeon VM).
+        let integer = self.layout == Layout::Quads
+            || matches!(self.storage, Storage::Int8 { .. })
+                && self.layout != Layout::Panels
+                && int8::applies(self.cols);
+        let work = if integer {
+            self.cols.div_ceil(INT8_SPEEDUP)
+        } else {
+            self.cols
+        };
+        rows_per_task(par, self.rows, work, batch, align)
+    }
+
+    /// Whether a product of `batch` inputs under `par` runs on more than one thread.
+    pub(crate) fn splits(&self, batch: usize, par: Parallelism) -> bool {
+        self.task_rows(batch, par).is_some()
+    }
+
     /// Split the output rows into blocks (each computed by one thread) and run the kernel.
     pub(crate) fn run_rows(
         &self,
@@ -391,24 +421,7 @@ impl Matrix {
                 }
             }
         };
-        let align = match self.layout {
-            Layout::Panels => PANEL,
-            Layout::Quads => QUAD_PANEL,
-            Layout::RowMajor => 1,
-        };
-        // The integer kernels' products are worth splitting only from eight times the size:
-        // the shipped model's int8 step (GRU 256, PCA 64: products of 10–20 µs) took 0.048 ms
-        // on one thread and 0.065–0.069 on two with the lane kernels' threshold (the hand-off
-        // cost more than the half product it saved), 0.050 with this one (`cargo xtask bench
-        // runtime --anchors`, 2-core Intel Xeon VM).
-        let integer =
-            quads || matches!(self.storage, Storage::Int8 { .. }) && !panels && int8::applies(cols);
-        let work = if integer {
-            cols.div_ceil(INT8_SPEEDUP)
-        } else {
-            cols
-        };
-        match rows_per_task(par, self.rows, work, batch, align) {
+        match self.task_rows(batch, par) {
             None => task(0, ys_t),
             Some(block) => ys_t
                 .par_chunks_mut(block * batch)
@@ -471,6 +484,11 @@ impl Linear {
     /// Output size.
     pub fn n_out(&self) -> usize {
         self.weight.rows()
+    }
+
+    /// Whether its product of `batch` inputs under `par` runs on more than one thread.
+    pub(crate) fn splits(&self, batch: usize, par: Parallelism) -> bool {
+        self.weight.splits(batch, par)
     }
 
     /// `y = W x + b` (see [`Matrix::matvec`]).

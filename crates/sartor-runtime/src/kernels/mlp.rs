@@ -51,6 +51,11 @@ impl Mlp {
         self.hidden.n_in()
     }
 
+    /// Whether one of its products of `batch` inputs under `par` runs on more than one thread.
+    pub(crate) fn splits(&self, batch: usize, par: Parallelism) -> bool {
+        self.hidden.splits(batch, par) || self.out.splits(batch, par)
+    }
+
     /// Hidden size.
     pub fn n_hidden(&self) -> usize {
         self.hidden.n_out()
@@ -172,6 +177,18 @@ impl OutputLayer {
         match self {
             Self::Dense(l) => l.n_out(),
             Self::Pca { basis, .. } => basis.rows(),
+        }
+    }
+
+    /// Whether one of its products of `batch` inputs under `par` runs on more than one thread.
+    pub(crate) fn splits(&self, batch: usize, par: Parallelism) -> bool {
+        match self {
+            Self::Dense(l) => l.splits(batch, par),
+            Self::Pca {
+                coefficients,
+                basis,
+                ..
+            } => coefficients.splits(batch, par) || basis.splits(batch, par),
         }
     }
 

@@ -207,3 +207,45 @@ fn model_without_baseline_says_so() {
     assert!(err.to_string().contains("linear baseline"), "{err}");
     assert!(net.weight_bytes() > 0);
 }
+
+/// From a thread outside rayon's pool (this test's), a step whose products split across
+/// threads first enters the pool (`enters_pool`); its results are still bitwise those of the
+/// sequential step, frame after frame, for the fit and the wrinkle step.
+#[test]
+fn rayon_from_outside_the_pool_equals_sequential_bitwise() {
+    let mut big = sizes(OutputKind::Dense, false);
+    // 3·160 × 160 and 3·120 × 300: products of more than 2¹⁶ multiply–adds, which split.
+    big.gru_hidden = 160;
+    big.fit_hidden = 300;
+    big.n_vertices = 120;
+    let model = random_model(27, big);
+    for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+        let net = GarmentNetwork::new(model.clone(), precision).expect("valid");
+        let (mut ws_seq, mut ws_par) = (net.workspace(1), net.workspace(1));
+        let mut r = rng(28);
+        let o3 = net.output_size();
+        let (mut seq, mut par) = (vec![0.0; o3], vec![0.0; o3]);
+        let betas = random(&mut r, net.n_betas(), 1.5);
+        net.fit(&betas, &mut seq, &mut ws_seq, Parallelism::Sequential)
+            .expect("finite");
+        net.fit(&betas, &mut par, &mut ws_par, Parallelism::Rayon)
+            .expect("finite");
+        assert_eq!(bits(&seq), bits(&par), "fit {precision:?}");
+        let (mut h_seq, mut h_par) = (net.initial_state(), net.initial_state());
+        for t in 0..4 {
+            let x = random(&mut r, net.input_size(), 1.5);
+            net.wrinkle_step(
+                &x,
+                &mut h_seq,
+                &mut seq,
+                &mut ws_seq,
+                Parallelism::Sequential,
+            )
+            .expect("finite");
+            net.wrinkle_step(&x, &mut h_par, &mut par, &mut ws_par, Parallelism::Rayon)
+                .expect("finite");
+            assert_eq!(bits(&seq), bits(&par), "step {t} {precision:?}");
+            assert_eq!(bits(&h_seq), bits(&h_par), "state {t} {precision:?}");
+        }
+    }
+}
