@@ -355,7 +355,7 @@ fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
 }
 
 /// The memory-bandwidth floor: median ms to read `bytes` bytes once (rounded up to whole
-/// 8-byte words) on `threads` threads, the faster of ordinary and huge pages ([`stream_floor`]).
+/// 8-byte words) on `threads` threads, the faster of ordinary and huge pages.
 pub fn stream_floor_ms(bytes: usize, threads: usize, reps: usize) -> Result<f64> {
     Ok(stream_floor(bytes, threads, reps)?.ms())
 }

@@ -12,8 +12,8 @@
 //!   [`test_sets`], [`load_truth`], [`evaluate_with`]) serve the trade-off and the model check.
 //! - [`sweep_model`], [`mark_pareto`], [`plot_tradeoff`] (`tradeoff.json`): what each speed
 //!   knob of the runtime costs in accuracy.
-//! - [`bench_runtime`] (`bench-runtime.json`): the runtime against the paper's Table 1;
-//!   [`bench_sim`] (`bench-sim.json`): the simulator per garment size; with [`AnchorOptions`],
+//! - [`bench_runtime()`] (`bench-runtime.json`): the runtime against the paper's Table 1;
+//!   [`bench_sim()`] (`bench-sim.json`): the simulator per garment size; with [`AnchorOptions`],
 //!   the same weights in PyTorch and ONNX Runtime beside a memory-bandwidth floor
 //!   ([`AnchorsReport`]).
 //! - [`write_slice`], [`check_slice`]: the stored ground-truth slice of a shipped model and the
