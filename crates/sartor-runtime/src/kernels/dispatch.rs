@@ -589,14 +589,13 @@ mod avx2 {
 mod avx512 {
     use std::arch::x86_64::{
         __m128, __m128i, __m256i, __m512, _mm_add_ps, _mm_add_ss, _mm_cvtss_f32, _mm_loadu_si128,
-        _mm_maskz_loadu_epi8, _mm_movehl_ps, _mm_shuffle_ps, _mm_storeu_ps, _mm256_add_ps,
-        _mm256_castpd_ps, _mm256_castps256_ps128, _mm256_extractf128_ps, _mm256_loadu_si256,
+        _mm_maskz_loadu_epi8, _mm_movehl_ps, _mm_shuffle_ps, _mm256_add_ps, _mm256_castpd_ps,
+        _mm256_castps256_ps128, _mm256_extractf128_ps, _mm256_loadu_si256,
         _mm256_maskz_loadu_epi16, _mm256_storeu_ps, _mm512_add_ps, _mm512_castpd512_pd256,
-        _mm512_castps_pd, _mm512_castps512_ps128, _mm512_castps512_ps256, _mm512_cvtepi8_epi32,
-        _mm512_cvtepi32_ps, _mm512_cvtph_ps, _mm512_extractf64x4_pd, _mm512_loadu_ps,
-        _mm512_maskz_loadu_ps, _mm512_mul_ps, _mm512_permute_ps, _mm512_permutexvar_ps,
-        _mm512_setr_epi32, _mm512_setzero_ps, _mm512_shuffle_f32x4, _mm512_shuffle_ps,
-        _mm512_storeu_ps,
+        _mm512_castps_pd, _mm512_castps512_ps256, _mm512_cvtepi8_epi32, _mm512_cvtepi32_ps,
+        _mm512_cvtph_ps, _mm512_extractf64x4_pd, _mm512_loadu_ps, _mm512_maskz_loadu_ps,
+        _mm512_mul_ps, _mm512_permute_ps, _mm512_permutexvar_ps, _mm512_setr_epi32,
+        _mm512_setzero_ps, _mm512_shuffle_f32x4, _mm512_shuffle_ps, _mm512_storeu_ps,
     };
 
     use super::super::rows::{F16Bits, LANES};
@@ -634,28 +633,20 @@ mod avx512 {
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma,f16c")]
     fn reduce_rows<const N: usize>(acc: [[V; R]; N]) -> [f32; N] {
         let mut out = [0.0f32; N];
-        match N {
-            8 => {
-                let e = reduce_to_quads(&acc[..8]);
-                // + 2 and + 1: lane 4k holds row k's sum, lane 4k + 2 row k + 4's.
-                let h = pairs_then_neighbours(e[0], e[1]);
-                let at = _mm512_setr_epi32(0, 4, 8, 12, 2, 6, 10, 14, 0, 0, 0, 0, 0, 0, 0, 0);
-                let rows = _mm512_castps512_ps256(_mm512_permutexvar_ps(at, h));
-                // SAFETY: `out` is 8 writable f32, exactly the 256 bits stored.
-                unsafe { _mm256_storeu_ps(out.as_mut_ptr(), rows) };
-            }
-            4 => {
-                let e = reduce_to_quads(&acc[..4]);
-                let h = pairs_then_neighbours(e[0], e[0]);
-                let at = _mm512_setr_epi32(0, 4, 8, 12, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);
-                let rows = _mm512_castps512_ps128(_mm512_permutexvar_ps(at, h));
-                // SAFETY: `out` is 4 writable f32, exactly the 128 bits stored.
-                unsafe { _mm_storeu_ps(out.as_mut_ptr(), rows) };
-            }
-            _ => {
-                for (o, a) in out.iter_mut().zip(acc) {
-                    *o = reduce_acc(a);
-                }
+        if N == 4 || N == 8 {
+            // Rows past N are zero and their sums dropped.
+            let e = reduce_to_quads(&acc);
+            // + 2 and + 1: lane 4k holds row k's sum, lane 4k + 2 row k + 4's.
+            let h = pairs_then_neighbours(e[0], e[1]);
+            let at = _mm512_setr_epi32(0, 4, 8, 12, 2, 6, 10, 14, 0, 0, 0, 0, 0, 0, 0, 0);
+            let mut rows = [0.0f32; 8];
+            let sums = _mm512_castps512_ps256(_mm512_permutexvar_ps(at, h));
+            // SAFETY: `rows` is 8 writable f32, exactly the 256 bits stored.
+            unsafe { _mm256_storeu_ps(rows.as_mut_ptr(), sums) };
+            out.copy_from_slice(&rows[..N]);
+        } else {
+            for (o, a) in out.iter_mut().zip(acc) {
+                *o = reduce_acc(a);
             }
         }
         out
