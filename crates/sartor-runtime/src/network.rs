@@ -16,8 +16,8 @@ use crate::lowrank::truncated_svd;
 /// first move onto rayon's pool and make them all from there: true for [`Parallelism::Rayon`]
 /// on a thread outside any pool. From outside, every split product is handed to the pool and
 /// waited for on its own (a wake-up each way), which on the AMD EPYC VM made the shipped
-/// model's step slower on two threads than on one: 46–61 µs in f32 against 39–41, 41–53 in f16
-/// against 26 (`cargo bench --bench kernels -- shipped`). Entered once: 30–38 and 25–26. A call
+/// model's step slower on two threads than on one: 46–62 µs in f32 against 39–41, 40–52 in f16
+/// against 25–26 (`cargo bench --bench kernels -- shipped`). Entered once: 31–33 and 24–31. A call
 /// whose products all stay on the calling thread does not move (entering cost the int8 step
 /// 8.5 → 20–21 µs).
 fn enters_pool(splits: bool, par: Parallelism) -> bool {
@@ -362,12 +362,13 @@ impl GarmentNetwork {
         par: Parallelism,
     ) -> Result<()> {
         self.check_batch(batch, ws)?;
-        check_len("betas", betas.len(), batch * self.n_betas())?;
-        check_len("fit output", out.len(), batch * self.output_size())?;
-        check_finite("betas", betas)?;
+        // Before the other checks, which then run once, on the pool.
         if enters_pool(self.fit.splits(batch, par), par) {
             return rayon::scope(|_| self.fit_batch(betas, batch, out, ws, par));
         }
+        check_len("betas", betas.len(), batch * self.n_betas())?;
+        check_len("fit output", out.len(), batch * self.output_size())?;
+        check_finite("betas", betas)?;
         let x = &mut ws.fit_x[..batch * self.n_betas()];
         normalise(betas, &self.fit_in, x);
         if batch == 1 {
@@ -411,16 +412,17 @@ impl GarmentNetwork {
         par: Parallelism,
     ) -> Result<()> {
         self.check_batch(batch, ws)?;
+        // Before the other checks, which then run once, on the pool.
+        let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
+        if enters_pool(splits, par) {
+            return rayon::scope(|_| self.wrinkle_step_batch(xs, batch, states, out, ws, par));
+        }
         let n_in = self.input_size();
         check_len("wrinkle input", xs.len(), batch * n_in)?;
         check_len("wrinkle state", states.len(), batch * self.state_size())?;
         check_len("wrinkle output", out.len(), batch * self.output_size())?;
         check_finite("wrinkle input", xs)?;
         check_finite("wrinkle state", states)?;
-        let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
-        if enters_pool(splits, par) {
-            return rayon::scope(|_| self.wrinkle_step_batch(xs, batch, states, out, ws, par));
-        }
         let x = &mut ws.wrinkle_x[..batch * n_in];
         normalise(xs, &self.wrinkle_in, x);
         self.gru.step_batch(x, batch, states, &mut ws.gru, par)?;

@@ -239,7 +239,7 @@ pub(crate) use widest_where_present;
 /// where their rows come from memory: f16 rows (`dot8`, rows of `EIGHT_ROWS_FROM` columns or
 /// more) and int8's strided rows (`dot8_far`). At 32 or 64 bytes per row and step these
 /// streams advance too slowly for the hardware's prefetch: on the AMD EPYC VM the paper-size
-/// GRU + dense step took 1.41–1.50 → 1.02–1.20 ms in f16 and 0.63–0.66 → 0.50–0.52 in int8
+/// GRU + dense step took 1.45–1.50 → 1.27–1.31 ms in f16 and 0.66–0.68 → 0.54–0.55 in int8
 /// on one thread (`cargo bench --bench kernels -- gru1500_out13272`, alternating builds; 512,
 /// 1,024, 3,072 and 4,096 bytes ahead measured slower than 2,048). Each stream runs on into the
 /// next row of its own, so a prefetch past a row's end fetches what the stream reads next.
@@ -626,9 +626,10 @@ mod avx512 {
 
     /// [`reduce_acc`] of `N` rows, four or eight of them at once: each level of the tree is
     /// one vector add over lanes of several rows, which adds the same pairs of lanes in the same
-    /// order (`s[l] + s[l + w]`), so every row's sum has the same bits. One row's tree took
-    /// about nine instructions; the shipped model's PCA decode (6,504 rows of 64) spent much
-    /// of its time there.
+    /// order (`s[l] + s[l + w]`), so every row's sum has the same bits. One row's tree takes
+    /// about nine instructions, four or eight together about five per row: the shipped f16
+    /// step 25.3–26.2 → 23.7–24.7 µs; the f32 step level (its PCA decode, 6,504 rows of 64, is
+    /// bound by reading 1.7 MB from L3, not by the tree).
     #[inline]
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma,f16c")]
     fn reduce_rows<const N: usize>(acc: [[V; R]; N]) -> [f32; N] {
