@@ -19,6 +19,10 @@ use serde::{Deserialize, Serialize};
 use crate::error::StepFailure;
 
 mod team;
+mod upper;
+
+use upper::upper_row_products;
+pub(crate) use upper::{UpperBlocks, UpperMut};
 
 /// Which linear solver the implicit step uses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -67,11 +71,22 @@ pub struct LinearSolveStats {
 
 /// Symmetric block-sparse pattern: per vertex row, the sorted columns (vertices) it couples to,
 /// the diagonal included. Both triangles are stored.
+///
+/// It also lays out the system's *upper triangle* (blocks `(i, j)` with `j ≥ i`, row by row: row
+/// `i`'s blocks from its diagonal on, the same order as in the full rows), which the CG loop
+/// reads instead of both triangles ([`upper`]): a block below the diagonal is
+/// read as the transpose of its mirror. The assembly makes the system symmetric bit for bit
+/// (every element's blocks below its diagonal are the transposes of those above), so the
+/// products are bitwise those of the full rows, from about half the bytes.
 #[derive(Clone, Debug)]
 pub(crate) struct BlockPattern {
     row_offsets: Vec<usize>,
     cols: Vec<u32>,
     diag: Vec<u32>,
+    /// Per row, the place of its diagonal block in the upper triangle; `n_upper()` last.
+    upper_offsets: Vec<usize>,
+    /// Per slot `(i, j)`, the place of block `(min, max)` in the upper triangle.
+    mirror: Vec<u32>,
 }
 
 impl BlockPattern {
@@ -95,28 +110,63 @@ impl BlockPattern {
             cols.extend_from_slice(&r);
             row_offsets.push(cols.len());
         }
+        let mut upper_offsets = Vec::with_capacity(n + 1);
+        upper_offsets.push(0);
+        for i in 0..n {
+            let above = row_offsets[i + 1] - diag[i] as usize;
+            upper_offsets.push(upper_offsets[i] + above);
+        }
+        let mut mirror = vec![0u32; cols.len()];
+        for i in 0..n {
+            for s in diag[i] as usize..row_offsets[i + 1] {
+                let j = cols[s] as usize;
+                let place = (upper_offsets[i] + s - diag[i] as usize) as u32;
+                mirror[s] = place;
+                // The mirror (j, i) below the diagonal: its place in row j's columns.
+                let r = row_offsets[j]..row_offsets[j + 1];
+                let k = cols[r.clone()]
+                    .binary_search(&(i as u32))
+                    .expect("pairs go both ways");
+                mirror[r.start + k] = place;
+            }
+        }
         Self {
             row_offsets,
             cols,
             diag,
+            upper_offsets,
+            mirror,
         }
+    }
+
+    /// The place in the upper triangle of slot `s`'s block `(i, j)`, or of its mirror
+    /// `(j, i)` when `j < i`.
+    pub fn upper_place(&self, s: usize) -> usize {
+        self.mirror[s] as usize
+    }
+
+    /// Blocks in the upper triangle (the diagonal included).
+    pub fn n_upper(&self) -> usize {
+        self.upper_offsets[self.n_rows()]
+    }
+
+    /// Row `i`'s first place (its diagonal block) in the upper triangle, for `i` in
+    /// `0..=n_rows()` (`n_upper()` for `n_rows()`).
+    pub fn upper_start(&self, i: usize) -> usize {
+        self.upper_offsets[i]
     }
 
     pub fn n_rows(&self) -> usize {
         self.diag.len()
     }
 
+    #[cfg(test)]
     pub fn n_blocks(&self) -> usize {
         self.cols.len()
     }
 
     pub fn row(&self, i: usize) -> std::ops::Range<usize> {
         self.row_offsets[i]..self.row_offsets[i + 1]
-    }
-
-    /// The first slot of row `i`, for `i` in `0..=n_rows()` (`n_blocks()` for `n_rows()`).
-    pub fn row_start(&self, i: usize) -> usize {
-        self.row_offsets[i]
     }
 
     pub fn cols(&self) -> &[u32] {
@@ -142,10 +192,11 @@ impl BlockPattern {
 /// 8,710-triangle shirt's solve got 2,048 and 2,399 rows (46 / 54 %); at 128, 2,176 and 2,271.
 const CHUNK: usize = 128;
 
-/// `y = A x` for the block matrix with `values` over `pattern`.
-pub(crate) fn block_matvec(
+/// `y = A x` for the system whose upper triangle is `upper` ([`upper`]'s products, in
+/// chunks of [`CHUNK`] rows).
+pub(crate) fn block_product(
     pattern: &BlockPattern,
-    values: &[Matrix3<f64>],
+    upper: &UpperBlocks,
     x: &[Vector3<f64>],
     y: &mut [Vector3<f64>],
     par: Parallelism,
@@ -154,125 +205,11 @@ pub(crate) fn block_matvec(
         Parallelism::Sequential => y
             .chunks_mut(CHUNK)
             .enumerate()
-            .for_each(|(c, out)| row_products(pattern, values, x, c * CHUNK, out)),
+            .for_each(|(c, out)| upper_row_products(pattern, upper, x, c * CHUNK, out)),
         Parallelism::Rayon => y
             .par_chunks_mut(CHUNK)
             .enumerate()
-            .for_each(|(c, out)| row_products(pattern, values, x, c * CHUNK, out)),
-    }
-}
-
-/// `out[k] = (A x)_{first + k}`: each row sums its blocks in order, each block as
-/// `(a₀ x₀ + a₁ x₁) + a₂ x₂` (`a_c` its columns), with separate multiplies and adds. On x86-64
-/// with AVX2 the three rows of a block go in one vector ([`simd`]); the arithmetic, and so every
-/// bit of the result, is the same.
-fn row_products(
-    pattern: &BlockPattern,
-    values: &[Matrix3<f64>],
-    x: &[Vector3<f64>],
-    first: usize,
-    out: &mut [Vector3<f64>],
-) {
-    #[cfg(target_arch = "x86_64")]
-    if simd::has_avx2() {
-        simd::row_products_avx2(pattern, values, x, first, out);
-        return;
-    }
-    row_products_portable(pattern, values, x, first, out);
-}
-
-fn row_products_portable(
-    pattern: &BlockPattern,
-    values: &[Matrix3<f64>],
-    x: &[Vector3<f64>],
-    first: usize,
-    out: &mut [Vector3<f64>],
-) {
-    for (k, yi) in out.iter_mut().enumerate() {
-        let mut acc = [0.0; 3];
-        for s in pattern.row(first + k) {
-            let (m, v) = (&values[s], &x[pattern.cols[s] as usize]);
-            for r in 0..3 {
-                acc[r] += (m[(r, 0)] * v.x + m[(r, 1)] * v.y) + m[(r, 2)] * v.z;
-            }
-        }
-        *yi = Vector3::new(acc[0], acc[1], acc[2]);
-    }
-}
-
-/// The AVX2 row products — the crate's only `unsafe` code.
-///
-/// Unsafe operations, each with its `SAFETY` comment: the call of the `#[target_feature]`
-/// function, sound exactly when the CPU has AVX2 (checked by the only caller), and the vector
-/// loads from a block, each within the block's nine values.
-#[cfg(target_arch = "x86_64")]
-#[allow(unsafe_code)]
-mod simd {
-    use std::arch::x86_64::{
-        _mm256_add_pd, _mm256_loadu_pd, _mm256_maskload_pd, _mm256_mul_pd, _mm256_set_epi64x,
-        _mm256_set1_pd, _mm256_setzero_pd, _mm256_storeu_pd,
-    };
-
-    use nalgebra::{Matrix3, Vector3};
-
-    use super::BlockPattern;
-
-    pub(super) fn has_avx2() -> bool {
-        is_x86_feature_detected!("avx2")
-    }
-
-    /// [`super::row_products_portable`] with a block's column in one 4-lane vector (lane 3
-    /// unused). Call only when [`has_avx2`].
-    pub(super) fn row_products_avx2(
-        pattern: &BlockPattern,
-        values: &[Matrix3<f64>],
-        x: &[Vector3<f64>],
-        first: usize,
-        out: &mut [Vector3<f64>],
-    ) {
-        #[target_feature(enable = "avx2")]
-        fn rows(
-            pattern: &BlockPattern,
-            values: &[Matrix3<f64>],
-            x: &[Vector3<f64>],
-            first: usize,
-            out: &mut [Vector3<f64>],
-        ) {
-            // Lanes 0..3 of the third column; lane 3 would be past the block.
-            let third = _mm256_set_epi64x(0, -1, -1, -1);
-            for (k, yi) in out.iter_mut().enumerate() {
-                let mut acc = _mm256_setzero_pd();
-                // The row's blocks and columns zipped: no bounds check per block (7 % of the
-                // solve at 8,710 triangles).
-                let row = pattern.row(first + k);
-                for (m, &c) in values[row.clone()].iter().zip(&pattern.cols[row]) {
-                    let v = &x[c as usize];
-                    let p = m.as_slice().as_ptr();
-                    // SAFETY: `m` is 9 contiguous f64 (column-major); these loads read values
-                    // 0..4 and 3..7, and 6..9 with lane 3 masked off (not read).
-                    let (c0, c1, c2) = unsafe {
-                        (
-                            _mm256_loadu_pd(p),
-                            _mm256_loadu_pd(p.add(3)),
-                            _mm256_maskload_pd(p.add(6), third),
-                        )
-                    };
-                    let t = _mm256_add_pd(
-                        _mm256_mul_pd(c0, _mm256_set1_pd(v.x)),
-                        _mm256_mul_pd(c1, _mm256_set1_pd(v.y)),
-                    );
-                    let t = _mm256_add_pd(t, _mm256_mul_pd(c2, _mm256_set1_pd(v.z)));
-                    acc = _mm256_add_pd(acc, t);
-                }
-                let mut lanes = [0.0; 4];
-                // SAFETY: `lanes` holds the four values stored.
-                unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), acc) };
-                *yi = Vector3::new(lanes[0], lanes[1], lanes[2]);
-            }
-        }
-        debug_assert!(has_avx2());
-        // SAFETY: the caller checked that the CPU has AVX2.
-        unsafe { rows(pattern, values, x, first, out) }
+            .for_each(|(c, out)| upper_row_products(pattern, upper, x, c * CHUNK, out)),
     }
 }
 
@@ -298,7 +235,7 @@ pub(crate) struct LinearWorkspace {
     // Cholesky: lower-triangular scalar CSC and where each entry comes from.
     csc_col_ptr: Vec<usize>,
     csc_row_idx: Vec<usize>,
-    csc_source: Vec<(u32, u8, u8)>,
+    csc_source: Vec<(u32, u8)>,
     csc_values: Vec<f64>,
     symbolic: Option<SymbolicCholesky<usize>>,
     factor_values: Vec<f64>,
@@ -330,11 +267,14 @@ impl LinearWorkspace {
                     if i < j {
                         continue;
                     }
-                    let slot = pattern.slot(i, j).expect("the pattern is symmetric");
+                    // Block (i, j) is stored as (j, i), its transpose, unless i = j: its entry
+                    // (r, c) is value 3 r + c there (column-major), 3 c + r of a diagonal block.
+                    let place = pattern.upper_place(s) as u32;
                     for r in 0..3 {
                         if 3 * i + r >= 3 * j + c {
+                            let value = if i == j { 3 * c + r } else { 3 * r + c };
                             csc_row_idx.push(3 * i + r);
-                            csc_source.push((slot as u32, r as u8, c as u8));
+                            csc_source.push((place, value as u8));
                         }
                     }
                 }
@@ -371,15 +311,15 @@ impl LinearWorkspace {
     pub fn solve_cholesky(
         &mut self,
         pattern: &BlockPattern,
-        values: &[Matrix3<f64>],
+        upper: &UpperBlocks,
         b: &[Vector3<f64>],
         x: &mut [Vector3<f64>],
         par: Parallelism,
     ) -> Result<LinearSolveStats, StepFailure> {
         let start = Instant::now();
         let n3 = 3 * pattern.n_rows();
-        for (dst, &(slot, r, c)) in self.csc_values.iter_mut().zip(&self.csc_source) {
-            *dst = values[slot as usize][(r as usize, c as usize)];
+        for (dst, &(place, k)) in self.csc_values.iter_mut().zip(&self.csc_source) {
+            *dst = upper.value(place as usize, k as usize);
         }
         if self.csc_values.iter().any(|v| !v.is_finite()) {
             return Err(StepFailure::NonFinite {
@@ -452,7 +392,7 @@ impl LinearWorkspace {
         }
         let solved = Instant::now();
         // Residual check (one matvec): catches a silently bad factorisation.
-        block_matvec(pattern, values, x, &mut self.product, par);
+        block_product(pattern, upper, x, &mut self.product, par);
         let mut r2 = 0.0;
         let mut b2 = 0.0;
         for (ax, bi) in self.product.iter().zip(b) {
@@ -472,11 +412,12 @@ impl LinearWorkspace {
         })
     }
 
-    /// Solve `A x = b` by block-Jacobi preconditioned CG starting from the given `x`.
+    /// Solve `A x = b` by block-Jacobi preconditioned CG starting from the given `x`; `upper`
+    /// is `A`'s upper triangle as `pattern` lays it out ([`upper`]).
     pub fn solve_cg(
         &mut self,
         pattern: &BlockPattern,
-        values: &[Matrix3<f64>],
+        upper: &UpperBlocks,
         b: &[Vector3<f64>],
         x: &mut [Vector3<f64>],
         max_iterations: usize,
@@ -504,7 +445,7 @@ impl LinearWorkspace {
         if threads > 1 {
             let problem = team::Problem {
                 pattern,
-                values,
+                upper,
                 b,
                 max_iterations,
                 relative_tolerance,
@@ -522,15 +463,11 @@ impl LinearWorkspace {
         }
         // One thread from here on (on rayon too when the rows fit in one chunk).
         for (i, inverse) in self.inverse_diagonal.iter_mut().enumerate() {
-            *inverse = inverse_block(&values[pattern.diag_slot(i)]);
+            *inverse = inverse_block(&upper.block(pattern.upper_start(i)));
         }
-        block_matvec(
-            pattern,
-            values,
-            x,
-            &mut self.product,
-            Parallelism::Sequential,
-        );
+        for (c, out) in self.product.chunks_mut(CHUNK).enumerate() {
+            upper_row_products(pattern, upper, x, c * CHUNK, out);
+        }
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
         }
@@ -562,7 +499,7 @@ impl LinearWorkspace {
                     relative_residual: relative,
                 });
             }
-            let p_ap = self.product_and_dot(pattern, values);
+            let p_ap = self.product_and_dot(pattern, upper);
             if p_ap.is_nan() || p_ap <= 0.0 {
                 return Err(StepFailure::SolverNotConverged {
                     iterations,
@@ -582,15 +519,15 @@ impl LinearWorkspace {
 }
 
 impl LinearWorkspace {
-    /// `product = A direction`; returns `direction · product` (per chunk, then in order).
-    fn product_and_dot(&mut self, pattern: &BlockPattern, values: &[Matrix3<f64>]) -> f64 {
+    /// `product = A direction` (from `A`'s upper triangle); returns `direction · product` (per chunk, then in order).
+    fn product_and_dot(&mut self, pattern: &BlockPattern, upper: &UpperBlocks) -> f64 {
         let direction = &self.direction;
         self.product
             .chunks_mut(CHUNK)
             .enumerate()
             .map(|(c, out)| {
                 let start = c * CHUNK;
-                row_products(pattern, values, direction, start, out);
+                upper_row_products(pattern, upper, direction, start, out);
                 // The chunk's share of p·q, summed in vertex order as `dot` does.
                 direction[start..start + out.len()]
                     .iter()
@@ -687,48 +624,6 @@ mod tests {
     }
 
     #[test]
-    fn every_instruction_set_gives_the_same_row_products() {
-        // A chain with scattered extra couplings, values of mixed signs and magnitudes.
-        let n = 300;
-        let mut pairs: Vec<[u32; 2]> = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
-        pairs.extend((0..n as u32).map(|i| [i, (i * 37 + 11) % n as u32]));
-        let pattern = BlockPattern::new(n, &pairs);
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 10f64.powi((seed % 7) as i32 - 3)
-        };
-        let values: Vec<Matrix3<f64>> = (0..pattern.n_blocks())
-            .map(|_| Matrix3::from_fn(|_, _| next()))
-            .collect();
-        let x: Vec<Vector3<f64>> = (0..n)
-            .map(|_| Vector3::new(next(), next(), next()))
-            .collect();
-        let mut portable = vec![Vector3::zeros(); n];
-        row_products_portable(&pattern, &values, &x, 0, &mut portable);
-        // The documented arithmetic, block by block.
-        for (i, y) in portable.iter().enumerate() {
-            let mut acc = Vector3::zeros();
-            for s in pattern.row(i) {
-                let (m, v) = (&values[s], &x[pattern.cols()[s] as usize]);
-                acc += (m.column(0) * v.x + m.column(1) * v.y) + m.column(2) * v.z;
-            }
-            assert_eq!(*y, acc, "row {i}");
-        }
-        #[cfg(target_arch = "x86_64")]
-        if simd::has_avx2() {
-            let mut avx2 = vec![Vector3::zeros(); n];
-            simd::row_products_avx2(&pattern, &values, &x, 0, &mut avx2);
-            assert_eq!(avx2, portable);
-            // A chunk that starts inside the matrix.
-            simd::row_products_avx2(&pattern, &values, &x, 100, &mut avx2[..57]);
-            assert_eq!(avx2[..57], portable[100..157]);
-        }
-    }
-
-    #[test]
     fn cg_gives_the_same_bits_on_any_number_of_threads() {
         // Six chunks, the last one short; a chain with long-range couplings so that every
         // thread's rows read other threads' rows of p.
@@ -750,6 +645,7 @@ mod tests {
                 };
             }
         }
+        let upper = UpperBlocks::of(&pattern, &values);
         let b: Vec<Vector3<f64>> = (0..n)
             .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
             .collect();
@@ -768,7 +664,7 @@ mod tests {
             let solve = |par, max_iterations| {
                 let mut ws = LinearWorkspace::new(&pattern);
                 let mut x = vec![guess; n];
-                let stats = ws.solve_cg(&pattern, &values, b, &mut x, max_iterations, 1e-11, par);
+                let stats = ws.solve_cg(&pattern, &upper, b, &mut x, max_iterations, 1e-11, par);
                 (
                     stats.map(|s| (s.iterations, s.relative_residual.to_bits())),
                     x,
@@ -815,6 +711,7 @@ mod tests {
     fn cholesky_and_cg_agree() {
         let n = 700; // more than one parallel chunk
         let (pattern, values) = chain(n);
+        let upper = UpperBlocks::of(&pattern, &values);
         let b: Vec<Vector3<f64>> = (0..n)
             .map(|i| Vector3::new((i as f64).sin(), 1.0, (i as f64 * 0.3).cos()))
             .collect();
@@ -822,12 +719,12 @@ mod tests {
         for par in [Parallelism::Sequential, Parallelism::Rayon] {
             let mut x_chol = vec![Vector3::zeros(); n];
             let stats = ws
-                .solve_cholesky(&pattern, &values, &b, &mut x_chol, par)
+                .solve_cholesky(&pattern, &upper, &b, &mut x_chol, par)
                 .expect("SPD");
             assert!(stats.relative_residual < 1e-12, "{stats:?}");
             let mut x_cg = vec![Vector3::zeros(); n];
             let stats = ws
-                .solve_cg(&pattern, &values, &b, &mut x_cg, 500, 1e-12, par)
+                .solve_cg(&pattern, &upper, &b, &mut x_cg, 500, 1e-12, par)
                 .expect("converges");
             assert!(stats.iterations > 0);
             let err: f64 = x_chol
@@ -842,7 +739,7 @@ mod tests {
         let zero = ws
             .solve_cg(
                 &pattern,
-                &values,
+                &upper,
                 &b,
                 &mut from_zero,
                 500,
@@ -854,7 +751,7 @@ mod tests {
         let bad = ws
             .solve_cg(
                 &pattern,
-                &values,
+                &upper,
                 &b,
                 &mut from_bad,
                 500,
@@ -868,7 +765,7 @@ mod tests {
         let err = ws
             .solve_cg(
                 &pattern,
-                &values,
+                &upper,
                 &b,
                 &mut x,
                 2,

@@ -37,7 +37,10 @@
 //!
 //! The block pattern (vertex × vertex 3 × 3 blocks over mesh edges and hinge diagonals) is built
 //! once; element contributions are added element by element in index order (triangles, then
-//! hinges). When [`SimConfig::parallelism`] is `Rayon`, each thread fills a spatially compact
+//! hinges). The system is symmetric bit for bit (every element's blocks below its diagonal are
+//! the transposes of those above), and only its upper triangle is stored and solved with
+//! (see `linsolve`'s `upper` module): an element adds its block `(a, b)` to the row that comes
+//! first, and the block `(b, a)` is not formed. When [`SimConfig::parallelism`] is `Rayon`, each thread fills a spatially compact
 //! set of rows from the elements that touch it, in the same order: the same sums, bit for bit.
 //! Obstacle contacts add diagonal blocks; self-contacts add only the diagonal blocks of their
 //! (PSD) Hessian, which keeps the pattern fixed (a principal block of a PSD
@@ -72,7 +75,10 @@ use crate::energy::{
     friction_velocity_change,
 };
 use crate::error::StepFailure;
-use crate::linsolve::{BlockPattern, LinearSolveStats, LinearSolver, LinearWorkspace};
+use crate::linsolve::{
+    BlockPattern, LinearSolveStats, LinearSolver, LinearWorkspace, UpperBlocks, UpperMut,
+    block_product,
+};
 use crate::material::StrainStiffness;
 use crate::self_collision::SelfCollisionGrid;
 use crate::{Error, Result};
@@ -264,8 +270,11 @@ struct Workspace {
     collider_identity: Vec<Option<u64>>,
     self_contacts: Vec<SelfContact>,
     grid: SelfCollisionGrid,
-    /// The system `A` (during the assembly, first the stiffness `K`).
-    system: Vec<Matrix3<f64>>,
+    /// The system `A` (during the assembly, first the stiffness `K`): its upper triangle, as
+    /// the pattern lays it out (the system is symmetric).
+    system: UpperBlocks,
+    /// `K v⁺` per vertex, with stiffness damping.
+    kv: Vec<Vector3<f64>>,
     gradient: Vec<Vector3<f64>>,
     rhs: Vec<Vector3<f64>>,
     update: Vec<Vector3<f64>>,
@@ -350,7 +359,7 @@ impl Share {
 }
 
 /// How many elements ahead the assembly prefetches the blocks it will add to (see
-/// [`Rows::prefetch`]). At 26,066 triangles the system (13 MB) is far larger than the
+/// [`Rows::prefetch`]). At 26,066 triangles the system (13 MB in both triangles then) is far larger than the
 /// core's cache, and the additions waited for their blocks: assembly 863–944 → 710–761 ms per
 /// frame on one thread, the same bits (`cargo xtask bench sim --sizes 26066 --frames 5`, AMD
 /// EPYC VM, builds alternated). At 8,710 triangles no change.
@@ -361,8 +370,8 @@ struct Shared<'a> {
     cloth: &'a Cloth,
     config: &'a SimConfig,
     pattern: &'a BlockPattern,
-    tri_slots: &'a [[u32; 9]],
-    hinge_slots: &'a [[u32; 16]],
+    tri_places: &'a [[u32; 9]],
+    hinge_places: &'a [[u32; 16]],
     stiffness: &'a [StrainStiffness],
     coefficient: &'a [f64],
     /// Whether `x` is the state the coefficients are frozen at (the first Newton iteration):
@@ -373,8 +382,6 @@ struct Shared<'a> {
     x: &'a [Vector3<f64>],
     v_plus: &'a [Vector3<f64>],
     velocities: &'a [Vector3<f64>],
-    pinned: &'a [bool],
-    pin_velocity: &'a [Vector3<f64>],
     obstacle_contacts: &'a [ObstacleContact],
     self_contacts: &'a [SelfContact],
     self_out: &'a [ElementDerivatives<4>],
@@ -382,47 +389,41 @@ struct Shared<'a> {
 }
 
 /// A share's rows of the system being filled: rows `first..first + gradient.len()`, their
-/// blocks (from the system's slot `first_slot` on), gradients and right-hand sides. `WHOLE`:
-/// the share is every row, and every vertex is its own without a test (the sequential
-/// assembly; the test cost it 6 %, 121 → 129 ms per frame at 8,710 triangles).
+/// blocks in the system's upper triangle (from its place `first_place` on), gradients and
+/// right-hand sides. `WHOLE`: the share is every row, and every vertex is its own without a
+/// test (the sequential assembly; the test cost it 6 %, 121 → 129 ms per frame at 8,710
+/// triangles).
 struct Rows<'a, const WHOLE: bool> {
     pattern: &'a BlockPattern,
     first: usize,
-    first_slot: usize,
-    system: &'a mut [Matrix3<f64>],
+    first_place: usize,
+    upper: UpperMut<'a>,
     gradient: &'a mut [Vector3<f64>],
     rhs: &'a mut [Vector3<f64>],
 }
 
-/// A row's blocks, gradient and right-hand side.
-type RowParts<'a> = (
-    &'a mut [Matrix3<f64>],
-    &'a mut Vector3<f64>,
-    &'a mut Vector3<f64>,
-);
-
 impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
-    /// The rows of `range`, cut from the front of the rest of the system (`system`,
+    /// The rows of `range`, cut from the front of the rest of the system (`upper`,
     /// `gradient`, `rhs`: the rows from `range.start` on), which keeps what follows them.
     fn take(
         pattern: &'a BlockPattern,
         range: Range<usize>,
-        system: &mut &'a mut [Matrix3<f64>],
+        upper: &mut UpperMut<'a>,
         gradient: &mut &'a mut [Vector3<f64>],
         rhs: &mut &'a mut [Vector3<f64>],
     ) -> Self {
-        let first_slot = pattern.row_start(range.start);
-        let blocks = pattern.row_start(range.end) - first_slot;
+        let first_place = pattern.upper_start(range.start);
+        let blocks = pattern.upper_start(range.end) - first_place;
         let rows = range.len();
-        let (system_here, system_rest) = std::mem::take(system).split_at_mut(blocks);
+        let (upper_here, upper_rest) = std::mem::replace(upper, UpperMut::empty()).split_at(blocks);
         let (gradient_here, gradient_rest) = std::mem::take(gradient).split_at_mut(rows);
         let (rhs_here, rhs_rest) = std::mem::take(rhs).split_at_mut(rows);
-        (*system, *gradient, *rhs) = (system_rest, gradient_rest, rhs_rest);
+        (*upper, *gradient, *rhs) = (upper_rest, gradient_rest, rhs_rest);
         Self {
             pattern,
             first: range.start,
-            first_slot,
-            system: system_here,
+            first_place,
+            upper: upper_here,
             gradient: gradient_here,
             rhs: rhs_here,
         }
@@ -438,41 +439,52 @@ impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
         self.first + k
     }
 
-    /// The place of vertex `i` among its rows, if it is this share's.
+    /// The index among its rows of vertex `i`'s row, if it is this share's.
     #[inline(always)]
-    fn place(&self, i: u32) -> Option<usize> {
+    fn own(&self, i: u32) -> Option<usize> {
         let k = (i as usize).wrapping_sub(self.first);
         (WHOLE || k < self.gradient.len()).then_some(k)
     }
 
-    /// The `k`-th row's blocks, gradient and right-hand side.
+    /// The places of the `k`-th row's blocks among this share's.
     #[inline(always)]
-    fn row(&mut self, k: usize) -> RowParts<'_> {
-        let slots = self.pattern.row(self.first + k);
-        (
-            &mut self.system[slots.start - self.first_slot..slots.end - self.first_slot],
-            &mut self.gradient[k],
-            &mut self.rhs[k],
-        )
+    fn blocks(&self, k: usize) -> Range<usize> {
+        let i = self.first + k;
+        self.pattern.upper_start(i) - self.first_place
+            ..self.pattern.upper_start(i + 1) - self.first_place
     }
 
-    /// Start loading into the cache block `slot` (in the system's numbering) of vertex `i`'s
-    /// row, if the row is this share's: the assembly asks for the blocks of the element
-    /// [`PREFETCH_AHEAD`] places ahead of the one it adds.
+    /// Add `m` to the block at `place` (in the upper triangle's numbering), one of this
+    /// share's.
     #[inline(always)]
-    fn prefetch(&self, i: u32, slot: u32) {
-        if self.place(i).is_some() {
-            let at = (slot as usize).wrapping_sub(self.first_slot);
-            crate::prefetch::prefetch(self.system.as_ptr().wrapping_add(at));
+    fn add(&mut self, place: u32, m: &Matrix3<f64>) {
+        self.upper.add(place as usize - self.first_place, m);
+    }
+
+    /// Start loading into the cache the block at `place` (in the upper triangle's numbering)
+    /// of vertex `i`'s row, if the row is this share's: the assembly asks for the blocks of the
+    /// element [`PREFETCH_AHEAD`] places ahead of the one it adds.
+    #[inline(always)]
+    fn prefetch(&self, i: u32, place: u32) {
+        if self.own(i).is_some() && place != ELSEWHERE {
+            let at = (place as usize).wrapping_sub(self.first_place);
+            crate::prefetch::prefetch(self.upper.address(at));
         }
     }
 }
 
+/// An element's block `(a, b)` whose row `a` comes after its column `b`: not stored (its
+/// mirror `(b, a)`, the transpose, is).
+const ELSEWHERE: u32 = u32::MAX;
+
 impl Shared<'_> {
-    /// Fill `share`'s rows (`out`): the stiffness `K` (in the
-    /// system's blocks, scaled into `A` at the end) and gradient summed over its elements
-    /// (triangles, then hinges, by index), then the obstacle contacts and the self-contacts (in
-    /// list order), then the system and right-hand side of those rows.
+    /// Fill `share`'s rows (`out`): the stiffness `K` (in the system's blocks, scaled into
+    /// `A` at the end) and gradient summed over its elements (triangles, then hinges, by
+    /// index), then the obstacle contacts and the self-contacts (in list order), then the
+    /// system and right-hand side of those rows ([`Self::finish`]; not with stiffness damping,
+    /// whose `K v⁺` needs every row's `K` first). Each row holds its blocks on and above the
+    /// diagonal; an element adds its block `(a, b)` where `a`'s row comes first (the block
+    /// `(b, a)` is its transpose, bit for bit: the system is symmetric).
     fn fill<const WHOLE: bool>(&self, share: &Share, out: &mut Rows<'_, WHOLE>) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
@@ -484,21 +496,19 @@ impl Shared<'_> {
         let pattern = self.pattern;
         for k in 0..out.count() {
             let i = out.vertex(k);
-            let (stiffness, gradient, _) = out.row(k);
-            stiffness.iter_mut().for_each(|b| *b = Matrix3::zeros());
-            *gradient = -gravity * masses[i];
+            let blocks = out.blocks(k);
+            out.upper.zero(blocks);
+            out.gradient[k] = -gravity * masses[i];
         }
-        // The first slot of vertex `i`'s row.
-        let first = |i: u32| pattern.row(i as usize).start;
         let material = self.cloth.material();
         // The element's corners, gathered into one buffer that the derivatives read in place
         // (see [`gather_into`]).
         let mut xt = [Vector3::zeros(); 3];
         for (n, &t) in share.triangles.iter().enumerate() {
             if let Some(&ahead) = share.triangles.get(n + PREFETCH_AHEAD) {
-                let (f, slots) = (faces[ahead as usize], &self.tri_slots[ahead as usize]);
-                for (k, &slot) in slots.iter().enumerate() {
-                    out.prefetch(f[k / 3], slot);
+                let (f, places) = (faces[ahead as usize], &self.tri_places[ahead as usize]);
+                for (k, &place) in places.iter().enumerate() {
+                    out.prefetch(f[k / 3], place);
                 }
             }
             let (t, f) = (t as usize, faces[t as usize]);
@@ -509,14 +519,14 @@ impl Shared<'_> {
             } else {
                 m.derivatives(&xt, &self.stiffness[t], Projection::Psd)
             };
-            let slots = &self.tri_slots[t];
+            let places = &self.tri_places[t];
             for a in 0..3 {
-                if let Some(k) = out.place(f[a]) {
-                    let (stiffness, gradient, _) = out.row(k);
-                    *gradient += d.gradient[a];
-                    let first = first(f[a]);
+                if let Some(k) = out.own(f[a]) {
+                    out.gradient[k] += d.gradient[a];
                     for b in 0..3 {
-                        stiffness[slots[3 * a + b] as usize - first] += d.hessian[a][b];
+                        if places[3 * a + b] != ELSEWHERE {
+                            out.add(places[3 * a + b], &d.hessian[a][b]);
+                        }
                     }
                 }
             }
@@ -525,34 +535,35 @@ impl Shared<'_> {
         let mut x = [Vector3::zeros(); 4];
         for (n, &e) in share.hinges.iter().enumerate() {
             if let Some(&ahead) = share.hinges.get(n + PREFETCH_AHEAD) {
-                let (v, slots) = (
+                let (v, places) = (
                     hinges[ahead as usize].vertices,
-                    &self.hinge_slots[ahead as usize],
+                    &self.hinge_places[ahead as usize],
                 );
-                for (k, &slot) in slots.iter().enumerate() {
-                    out.prefetch(v[k / 4], slot);
+                for (k, &place) in places.iter().enumerate() {
+                    out.prefetch(v[k / 4], place);
                 }
             }
             let (e, h) = (e as usize, &hinges[e as usize]);
             gather_into(self.x, h.vertices, &mut x);
-            let slots = &self.hinge_slots[e];
-            // The hinge's rows of the system, each block made by `block(a, b)`.
+            let places = &self.hinge_places[e];
+            // The hinge's rows of the system, each block made by `block(a, b)` (only those
+            // stored).
             let mut add = |gradient: &[Vector3<f64>; 4],
                            block: &dyn Fn(usize, usize) -> Matrix3<f64>| {
                 for a in 0..4 {
-                    if let Some(k) = out.place(h.vertices[a]) {
-                        let (stiffness, g, _) = out.row(k);
-                        *g += gradient[a];
-                        let first = first(h.vertices[a]);
+                    if let Some(k) = out.own(h.vertices[a]) {
+                        out.gradient[k] += gradient[a];
                         for b in 0..4 {
-                            stiffness[slots[4 * a + b] as usize - first] += block(a, b);
+                            if places[4 * a + b] != ELSEWHERE {
+                                out.add(places[4 * a + b], &block(a, b));
+                            }
                         }
                     }
                 }
             };
             if bending_hessian == BendingHessian::GaussNewton {
-                // ARCSim's Hessian (the default): its sixteen blocks made where they are added,
-                // the same numbers as `derivatives` gives without holding them all.
+                // ARCSim's Hessian (the default): its blocks made where they are added, the
+                // same numbers as `derivatives` gives without holding them all.
                 let d = if self.frozen_here {
                     h.gauss_newton_frozen_here(&x, material.bending())
                 } else {
@@ -567,72 +578,95 @@ impl Shared<'_> {
             }
         }
         let penalty = self.config.contact_penalty;
-        let diag = |i: usize| pattern.diag_slot(i) - pattern.row(i).start;
+        let diag = |i: usize| pattern.upper_start(i) as u32;
         for c in self.obstacle_contacts {
-            if let Some(k) = out.place(c.vertex) {
+            if let Some(k) = out.own(c.vertex) {
                 let i = c.vertex as usize;
                 let d = c.derivatives(&self.x[i], &penalty);
-                let (stiffness, gradient, _) = out.row(k);
-                *gradient += d.gradient[0];
-                stiffness[diag(i)] += d.hessian[0][0];
+                out.gradient[k] += d.gradient[0];
+                out.add(diag(i), &d.hessian[0][0]);
             }
         }
         for (c, d) in self.self_contacts.iter().zip(self.self_out) {
             let idx = [c.vertex, c.triangle[0], c.triangle[1], c.triangle[2]];
             for a in 0..4 {
-                if let Some(k) = out.place(idx[a]) {
-                    let (stiffness, gradient, _) = out.row(k);
-                    *gradient += d.gradient[a];
-                    stiffness[diag(idx[a] as usize)] += d.hessian[a][a];
+                if let Some(k) = out.own(idx[a]) {
+                    out.gradient[k] += d.gradient[a];
+                    out.add(diag(idx[a] as usize), &d.hessian[a][a]);
                 }
             }
         }
-        // `A = M (1 + h α) + h (h + β) K`, `−r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺`.
+        if self.config.stiffness_damping_s == 0.0 {
+            self.finish(out, None);
+        }
+    }
+
+    /// The system and right-hand side of `out`'s rows from their stiffness and gradient:
+    /// `A = M (1 + h α) + h (h + β) K`, `−r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺`
+    /// (`kv`: every row's `K v⁺`, needed when `β ≠ 0`). Pins are applied afterwards
+    /// ([`apply_pins`]).
+    fn finish<const WHOLE: bool>(&self, out: &mut Rows<'_, WHOLE>, kv: Option<&[Vector3<f64>]>) {
+        let masses = self.cloth.masses_kg();
         let (h, beta, alpha) = (
             self.h,
             self.config.stiffness_damping_s,
             self.config.mass_damping_per_s,
         );
         let scale = h * (h + beta);
-        let cols = pattern.cols();
-        let any_pinned = self.pinned.iter().any(|&p| p);
         for k in 0..out.count() {
             let i = out.vertex(k);
-            // The row holds K's blocks until here; then A's.
-            let (system, gradient, rhs) = out.row(k);
-            let mut kv = Vector3::zeros();
-            if beta != 0.0 {
-                for (k, s) in system.iter().zip(pattern.row(i)) {
-                    kv += k * self.v_plus[cols[s] as usize];
-                }
-            }
-            for a in system.iter_mut() {
-                *a *= scale;
-            }
-            system[diag(i)] += Matrix3::identity() * (masses[i] * (1.0 + h * alpha));
-            *rhs = -(self.v_plus[i] - self.velocities[i]) * masses[i]
-                - *gradient * h
+            let kv = kv.map_or_else(Vector3::zeros, |kv| kv[i]);
+            let blocks = out.blocks(k);
+            let diag = blocks.start;
+            out.upper.scale(blocks, scale);
+            out.upper
+                .add_to_diagonal(diag, masses[i] * (1.0 + h * alpha));
+            out.rhs[k] = -(self.v_plus[i] - self.velocities[i]) * masses[i]
+                - out.gradient[k] * h
                 - kv * (h * beta)
                 - self.v_plus[i] * (h * alpha * masses[i]);
-            if !any_pinned {
-                continue;
+        }
+    }
+}
+
+/// Pins: the update of a pinned vertex is known, `δ_i = u_i − v⁺_i`. Move its column to the
+/// right-hand side (every other row's `rhs_j −= A_ji δ_i`, in the row's column order, before
+/// any block is cleared) and replace its row by `M_i δ_i = M_i (u_i − v⁺_i)`.
+#[allow(clippy::too_many_arguments)]
+fn apply_pins(
+    pattern: &BlockPattern,
+    upper: &mut UpperBlocks,
+    rhs: &mut [Vector3<f64>],
+    pinned: &[bool],
+    pin_velocity: &[Vector3<f64>],
+    v_plus: &[Vector3<f64>],
+    masses: &[f64],
+) {
+    let cols = pattern.cols();
+    for (j, rhs) in rhs.iter_mut().enumerate() {
+        if pinned[j] {
+            continue;
+        }
+        for s in pattern.row(j) {
+            let i = cols[s] as usize;
+            if pinned[i] {
+                let stored = upper.block(pattern.upper_place(s));
+                let a = if j <= i { stored } else { stored.transpose() };
+                *rhs -= a * (pin_velocity[i] - v_plus[i]);
             }
-            // Pins: the update of a pinned vertex is known, δ_i = u_i − v⁺_i. Move its column
-            // to the right-hand side and replace its row by M_i δ_i = M_i (u_i − v⁺_i).
-            if self.pinned[i] {
-                system.iter_mut().for_each(|b| *b = Matrix3::zeros());
-                system[diag(i)] = Matrix3::identity() * masses[i];
-                *rhs = (self.pin_velocity[i] - self.v_plus[i]) * masses[i];
-            } else {
-                for (a, s) in system.iter_mut().zip(pattern.row(i)) {
-                    let j = cols[s] as usize;
-                    if self.pinned[j] {
-                        let known = self.pin_velocity[j] - self.v_plus[j];
-                        *rhs -= *a * known;
-                        *a = Matrix3::zeros();
-                    }
-                }
+        }
+    }
+    let mut view = upper.view_mut();
+    for j in 0..pattern.n_rows() {
+        let start = pattern.upper_start(j);
+        for (k, s) in (pattern.diag_slot(j)..pattern.row(j).end).enumerate() {
+            if pinned[j] || pinned[cols[s] as usize] {
+                view.set(start + k, &Matrix3::zeros());
             }
+        }
+        if pinned[j] {
+            view.set(start, &(Matrix3::identity() * masses[j]));
+            rhs[j] = (pin_velocity[j] - v_plus[j]) * masses[j];
         }
     }
 }
@@ -665,9 +699,10 @@ pub struct Simulator {
     /// and the one share of the sequential assembly.
     shares: Vec<Share>,
     everything: Share,
-    /// The block of each (row, column) vertex pair of each triangle and hinge.
-    tri_slots: Vec<[u32; 9]>,
-    hinge_slots: Vec<[u32; 16]>,
+    /// The place in the system's upper triangle of each (row, column) vertex pair of each
+    /// triangle and hinge, [`ELSEWHERE`] where the row comes after the column.
+    tri_places: Vec<[u32; 9]>,
+    hinge_places: Vec<[u32; 16]>,
     triangle_area_m2: Vec<f64>,
     /// The next step's projection fallback queries every vertex (see
     /// [`Simulator::query_every_vertex_next_step`]).
@@ -863,27 +898,30 @@ impl Simulator {
             pairs.push([h.vertices[2], h.vertices[3]]);
         }
         let pattern = BlockPattern::new(n, &pairs);
-        let slot = |a: u32, b: u32| {
-            pattern
+        let upper_place = |a: u32, b: u32| {
+            if a > b {
+                return ELSEWHERE;
+            }
+            let slot = pattern
                 .slot(a as usize, b as usize)
-                .expect("element pairs are in the pattern") as u32
+                .expect("element pairs are in the pattern");
+            pattern.upper_place(slot) as u32
         };
-        let tri_slots: Vec<[u32; 9]> = sim_cloth
+        let tri_places: Vec<[u32; 9]> = sim_cloth
             .faces()
             .iter()
-            .map(|t| std::array::from_fn(|k| slot(t[k / 3], t[k % 3])))
+            .map(|t| std::array::from_fn(|k| upper_place(t[k / 3], t[k % 3])))
             .collect();
-        let hinge_slots: Vec<[u32; 16]> = sim_cloth
+        let hinge_places: Vec<[u32; 16]> = sim_cloth
             .hinges()
             .iter()
-            .map(|h| std::array::from_fn(|k| slot(h.vertices[k / 4], h.vertices[k % 4])))
+            .map(|h| std::array::from_fn(|k| upper_place(h.vertices[k / 4], h.vertices[k % 4])))
             .collect();
         let everything = Share::split(&sim_cloth, 1).remove(0);
         let shares = match config.parallelism {
             Parallelism::Sequential => Vec::new(),
             Parallelism::Rayon => Share::split(&sim_cloth, rayon::current_num_threads()),
         };
-        let n_blocks = pattern.n_blocks();
         let zeros = vec![Vector3::zeros(); n];
         let ws = Workspace {
             tri_stiffness: vec![StrainStiffness::default(); sim_cloth.faces().len()],
@@ -896,7 +934,7 @@ impl Simulator {
             collider_identity: Vec::new(),
             self_contacts: Vec::new(),
             grid: SelfCollisionGrid::default(),
-            system: vec![Matrix3::zeros(); n_blocks],
+            system: UpperBlocks::zeros(pattern.n_upper()),
             gradient: zeros.clone(),
             rhs: zeros.clone(),
             update: zeros.clone(),
@@ -904,6 +942,7 @@ impl Simulator {
             x_iter: zeros.clone(),
             x_new: zeros.clone(),
             pin_velocity: zeros.clone(),
+            kv: Vec::new(),
             last_acceleration: Vec::with_capacity(n),
             step_acceleration: Vec::with_capacity(n),
             linear: LinearWorkspace::new(&pattern),
@@ -922,8 +961,8 @@ impl Simulator {
             pattern,
             shares,
             everything,
-            tri_slots,
-            hinge_slots,
+            tri_places,
+            hinge_places,
             cloth,
             sim_cloth,
             order,
@@ -1429,53 +1468,88 @@ impl Simulator {
             cloth: &self.sim_cloth,
             config: &self.config,
             pattern: &self.pattern,
-            tri_slots: &self.tri_slots,
-            hinge_slots: &self.hinge_slots,
+            tri_places: &self.tri_places,
+            hinge_places: &self.hinge_places,
             stiffness: &ws.tri_stiffness,
             coefficient: &ws.hinge_coefficient,
             frozen_here,
             x,
             v_plus: &ws.v_plus,
             velocities: &self.v,
-            pinned: &self.pins,
-            pin_velocity: &ws.pin_velocity,
             obstacle_contacts: &ws.obstacle_contacts,
             self_contacts: &ws.self_contacts,
             self_out: &ws.self_out,
             h,
         };
-        let (mut system, mut gradient, mut rhs) =
-            (&mut ws.system[..], &mut ws.gradient[..], &mut ws.rhs[..]);
         let pattern = &self.pattern;
-        if let Parallelism::Sequential = par {
-            let share = &self.everything;
-            let mut rows = Rows::<true>::take(
-                pattern,
-                share.rows.clone(),
-                &mut system,
-                &mut gradient,
-                &mut rhs,
-            );
-            shared.fill(share, &mut rows);
-            return;
-        }
-        // Each share's rows: consecutive pieces of the system.
-        let mut work: Vec<Rows<'_, false>> = self
-            .shares
-            .iter()
-            .map(|share| {
-                Rows::take(
+        // One pass over each share's rows (every row in one share on one thread).
+        let rows_of = |system: &'_ mut UpperBlocks,
+                       gradient: &'_ mut [Vector3<f64>],
+                       rhs: &'_ mut [Vector3<f64>],
+                       pass: &(dyn Fn(&Share, &mut Rows<'_, false>) + Sync),
+                       whole: &dyn Fn(&Share, &mut Rows<'_, true>)| {
+            let (mut upper, mut gradient, mut rhs) = (system.view_mut(), gradient, rhs);
+            if let Parallelism::Sequential = par {
+                let share = &self.everything;
+                let mut rows = Rows::<true>::take(
                     pattern,
                     share.rows.clone(),
-                    &mut system,
+                    &mut upper,
                     &mut gradient,
                     &mut rhs,
-                )
-            })
-            .collect();
-        work.par_iter_mut()
-            .zip(&self.shares)
-            .for_each(|(rows, share)| shared.fill(share, rows));
+                );
+                whole(share, &mut rows);
+                return;
+            }
+            // Each share's rows: consecutive pieces of the system.
+            let mut work: Vec<Rows<'_, false>> = self
+                .shares
+                .iter()
+                .map(|share| {
+                    Rows::take(
+                        pattern,
+                        share.rows.clone(),
+                        &mut upper,
+                        &mut gradient,
+                        &mut rhs,
+                    )
+                })
+                .collect();
+            work.par_iter_mut()
+                .zip(&self.shares)
+                .for_each(|(rows, share)| pass(share, rows));
+        };
+        rows_of(
+            &mut ws.system,
+            &mut ws.gradient,
+            &mut ws.rhs,
+            &|share, rows| shared.fill(share, rows),
+            &|share, rows| shared.fill(share, rows),
+        );
+        if self.config.stiffness_damping_s != 0.0 {
+            // `K v⁺` needs every row's `K`, complete: after the fill, before `A` replaces it.
+            ws.kv.resize(pattern.n_rows(), Vector3::zeros());
+            block_product(pattern, &ws.system, &ws.v_plus, &mut ws.kv, par);
+            let kv = &ws.kv;
+            rows_of(
+                &mut ws.system,
+                &mut ws.gradient,
+                &mut ws.rhs,
+                &|_, rows| shared.finish(rows, Some(kv)),
+                &|_, rows| shared.finish(rows, Some(kv)),
+            );
+        }
+        if self.pins.iter().any(|&p| p) {
+            apply_pins(
+                pattern,
+                &mut ws.system,
+                &mut ws.rhs,
+                &self.pins,
+                &ws.pin_velocity,
+                &ws.v_plus,
+                self.sim_cloth.masses_kg(),
+            );
+        }
     }
 
     /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]).
@@ -1550,6 +1624,104 @@ impl Simulator {
 mod tests {
     use super::*;
     use crate::cloth::rectangle_sheet;
+
+    /// The system's upper triangle as assembled is, bit for bit, the upper half of the full
+    /// system summed element by element (each element's sixteen or nine blocks into both
+    /// triangles, in element order), whose lower half is its transpose: a sheet pinned at
+    /// two corners sags, on one thread and on shares.
+    #[test]
+    fn the_upper_triangle_is_the_full_system_s_and_the_full_system_is_symmetric() {
+        let sheet = rectangle_sheet(
+            Vector3::new(-0.15, 0.12, 0.15),
+            Vector3::x() * 0.3,
+            Vector3::z() * -0.3,
+            14,
+            14,
+        )
+        .expect("a sheet");
+        let h = 1.0 / 300.0;
+        for parallelism in [Parallelism::Sequential, Parallelism::Rayon] {
+            let cloth = Cloth::new(
+                sheet.clone(),
+                crate::material::Material::gray_interlock(),
+                None,
+            )
+            .expect("a cloth");
+            let config = SimConfig {
+                linear_solver: LinearSolver::ConjugateGradient {
+                    max_iterations: 1000,
+                    relative_tolerance: 1e-8,
+                    fallback_to_cholesky: false,
+                },
+                parallelism,
+                ..SimConfig::default()
+            };
+            let mut sim = Simulator::new(cloth, config).expect("a simulator");
+            let last = sim.positions().len() - 1;
+            for v in [0, last] {
+                sim.pin(v, sim.positions()[v]).expect("a pin");
+            }
+            for _ in 0..20 {
+                sim.step(h, &[]).expect("a step");
+            }
+            // The last step's system, summed here into both triangles.
+            let (cloth, pattern, ws) = (&sim.sim_cloth, &sim.pattern, &sim.ws);
+            let x = &ws.x_iter;
+            let n = cloth.n_vertices();
+            let mut full = vec![Matrix3::zeros(); n * n];
+            let material = cloth.material();
+            for (f, m) in cloth.faces().iter().zip(cloth.membranes()) {
+                let d =
+                    m.derivatives_frozen_here(&gather(x, *f), material.membrane(), Projection::Psd);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        full[f[a] as usize * n + f[b] as usize] += d.hessian[a][b];
+                    }
+                }
+            }
+            for hinge in cloth.hinges() {
+                let v = hinge.vertices;
+                if let Some(d) = hinge.gauss_newton_frozen_here(&gather(x, v), material.bending()) {
+                    for a in 0..4 {
+                        for b in 0..4 {
+                            full[v[a] as usize * n + v[b] as usize] += d.block(a, b);
+                        }
+                    }
+                }
+            }
+            let masses = cloth.masses_kg();
+            for i in 0..n {
+                for j in 0..n {
+                    full[i * n + j] *= h * h;
+                    if sim.pins[i] || sim.pins[j] {
+                        full[i * n + j] = Matrix3::zeros();
+                    }
+                }
+                full[i * n + i] += Matrix3::identity() * masses[i];
+            }
+            let bits = |m: &Matrix3<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            for i in 0..n {
+                for s in pattern.row(i) {
+                    let j = pattern.cols()[s] as usize;
+                    let stored = ws.system.block(pattern.upper_place(s));
+                    let expected = full[i * n + j];
+                    if j >= i {
+                        assert_eq!(
+                            bits(&stored),
+                            bits(&expected),
+                            "{parallelism:?}: block ({i}, {j})"
+                        );
+                    } else {
+                        assert_eq!(
+                            bits(&stored.transpose()),
+                            bits(&expected),
+                            "{parallelism:?}: block ({i}, {j}), from its mirror"
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     /// The shares of a 40 × 30 sheet in the simulator's numbering: consecutive ranges that
     /// cover every vertex once, of about equal work, each listing exactly the elements that

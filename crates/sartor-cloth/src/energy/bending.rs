@@ -286,8 +286,15 @@ impl BendingRest {
                 }
             }
         };
-        let (gradient, hess): ([Vector3<f64>; 4], [[Matrix3<f64>; 4]; 4]) =
+        let (gradient, mut hess): ([Vector3<f64>; 4], [[Matrix3<f64>; 4]; 4]) =
             expand_to_vertices(&g, &h, 0, [1, 2, 3]);
+        // The blocks below the diagonal as the transposes of those above (they differ in the
+        // last bits otherwise): the assembled system is symmetric bit for bit.
+        for a in 0..4 {
+            for b in 0..a {
+                hess[a][b] = hess[b][a].transpose();
+            }
+        }
         ElementDerivatives {
             energy_j: coefficient * d * d,
             gradient,

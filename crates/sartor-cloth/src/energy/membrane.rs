@@ -172,8 +172,10 @@ impl MembraneRest {
             k_shear = k_shear.max(0.0);
             stress = project_psd2(&s);
         }
+        // The blocks on and above the diagonal; those below are their transposes, so that
+        // the assembled system is symmetric bit for bit (the CG loop stores one triangle).
         for i in 0..3 {
-            for j in 0..3 {
+            for j in i..3 {
                 let mut h = dg[i][0]
                     * (dg[j][0] * kblock[(0, 0)] + dg[j][1] * kblock[(0, 1)]).transpose()
                     + dg[i][1]
@@ -182,6 +184,7 @@ impl MembraneRest {
                 let geometric = w[i].dot(&(stress * w[j]));
                 h += Matrix3::identity() * geometric;
                 out.hessian[i][j] = h * a;
+                out.hessian[j][i] = out.hessian[i][j].transpose();
             }
         }
         out

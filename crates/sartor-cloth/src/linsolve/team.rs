@@ -28,7 +28,8 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{BlockPattern, CHUNK, inverse_block, row_products};
+use super::upper::{UpperBlocks, upper_row_products};
+use super::{BlockPattern, CHUNK, inverse_block};
 use crate::error::StepFailure;
 
 /// Spins of a thread waiting at the barrier before it starts yielding its core (when the team
@@ -42,7 +43,8 @@ const SPINS: u32 = 4_000;
 /// The system `A x = b` and when to stop.
 pub(super) struct Problem<'a> {
     pub pattern: &'a BlockPattern,
-    pub values: &'a [Matrix3<f64>],
+    /// `A`'s upper triangle ([`super::upper`]).
+    pub upper: &'a UpperBlocks,
     pub b: &'a [Vector3<f64>],
     pub max_iterations: usize,
     pub relative_tolerance: f64,
@@ -167,7 +169,7 @@ impl Shared<'_> {
         let _poison = PoisonOnPanic(&self.barrier.poisoned);
         let Problem {
             pattern,
-            values,
+            upper,
             b,
             max_iterations,
             relative_tolerance,
@@ -203,12 +205,12 @@ impl Shared<'_> {
         // (x the guess, which `p` holds), with each chunk's shares of b · b (in `p_q`) and
         // r · r; the guess dropped if worse than none; `z = P⁻¹ r`, `p = z` and `r · z`.
         for (k, inverse) in inverse.iter_mut().enumerate() {
-            *inverse = inverse_block(&values[pattern.diag_slot(rows.start + k)]);
+            *inverse = inverse_block(&upper.block(pattern.upper_start(rows.start + k)));
         }
         for (c, local) in &chunks {
             let first = rows.start + local.start;
             let out = &mut q[local.clone()];
-            row_products(pattern, values, p, first, out);
+            upper_row_products(pattern, upper, p, first, out);
             for (k, q) in local.clone().zip(out.iter()) {
                 r[k] = b[rows.start + k] - q;
             }
@@ -260,7 +262,7 @@ impl Shared<'_> {
             for (c, local) in &chunks {
                 let first = rows.start + local.start;
                 let out = &mut q[local.clone()];
-                row_products(pattern, values, p, first, out);
+                upper_row_products(pattern, upper, p, first, out);
                 let share: f64 = p[first..first + out.len()]
                     .iter()
                     .zip(out.iter())

@@ -1,0 +1,579 @@
+//! The system's upper triangle, as the CG loop reads it, and its row products.
+//!
+//! The system is symmetric bit for bit (every element's blocks below its diagonal are the
+//! transposes of those above, and the assembly sums each block's contributions in element
+//! order from both sides), so CG reads each off-diagonal block once per product where the
+//! full rows read it twice: about half the bytes per iteration (2.3 against 4.3 MB at 8,710
+//! triangles). Row `i` reads its blocks on and above the diagonal `A_ij` (`j ≥ i`) in its own
+//! run of the triangle, and those below as the transposes of their mirrors `A_ji`, which
+//! the rows just before it have read (still in the core's cache, in the simulator's Morton
+//! order).
+//!
+//! Each block is stored as its first eight values (column-major) in one 64-byte line, its
+//! ninth apart: one aligned load per block, none split over two lines. A product sums, per
+//! row and per stored value `k` of a block, `value_k · x_c` over the row's blocks (`c = k / 3`
+//! for a block above the diagonal, `k mod 3` for a transposed one below), the even and the
+//! odd blocks of each kind apart, and adds the lanes at the row's end in a fixed order
+//! ([`finish`]): eight or four lanes per instruction, and no broadcast of `x_j`'s components.
+//! The portable, AVX2 and AVX-512 kernels do exactly the same arithmetic, so every bit of a
+//! product is the same on any CPU (tested).
+
+use std::ops::Range;
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::BlockPattern;
+
+/// A block's first eight values (column-major), in one cache line.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C, align(64))]
+pub(crate) struct Head(pub [f64; 8]);
+
+/// The upper triangle's blocks (`(i, j)`, `j ≥ i`, row by row; see
+/// [`BlockPattern::upper_start`]): each as its [`Head`] and its ninth value.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct UpperBlocks {
+    pub head: Vec<Head>,
+    pub tail: Vec<f64>,
+}
+
+impl UpperBlocks {
+    /// `n` zero blocks.
+    pub fn zeros(n: usize) -> Self {
+        Self {
+            head: vec![Head::default(); n],
+            tail: vec![0.0; n],
+        }
+    }
+
+    /// The upper triangle of the full blocks `values` over `pattern`.
+    #[cfg(test)]
+    pub fn of(pattern: &BlockPattern, values: &[Matrix3<f64>]) -> Self {
+        let mut out = Self::zeros(pattern.n_upper());
+        let mut view = out.view_mut();
+        for i in 0..pattern.n_rows() {
+            let at = pattern.upper_start(i);
+            for (k, m) in values[pattern.diag_slot(i)..pattern.row(i).end]
+                .iter()
+                .enumerate()
+            {
+                view.set(at + k, m);
+            }
+        }
+        out
+    }
+
+    /// Value `k` (column-major) of the block at `place`.
+    #[inline(always)]
+    pub fn value(&self, place: usize, k: usize) -> f64 {
+        if k < 8 {
+            self.head[place].0[k]
+        } else {
+            self.tail[place]
+        }
+    }
+
+    /// The block at `place`.
+    pub fn block(&self, place: usize) -> Matrix3<f64> {
+        let h = &self.head[place].0;
+        Matrix3::from_column_slice(&[
+            h[0],
+            h[1],
+            h[2],
+            h[3],
+            h[4],
+            h[5],
+            h[6],
+            h[7],
+            self.tail[place],
+        ])
+    }
+
+    /// All blocks, to be written.
+    pub fn view_mut(&mut self) -> UpperMut<'_> {
+        UpperMut {
+            head: &mut self.head,
+            tail: &mut self.tail,
+        }
+    }
+}
+
+/// A run of the upper triangle's blocks, to be written.
+#[derive(Debug)]
+pub(crate) struct UpperMut<'a> {
+    head: &'a mut [Head],
+    tail: &'a mut [f64],
+}
+
+impl<'a> UpperMut<'a> {
+    /// The first `n` blocks, and the rest.
+    pub fn split_at(self, n: usize) -> (Self, Self) {
+        let (h0, h1) = self.head.split_at_mut(n);
+        let (t0, t1) = self.tail.split_at_mut(n);
+        (Self { head: h0, tail: t0 }, Self { head: h1, tail: t1 })
+    }
+
+    /// No blocks.
+    pub fn empty() -> Self {
+        Self {
+            head: &mut [],
+            tail: &mut [],
+        }
+    }
+
+    /// Store `m` as its `k`-th block.
+    #[inline(always)]
+    pub fn set(&mut self, k: usize, m: &Matrix3<f64>) {
+        let v = m.as_slice();
+        self.head[k].0.copy_from_slice(&v[..8]);
+        self.tail[k] = v[8];
+    }
+
+    /// Add `m` to its `k`-th block.
+    #[inline(always)]
+    pub fn add(&mut self, k: usize, m: &Matrix3<f64>) {
+        let (v, head) = (m.as_slice(), &mut self.head[k].0);
+        for (h, v) in head.iter_mut().zip(v) {
+            *h += v;
+        }
+        self.tail[k] += v[8];
+    }
+
+    /// Blocks `range` set to zero.
+    pub fn zero(&mut self, range: Range<usize>) {
+        self.head[range.clone()].fill(Head::default());
+        self.tail[range].fill(0.0);
+    }
+
+    /// Blocks `range` times `s`.
+    #[inline(always)]
+    pub fn scale(&mut self, range: Range<usize>, s: f64) {
+        for h in &mut self.head[range.clone()] {
+            h.0.iter_mut().for_each(|v| *v *= s);
+        }
+        self.tail[range].iter_mut().for_each(|v| *v *= s);
+    }
+
+    /// Add `d` to the diagonal of its `k`-th block.
+    #[inline(always)]
+    pub fn add_to_diagonal(&mut self, k: usize, d: f64) {
+        self.head[k].0[0] += d;
+        self.head[k].0[4] += d;
+        self.tail[k] += d;
+    }
+
+    /// Where its `k`-th block starts, for a prefetch (never dereferenced here).
+    #[inline(always)]
+    pub fn address(&self, k: usize) -> *const Head {
+        self.head.as_ptr().wrapping_add(k)
+    }
+}
+
+/// `out[k] = (A x)_{first + k}` from `A`'s upper triangle `upper` (see the module docs).
+pub(super) fn upper_row_products(
+    pattern: &BlockPattern,
+    upper: &UpperBlocks,
+    x: &[Vector3<f64>],
+    first: usize,
+    out: &mut [Vector3<f64>],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if simd::has_avx512() {
+            simd::rows_avx512(pattern, upper, x, first, out);
+            return;
+        }
+        if simd::has_avx2() {
+            simd::rows_avx2(pattern, upper, x, first, out);
+            return;
+        }
+    }
+    rows_portable(pattern, upper, x, first, out);
+}
+
+/// Row `i`'s blocks below the diagonal (its slots, each read through its mirror) and the
+/// places of those on and above it.
+#[inline(always)]
+fn row_parts(pattern: &BlockPattern, i: usize) -> (Range<usize>, Range<usize>, usize) {
+    let (row, diag) = (pattern.row(i), pattern.diag_slot(i));
+    (row.start..diag, diag..row.end, pattern.upper_start(i))
+}
+
+/// Row `r` of the product from the lane sums: `l` of the blocks below the diagonal (lane
+/// `k = 3 r + c` holds `Σ A_ji[c, r] x_j[c]`) and `u` of those on and above it (lane
+/// `k = 3 c + r` holds `Σ A_ij[r, c] x_j[c]`), each the even blocks' plus the odd ones'.
+#[inline(always)]
+fn finish(l: &[f64; 9], u: &[f64; 9]) -> Vector3<f64> {
+    Vector3::from_fn(|r, _| {
+        ((l[3 * r] + l[3 * r + 1]) + l[3 * r + 2]) + ((u[r] + u[r + 3]) + u[r + 6])
+    })
+}
+
+fn rows_portable(
+    pattern: &BlockPattern,
+    upper: &UpperBlocks,
+    x: &[Vector3<f64>],
+    first: usize,
+    out: &mut [Vector3<f64>],
+) {
+    let value = |at: usize, k: usize| {
+        if k < 8 {
+            upper.head[at].0[k]
+        } else {
+            upper.tail[at]
+        }
+    };
+    for (n, yi) in out.iter_mut().enumerate() {
+        let (lower, mine, start) = row_parts(pattern, first + n);
+        let mut l = [[0.0; 9]; 2];
+        for (b, s) in lower.enumerate() {
+            let (at, v) = (pattern.mirror[s] as usize, &x[pattern.cols[s] as usize]);
+            for k in 0..9 {
+                l[b % 2][k] += value(at, k) * v[k % 3];
+            }
+        }
+        let mut u = [[0.0; 9]; 2];
+        for (b, s) in mine.enumerate() {
+            let (at, v) = (start + b, &x[pattern.cols[s] as usize]);
+            for k in 0..9 {
+                u[b % 2][k] += value(at, k) * v[k / 3];
+            }
+        }
+        *yi = finish(
+            &std::array::from_fn(|k| l[0][k] + l[1][k]),
+            &std::array::from_fn(|k| u[0][k] + u[1][k]),
+        );
+    }
+}
+
+/// The AVX2 and AVX-512 kernels.
+///
+/// Unsafe operations, each with its `SAFETY` comment: the calls of the `#[target_feature]`
+/// functions, sound exactly when the CPU has the features (checked by the only callers), and
+/// the loads from a [`Head`] (aligned, within its eight values) and from an `x_j` (three
+/// values, the fourth and later lanes masked off: not read).
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod simd {
+    use std::arch::x86_64::{
+        __m256d, __m512d, __m512i, _mm256_add_pd, _mm256_load_pd, _mm256_maskload_pd,
+        _mm256_mul_pd, _mm256_permute4x64_pd, _mm256_set_epi64x, _mm256_setzero_pd,
+        _mm256_storeu_pd, _mm512_add_pd, _mm512_load_pd, _mm512_maskz_loadu_pd, _mm512_mul_pd,
+        _mm512_permutexvar_pd, _mm512_set_epi64, _mm512_setzero_pd, _mm512_storeu_pd,
+    };
+
+    use nalgebra::Vector3;
+
+    use super::{BlockPattern, UpperBlocks, finish, row_parts};
+
+    /// Where the kernels read: the blocks' heads and tails and `x`, checked once against the
+    /// pattern, whose columns (`< n_rows()`) and places (`< n_upper()`) are in bounds by
+    /// construction.
+    struct Ends {
+        head: *const f64,
+        tail: *const f64,
+        x: *const f64,
+    }
+
+    impl Ends {
+        fn new(pattern: &BlockPattern, upper: &UpperBlocks, x: &[Vector3<f64>]) -> Self {
+            assert!(
+                upper.head.len() == pattern.n_upper()
+                    && upper.tail.len() == pattern.n_upper()
+                    && x.len() == pattern.n_rows(),
+                "the system's triangle and x must match the pattern"
+            );
+            Self {
+                head: upper.head.as_ptr().cast(),
+                tail: upper.tail.as_ptr(),
+                x: x.as_ptr().cast(),
+            }
+        }
+
+        /// Block `at`'s head and tail, and `x_c`.
+        ///
+        /// # Safety
+        ///
+        /// `at < n_upper()` and `c < n_rows()` of the pattern `self` was made for.
+        #[inline(always)]
+        unsafe fn at(&self, at: u32, c: u32) -> (*const f64, f64, *const f64) {
+            let (at, c) = (at as usize, c as usize);
+            // SAFETY: in bounds by the caller's promise (`Head` is eight f64, `Vector3` three).
+            unsafe { (self.head.add(8 * at), *self.tail.add(at), self.x.add(3 * c)) }
+        }
+    }
+
+    pub(super) fn has_avx2() -> bool {
+        is_x86_feature_detected!("avx2")
+    }
+
+    pub(super) fn has_avx512() -> bool {
+        is_x86_feature_detected!("avx512f")
+    }
+
+    /// Call only when [`has_avx512`].
+    pub(super) fn rows_avx512(
+        pattern: &BlockPattern,
+        upper: &UpperBlocks,
+        x: &[Vector3<f64>],
+        first: usize,
+        out: &mut [Vector3<f64>],
+    ) {
+        /// `acc + head ⊙ x_j[index]` (eight lanes) and `acc8 + tail · x_j.z` (the ninth), for
+        /// the block at `at` and `x_j` at `c`.
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        fn add(acc: &mut (__m512d, f64), ends: &Ends, at: u32, c: u32, index: __m512i) {
+            // SAFETY: `at` and `c` are in bounds (`Ends`); a `Head` is 64-byte aligned and
+            // holds eight f64; `x_j` holds three, the lanes from the fourth on are masked off.
+            unsafe {
+                let (head, tail, v) = ends.at(at, c);
+                let h = _mm512_load_pd(head);
+                let xv = _mm512_maskz_loadu_pd(0b111, v);
+                acc.0 = _mm512_add_pd(acc.0, _mm512_mul_pd(h, _mm512_permutexvar_pd(index, xv)));
+                acc.1 += tail * *v.add(2);
+            }
+        }
+        #[target_feature(enable = "avx512f")]
+        fn rows(
+            pattern: &BlockPattern,
+            upper: &UpperBlocks,
+            x: &[Vector3<f64>],
+            first: usize,
+            out: &mut [Vector3<f64>],
+        ) {
+            // Lane k takes x_j[k mod 3] (below the diagonal) or x_j[k / 3] (on and above).
+            let below = _mm512_set_epi64(1, 0, 2, 1, 0, 2, 1, 0);
+            let above = _mm512_set_epi64(2, 2, 1, 1, 1, 0, 0, 0);
+            let zero = || (_mm512_setzero_pd(), 0.0);
+            let ends = Ends::new(pattern, upper, x);
+            for (n, yi) in out.iter_mut().enumerate() {
+                let (lower, mine, start) = row_parts(pattern, first + n);
+                let (mut l0, mut l1) = (zero(), zero());
+                let mut blocks = pattern.mirror[lower.clone()]
+                    .iter()
+                    .zip(&pattern.cols[lower]);
+                while let Some((&at, &c)) = blocks.next() {
+                    add(&mut l0, &ends, at, c, below);
+                    if let Some((&at, &c)) = blocks.next() {
+                        add(&mut l1, &ends, at, c, below);
+                    }
+                }
+                let (mut u0, mut u1) = (zero(), zero());
+                let mut blocks = pattern.cols[mine].iter().zip(start as u32..);
+                while let Some((&c, at)) = blocks.next() {
+                    add(&mut u0, &ends, at, c, above);
+                    if let Some((&c, at)) = blocks.next() {
+                        add(&mut u1, &ends, at, c, above);
+                    }
+                }
+                let (mut l, mut u) = ([0.0; 9], [0.0; 9]);
+                // SAFETY: `l` and `u` hold the eight values stored.
+                unsafe {
+                    _mm512_storeu_pd(l.as_mut_ptr(), _mm512_add_pd(l0.0, l1.0));
+                    _mm512_storeu_pd(u.as_mut_ptr(), _mm512_add_pd(u0.0, u1.0));
+                }
+                (l[8], u[8]) = (l0.1 + l1.1, u0.1 + u1.1);
+                *yi = finish(&l, &u);
+            }
+        }
+        debug_assert!(has_avx512());
+        // SAFETY: the caller checked that the CPU has AVX-512F.
+        unsafe { rows(pattern, upper, x, first, out) }
+    }
+
+    /// Call only when [`has_avx2`].
+    pub(super) fn rows_avx2(
+        pattern: &BlockPattern,
+        upper: &UpperBlocks,
+        x: &[Vector3<f64>],
+        first: usize,
+        out: &mut [Vector3<f64>],
+    ) {
+        /// Lanes 0..4 and 4..8 of a block, and the ninth.
+        type Acc = (__m256d, __m256d, f64);
+        /// `acc + head ⊙ x_j[index]` as [`rows_avx512`]'s `add`, in two halves: `LO` and
+        /// `HI` are the `vpermpd` selectors of `x_j`'s lanes for lanes 0..4 and 4..8.
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        fn add<const LO: i32, const HI: i32>(acc: &mut Acc, ends: &Ends, at: u32, c: u32) {
+            // SAFETY: `at` and `c` are in bounds (`Ends`); a `Head` is 64-byte aligned and
+            // holds eight f64 (two aligned halves); `x_j` holds three, lane 3 is masked off.
+            unsafe {
+                let (head, tail, v) = ends.at(at, c);
+                let h0 = _mm256_load_pd(head);
+                let h1 = _mm256_load_pd(head.add(4));
+                let xv = _mm256_maskload_pd(v, _mm256_set_epi64x(0, -1, -1, -1));
+                acc.0 = _mm256_add_pd(acc.0, _mm256_mul_pd(h0, _mm256_permute4x64_pd::<LO>(xv)));
+                acc.1 = _mm256_add_pd(acc.1, _mm256_mul_pd(h1, _mm256_permute4x64_pd::<HI>(xv)));
+                acc.2 += tail * *v.add(2);
+            }
+        }
+        // Below the diagonal lanes take x_j[k mod 3]: (0 1 2 0), (1 2 0 1); on and above
+        // x_j[k / 3]: (0 0 0 1), (1 1 2 2). Selector: lane t's source in bits 2t..2t+2.
+        const BELOW_LO: i32 = 0b00_10_01_00;
+        const BELOW_HI: i32 = 0b01_00_10_01;
+        const ABOVE_LO: i32 = 0b01_00_00_00;
+        const ABOVE_HI: i32 = 0b10_10_01_01;
+        #[target_feature(enable = "avx2")]
+        fn rows(
+            pattern: &BlockPattern,
+            upper: &UpperBlocks,
+            x: &[Vector3<f64>],
+            first: usize,
+            out: &mut [Vector3<f64>],
+        ) {
+            let zero = || (_mm256_setzero_pd(), _mm256_setzero_pd(), 0.0);
+            let ends = Ends::new(pattern, upper, x);
+            for (n, yi) in out.iter_mut().enumerate() {
+                let (lower, mine, start) = row_parts(pattern, first + n);
+                let (mut l0, mut l1) = (zero(), zero());
+                let mut blocks = pattern.mirror[lower.clone()]
+                    .iter()
+                    .zip(&pattern.cols[lower]);
+                while let Some((&at, &c)) = blocks.next() {
+                    add::<BELOW_LO, BELOW_HI>(&mut l0, &ends, at, c);
+                    if let Some((&at, &c)) = blocks.next() {
+                        add::<BELOW_LO, BELOW_HI>(&mut l1, &ends, at, c);
+                    }
+                }
+                let (mut u0, mut u1) = (zero(), zero());
+                let mut blocks = pattern.cols[mine].iter().zip(start as u32..);
+                while let Some((&c, at)) = blocks.next() {
+                    add::<ABOVE_LO, ABOVE_HI>(&mut u0, &ends, at, c);
+                    if let Some((&c, at)) = blocks.next() {
+                        add::<ABOVE_LO, ABOVE_HI>(&mut u1, &ends, at, c);
+                    }
+                }
+                let (mut l, mut u) = ([0.0; 9], [0.0; 9]);
+                // SAFETY: `l` and `u` hold the eight values stored.
+                unsafe {
+                    _mm256_storeu_pd(l.as_mut_ptr(), _mm256_add_pd(l0.0, l1.0));
+                    _mm256_storeu_pd(l.as_mut_ptr().add(4), _mm256_add_pd(l0.1, l1.1));
+                    _mm256_storeu_pd(u.as_mut_ptr(), _mm256_add_pd(u0.0, u1.0));
+                    _mm256_storeu_pd(u.as_mut_ptr().add(4), _mm256_add_pd(u0.1, u1.1));
+                }
+                (l[8], u[8]) = (l0.2 + l1.2, u0.2 + u1.2);
+                *yi = finish(&l, &u);
+            }
+        }
+        debug_assert!(has_avx2());
+        // SAFETY: the caller checked that the CPU has AVX2.
+        unsafe { rows(pattern, upper, x, first, out) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An irregular symmetric system (a chain with scattered couplings; values of mixed signs
+    /// and magnitudes, every block below the diagonal the transpose of its mirror) and an `x`.
+    fn system(n: usize) -> (BlockPattern, Vec<Matrix3<f64>>, Vec<Vector3<f64>>) {
+        let mut pairs: Vec<[u32; 2]> = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
+        pairs.extend((0..n as u32).map(|i| [i, (i * 37 + 11) % n as u32]));
+        let pattern = BlockPattern::new(n, &pairs);
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 10f64.powi((seed % 7) as i32 - 3)
+        };
+        let mut values = vec![Matrix3::zeros(); pattern.n_blocks()];
+        for i in 0..n {
+            for s in pattern.row(i) {
+                let j = pattern.cols()[s] as usize;
+                if j >= i {
+                    values[s] = Matrix3::from_fn(|_, _| next());
+                    let mirror = pattern.slot(j, i).expect("symmetric pattern");
+                    values[mirror] = values[s].transpose();
+                }
+            }
+        }
+        let x = (0..n)
+            .map(|_| Vector3::new(next(), next(), next()))
+            .collect();
+        (pattern, values, x)
+    }
+
+    #[test]
+    fn the_triangle_holds_every_block_once_and_its_mirror_finds_it() {
+        let (pattern, values, _) = system(300);
+        let upper = UpperBlocks::of(&pattern, &values);
+        assert_eq!(
+            pattern.n_upper(),
+            (pattern.n_blocks() + pattern.n_rows()) / 2
+        );
+        for i in 0..pattern.n_rows() {
+            for s in pattern.row(i) {
+                let j = pattern.cols()[s] as usize;
+                let stored = upper.block(pattern.mirror[s] as usize);
+                let expected = if j >= i {
+                    values[s]
+                } else {
+                    values[s].transpose()
+                };
+                assert_eq!(stored, expected, "block ({i}, {j})");
+            }
+        }
+    }
+
+    #[test]
+    fn every_instruction_set_gives_the_same_products_as_documented() {
+        let n = 300;
+        let (pattern, values, x) = system(n);
+        let upper = UpperBlocks::of(&pattern, &values);
+        let mut portable = vec![Vector3::zeros(); n];
+        rows_portable(&pattern, &upper, &x, 0, &mut portable);
+        // The documented arithmetic, block by block, from the full rows.
+        for (i, y) in portable.iter().enumerate() {
+            let (mut l, mut u) = ([[0.0; 9]; 2], [[0.0; 9]; 2]);
+            let (mut below, mut above) = (0, 0);
+            for s in pattern.row(i) {
+                let (j, m) = (pattern.cols()[s] as usize, values[s]);
+                for r in 0..3 {
+                    for c in 0..3 {
+                        if j < i {
+                            l[below % 2][3 * r + c] += m[(r, c)] * x[j][c];
+                        } else {
+                            u[above % 2][3 * c + r] += m[(r, c)] * x[j][c];
+                        }
+                    }
+                }
+                if j < i {
+                    below += 1;
+                } else {
+                    above += 1;
+                }
+            }
+            let sum = |a: &[[f64; 9]; 2]| std::array::from_fn(|k| a[0][k] + a[1][k]);
+            assert_eq!(*y, finish(&sum(&l), &sum(&u)), "row {i}");
+            // And the product it stands for, to rounding.
+            let full: Vector3<f64> = pattern
+                .row(i)
+                .map(|s| values[s] * x[pattern.cols()[s] as usize])
+                .sum();
+            assert!((y - full).norm() <= 1e-12 * (1.0 + full.norm()), "row {i}");
+        }
+        type Kernel = fn(&BlockPattern, &UpperBlocks, &[Vector3<f64>], usize, &mut [Vector3<f64>]);
+        let mut kernels: Vec<(&str, Kernel)> = vec![("dispatched", upper_row_products)];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if simd::has_avx2() {
+                kernels.push(("AVX2", simd::rows_avx2));
+            }
+            if simd::has_avx512() {
+                kernels.push(("AVX-512", simd::rows_avx512));
+            }
+        }
+        for (name, kernel) in kernels {
+            let mut y = vec![Vector3::zeros(); n];
+            kernel(&pattern, &upper, &x, 0, &mut y);
+            assert_eq!(y, portable, "{name}");
+            // A chunk that starts inside the matrix.
+            kernel(&pattern, &upper, &x, 100, &mut y[..57]);
+            assert_eq!(y[..57], portable[100..157], "{name}");
+        }
+    }
+}
