@@ -256,10 +256,10 @@ fn rows_portable(
 #[allow(unsafe_code)]
 mod simd {
     use std::arch::x86_64::{
-        __m256d, __m512d, __m512i, _mm256_add_pd, _mm256_load_pd, _mm256_maskload_pd,
-        _mm256_mul_pd, _mm256_permute4x64_pd, _mm256_set_epi64x, _mm256_setzero_pd,
-        _mm256_storeu_pd, _mm512_add_pd, _mm512_load_pd, _mm512_maskz_loadu_pd, _mm512_mul_pd,
-        _mm512_permutexvar_pd, _mm512_set_epi64, _mm512_setzero_pd, _mm512_storeu_pd,
+        __m256d, __m512d, _mm256_add_pd, _mm256_load_pd, _mm256_maskload_pd, _mm256_mul_pd,
+        _mm256_permute4x64_pd, _mm256_set_epi64x, _mm256_setzero_pd, _mm256_storeu_pd,
+        _mm512_add_pd, _mm512_load_pd, _mm512_maskz_loadu_pd, _mm512_mul_pd, _mm512_permutexvar_pd,
+        _mm512_set_epi64, _mm512_setzero_pd, _mm512_storeu_pd,
     };
 
     use nalgebra::Vector3;
@@ -311,6 +311,176 @@ mod simd {
         is_x86_feature_detected!("avx512f")
     }
 
+    /// The lane sums of a row's blocks in one instruction set: eight lanes (a block's
+    /// [`Head`](super::Head)) in vectors and the ninth apart.
+    trait Lanes: Copy {
+        /// Zero sums.
+        ///
+        /// # Safety
+        ///
+        /// The CPU has the instruction set.
+        unsafe fn zero() -> Self;
+
+        /// `self + head ⊙ x_j[lane's component]` (lane `k` takes `x_j[k mod 3]` `BELOW` the
+        /// diagonal, `x_j[k / 3]` on and above) and `ninth + tail · x_j.z`, for the block at
+        /// `at` and `x_j` at `c`.
+        ///
+        /// # Safety
+        ///
+        /// The CPU has the instruction set; `at < n_upper()` and `c < n_rows()` of the
+        /// pattern `ends` was made for.
+        unsafe fn add<const BELOW: bool>(&mut self, ends: &Ends, at: u32, c: u32);
+
+        /// `a + b`, lane by lane, as nine values.
+        ///
+        /// # Safety
+        ///
+        /// The CPU has the instruction set.
+        unsafe fn sum(a: Self, b: Self) -> [f64; 9];
+    }
+
+    /// AVX-512: the eight lanes in one vector.
+    #[derive(Clone, Copy)]
+    struct Wide(__m512d, f64);
+
+    impl Lanes for Wide {
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        unsafe fn zero() -> Self {
+            Self(_mm512_setzero_pd(), 0.0)
+        }
+
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        unsafe fn add<const BELOW: bool>(&mut self, ends: &Ends, at: u32, c: u32) {
+            let index = if BELOW {
+                _mm512_set_epi64(1, 0, 2, 1, 0, 2, 1, 0)
+            } else {
+                _mm512_set_epi64(2, 2, 1, 1, 1, 0, 0, 0)
+            };
+            // SAFETY: `at` and `c` are in bounds (the caller's promise); a `Head` is 64-byte
+            // aligned and holds eight f64; `x_j` holds three, the lanes from the fourth on
+            // are masked off.
+            unsafe {
+                let (head, tail, v) = ends.at(at, c);
+                let h = _mm512_load_pd(head);
+                let xv = _mm512_permutexvar_pd(index, _mm512_maskz_loadu_pd(0b111, v));
+                self.0 = _mm512_add_pd(self.0, _mm512_mul_pd(h, xv));
+                self.1 += tail * *v.add(2);
+            }
+        }
+
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        unsafe fn sum(a: Self, b: Self) -> [f64; 9] {
+            let mut out = [0.0; 9];
+            // SAFETY: `out` holds the eight values stored.
+            unsafe { _mm512_storeu_pd(out.as_mut_ptr(), _mm512_add_pd(a.0, b.0)) };
+            out[8] = a.1 + b.1;
+            out
+        }
+    }
+
+    /// AVX2: the eight lanes in two vectors.
+    #[derive(Clone, Copy)]
+    struct Halves(__m256d, __m256d, f64);
+
+    impl Lanes for Halves {
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        unsafe fn zero() -> Self {
+            Self(_mm256_setzero_pd(), _mm256_setzero_pd(), 0.0)
+        }
+
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        unsafe fn add<const BELOW: bool>(&mut self, ends: &Ends, at: u32, c: u32) {
+            // `vpermpd` selectors (lane t's source in bits 2t..2t+2): below the diagonal
+            // (0 1 2 0), (1 2 0 1); on and above (0 0 0 1), (1 1 2 2).
+            const BELOW_LO: i32 = 0b00_10_01_00;
+            const BELOW_HI: i32 = 0b01_00_10_01;
+            const ABOVE_LO: i32 = 0b01_00_00_00;
+            const ABOVE_HI: i32 = 0b10_10_01_01;
+            // SAFETY: as in `Wide::add`; the head is two aligned halves, lane 3 of `x_j` is
+            // masked off.
+            unsafe {
+                let (head, tail, v) = ends.at(at, c);
+                let (h0, h1) = (_mm256_load_pd(head), _mm256_load_pd(head.add(4)));
+                let xv = _mm256_maskload_pd(v, _mm256_set_epi64x(0, -1, -1, -1));
+                let (x0, x1) = if BELOW {
+                    (
+                        _mm256_permute4x64_pd::<BELOW_LO>(xv),
+                        _mm256_permute4x64_pd::<BELOW_HI>(xv),
+                    )
+                } else {
+                    (
+                        _mm256_permute4x64_pd::<ABOVE_LO>(xv),
+                        _mm256_permute4x64_pd::<ABOVE_HI>(xv),
+                    )
+                };
+                self.0 = _mm256_add_pd(self.0, _mm256_mul_pd(h0, x0));
+                self.1 = _mm256_add_pd(self.1, _mm256_mul_pd(h1, x1));
+                self.2 += tail * *v.add(2);
+            }
+        }
+
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        unsafe fn sum(a: Self, b: Self) -> [f64; 9] {
+            let mut out = [0.0; 9];
+            // SAFETY: `out` holds the eight values stored.
+            unsafe {
+                _mm256_storeu_pd(out.as_mut_ptr(), _mm256_add_pd(a.0, b.0));
+                _mm256_storeu_pd(out.as_mut_ptr().add(4), _mm256_add_pd(a.1, b.1));
+            }
+            out[8] = a.2 + b.2;
+            out
+        }
+    }
+
+    /// [`super::rows_portable`] in lanes `L`.
+    ///
+    /// # Safety
+    ///
+    /// The CPU has `L`'s instruction set (the callers enable it, and this is inlined into
+    /// them).
+    #[inline(always)]
+    unsafe fn rows<L: Lanes>(
+        pattern: &BlockPattern,
+        upper: &UpperBlocks,
+        x: &[Vector3<f64>],
+        first: usize,
+        out: &mut [Vector3<f64>],
+    ) {
+        let ends = Ends::new(pattern, upper, x);
+        // SAFETY: the CPU has the instruction set (the caller's promise); the blocks' places
+        // and columns come from the pattern `ends` was checked against.
+        unsafe {
+            for (n, yi) in out.iter_mut().enumerate() {
+                let (lower, mine, start) = row_parts(pattern, first + n);
+                let (mut l0, mut l1) = (L::zero(), L::zero());
+                let mut blocks = pattern.mirror[lower.clone()]
+                    .iter()
+                    .zip(&pattern.cols[lower]);
+                while let Some((&at, &c)) = blocks.next() {
+                    l0.add::<true>(&ends, at, c);
+                    if let Some((&at, &c)) = blocks.next() {
+                        l1.add::<true>(&ends, at, c);
+                    }
+                }
+                let (mut u0, mut u1) = (L::zero(), L::zero());
+                let mut blocks = pattern.cols[mine].iter().zip(start as u32..);
+                while let Some((&c, at)) = blocks.next() {
+                    u0.add::<false>(&ends, at, c);
+                    if let Some((&c, at)) = blocks.next() {
+                        u1.add::<false>(&ends, at, c);
+                    }
+                }
+                *yi = finish(&L::sum(l0, l1), &L::sum(u0, u1));
+            }
+        }
+    }
+
     /// Call only when [`has_avx512`].
     pub(super) fn rows_avx512(
         pattern: &BlockPattern,
@@ -319,67 +489,20 @@ mod simd {
         first: usize,
         out: &mut [Vector3<f64>],
     ) {
-        /// `acc + head ⊙ x_j[index]` (eight lanes) and `acc8 + tail · x_j.z` (the ninth), for
-        /// the block at `at` and `x_j` at `c`.
         #[target_feature(enable = "avx512f")]
-        #[inline]
-        fn add(acc: &mut (__m512d, f64), ends: &Ends, at: u32, c: u32, index: __m512i) {
-            // SAFETY: `at` and `c` are in bounds (`Ends`); a `Head` is 64-byte aligned and
-            // holds eight f64; `x_j` holds three, the lanes from the fourth on are masked off.
-            unsafe {
-                let (head, tail, v) = ends.at(at, c);
-                let h = _mm512_load_pd(head);
-                let xv = _mm512_maskz_loadu_pd(0b111, v);
-                acc.0 = _mm512_add_pd(acc.0, _mm512_mul_pd(h, _mm512_permutexvar_pd(index, xv)));
-                acc.1 += tail * *v.add(2);
-            }
-        }
-        #[target_feature(enable = "avx512f")]
-        fn rows(
+        fn enabled(
             pattern: &BlockPattern,
             upper: &UpperBlocks,
             x: &[Vector3<f64>],
             first: usize,
             out: &mut [Vector3<f64>],
         ) {
-            // Lane k takes x_j[k mod 3] (below the diagonal) or x_j[k / 3] (on and above).
-            let below = _mm512_set_epi64(1, 0, 2, 1, 0, 2, 1, 0);
-            let above = _mm512_set_epi64(2, 2, 1, 1, 1, 0, 0, 0);
-            let zero = || (_mm512_setzero_pd(), 0.0);
-            let ends = Ends::new(pattern, upper, x);
-            for (n, yi) in out.iter_mut().enumerate() {
-                let (lower, mine, start) = row_parts(pattern, first + n);
-                let (mut l0, mut l1) = (zero(), zero());
-                let mut blocks = pattern.mirror[lower.clone()]
-                    .iter()
-                    .zip(&pattern.cols[lower]);
-                while let Some((&at, &c)) = blocks.next() {
-                    add(&mut l0, &ends, at, c, below);
-                    if let Some((&at, &c)) = blocks.next() {
-                        add(&mut l1, &ends, at, c, below);
-                    }
-                }
-                let (mut u0, mut u1) = (zero(), zero());
-                let mut blocks = pattern.cols[mine].iter().zip(start as u32..);
-                while let Some((&c, at)) = blocks.next() {
-                    add(&mut u0, &ends, at, c, above);
-                    if let Some((&c, at)) = blocks.next() {
-                        add(&mut u1, &ends, at, c, above);
-                    }
-                }
-                let (mut l, mut u) = ([0.0; 9], [0.0; 9]);
-                // SAFETY: `l` and `u` hold the eight values stored.
-                unsafe {
-                    _mm512_storeu_pd(l.as_mut_ptr(), _mm512_add_pd(l0.0, l1.0));
-                    _mm512_storeu_pd(u.as_mut_ptr(), _mm512_add_pd(u0.0, u1.0));
-                }
-                (l[8], u[8]) = (l0.1 + l1.1, u0.1 + u1.1);
-                *yi = finish(&l, &u);
-            }
+            // SAFETY: this function enables AVX-512F.
+            unsafe { rows::<Wide>(pattern, upper, x, first, out) }
         }
         debug_assert!(has_avx512());
         // SAFETY: the caller checked that the CPU has AVX-512F.
-        unsafe { rows(pattern, upper, x, first, out) }
+        unsafe { enabled(pattern, upper, x, first, out) }
     }
 
     /// Call only when [`has_avx2`].
@@ -390,76 +513,20 @@ mod simd {
         first: usize,
         out: &mut [Vector3<f64>],
     ) {
-        /// Lanes 0..4 and 4..8 of a block, and the ninth.
-        type Acc = (__m256d, __m256d, f64);
-        /// `acc + head ⊙ x_j[index]` as [`rows_avx512`]'s `add`, in two halves: `LO` and
-        /// `HI` are the `vpermpd` selectors of `x_j`'s lanes for lanes 0..4 and 4..8.
         #[target_feature(enable = "avx2")]
-        #[inline]
-        fn add<const LO: i32, const HI: i32>(acc: &mut Acc, ends: &Ends, at: u32, c: u32) {
-            // SAFETY: `at` and `c` are in bounds (`Ends`); a `Head` is 64-byte aligned and
-            // holds eight f64 (two aligned halves); `x_j` holds three, lane 3 is masked off.
-            unsafe {
-                let (head, tail, v) = ends.at(at, c);
-                let h0 = _mm256_load_pd(head);
-                let h1 = _mm256_load_pd(head.add(4));
-                let xv = _mm256_maskload_pd(v, _mm256_set_epi64x(0, -1, -1, -1));
-                acc.0 = _mm256_add_pd(acc.0, _mm256_mul_pd(h0, _mm256_permute4x64_pd::<LO>(xv)));
-                acc.1 = _mm256_add_pd(acc.1, _mm256_mul_pd(h1, _mm256_permute4x64_pd::<HI>(xv)));
-                acc.2 += tail * *v.add(2);
-            }
-        }
-        // Below the diagonal lanes take x_j[k mod 3]: (0 1 2 0), (1 2 0 1); on and above
-        // x_j[k / 3]: (0 0 0 1), (1 1 2 2). Selector: lane t's source in bits 2t..2t+2.
-        const BELOW_LO: i32 = 0b00_10_01_00;
-        const BELOW_HI: i32 = 0b01_00_10_01;
-        const ABOVE_LO: i32 = 0b01_00_00_00;
-        const ABOVE_HI: i32 = 0b10_10_01_01;
-        #[target_feature(enable = "avx2")]
-        fn rows(
+        fn enabled(
             pattern: &BlockPattern,
             upper: &UpperBlocks,
             x: &[Vector3<f64>],
             first: usize,
             out: &mut [Vector3<f64>],
         ) {
-            let zero = || (_mm256_setzero_pd(), _mm256_setzero_pd(), 0.0);
-            let ends = Ends::new(pattern, upper, x);
-            for (n, yi) in out.iter_mut().enumerate() {
-                let (lower, mine, start) = row_parts(pattern, first + n);
-                let (mut l0, mut l1) = (zero(), zero());
-                let mut blocks = pattern.mirror[lower.clone()]
-                    .iter()
-                    .zip(&pattern.cols[lower]);
-                while let Some((&at, &c)) = blocks.next() {
-                    add::<BELOW_LO, BELOW_HI>(&mut l0, &ends, at, c);
-                    if let Some((&at, &c)) = blocks.next() {
-                        add::<BELOW_LO, BELOW_HI>(&mut l1, &ends, at, c);
-                    }
-                }
-                let (mut u0, mut u1) = (zero(), zero());
-                let mut blocks = pattern.cols[mine].iter().zip(start as u32..);
-                while let Some((&c, at)) = blocks.next() {
-                    add::<ABOVE_LO, ABOVE_HI>(&mut u0, &ends, at, c);
-                    if let Some((&c, at)) = blocks.next() {
-                        add::<ABOVE_LO, ABOVE_HI>(&mut u1, &ends, at, c);
-                    }
-                }
-                let (mut l, mut u) = ([0.0; 9], [0.0; 9]);
-                // SAFETY: `l` and `u` hold the eight values stored.
-                unsafe {
-                    _mm256_storeu_pd(l.as_mut_ptr(), _mm256_add_pd(l0.0, l1.0));
-                    _mm256_storeu_pd(l.as_mut_ptr().add(4), _mm256_add_pd(l0.1, l1.1));
-                    _mm256_storeu_pd(u.as_mut_ptr(), _mm256_add_pd(u0.0, u1.0));
-                    _mm256_storeu_pd(u.as_mut_ptr().add(4), _mm256_add_pd(u0.1, u1.1));
-                }
-                (l[8], u[8]) = (l0.2 + l1.2, u0.2 + u1.2);
-                *yi = finish(&l, &u);
-            }
+            // SAFETY: this function enables AVX2.
+            unsafe { rows::<Halves>(pattern, upper, x, first, out) }
         }
         debug_assert!(has_avx2());
         // SAFETY: the caller checked that the CPU has AVX2.
-        unsafe { rows(pattern, upper, x, first, out) }
+        unsafe { enabled(pattern, upper, x, first, out) }
     }
 }
 
