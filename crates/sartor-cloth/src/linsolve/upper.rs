@@ -481,53 +481,43 @@ mod simd {
         }
     }
 
-    /// Call only when [`has_avx512`].
-    pub(super) fn rows_avx512(
-        pattern: &BlockPattern,
-        upper: &UpperBlocks,
-        x: &[Vector3<f64>],
-        first: usize,
-        out: &mut [Vector3<f64>],
-    ) {
-        #[target_feature(enable = "avx512f")]
-        fn enabled(
-            pattern: &BlockPattern,
-            upper: &UpperBlocks,
-            x: &[Vector3<f64>],
-            first: usize,
-            out: &mut [Vector3<f64>],
-        ) {
-            // SAFETY: this function enables AVX-512F.
-            unsafe { rows::<Wide>(pattern, upper, x, first, out) }
-        }
-        debug_assert!(has_avx512());
-        // SAFETY: the caller checked that the CPU has AVX-512F.
-        unsafe { enabled(pattern, upper, x, first, out) }
+    /// A kernel entry point: `rows::<$lanes>` in a function that enables `$feature`.
+    macro_rules! kernel {
+        ($(#[$doc:meta])* $name:ident, $feature:literal, $lanes:ty, $has:ident) => {
+            $(#[$doc])*
+            pub(super) fn $name(
+                pattern: &BlockPattern,
+                upper: &UpperBlocks,
+                x: &[Vector3<f64>],
+                first: usize,
+                out: &mut [Vector3<f64>],
+            ) {
+                #[target_feature(enable = $feature)]
+                fn enabled(
+                    pattern: &BlockPattern,
+                    upper: &UpperBlocks,
+                    x: &[Vector3<f64>],
+                    first: usize,
+                    out: &mut [Vector3<f64>],
+                ) {
+                    // SAFETY: this function enables the instruction set.
+                    unsafe { rows::<$lanes>(pattern, upper, x, first, out) }
+                }
+                debug_assert!($has());
+                // SAFETY: the caller checked that the CPU has the instruction set.
+                unsafe { enabled(pattern, upper, x, first, out) }
+            }
+        };
     }
 
-    /// Call only when [`has_avx2`].
-    pub(super) fn rows_avx2(
-        pattern: &BlockPattern,
-        upper: &UpperBlocks,
-        x: &[Vector3<f64>],
-        first: usize,
-        out: &mut [Vector3<f64>],
-    ) {
-        #[target_feature(enable = "avx2")]
-        fn enabled(
-            pattern: &BlockPattern,
-            upper: &UpperBlocks,
-            x: &[Vector3<f64>],
-            first: usize,
-            out: &mut [Vector3<f64>],
-        ) {
-            // SAFETY: this function enables AVX2.
-            unsafe { rows::<Halves>(pattern, upper, x, first, out) }
-        }
-        debug_assert!(has_avx2());
-        // SAFETY: the caller checked that the CPU has AVX2.
-        unsafe { enabled(pattern, upper, x, first, out) }
-    }
+    kernel!(
+        /// Call only when [`has_avx512`].
+        rows_avx512, "avx512f", Wide, has_avx512
+    );
+    kernel!(
+        /// Call only when [`has_avx2`].
+        rows_avx2, "avx2", Halves, has_avx2
+    );
 }
 
 #[cfg(test)]
