@@ -70,14 +70,13 @@ pub struct LinearSolveStats {
 }
 
 /// Symmetric block-sparse pattern: per vertex row, the sorted columns (vertices) it couples to,
-/// the diagonal included. Both triangles are stored.
+/// the diagonal included (both triangles listed).
 ///
 /// It also lays out the system's *upper triangle* (blocks `(i, j)` with `j ≥ i`, row by row: row
-/// `i`'s blocks from its diagonal on, the same order as in the full rows), which the CG loop
-/// reads instead of both triangles ([`upper`]): a block below the diagonal is
-/// read as the transpose of its mirror. The assembly makes the system symmetric bit for bit
-/// (every element's blocks below its diagonal are the transposes of those above), so the
-/// products are bitwise those of the full rows, from about half the bytes.
+/// `i`'s blocks from its diagonal on, in column order), the only part of the system stored
+/// ([`upper`]): the assembly makes the system symmetric bit for bit (every element's blocks
+/// below its diagonal are the transposes of those above), and a block below the diagonal is
+/// read as the transpose of its mirror.
 #[derive(Clone, Debug)]
 pub(crate) struct BlockPattern {
     row_offsets: Vec<usize>,
@@ -465,9 +464,13 @@ impl LinearWorkspace {
         for (i, inverse) in self.inverse_diagonal.iter_mut().enumerate() {
             *inverse = inverse_block(&upper.block(pattern.upper_start(i)));
         }
-        for (c, out) in self.product.chunks_mut(CHUNK).enumerate() {
-            upper_row_products(pattern, upper, x, c * CHUNK, out);
-        }
+        block_product(
+            pattern,
+            upper,
+            x,
+            &mut self.product,
+            Parallelism::Sequential,
+        );
         for i in 0..n {
             self.residual[i] = b[i] - self.product[i];
         }

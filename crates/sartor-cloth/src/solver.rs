@@ -477,15 +477,88 @@ impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
 /// mirror `(b, a)`, the transpose, is).
 const ELSEWHERE: u32 = u32::MAX;
 
+/// A pass of the assembly over a share's rows.
+enum Pass<'a> {
+    /// The stiffness and gradient, then the system and right-hand side (no stiffness damping).
+    Fill,
+    /// The stiffness and gradient only.
+    Stiffness,
+    /// The system and right-hand side, from every row's `K v⁺`.
+    Finish(&'a [Vector3<f64>]),
+}
+
+/// What the assembly writes: the system's upper triangle, the gradients, the right-hand sides.
+struct Parts<'a> {
+    system: &'a mut UpperBlocks,
+    gradient: &'a mut [Vector3<f64>],
+    rhs: &'a mut [Vector3<f64>],
+}
+
 impl Shared<'_> {
-    /// Fill `share`'s rows (`out`): the stiffness `K` (in the system's blocks, scaled into
-    /// `A` at the end) and gradient summed over its elements (triangles, then hinges, by
-    /// index), then the obstacle contacts and the self-contacts (in list order), then the
-    /// system and right-hand side of those rows ([`Self::finish`]; not with stiffness damping,
-    /// whose `K v⁺` needs every row's `K` first). Each row holds its blocks on and above the
-    /// diagonal; an element adds its block `(a, b)` where `a`'s row comes first (the block
-    /// `(b, a)` is its transpose, bit for bit: the system is symmetric).
-    fn fill<const WHOLE: bool>(&self, share: &Share, out: &mut Rows<'_, WHOLE>) {
+    /// Run `pass` over every share's rows (`parts`): on the calling thread as one share, or
+    /// one share per thread.
+    fn over_shares(
+        &self,
+        pass: Pass<'_>,
+        whole: &Share,
+        shares: &[Share],
+        parts: Parts<'_>,
+        par: Parallelism,
+    ) {
+        let Parts {
+            system,
+            mut gradient,
+            mut rhs,
+        } = parts;
+        let mut upper = system.view_mut();
+        if let Parallelism::Sequential = par {
+            let mut rows = Rows::<true>::take(
+                self.pattern,
+                whole.rows.clone(),
+                &mut upper,
+                &mut gradient,
+                &mut rhs,
+            );
+            self.run(&pass, whole, &mut rows);
+            return;
+        }
+        // Each share's rows: consecutive pieces of the system.
+        let mut work: Vec<Rows<'_, false>> = shares
+            .iter()
+            .map(|share| {
+                Rows::take(
+                    self.pattern,
+                    share.rows.clone(),
+                    &mut upper,
+                    &mut gradient,
+                    &mut rhs,
+                )
+            })
+            .collect();
+        work.par_iter_mut()
+            .zip(shares)
+            .for_each(|(rows, share)| self.run(&pass, share, rows));
+    }
+
+    /// `pass` over `share`'s rows.
+    fn run<const WHOLE: bool>(&self, pass: &Pass<'_>, share: &Share, out: &mut Rows<'_, WHOLE>) {
+        match pass {
+            Pass::Fill => {
+                self.add_stiffness(share, out);
+                self.finish(out, None);
+            }
+            Pass::Stiffness => self.add_stiffness(share, out),
+            Pass::Finish(kv) => self.finish(out, Some(kv)),
+        }
+    }
+
+    /// Fill `share`'s rows (`out`) with the stiffness `K` (in the system's blocks, scaled into
+    /// `A` by [`Self::finish`]) and gradient summed over its elements (triangles, then hinges,
+    /// by index), then the obstacle contacts and the self-contacts (in list order). Each row
+    /// holds its blocks on and above the diagonal; an element adds its block `(a, b)` where
+    /// `a`'s row comes first (the block `(b, a)` is its transpose, bit for bit: the system is
+    /// symmetric).
+    fn add_stiffness<const WHOLE: bool>(&self, share: &Share, out: &mut Rows<'_, WHOLE>) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
             self.cloth.membranes(),
@@ -595,9 +668,6 @@ impl Shared<'_> {
                     out.add(diag(idx[a] as usize), &d.hessian[a][a]);
                 }
             }
-        }
-        if self.config.stiffness_damping_s == 0.0 {
-            self.finish(out, None);
         }
     }
 
@@ -1482,62 +1552,25 @@ impl Simulator {
             h,
         };
         let pattern = &self.pattern;
-        // One pass over each share's rows (every row in one share on one thread).
-        let rows_of = |system: &'_ mut UpperBlocks,
-                       gradient: &'_ mut [Vector3<f64>],
-                       rhs: &'_ mut [Vector3<f64>],
-                       pass: &(dyn Fn(&Share, &mut Rows<'_, false>) + Sync),
-                       whole: &dyn Fn(&Share, &mut Rows<'_, true>)| {
-            let (mut upper, mut gradient, mut rhs) = (system.view_mut(), gradient, rhs);
-            if let Parallelism::Sequential = par {
-                let share = &self.everything;
-                let mut rows = Rows::<true>::take(
-                    pattern,
-                    share.rows.clone(),
-                    &mut upper,
-                    &mut gradient,
-                    &mut rhs,
-                );
-                whole(share, &mut rows);
-                return;
-            }
-            // Each share's rows: consecutive pieces of the system.
-            let mut work: Vec<Rows<'_, false>> = self
-                .shares
-                .iter()
-                .map(|share| {
-                    Rows::take(
-                        pattern,
-                        share.rows.clone(),
-                        &mut upper,
-                        &mut gradient,
-                        &mut rhs,
-                    )
-                })
-                .collect();
-            work.par_iter_mut()
-                .zip(&self.shares)
-                .for_each(|(rows, share)| pass(share, rows));
+        let parts = Parts {
+            system: &mut ws.system,
+            gradient: &mut ws.gradient,
+            rhs: &mut ws.rhs,
         };
-        rows_of(
-            &mut ws.system,
-            &mut ws.gradient,
-            &mut ws.rhs,
-            &|share, rows| shared.fill(share, rows),
-            &|share, rows| shared.fill(share, rows),
-        );
-        if self.config.stiffness_damping_s != 0.0 {
+        let (whole, shares) = (&self.everything, &self.shares[..]);
+        if self.config.stiffness_damping_s == 0.0 {
+            shared.over_shares(Pass::Fill, whole, shares, parts, par);
+        } else {
+            shared.over_shares(Pass::Stiffness, whole, shares, parts, par);
             // `K v⁺` needs every row's `K`, complete: after the fill, before `A` replaces it.
             ws.kv.resize(pattern.n_rows(), Vector3::zeros());
             block_product(pattern, &ws.system, &ws.v_plus, &mut ws.kv, par);
-            let kv = &ws.kv;
-            rows_of(
-                &mut ws.system,
-                &mut ws.gradient,
-                &mut ws.rhs,
-                &|_, rows| shared.finish(rows, Some(kv)),
-                &|_, rows| shared.finish(rows, Some(kv)),
-            );
+            let parts = Parts {
+                system: &mut ws.system,
+                gradient: &mut ws.gradient,
+                rhs: &mut ws.rhs,
+            };
+            shared.over_shares(Pass::Finish(&ws.kv), whole, shares, parts, par);
         }
         if self.pins.iter().any(|&p| p) {
             apply_pins(

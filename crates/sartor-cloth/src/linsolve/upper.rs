@@ -75,18 +75,7 @@ impl UpperBlocks {
 
     /// The block at `place`.
     pub fn block(&self, place: usize) -> Matrix3<f64> {
-        let h = &self.head[place].0;
-        Matrix3::from_column_slice(&[
-            h[0],
-            h[1],
-            h[2],
-            h[3],
-            h[4],
-            h[5],
-            h[6],
-            h[7],
-            self.tail[place],
-        ])
+        Matrix3::from_fn(|r, c| self.value(place, 3 * c + r))
     }
 
     /// All blocks, to be written.
@@ -216,27 +205,20 @@ fn rows_portable(
     first: usize,
     out: &mut [Vector3<f64>],
 ) {
-    let value = |at: usize, k: usize| {
-        if k < 8 {
-            upper.head[at].0[k]
-        } else {
-            upper.tail[at]
-        }
-    };
     for (n, yi) in out.iter_mut().enumerate() {
         let (lower, mine, start) = row_parts(pattern, first + n);
         let mut l = [[0.0; 9]; 2];
         for (b, s) in lower.enumerate() {
             let (at, v) = (pattern.mirror[s] as usize, &x[pattern.cols[s] as usize]);
             for k in 0..9 {
-                l[b % 2][k] += value(at, k) * v[k % 3];
+                l[b % 2][k] += upper.value(at, k) * v[k % 3];
             }
         }
         let mut u = [[0.0; 9]; 2];
         for (b, s) in mine.enumerate() {
             let (at, v) = (start + b, &x[pattern.cols[s] as usize]);
             for k in 0..9 {
-                u[b % 2][k] += value(at, k) * v[k / 3];
+                u[b % 2][k] += upper.value(at, k) * v[k / 3];
             }
         }
         *yi = finish(
