@@ -11,7 +11,6 @@ use crate::kernels::{
 };
 use crate::lowrank::truncated_svd;
 
-/// `x ↦ (x − mean) / std` into `out`.
 /// Whether a call of several products, some of which `splits` across rayon's threads, should
 /// first move onto rayon's pool and make them all from there: true for [`Parallelism::Rayon`]
 /// on a thread outside any pool. From outside, every split product is handed to the pool and
@@ -24,6 +23,7 @@ fn enters_pool(splits: bool, par: Parallelism) -> bool {
     splits && par == Parallelism::Rayon && rayon::current_thread_index().is_none()
 }
 
+/// `x ↦ (x − mean) / std` into `out`.
 fn normalise(x: &[f32], stats: &MeanStd, out: &mut [f32]) {
     let n = stats.mean.len();
     for (o, xs) in out.chunks_exact_mut(n).zip(x.chunks_exact(n)) {
