@@ -130,7 +130,7 @@ struct Floor {
     precision: &'static str,
     /// Weight bytes the step reads per frame (GRU and output layer, int8 scales included).
     bytes: usize,
-    /// Median ms to stream that many bytes once: the faster of the two page sizes below.
+    /// Median ms to stream that many bytes once: the fastest of the four ways below.
     ms: f64,
     /// Implied bandwidth, GB/s (10^9 bytes).
     gb_per_s: f64,
@@ -138,6 +138,11 @@ struct Floor {
     ms_small_pages: f64,
     /// The same from a buffer advised to huge pages (Linux only; `None` elsewhere).
     ms_huge_pages: Option<f64>,
+    /// `ms_small_pages` with each stream prefetched [`PREFETCH_AHEAD_BYTES`] ahead (x86-64
+    /// only), as sartor's f16 rows and, on Intel CPUs, its f32 rows are read.
+    ms_small_pages_prefetched: Option<f64>,
+    /// `ms_huge_pages`, prefetched.
+    ms_huge_pages_prefetched: Option<f64>,
 }
 
 /// One anchor at one thread count.
@@ -305,36 +310,57 @@ const STREAMS: usize = 8;
 /// the compiler from vectorising.
 const LANES: usize = 8;
 
+/// How far ahead of each stream the prefetched floor asks for lines: sartor's row kernels'
+/// `STREAM_AHEAD` (see `sartor-runtime`'s `kernels/dispatch.rs`).
+const PREFETCH_AHEAD_BYTES: usize = 2048;
+
 /// Wrapping sum of `words`, read once as [`STREAMS`] concurrent streams over as many
 /// contiguous parts (the words left over after whole steps are added at the end), built for
-/// AVX2 where the CPU has it. The baseline x86-64 build (two words per add) was the limit, not
-/// the memory: on the AMD EPYC VM it read 109.5 MB in 3.6 ms, the AVX2 build in 2.4–2.5 (in
-/// the same process), and ONNX Runtime's paper-size step, which reads those bytes, ran under
-/// the baseline build's figure. (LLVM's AVX-512 build of this loop read 5 GB/s.)
-fn stream_sum(words: &[u64]) -> u64 {
+/// AVX2 where the CPU has it; `prefetch`: each stream's line [`PREFETCH_AHEAD_BYTES`] ahead
+/// asked for at every step (x86-64 only; elsewhere the plain read). The baseline x86-64 build
+/// (two words per add) was the limit, not the memory: on the AMD EPYC VM it read 109.5 MB in
+/// 3.6 ms, the AVX2 build in 2.4–2.5 (in the same process), and ONNX Runtime's paper-size step,
+/// which reads those bytes, ran under the baseline build's figure. (LLVM's AVX-512 build of
+/// this loop read 5 GB/s.) Prefetching, because a floor must not be beaten: on the 2-core
+/// Intel Xeon VM sartor's prefetched f32 rows read the paper-size weights faster than the plain
+/// read did.
+fn stream_sum(words: &[u64], prefetch: bool) -> u64 {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
-        fn avx2(words: &[u64]) -> u64 {
-            stream_sum_as_built(words)
+        fn avx2(words: &[u64], prefetch: bool) -> u64 {
+            if prefetch {
+                stream_sum_as_built::<true>(words)
+            } else {
+                stream_sum_as_built::<false>(words)
+            }
         }
         if is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (detected just above).
             #[allow(unsafe_code)]
-            return unsafe { avx2(words) };
+            return unsafe { avx2(words, prefetch) };
         }
     }
-    stream_sum_as_built(words)
+    if prefetch {
+        stream_sum_as_built::<true>(words)
+    } else {
+        stream_sum_as_built::<false>(words)
+    }
 }
 
 /// [`stream_sum`] for the target features of its caller.
 #[inline(always)]
-fn stream_sum_as_built(words: &[u64]) -> u64 {
+fn stream_sum_as_built<const PREFETCH: bool>(words: &[u64]) -> u64 {
     let steps = words.len() / (STREAMS * LANES);
     let part = steps * LANES;
     let parts: [&[u64]; STREAMS] = std::array::from_fn(|k| &words[k * part..(k + 1) * part]);
     let mut acc = [[0u64; LANES]; STREAMS];
     for i in (0..part).step_by(LANES) {
+        if PREFETCH {
+            for p in &parts {
+                prefetch_line(p.as_ptr().wrapping_add(i + PREFETCH_AHEAD_BYTES / 8));
+            }
+        }
         for (a, p) in acc.iter_mut().zip(&parts) {
             for (a, &w) in a.iter_mut().zip(&p[i..i + LANES]) {
                 *a = a.wrapping_add(w);
@@ -345,6 +371,23 @@ fn stream_sum_as_built(words: &[u64]) -> u64 {
         .iter()
         .fold(0u64, |s, &w| s.wrapping_add(w));
     acc.iter().flatten().fold(tail, |s, &a| s.wrapping_add(a))
+}
+
+/// A hint to load the cache line at `p` (x86-64; nothing elsewhere).
+#[inline(always)]
+fn prefetch_line(p: *const u64) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: a prefetch never faults and changes nothing the program can observe, whatever
+        // the address (formed with wrapping arithmetic, never read).
+        #[allow(unsafe_code)]
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(p.cast())
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
@@ -360,26 +403,34 @@ pub fn stream_floor_ms(bytes: usize, threads: usize, reps: usize) -> Result<f64>
     Ok(stream_floor(bytes, threads, reps)?.ms())
 }
 
-/// The floor's two measurements (see [`stream_floor`]).
+/// The floor's measurements (see [`stream_floor`]).
 #[derive(Clone, Copy, Debug)]
 struct StreamFloor {
     small_pages_ms: f64,
     huge_pages_ms: Option<f64>,
+    small_pages_prefetched_ms: Option<f64>,
+    huge_pages_prefetched_ms: Option<f64>,
 }
 
 impl StreamFloor {
-    /// The floor: the faster of the two.
+    /// The floor: the fastest of them.
     fn ms(&self) -> f64 {
-        self.huge_pages_ms
-            .map_or(self.small_pages_ms, |h| h.min(self.small_pages_ms))
+        [
+            self.huge_pages_ms,
+            self.small_pages_prefetched_ms,
+            self.huge_pages_prefetched_ms,
+        ]
+        .into_iter()
+        .flatten()
+        .fold(self.small_pages_ms, f64::min)
     }
 }
 
 /// Median ms to read `bytes` bytes once (rounded up to whole 8-byte words) on `threads`
 /// threads (each a contiguous share; more than one thread runs in a rayon pool of exactly that
 /// many), over `reps` repetitions after three untimed ones: from a buffer in ordinary pages and,
-/// on Linux, from one advised to huge pages ([`paged_words`]). Buffers are filled with
-/// non-zero values so that every page is really backed.
+/// on Linux, from one advised to huge pages ([`paged_words`]), each plainly and (on x86-64)
+/// prefetched. Buffers are filled with non-zero values so that every page is really backed.
 ///
 /// Both, because a floor must not be beaten: on the 2-core Intel Xeon VM (transparent huge
 /// pages `madvise`) eight streams read 108 MB in 7.2–7.5 ms from 4 KiB pages and 5.3–5.5 ms
@@ -393,16 +444,16 @@ fn stream_floor(bytes: usize, threads: usize, reps: usize) -> Result<StreamFloor
     let n = bytes.div_ceil(8);
     let word = |i: usize| (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let pool = thread_pool(threads)?;
-    let time = |words: &[u64]| -> f64 {
+    let time = |words: &[u64], prefetch: bool| -> f64 {
         let chunk = words.len().div_ceil(threads).max(1);
         let once = || -> u64 {
             if threads == 1 {
-                stream_sum(std::hint::black_box(words))
+                stream_sum(std::hint::black_box(words), prefetch)
             } else {
                 pool.install(|| {
                     std::hint::black_box(words)
                         .par_chunks(chunk)
-                        .map(stream_sum)
+                        .map(|part| stream_sum(part, prefetch))
                         .reduce(|| 0, u64::wrapping_add)
                 })
             }
@@ -417,13 +468,23 @@ fn stream_floor(bytes: usize, threads: usize, reps: usize) -> Result<StreamFloor
         }
         median(&ms)
     };
+    // Both ways of reading a buffer, the plain one first; the prefetched one only where a
+    // prefetch is issued.
+    let both = |words: &[u64]| {
+        (
+            time(words, false),
+            cfg!(target_arch = "x86_64").then(|| time(words, true)),
+        )
+    };
     let small = paged_words(n, word, false).unwrap_or_else(|| (0..n).map(word).collect());
-    let small_pages_ms = time(&small);
+    let (small_pages_ms, small_pages_prefetched_ms) = both(&small);
     drop(small);
-    let huge_pages_ms = paged_words(n, word, true).map(|words| time(&words));
+    let huge = paged_words(n, word, true).map(|words| both(&words));
     Ok(StreamFloor {
         small_pages_ms,
-        huge_pages_ms,
+        huge_pages_ms: huge.map(|h| h.0),
+        small_pages_prefetched_ms,
+        huge_pages_prefetched_ms: huge.and_then(|h| h.1),
     })
 }
 
@@ -708,6 +769,8 @@ fn model_anchors(
                 gb_per_s: bytes as f64 / (floor_ms * 1e6),
                 ms_small_pages: streams.small_pages_ms,
                 ms_huge_pages: streams.huge_pages_ms,
+                ms_small_pages_prefetched: streams.small_pages_prefetched_ms,
+                ms_huge_pages_prefetched: streams.huge_pages_prefetched_ms,
             });
         }
         per_thread.push((threads, sartor, floor));
@@ -891,6 +954,8 @@ mod tests {
                 gb_per_s: bytes as f64 / (ms * 1e6),
                 ms_small_pages: ms,
                 ms_huge_pages: None,
+                ms_small_pages_prefetched: None,
+                ms_huge_pages_prefetched: None,
             })
             .collect()
     }
@@ -955,16 +1020,18 @@ mod tests {
 
     #[test]
     fn stream_floor_is_positive_and_finite() -> Result<()> {
-        assert_eq!(
-            stream_sum(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, u64::MAX]),
-            54,
-            "every word once, wrapping"
-        );
-        // Every word exactly once at every length around whole steps of the streams.
-        let words: Vec<u64> = (0..300u64).map(|i| i * i + 1).collect();
-        for n in 0..words.len() {
-            let want = words[..n].iter().fold(0u64, |s, &w| s.wrapping_add(w));
-            assert_eq!(stream_sum(&words[..n]), want, "{n} words");
+        for prefetch in [false, true] {
+            assert_eq!(
+                stream_sum(&[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, u64::MAX], prefetch),
+                54,
+                "every word once, wrapping"
+            );
+            // Every word exactly once at every length around whole steps of the streams.
+            let words: Vec<u64> = (0..300u64).map(|i| i * i + 1).collect();
+            for n in 0..words.len() {
+                let want = words[..n].iter().fold(0u64, |s, &w| s.wrapping_add(w));
+                assert_eq!(stream_sum(&words[..n], prefetch), want, "{n} words");
+            }
         }
         for threads in [1, 2] {
             let ms = stream_floor_ms(1 << 20, threads, 5)?;

@@ -246,6 +246,32 @@ pub(crate) use widest_where_present;
 #[cfg(target_arch = "x86_64")]
 const STREAM_AHEAD: usize = 2048;
 
+/// Whether f32 rows that come from memory are prefetched [`STREAM_AHEAD`] bytes ahead, as f16
+/// rows always are: on Intel CPUs, not on others. Measured on the paper-size GRU + dense
+/// f32 step (`cargo bench -p sartor-runtime --bench kernels -- gru1500_out13272/f32/batch1`,
+/// alternating builds): on the 2-core Intel Xeon VM (Sapphire Rapids family) one thread
+/// 4.80–5.53 → 4.21–4.74 ms, two 2.53 → 2.13–2.22 (one core of this Xeon keeps too few lines
+/// in flight on its own); on the AMD EPYC (Zen 5) VM every distance and hint tried was 3–10 %
+/// slower (its own prefetch keeps up with eight f32 streams). `SARTOR_RUNTIME_F32_PREFETCH`
+/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn prefetch_f32_rows() -> bool {
+    static CHOICE: OnceLock<bool> = OnceLock::new();
+    *CHOICE.get_or_init(
+        || match std::env::var("SARTOR_RUNTIME_F32_PREFETCH").as_deref() {
+            Ok("0") => false,
+            Ok("1") => true,
+            _ => {
+                let id = std::arch::x86_64::__cpuid(0);
+                [id.ebx, id.edx, id.ecx]
+                    .iter()
+                    .flat_map(|r| r.to_le_bytes())
+                    .eq(*b"GenuineIntel")
+            }
+        },
+    )
+}
+
 /// A hint to load the cache line at `p` into every level of the cache.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
@@ -312,14 +338,14 @@ macro_rules! isa_kernels {
             std::array::from_fn(|r| load_f32_tail(x, r))
         }
 
-        // f32 rows are not prefetched: with `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into
-        // L2 only, the paper-size f32 step was 3–10 % slower; prefetching one of each chunk's
-        // two lines, 50 % slower (the hardware's own prefetch keeps up with eight f32 streams).
-        isa_kernels!(@one $feat, 0, f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_f32, dotn_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, 0, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_i8, dotn_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, STREAM_AHEAD, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_f16, dotn_f16, madd1_f16, madd2_f16);
+        // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
+        // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
+        // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_f32, dotn_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_i8, dotn_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_f16, dotn_f16, madd1_f16, madd2_f16);
     };
-    (@one $feat:literal, $ahead:expr, $t:ty, $load:ident, $load_tail:ident,
+    (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
         $dot:ident, $dot4:ident, $dot8:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
@@ -339,7 +365,11 @@ macro_rules! isa_kernels {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot8(w: [&[$t]; 8], x: &[f32]) -> [f32; 8] {
-            $dotn::<8, { $ahead }>(w, x)
+            if $prefetch {
+                $dotn::<8, STREAM_AHEAD>(w, x)
+            } else {
+                $dotn::<8, 0>(w, x)
+            }
         }
 
         /// `dot` of `N` rows with one input, bitwise the same as `N` calls (`dot4`, `dot8`);
@@ -482,7 +512,7 @@ mod avx2 {
     };
 
     use super::super::rows::{F16Bits, LANES};
-    use super::{STREAM_AHEAD, prefetch};
+    use super::{STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m256;
     const W: usize = 8;
@@ -599,7 +629,7 @@ mod avx512 {
     };
 
     use super::super::rows::{F16Bits, LANES};
-    use super::{STREAM_AHEAD, prefetch};
+    use super::{STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m512;
     const W: usize = 16;
