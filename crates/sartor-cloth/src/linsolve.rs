@@ -217,7 +217,7 @@ pub(crate) fn block_product(
 fn dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
     a.chunks(CHUNK)
         .zip(b.chunks(CHUNK))
-        .map(|(ca, cb)| ca.iter().zip(cb).map(|(x, y)| x.dot(y)).sum::<f64>())
+        .map(|(ca, cb)| chunk_dot(ca, cb))
         .sum()
 }
 
@@ -531,12 +531,7 @@ impl LinearWorkspace {
             .map(|(c, out)| {
                 let start = c * CHUNK;
                 upper_row_products(pattern, upper, direction, start, out);
-                // The chunk's share of p·q, summed in vertex order as `dot` does.
-                direction[start..start + out.len()]
-                    .iter()
-                    .zip(out.iter())
-                    .map(|(a, b)| a.dot(b))
-                    .sum::<f64>()
+                chunk_dot(&direction[start..start + out.len()], out)
             })
             .sum()
     }
@@ -551,16 +546,14 @@ impl LinearWorkspace {
             .zip(self.pair_partial.iter_mut())
             .enumerate()
             .for_each(|(c, (((x, r), z), p))| {
-                let start = c * CHUNK;
-                for k in 0..x.len() {
-                    let i = start + k;
-                    x[k] += direction[i] * alpha;
-                    r[k] -= product[i] * alpha;
-                    z[k] = inverse_diagonal[i] * r[k];
-                }
-                let rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a.dot(b)).sum();
-                let rr: f64 = r.iter().map(|a| a.dot(a)).sum();
-                *p = (rz, rr);
+                let rows = c * CHUNK..c * CHUNK + x.len();
+                *p = update_chunk(
+                    Update { x, r, z },
+                    &direction[rows.clone()],
+                    &product[rows.clone()],
+                    &inverse_diagonal[rows],
+                    alpha,
+                );
             });
         (
             self.pair_partial.iter().map(|p| p.0).sum(),
@@ -570,9 +563,54 @@ impl LinearWorkspace {
 
     /// `p = z + β p`.
     fn update_direction(&mut self, beta: f64) {
-        for (pi, zi) in self.direction.iter_mut().zip(&self.preconditioned) {
-            *pi = zi + *pi * beta;
-        }
+        update_direction(&mut self.direction, &self.preconditioned, beta);
+    }
+}
+
+/// `Σ a_k · b_k` in order: a chunk's share of a dot product.
+fn chunk_dot(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| a.dot(b)).sum()
+}
+
+/// A chunk's rows of what CG's second pass writes.
+struct Update<'a> {
+    x: &'a mut [Vector3<f64>],
+    r: &'a mut [Vector3<f64>],
+    z: &'a mut [Vector3<f64>],
+}
+
+/// CG's second pass over a chunk, in one sweep: `x += α p`, `r −= α q`, `z = P⁻¹ r`
+/// (`inverse`: the preconditioner's blocks), returning the chunk's `(r · z, r · r)` summed in
+/// row order (the same numbers as three sweeps and two [`chunk_dot`]s).
+fn update_chunk(
+    out: Update<'_>,
+    p: &[Vector3<f64>],
+    q: &[Vector3<f64>],
+    inverse: &[Matrix3<f64>],
+    alpha: f64,
+) -> (f64, f64) {
+    let Update { x, r, z } = out;
+    let (mut r_z, mut r_r) = (-0.0, -0.0);
+    for ((((x, r), z), p), (q, inverse)) in x
+        .iter_mut()
+        .zip(r.iter_mut())
+        .zip(z.iter_mut())
+        .zip(p)
+        .zip(q.iter().zip(inverse))
+    {
+        *x += p * alpha;
+        *r -= q * alpha;
+        *z = inverse * *r;
+        r_z += r.dot(z);
+        r_r += r.dot(r);
+    }
+    (r_z, r_r)
+}
+
+/// CG's third pass: `p = z + β p`.
+fn update_direction(p: &mut [Vector3<f64>], z: &[Vector3<f64>], beta: f64) {
+    for (pi, zi) in p.iter_mut().zip(z) {
+        *pi = zi + *pi * beta;
     }
 }
 

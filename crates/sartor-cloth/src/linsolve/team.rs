@@ -29,7 +29,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use nalgebra::{Matrix3, Vector3};
 
 use super::upper::{UpperBlocks, upper_row_products};
-use super::{BlockPattern, CHUNK, inverse_block};
+use super::{
+    BlockPattern, CHUNK, Update, chunk_dot, inverse_block, update_chunk, update_direction,
+};
 use crate::error::StepFailure;
 
 /// Spins of a thread waiting at the barrier before it starts yielding its core (when the team
@@ -215,9 +217,9 @@ impl Shared<'_> {
                 r[k] = b[rows.start + k] - q;
             }
             let bc = &b[first..first + out.len()];
-            let b_b: f64 = bc.iter().zip(bc).map(|(a, b)| a.dot(b)).sum();
+            let b_b = chunk_dot(bc, bc);
             let rc = &r[local.clone()];
-            let r_r: f64 = rc.iter().zip(rc).map(|(a, b)| a.dot(b)).sum();
+            let r_r = chunk_dot(rc, rc);
             self.p_q[*c].store(b_b.to_bits(), Ordering::Relaxed);
             self.r_r[*c].store(r_r.to_bits(), Ordering::Relaxed);
         }
@@ -233,8 +235,7 @@ impl Shared<'_> {
             for k in local.clone() {
                 z[k] = inverse[k] * r[k];
             }
-            let (rc, zc) = (&r[local.clone()], &z[local.clone()]);
-            let r_z: f64 = rc.iter().zip(zc.iter()).map(|(a, b)| a.dot(b)).sum();
+            let r_z = chunk_dot(&r[local.clone()], &z[local.clone()]);
             self.r_z[*c].store(r_z.to_bits(), Ordering::Relaxed);
         }
         p[rows.clone()].copy_from_slice(z);
@@ -263,11 +264,7 @@ impl Shared<'_> {
                 let first = rows.start + local.start;
                 let out = &mut q[local.clone()];
                 upper_row_products(pattern, upper, p, first, out);
-                let share: f64 = p[first..first + out.len()]
-                    .iter()
-                    .zip(out.iter())
-                    .map(|(a, b)| a.dot(b))
-                    .sum();
+                let share = chunk_dot(&p[first..first + out.len()], out);
                 self.p_q[*c].store(share.to_bits(), Ordering::Relaxed);
             }
             self.barrier.wait(&mut round);
@@ -281,15 +278,18 @@ impl Shared<'_> {
             let alpha = rz / p_ap;
             // (2) x += α p, r −= α q, z = P⁻¹ r, with each chunk's shares of r · z and r · r.
             for (c, local) in &chunks {
-                for k in local.clone() {
-                    let i = rows.start + k;
-                    x[k] += p[i] * alpha;
-                    r[k] -= q[k] * alpha;
-                    z[k] = inverse[k] * r[k];
-                }
-                let (rc, zc) = (&r[local.clone()], &z[local.clone()]);
-                let r_z: f64 = rc.iter().zip(zc.iter()).map(|(a, b)| a.dot(b)).sum();
-                let r_r: f64 = rc.iter().map(|a| a.dot(a)).sum();
+                let global = rows.start + local.start..rows.start + local.end;
+                let (r_z, r_r) = update_chunk(
+                    Update {
+                        x: &mut x[local.clone()],
+                        r: &mut r[local.clone()],
+                        z: &mut z[local.clone()],
+                    },
+                    &p[global],
+                    &q[local.clone()],
+                    &inverse[local.clone()],
+                    alpha,
+                );
                 self.r_z[*c].store(r_z.to_bits(), Ordering::Relaxed);
                 self.r_r[*c].store(r_r.to_bits(), Ordering::Relaxed);
             }
@@ -298,9 +298,7 @@ impl Shared<'_> {
             let beta = rz_new / rz;
             rz = rz_new;
             // (3) p = z + β p over this thread's rows, published for the others.
-            for (k, pi) in p[rows.clone()].iter_mut().enumerate() {
-                *pi = z[k] + *pi * beta;
-            }
+            update_direction(&mut p[rows.clone()], z, beta);
             self.published[thread]
                 .lock()
                 .expect("no thread of the team panicked")
