@@ -54,6 +54,7 @@ mod drive;
 pub mod energy;
 mod error;
 mod garment;
+mod isa;
 mod linsolve;
 mod material;
 mod mesh_collider;

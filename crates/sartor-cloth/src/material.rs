@@ -162,6 +162,7 @@ impl TabulatedMembrane {
 
     /// ARCSim's `stretching_stiffness(G)`: `(k0, k1, k2, k3)` by trilinear interpolation of the
     /// sample grid (see the module docs).
+    #[inline(always)]
     pub fn arcsim_stiffness(&self, g: &Matrix2<f64>) -> [f64; 4] {
         let n = STRAIN_GRID_SAMPLES;
         let top = n as f64 - 1.0 - 1e-5;
@@ -246,6 +247,7 @@ pub enum MembraneModel {
 impl MembraneModel {
     /// The quadratic-form stiffness at Green strain `g` (the tabulated model looks it up; StVK
     /// is constant).
+    #[inline(always)]
     pub fn stiffness(&self, g: &Matrix2<f64>) -> StrainStiffness {
         match self {
             Self::Tabulated(t) => {

@@ -461,6 +461,29 @@ impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
         self.upper.add(place as usize - self.first_place, m);
     }
 
+    /// Add an element's gradient and blocks (`block(a, b)`, at `places[N a + b]`) to the rows
+    /// of its vertices `idx` that are this share's (`N²` places, those of the blocks not
+    /// stored [`ELSEWHERE`]).
+    #[inline(always)]
+    fn add_element<const N: usize>(
+        &mut self,
+        idx: &[u32; N],
+        places: &[u32],
+        gradient: &[Vector3<f64>; N],
+        block: impl Fn(usize, usize) -> Matrix3<f64>,
+    ) {
+        for a in 0..N {
+            if let Some(k) = self.own(idx[a]) {
+                self.gradient[k] += gradient[a];
+                for b in 0..N {
+                    if places[N * a + b] != ELSEWHERE {
+                        self.add(places[N * a + b], &block(a, b));
+                    }
+                }
+            }
+        }
+    }
+
     /// Start loading into the cache the block at `place` (in the upper triangle's numbering)
     /// of vertex `i`'s row, if the row is this share's: the assembly asks for the blocks of the
     /// element [`PREFETCH_AHEAD`] places ahead of the one it adds.
@@ -485,6 +508,24 @@ enum Pass<'a> {
     Stiffness,
     /// The system and right-hand side, from every row's `K v⁺`.
     Finish(&'a [Vector3<f64>]),
+}
+
+/// [`Shared::run`] as a [`crate::isa::Kernel`].
+struct RunPass<'s, 'a, 'r, 'o, const WHOLE: bool>(
+    &'s Shared<'a>,
+    &'s Pass<'s>,
+    &'s Share,
+    &'r mut Rows<'o, WHOLE>,
+);
+
+impl<const WHOLE: bool> crate::isa::Kernel for RunPass<'_, '_, '_, '_, WHOLE> {
+    type Output = ();
+
+    #[inline(always)]
+    fn call(self) {
+        let RunPass(shared, pass, share, out) = self;
+        shared.run(pass, share, out);
+    }
 }
 
 /// What the assembly writes: the system's upper triangle, the gradients, the right-hand sides.
@@ -519,7 +560,7 @@ impl Shared<'_> {
                 &mut gradient,
                 &mut rhs,
             );
-            self.run(&pass, whole, &mut rows);
+            crate::isa::widest(RunPass(self, &pass, whole, &mut rows));
             return;
         }
         // Each share's rows: consecutive pieces of the system.
@@ -537,10 +578,12 @@ impl Shared<'_> {
             .collect();
         work.par_iter_mut()
             .zip(shares)
-            .for_each(|(rows, share)| self.run(&pass, share, rows));
+            .for_each(|(rows, share)| crate::isa::widest(RunPass(self, &pass, share, rows)));
     }
 
-    /// `pass` over `share`'s rows.
+    /// `pass` over `share`'s rows (inlined, as what it calls, into [`crate::isa::widest`]'s
+    /// instruction sets).
+    #[inline(always)]
     fn run<const WHOLE: bool>(&self, pass: &Pass<'_>, share: &Share, out: &mut Rows<'_, WHOLE>) {
         match pass {
             Pass::Fill => {
@@ -558,6 +601,7 @@ impl Shared<'_> {
     /// holds its blocks on and above the diagonal; an element adds its block `(a, b)` where
     /// `a`'s row comes first (the block `(b, a)` is its transpose, bit for bit: the system is
     /// symmetric).
+    #[inline(always)]
     fn add_stiffness<const WHOLE: bool>(&self, share: &Share, out: &mut Rows<'_, WHOLE>) {
         let (faces, membranes, hinges) = (
             self.cloth.faces(),
@@ -593,16 +637,7 @@ impl Shared<'_> {
                 m.derivatives(&xt, &self.stiffness[t], Projection::Psd)
             };
             let places = &self.tri_places[t];
-            for a in 0..3 {
-                if let Some(k) = out.own(f[a]) {
-                    out.gradient[k] += d.gradient[a];
-                    for b in 0..3 {
-                        if places[3 * a + b] != ELSEWHERE {
-                            out.add(places[3 * a + b], &d.hessian[a][b]);
-                        }
-                    }
-                }
-            }
+            out.add_element(&f, places, &d.gradient, |a, b| d.hessian[a][b]);
         }
         let bending_hessian = self.config.bending_hessian;
         let mut x = [Vector3::zeros(); 4];
@@ -619,21 +654,6 @@ impl Shared<'_> {
             let (e, h) = (e as usize, &hinges[e as usize]);
             gather_into(self.x, h.vertices, &mut x);
             let places = &self.hinge_places[e];
-            // The hinge's rows of the system, each block made by `block(a, b)` (only those
-            // stored).
-            let mut add = |gradient: &[Vector3<f64>; 4],
-                           block: &dyn Fn(usize, usize) -> Matrix3<f64>| {
-                for a in 0..4 {
-                    if let Some(k) = out.own(h.vertices[a]) {
-                        out.gradient[k] += gradient[a];
-                        for b in 0..4 {
-                            if places[4 * a + b] != ELSEWHERE {
-                                out.add(places[4 * a + b], &block(a, b));
-                            }
-                        }
-                    }
-                }
-            };
             if bending_hessian == BendingHessian::GaussNewton {
                 // ARCSim's Hessian (the default): its blocks made where they are added, the
                 // same numbers as `derivatives` gives without holding them all.
@@ -643,11 +663,11 @@ impl Shared<'_> {
                     h.gauss_newton(&x, self.coefficient[e])
                 };
                 if let Some(d) = d {
-                    add(&d.gradient, &|a, b| d.block(a, b));
+                    out.add_element(&h.vertices, places, &d.gradient, |a, b| d.block(a, b));
                 }
             } else {
                 let d = h.derivatives(&x, self.coefficient[e], bending_hessian);
-                add(&d.gradient, &|a, b| d.hessian[a][b]);
+                out.add_element(&h.vertices, places, &d.gradient, |a, b| d.hessian[a][b]);
             }
         }
         let penalty = self.config.contact_penalty;
@@ -675,6 +695,7 @@ impl Shared<'_> {
     /// `A = M (1 + h α) + h (h + β) K`, `−r = −M (v⁺ − v) − h ∇E − h β K v⁺ − h α M v⁺`
     /// (`kv`: every row's `K v⁺`, needed when `β ≠ 0`). Pins are applied afterwards
     /// ([`apply_pins`]).
+    #[inline(always)]
     fn finish<const WHOLE: bool>(&self, out: &mut Rows<'_, WHOLE>, kv: Option<&[Vector3<f64>]>) {
         let masses = self.cloth.masses_kg();
         let (h, beta, alpha) = (

@@ -133,6 +133,7 @@ fn dihedral_angle_derivatives(x: &[Vector3<f64>; 4]) -> Option<Scalar9> {
 
 /// [`dihedral_angle_derivatives`] without the Hessian: the angle and its gradient (bitwise
 /// the same), for the Gauss–Newton Hessian.
+#[inline(always)]
 fn dihedral_angle_gradient(x: &[Vector3<f64>; 4]) -> Option<(f64, V9)> {
     let z = differences(x);
     let ee = Grad9::dot(&z, 0, 0);
@@ -161,6 +162,7 @@ impl BendingRest {
     }
 
     /// [`Self::coefficient`] for the hinge's dihedral angle `theta` at `x`, already known.
+    #[inline(always)]
     fn coefficient_at(&self, x: &[Vector3<f64>; 4], theta: f64, model: &BendingModel) -> f64 {
         let l = (x[1] - x[0]).norm();
         let ke = model
@@ -174,6 +176,7 @@ impl BendingRest {
     /// the inverse of the face's height (a face pressed to 1e-19 m² in a fast run made the
     /// bending Hessian so large that the step's system lost positive definiteness to rounding).
     /// Such a hinge is left out of the energy until the membrane reopens the face.
+    #[inline(always)]
     pub fn crushed(&self, x: &[Vector3<f64>; 4]) -> bool {
         let e = x[1] - x[0];
         let twice_min_area = e
@@ -199,6 +202,7 @@ impl BendingRest {
     /// [`BendingHessian::GaussNewton`]. For callers that add the blocks where they go without
     /// holding the sixteen of them. `None` where `derivatives` gives zeros (a crushed or
     /// degenerate hinge).
+    #[inline(always)]
     pub fn gauss_newton(
         &self,
         x: &[Vector3<f64>; 4],
@@ -211,6 +215,7 @@ impl BendingRest {
     /// `gauss_newton(x, coefficient(x, model))`: the dihedral angle (an `atan2`) is computed
     /// once for both. For the first Newton iteration of a step, whose linearisation point is
     /// the state the coefficients are frozen at.
+    #[inline(always)]
     pub fn gauss_newton_frozen_here(
         &self,
         x: &[Vector3<f64>; 4],

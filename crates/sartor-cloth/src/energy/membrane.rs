@@ -114,41 +114,46 @@ impl MembraneRest {
     }
 
     /// Energy, gradient and Hessian for a given (frozen) stiffness.
+    #[inline(always)]
     pub fn derivatives(
         &self,
         x: &[Vector3<f64>; 3],
         k: &StrainStiffness,
         projection: Projection,
     ) -> ElementDerivatives<3> {
-        self.derivatives_with(x, |_| *k, projection)
+        self.derivatives_with(x, Stiffness::Frozen(k), projection)
     }
 
     /// [`Self::derivatives`] with the stiffness frozen at `x` itself, bitwise
     /// `derivatives(x, &model.stiffness(&green_strain(x)), projection)`: the strain is computed
     /// once for both. For the first Newton iteration of a step, whose linearisation point is
     /// the state the stiffness is frozen at.
+    #[inline(always)]
     pub fn derivatives_frozen_here(
         &self,
         x: &[Vector3<f64>; 3],
         model: &MembraneModel,
         projection: Projection,
     ) -> ElementDerivatives<3> {
-        self.derivatives_with(x, |g| model.stiffness(g), projection)
+        self.derivatives_with(x, Stiffness::Model(model), projection)
     }
 
-    /// [`Self::derivatives`] with the stiffness given by `stiffness(G)`.
+    /// [`Self::derivatives`] with the stiffness given by `stiffness` (at `G`).
     #[inline(always)]
     fn derivatives_with(
         &self,
         x: &[Vector3<f64>; 3],
-        stiffness: impl FnOnce(&Matrix2<f64>) -> StrainStiffness,
+        stiffness: Stiffness<'_>,
         projection: Projection,
     ) -> ElementDerivatives<3> {
         let w = self.weights();
         let f = self.deformation_gradient(x);
         let (fu, fv) = (f.column(0).into_owned(), f.column(1).into_owned());
         let g = (f.transpose() * f - Matrix2::identity()) * 0.5;
-        let k = &stiffness(&g);
+        let k = &match stiffness {
+            Stiffness::Frozen(k) => *k,
+            Stiffness::Model(model) => model.stiffness(&g),
+        };
         let a = self.area_m2;
         let s = k.stress(&g);
         // ∂g_m/∂x_i for g = (G00, G11, G01).
@@ -189,6 +194,17 @@ impl MembraneRest {
         }
         out
     }
+}
+
+/// Where [`MembraneRest::derivatives_with`] takes the stiffness from (an enum, not a closure:
+/// a closure's body is compiled apart, and the step's assembly wants it inlined into its
+/// AVX2 build; see `crate::isa`).
+#[derive(Clone, Copy)]
+enum Stiffness<'a> {
+    /// Frozen at these values.
+    Frozen(&'a StrainStiffness),
+    /// The model's at the element's strain `G`.
+    Model(&'a MembraneModel),
 }
 
 #[cfg(test)]

@@ -56,6 +56,7 @@ where
 }
 
 /// Closed-form PSD projection of a symmetric 2 × 2 matrix.
+#[inline(always)]
 pub fn project_psd2(m: &Matrix2<f64>) -> Matrix2<f64> {
     let (a, b, d) = (m[(0, 0)], 0.5 * (m[(0, 1)] + m[(1, 0)]), m[(1, 1)]);
     let mean = 0.5 * (a + d);
