@@ -1,7 +1,7 @@
 //! Hot passes compiled for the wider instruction sets of the CPU they run on.
 //!
 //! The build targets baseline x86-64 (SSE2), so that one binary runs everywhere. [`widest`]
-//! runs a closure compiled again with AVX2, FMA and BMI (x86-64-v3) when the CPU has them:
+//! runs a [`Kernel`] compiled again with AVX2, FMA and BMI (x86-64-v3) when the CPU has them:
 //! wider loads and stores, three-operand instructions, fewer register spills. The results are
 //! the same bit for bit: Rust never fuses a multiply and an add into an FMA on its own (only
 //! `mul_add` does, which is fused on every target), and the compiler may not reorder
@@ -9,8 +9,9 @@
 #![allow(unsafe_code)]
 
 /// Work for [`widest`]: `call` runs it, and must be `#[inline(always)]`, as must be what it
-/// calls in the hot path, for them to be compiled with the wider instruction sets (a closure
-/// cannot be: its body is compiled apart, for the baseline).
+/// calls in the hot path, for them to be compiled with the wider instruction sets. (Not a
+/// closure: a closure's body is a function of its own, which the compiler need not inline
+/// when it is large, and then compiles for the baseline; the assembly's pass was.)
 pub(crate) trait Kernel {
     type Output;
 
