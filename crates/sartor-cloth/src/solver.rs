@@ -581,8 +581,8 @@ impl Shared<'_> {
             .for_each(|(rows, share)| crate::isa::widest(RunPass(self, &pass, share, rows)));
     }
 
-    /// `pass` over `share`'s rows (inlined, as what it calls, into [`crate::isa::widest`]'s
-    /// instruction sets).
+    /// `pass` over `share`'s rows. `#[inline(always)]`, as is what it calls, so that all of it
+    /// is compiled into [`crate::isa::widest`]'s AVX2 version.
     #[inline(always)]
     fn run<const WHOLE: bool>(&self, pass: &Pass<'_>, share: &Share, out: &mut Rows<'_, WHOLE>) {
         match pass {
