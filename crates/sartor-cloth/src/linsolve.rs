@@ -248,6 +248,8 @@ pub(crate) struct LinearWorkspace {
     product: Vec<Vector3<f64>>,
     inverse_diagonal: Vec<Matrix3<f64>>,
     pair_partial: Vec<(f64, f64)>,
+    /// The CG team's plan, for the last thread count used.
+    team: Option<team::Plan>,
 }
 
 impl LinearWorkspace {
@@ -296,6 +298,7 @@ impl LinearWorkspace {
             product: vec![Vector3::zeros(); n],
             inverse_diagonal: vec![Matrix3::identity(); n],
             pair_partial: vec![(0.0, 0.0); n.div_ceil(CHUNK)],
+            team: None,
         }
     }
 
@@ -436,28 +439,23 @@ impl LinearWorkspace {
         // and r updates, z = P⁻¹ r, with the chunk's shares of r·z and r·r; (3) p = z + β p.
         // Every dot product is summed per chunk and then over the chunks in order: the same
         // numbers on any thread count, and the same as separate dot products. With rayon the
-        // set-up and the loop run on a team of threads, one range of chunks each ([`team`]).
+        // set-up and the loop run on a team of threads, one range of rows each ([`team`]).
         let threads = match par {
             Parallelism::Sequential => 1,
             Parallelism::Rayon => rayon::current_num_threads().min(n.div_ceil(CHUNK)),
         };
         if threads > 1 {
-            let problem = team::Problem {
-                pattern,
-                upper,
-                b,
-                max_iterations,
-                relative_tolerance,
-            };
-            let state = team::State {
+            let (iterations, relative) = self.solve_cg_team(
+                threads,
+                &team::Problem {
+                    pattern,
+                    upper,
+                    b,
+                    max_iterations,
+                    relative_tolerance,
+                },
                 x,
-                inverse_diagonal: &mut self.inverse_diagonal,
-                residual: &mut self.residual,
-                preconditioned: &mut self.preconditioned,
-                product: &mut self.product,
-                direction: &mut self.direction,
-            };
-            let (iterations, relative) = team::iterate(threads, &problem, state)?;
+            )?;
             return Ok(stats(iterations, relative));
         }
         // One thread from here on (on rayon too when the rows fit in one chunk).
@@ -522,6 +520,31 @@ impl LinearWorkspace {
 }
 
 impl LinearWorkspace {
+    /// [`Self::solve_cg`] on a team of `threads` threads ([`team`]), with the plan kept from the
+    /// last solve when it is for as many threads.
+    #[inline(never)]
+    fn solve_cg_team(
+        &mut self,
+        threads: usize,
+        problem: &team::Problem<'_>,
+        x: &mut [Vector3<f64>],
+    ) -> Result<(usize, f64), StepFailure> {
+        let n = problem.pattern.n_rows();
+        let plan = match &mut self.team {
+            Some(plan) if plan.fits(n, threads) => plan,
+            slot => slot.insert(team::Plan::new(problem.pattern, threads)),
+        };
+        let state = team::State {
+            x,
+            inverse_diagonal: &mut self.inverse_diagonal,
+            residual: &mut self.residual,
+            preconditioned: &mut self.preconditioned,
+            product: &mut self.product,
+            direction: &mut self.direction,
+        };
+        team::iterate(plan, problem, state)
+    }
+
     /// `product = A direction` (from `A`'s upper triangle); returns `direction · product` (per chunk, then in order).
     fn product_and_dot(&mut self, pattern: &BlockPattern, upper: &UpperBlocks) -> f64 {
         let direction = &self.direction;
