@@ -23,8 +23,10 @@
 //! # Body
 //!
 //! The posed body is computed once per frame with sartor-core's skinning and linearly
-//! interpolated for every substep; the collider ([`MeshCollider::move_to`]) is refitted every
-//! substep, its velocities (for friction) are the interpolation's.
+//! interpolated for every substep: the collider's tree is fitted at the frame's two poses
+//! ([`MeshCollider::set_span`]) and its boxes interpolated at each substep
+//! ([`MeshCollider::move_on_span`]; the same answers as a refit), its velocities (for
+//! friction) are the interpolation's.
 //!
 //! Only the body region near the garment takes part ([`RegionConfig`]): the garment template is
 //! carried along with the body — shaped by the shape displacement of its closest body point and
@@ -516,7 +518,6 @@ pub(crate) struct FrameStepper {
     fps: f64,
     base_substeps: usize,
     retry: RetryConfig,
-    body_sub: Vec<Vector3<f64>>,
     saved_x: Vec<Vector3<f64>>,
     saved_v: Vec<Vector3<f64>>,
     pub(crate) totals: SolverTotals,
@@ -591,8 +592,7 @@ impl FrameStepper {
             collider,
             region_vertices,
             region_prev: region_start.clone(),
-            region_next: region_start.clone(),
-            body_sub: region_start,
+            region_next: region_start,
             guard,
             guard_radius_m: config.region.margin_m,
             tolerance_m: config.penetration_tolerance_m,
@@ -724,25 +724,15 @@ impl FrameStepper {
             *a = prev[v as usize];
             *b = next[v as usize];
         }
-        self.collider.move_to(&self.region_prev, h)?;
+        // The body moves linearly through the substeps: its tree's boxes are fitted at the
+        // frame's two poses and interpolated at each substep, not refitted.
+        self.collider
+            .set_span(&self.region_prev, &self.region_next, h)?;
         self.timing.body_secs += t_body.elapsed().as_secs_f64();
         let mut last = None;
         for s in 1..=substeps {
             let t_body = Instant::now();
-            if s == substeps {
-                self.body_sub.copy_from_slice(&self.region_next);
-            } else {
-                let a = s as f64 / substeps as f64;
-                for ((b, p), q) in self
-                    .body_sub
-                    .iter_mut()
-                    .zip(&self.region_prev)
-                    .zip(&self.region_next)
-                {
-                    *b = p + (q - p) * a;
-                }
-            }
-            self.collider.move_to(&self.body_sub, h)?;
+            self.collider.move_on_span(s as f64 / substeps as f64, h)?;
             self.timing.body_secs += t_body.elapsed().as_secs_f64();
             if s == substeps {
                 // The frame's result obeys the projection guarantee whatever side the skipped

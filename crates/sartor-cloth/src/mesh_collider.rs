@@ -13,7 +13,10 @@ use crate::{Error, Result};
 ///
 /// For a moving body, call [`MeshCollider::move_to`] with the pose at the *end* of the next
 /// substep before each `Simulator::step`: it refits the tree and sets the vertex velocities to
-/// `(new − old) / dt`.
+/// `(new − old) / dt`. A body that moves linearly through several substeps (a frame's poses
+/// interpolated) can instead be given the move once ([`MeshCollider::set_span`]) and moved along
+/// it ([`MeshCollider::move_on_span`]): the boxes are interpolated instead of refitted, with the
+/// same answers and velocities.
 #[derive(Debug)]
 pub struct MeshCollider {
     proximity: MeshProximity,
@@ -25,6 +28,10 @@ pub struct MeshCollider {
     translation_m: Vector3<f64>,
     /// The sum over every move of the largest vertex displacement from the mean, m.
     travel_m: f64,
+    /// The start and the end of the linear move set by [`MeshCollider::set_span`] (empty
+    /// before), and the positions of the last point on it.
+    span: [Vec<Vector3<f64>>; 2],
+    on_span: Vec<Vector3<f64>>,
 }
 
 /// Identities of mesh colliders, unique within the process.
@@ -43,6 +50,8 @@ impl Clone for MeshCollider {
             identity: new_identity(),
             translation_m: self.translation_m,
             travel_m: self.travel_m,
+            span: self.span.clone(),
+            on_span: self.on_span.clone(),
         }
     }
 }
@@ -69,11 +78,76 @@ impl MeshCollider {
             identity: new_identity(),
             translation_m: Vector3::zeros(),
             travel_m: 0.0,
+            span: [Vec::new(), Vec::new()],
+            on_span: Vec::new(),
         })
     }
 
     /// Move the mesh to `positions` over `dt_secs` (velocities `(new − old) / dt`).
     pub fn move_to(&mut self, positions: &[Vector3<f64>], dt_secs: f64) -> Result<()> {
+        self.record_move(positions, dt_secs)?;
+        // Normals with each answer: a substep asks about a few thousand cloth vertices, and the
+        // body region has about ten thousand triangles.
+        self.proximity.update_positions_refit(positions)?;
+        Ok(())
+    }
+
+    /// Move the mesh to `start` over `dt_secs`, as [`Self::move_to`], and begin a linear move
+    /// from `start` to `end` that [`Self::move_on_span`] follows: the tree's boxes are fitted
+    /// at both ends once, and interpolated at each point of the way instead of refitted (the
+    /// same answers to every query; see `MeshProximity::set_span`). A frame of a simulation
+    /// moves the body this way through its substeps.
+    pub fn set_span(
+        &mut self,
+        start: &[Vector3<f64>],
+        end: &[Vector3<f64>],
+        dt_secs: f64,
+    ) -> Result<()> {
+        if end.len() != start.len() {
+            return Err(Error::invalid(
+                "mesh collider",
+                format!("a span from {} to {} positions", start.len(), end.len()),
+            ));
+        }
+        self.record_move(start, dt_secs)?;
+        self.proximity.set_span(start, end)?;
+        for (kept, given) in self.span.iter_mut().zip([start, end]) {
+            kept.clear();
+            kept.extend_from_slice(given);
+        }
+        Ok(())
+    }
+
+    /// Move the mesh over `dt_secs` to `start + (end − start) · a` of the last
+    /// [`Self::set_span`] (`end` itself at `a = 1`), `a` in `[0, 1]`; velocities as
+    /// [`Self::move_to`].
+    pub fn move_on_span(&mut self, a: f64, dt_secs: f64) -> Result<()> {
+        let [start, end] = &self.span;
+        if start.is_empty() {
+            return Err(Error::invalid(
+                "mesh collider",
+                "a move on a span before set_span",
+            ));
+        }
+        let mut next = std::mem::take(&mut self.on_span);
+        next.clear();
+        if a == 1.0 {
+            next.extend_from_slice(end);
+        } else {
+            next.extend(start.iter().zip(end).map(|(p, q)| p + (q - p) * a));
+        }
+        let moved = self.record_move(&next, dt_secs).and_then(|()| {
+            self.proximity
+                .update_positions_on_span(&next, a)
+                .map_err(Error::from)
+        });
+        self.on_span = next;
+        moved
+    }
+
+    /// The velocities `(new − old) / dt` of a move to `positions`, and the move's share of
+    /// the motion bound; the mesh itself is moved by the caller.
+    fn record_move(&mut self, positions: &[Vector3<f64>], dt_secs: f64) -> Result<()> {
         if !(dt_secs.is_finite() && dt_secs > 0.0) {
             return Err(Error::invalid(
                 "mesh collider",
@@ -107,9 +181,6 @@ impl MeshCollider {
             .zip(self.proximity.positions())
             .map(|(new, old)| (new - old - mean).norm_squared())
             .fold(0.0, f64::max);
-        // Normals with each answer: a substep asks about a few thousand cloth vertices, and the
-        // body region has about ten thousand triangles.
-        self.proximity.update_positions_refit(positions)?;
         // A point of a triangle moves by a convex combination of its vertices' moves, so it
         // departs from the mean move by at most the largest vertex departure (with a margin
         // for rounding).

@@ -245,6 +245,44 @@ impl MeshProximity {
         Ok(())
     }
 
+    /// Start a linear move of the vertices from `start` to `end` (both as many as at
+    /// construction): the tree's boxes are fitted at both ends, once, and
+    /// [`Self::update_positions_on_span`] then moves the vertices to any point of the way with
+    /// boxes interpolated between the two instead of refitted. The vertices are moved to
+    /// `start`. As with [`Self::update_positions_refit`], the pseudo-normals are left to the
+    /// answers. No allocation after the first span.
+    pub fn set_span(&mut self, start: &[Vector3<f64>], end: &[Vector3<f64>]) -> Result<()> {
+        self.check_positions(start)?;
+        self.check_positions(end)?;
+        self.positions.copy_from_slice(start);
+        self.wide
+            .fit_span(start, end, &self.faces, self.tree.order());
+        self.tree_current = true;
+        self.normals_current = false;
+        Ok(())
+    }
+
+    /// Move the vertices to `positions`, which must be `start + (end − start) · a` of the
+    /// last [`Self::set_span`] (`start` itself at `a = 0`, `end` itself at `a = 1`), `a` in
+    /// `[0, 1]`: the tree's boxes are interpolated between the span's ends, padded by their
+    /// rounding, not refitted (`wide::WideTree::interpolate`). The answers are those after
+    /// [`Self::update_positions_refit`]: the boxes only prune, and every triangle they keep
+    /// is tested exactly. Not checked: `positions` off the span may miss triangles.
+    pub fn update_positions_on_span(&mut self, positions: &[Vector3<f64>], a: f64) -> Result<()> {
+        self.check_positions(positions)?;
+        if !(0.0..=1.0).contains(&a) {
+            return Err(Error::invalid(
+                "proximity mesh",
+                format!("a span's fraction must lie in [0, 1], got {a}"),
+            ));
+        }
+        self.positions.copy_from_slice(positions);
+        self.wide.interpolate(a);
+        self.tree_current = true;
+        self.normals_current = false;
+        Ok(())
+    }
+
     /// Move the vertices without refitting the tree or recomputing the pseudo-normals: for
     /// callers that find their candidate triangles themselves and ask [`Self::closest_among`] /
     /// [`Self::distance_to_face`], which answer for the new positions at once (each answer
@@ -843,6 +881,62 @@ mod tests {
             assert_eq!(c.signed_distance_m < 0.0, inside, "{q}");
         }
         assert!(m.update_positions(&p[..4]).is_err());
+    }
+
+    #[test]
+    fn a_span_answers_as_a_refit_at_every_point_of_the_way() {
+        // A sphere of 1,600 triangles (a tree of several levels) that turns 50°, moves and
+        // squashes from start to end.
+        let sphere = crate::TriMesh::uv_sphere(Vector3::zeros(), 0.3, 20).expect("sphere");
+        let (start, f) = (sphere.positions().to_vec(), sphere.faces().to_vec());
+        let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 50f64.to_radians());
+        let end: Vec<Vector3<f64>> = start
+            .iter()
+            .map(|p| turn * Vector3::new(p.x * 1.4, p.y * 0.6, p.z) + Vector3::new(0.2, -0.1, 0.05))
+            .collect();
+        let mut span = MeshProximity::new(&start, &f).expect("valid");
+        let mut refit = span.clone();
+        span.set_span(&start, &end).expect("same sizes");
+        assert!(span.update_positions_on_span(&start, 1.5).is_err());
+        for a in [0.0, 0.13, 0.5, 0.77, 1.0] {
+            let at: Vec<Vector3<f64>> = if a == 1.0 {
+                end.clone()
+            } else {
+                start
+                    .iter()
+                    .zip(&end)
+                    .map(|(p, q)| p + (q - p) * a)
+                    .collect()
+            };
+            span.update_positions_on_span(&at, a).expect("on the span");
+            assert!(
+                span.wide.contains_faces(&at, &f, span.tree.order()),
+                "a = {a}"
+            );
+            refit.update_positions_refit(&at).expect("same size");
+            for i in 0..300 {
+                let x = i as f64 * 0.31;
+                let q = Vector3::new(x.sin() * 0.5, (1.3 * x).cos() * 0.4, (0.7 * x).sin() * 0.4);
+                assert_eq!(span.closest(&q), refit.closest(&q), "a = {a}, {q}");
+                for r in [0.01, 0.05] {
+                    assert_eq!(
+                        span.closest_within(&q, r),
+                        refit.closest_within(&q, r),
+                        "a = {a}, {q}"
+                    );
+                }
+            }
+        }
+        // The halfway boxes do not hold the faces at the end: they are not simply the whole
+        // way's.
+        let half: Vec<Vector3<f64>> = start
+            .iter()
+            .zip(&end)
+            .map(|(p, q)| p + (q - p) * 0.5)
+            .collect();
+        span.update_positions_on_span(&half, 0.5)
+            .expect("on the span");
+        assert!(!span.wide.contains_faces(&end, &f, span.tree.order()));
     }
 
     #[test]

@@ -286,6 +286,68 @@ fn skipping_the_queries_of_far_vertices_changes_no_step() {
 }
 
 #[test]
+fn a_body_moved_along_its_span_steps_as_one_refitted_at_each_substep() {
+    // A sheet draped over a sphere that travels, turns and breathes, frame by frame, with six
+    // substeps per frame: moved along the frame's span (boxes fitted at the two poses and
+    // interpolated) or refitted at each substep's interpolated pose, the cloth is the same to
+    // the bit, and so are the body's velocities.
+    let (center, radius) = (Vector3::zeros(), 0.08);
+    let (p, f) = uv_sphere(center, radius, 16);
+    let pose = |frame: usize| -> Vec<Vector3<f64>> {
+        let t = frame as f64 / 30.0;
+        let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::y_axis(), 2.0 * t).into_inner()
+            * (1.0 + 0.1 * (9.0 * t).sin());
+        let shift = Vector3::new(0.3 * t, 0.05 * t, 0.1 * t);
+        p.iter()
+            .map(|q| turn * (q - center) + center + shift)
+            .collect()
+    };
+    let mut spanned = MeshCollider::new(&p, &f, 0.05).expect("valid mesh");
+    let mut refitted = spanned.clone();
+    assert!(
+        spanned.move_on_span(0.5, DT).is_err(),
+        "a move before any span"
+    );
+    assert!(
+        spanned.set_span(&p, &p[..10], DT).is_err(),
+        "a span of two sizes"
+    );
+    let cloth = horizontal_sheet(0.3, 16, radius + 0.004, Material::gray_interlock());
+    let (mut a, mut b) = (
+        simulator(cloth.clone(), SimConfig::default()),
+        simulator(cloth, SimConfig::default()),
+    );
+    let substeps = 6;
+    let h = 1.0 / (30.0 * substeps as f64);
+    for frame in 0..12 {
+        let (prev, next) = (pose(frame), pose(frame + 1));
+        spanned.set_span(&prev, &next, h).expect("valid");
+        refitted.move_to(&prev, h).expect("valid");
+        for s in 1..=substeps {
+            let t = s as f64 / substeps as f64;
+            spanned.move_on_span(t, h).expect("valid");
+            let at: Vec<_> = if s == substeps {
+                next.clone()
+            } else {
+                prev.iter()
+                    .zip(&next)
+                    .map(|(p, q)| p + (q - p) * t)
+                    .collect()
+            };
+            refitted.move_to(&at, h).expect("valid");
+            assert_eq!(spanned.velocities(), refitted.velocities(), "frame {frame}");
+            a.step(h, &[&spanned as &dyn Collider]).expect("stable");
+            b.step(h, &[&refitted as &dyn Collider]).expect("stable");
+            assert_eq!(a.positions(), b.positions(), "frame {frame}, substep {s}");
+        }
+    }
+    assert!(
+        min_distance(a.positions(), &spanned) > -1e-3,
+        "the sheet stays on the turning sphere"
+    );
+}
+
+#[test]
 fn a_vertex_inside_one_part_but_nearest_another_is_projected_at_the_frame_end() {
     // Two overlapping boxes as one body, as a forearm pressed into a torso: B's top face at
     // y = 0, A reaching up to `a_top`. A sheet 2 cm above B's top is inside A; at first A's top

@@ -67,6 +67,58 @@ pub(super) struct WideTree {
     origin: Vector3<f64>,
     /// The vertices' box's largest side, m.
     extent: f64,
+    /// The boxes of a linear move ([`WideTree::fit_span`]): at its start, and the change to
+    /// its end (zero where they agree, lanes at infinity included).
+    span: Span,
+}
+
+/// Every leaf's and node's box coordinates at a span's start, flat (a leaf's or node's `lo`
+/// then `hi`, as stored), and their changes to its end.
+#[derive(Clone, Debug, Default)]
+struct Span {
+    leaves: [Vec<f32>; 2],
+    nodes: [Vec<f32>; 2],
+}
+
+/// The padding of an interpolated box, relative to the extent: the rounding of the f32
+/// interpolation (a few units of 2⁻²⁴ of the extent) several times over.
+const SPAN_PAD: f64 = 1.0 / (1u64 << 20) as f64;
+
+/// A leaf's box coordinates (`lo` then `hi`).
+const LEAF_COORDS: usize = 6 * LEAF;
+/// A node's.
+const NODE_COORDS: usize = 6 * W;
+
+impl Leaf {
+    fn coords(&self) -> impl Iterator<Item = f32> + '_ {
+        self.lo.iter().chain(&self.hi).flatten().copied()
+    }
+}
+
+impl Node {
+    fn coords(&self) -> impl Iterator<Item = f32> + '_ {
+        self.lo.iter().chain(&self.hi).flatten().copied()
+    }
+}
+
+/// `lo` and `hi` of `N` lanes at `start + change · t` (both flat, `lo` then `hi`), padded
+/// outwards by `pad`.
+#[inline(always)]
+fn interpolate_lanes<const N: usize>(
+    lo: &mut [[f32; N]; 3],
+    hi: &mut [[f32; N]; 3],
+    start: &[f32],
+    change: &[f32],
+    t: f32,
+    pad: f32,
+) {
+    for k in 0..3 {
+        for l in 0..N {
+            let (a, b) = (k * N + l, (3 + k) * N + l);
+            lo[k][l] = start[a] + change[a] * t - pad;
+            hi[k][l] = start[b] + change[b] * t + pad;
+        }
+    }
 }
 
 impl WideTree {
@@ -136,6 +188,99 @@ impl WideTree {
         };
         self.origin = lo;
         self.extent = (hi - lo).max();
+        self.fit(positions, faces, order);
+    }
+
+    /// The boxes at both ends of a linear move of the vertices from `start` to `end`, relative
+    /// to the lowest corner of both, for [`WideTree::interpolate`]; the current boxes are
+    /// `start`'s.
+    pub(super) fn fit_span(
+        &mut self,
+        start: &[Vector3<f64>],
+        end: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        order: &[u32],
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let (Some((lo0, hi0)), Some((lo1, hi1))) = (bounding_box(start), bounding_box(end)) else {
+            return;
+        };
+        let (lo, hi) = (lo0.inf(&lo1), hi0.sup(&hi1));
+        self.origin = lo;
+        self.extent = (hi - lo).max();
+        // The end's boxes first, kept as the changes' ends; then the start's, which stay.
+        for (k, positions) in [(1, end), (0, start)] {
+            self.fit(positions, faces, order);
+            let Span { leaves, nodes } = &mut self.span;
+            leaves[k].clear();
+            leaves[k].extend(self.leaves.iter().flat_map(Leaf::coords));
+            nodes[k].clear();
+            nodes[k].extend(self.nodes.iter().flat_map(Node::coords));
+        }
+        let Span { leaves, nodes } = &mut self.span;
+        for [start, end] in [leaves, nodes] {
+            for (s, e) in start.iter().zip(end.iter_mut()) {
+                *e = if *s == *e { 0.0 } else { *e - s };
+            }
+        }
+    }
+
+    /// The boxes of the vertices at `start + (end − start) a` of the last
+    /// [`WideTree::fit_span`], `a` in `[0, 1]`: each face's and node's box interpolated
+    /// between its boxes at the two ends, padded by the rounding. A point of a face moves as
+    /// a convex combination of its corners, so the face's box at `a` lies within the
+    /// interpolation of its boxes at the ends (each lowest coordinate at least the
+    /// interpolated lowest ones), and a node's likewise: the boxes still contain their faces,
+    /// a little looser where a face turns. Lanes at infinity (unused) stay there. The
+    /// positions' own f64 interpolation is the caller's.
+    pub(super) fn interpolate(&mut self, a: f64) {
+        let (t, pad) = (a as f32, (SPAN_PAD * self.extent) as f32);
+        let Span { leaves, nodes } = &self.span;
+        for (leaf, (s, d)) in self.leaves.iter_mut().zip(
+            leaves[0]
+                .chunks_exact(LEAF_COORDS)
+                .zip(leaves[1].chunks_exact(LEAF_COORDS)),
+        ) {
+            interpolate_lanes(&mut leaf.lo, &mut leaf.hi, s, d, t, pad);
+        }
+        for (node, (s, d)) in self.nodes.iter_mut().zip(
+            nodes[0]
+                .chunks_exact(NODE_COORDS)
+                .zip(nodes[1].chunks_exact(NODE_COORDS)),
+        ) {
+            interpolate_lanes(&mut node.lo, &mut node.hi, s, d, t, pad);
+        }
+    }
+
+    /// Whether every face's box contains the face at `positions` (in f64; for tests).
+    #[cfg(test)]
+    pub(super) fn contains_faces(
+        &self,
+        positions: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        order: &[u32],
+    ) -> bool {
+        self.leaves.iter().all(|leaf| {
+            let start = leaf.start as usize;
+            order[start..start + leaf.count as usize]
+                .iter()
+                .enumerate()
+                .all(|(j, &f)| {
+                    faces[f as usize].iter().all(|&v| {
+                        let q = positions[v as usize] - self.origin;
+                        (0..3).all(|k| {
+                            f64::from(leaf.lo[k][j]) <= q[k] && q[k] <= f64::from(leaf.hi[k][j])
+                        })
+                    })
+                })
+        })
+    }
+
+    /// Every box from `positions` relative to `self.origin`.
+    fn fit(&mut self, positions: &[Vector3<f64>], faces: &[[u32; 3]], order: &[u32]) {
+        let lo = self.origin;
         self.rel.clear();
         self.rel
             .extend(positions.iter().map(|p| (p - lo).map(|c| c as f32)));
