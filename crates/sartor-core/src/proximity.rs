@@ -276,8 +276,13 @@ impl MeshProximity {
                 format!("a span's fraction must lie in [0, 1], got {a}"),
             ));
         }
+        if !self.wide.interpolate(a) {
+            return Err(Error::invalid(
+                "proximity mesh",
+                "a move on a span before set_span",
+            ));
+        }
         self.positions.copy_from_slice(positions);
-        self.wide.interpolate(a);
         self.tree_current = true;
         self.normals_current = false;
         Ok(())
@@ -896,7 +901,13 @@ mod tests {
             .collect();
         let mut span = MeshProximity::new(&start, &f).expect("valid");
         let mut refit = span.clone();
+        assert!(
+            span.update_positions_on_span(&start, 0.0).is_err(),
+            "no span yet"
+        );
         span.set_span(&start, &end).expect("same sizes");
+        // A refit in between (another origin) does not unsettle the span's boxes.
+        span.update_positions_refit(&end).expect("same size");
         assert!(span.update_positions_on_span(&start, 1.5).is_err());
         for a in [0.0, 0.13, 0.5, 0.77, 1.0] {
             let at: Vec<Vector3<f64>> = if a == 1.0 {

@@ -78,6 +78,10 @@ pub(super) struct WideTree {
 struct Span {
     leaves: [Vec<f32>; 2],
     nodes: [Vec<f32>; 2],
+    /// The origin and extent the span's boxes are relative to (a refit since may have moved
+    /// the tree's).
+    origin: Vector3<f64>,
+    extent: f64,
 }
 
 /// The padding of an interpolated box, relative to the extent: the rounding of the f32
@@ -210,16 +214,17 @@ impl WideTree {
         let (lo, hi) = (lo0.inf(&lo1), hi0.sup(&hi1));
         self.origin = lo;
         self.extent = (hi - lo).max();
+        (self.span.origin, self.span.extent) = (self.origin, self.extent);
         // The end's boxes first, kept as the changes' ends; then the start's, which stay.
         for (k, positions) in [(1, end), (0, start)] {
             self.fit(positions, faces, order);
-            let Span { leaves, nodes } = &mut self.span;
+            let Span { leaves, nodes, .. } = &mut self.span;
             leaves[k].clear();
             leaves[k].extend(self.leaves.iter().flat_map(Leaf::coords));
             nodes[k].clear();
             nodes[k].extend(self.nodes.iter().flat_map(Node::coords));
         }
-        let Span { leaves, nodes } = &mut self.span;
+        let Span { leaves, nodes, .. } = &mut self.span;
         for [start, end] in [leaves, nodes] {
             for (s, e) in start.iter().zip(end.iter_mut()) {
                 *e = if *s == *e { 0.0 } else { *e - s };
@@ -234,10 +239,20 @@ impl WideTree {
     /// interpolation of its boxes at the ends (each lowest coordinate at least the
     /// interpolated lowest ones), and a node's likewise: the boxes still contain their faces,
     /// a little looser where a face turns. Lanes at infinity (unused) stay there. The
-    /// positions' own f64 interpolation is the caller's.
-    pub(super) fn interpolate(&mut self, a: f64) {
+    /// positions' own f64 interpolation is the caller's. False (nothing done) when no span
+    /// was fitted.
+    pub(super) fn interpolate(&mut self, a: f64) -> bool {
+        let Span {
+            leaves,
+            nodes,
+            origin,
+            extent,
+        } = &self.span;
+        if leaves[0].len() != self.leaves.len() * LEAF_COORDS {
+            return self.nodes.is_empty();
+        }
+        (self.origin, self.extent) = (*origin, *extent);
         let (t, pad) = (a as f32, (SPAN_PAD * self.extent) as f32);
-        let Span { leaves, nodes } = &self.span;
         for (leaf, (s, d)) in self.leaves.iter_mut().zip(
             leaves[0]
                 .chunks_exact(LEAF_COORDS)
@@ -252,6 +267,7 @@ impl WideTree {
         ) {
             interpolate_lanes(&mut node.lo, &mut node.hi, s, d, t, pad);
         }
+        true
     }
 
     /// Whether every face's box contains the face at `positions` (in f64; for tests).
