@@ -640,7 +640,7 @@ impl FrameStepper {
             Parallelism::Sequential => self.advance_here(prev, next),
             // One set of awake workers for all the frame's substeps (see `awake.rs`).
             Parallelism::Rayon => {
-                crate::awake::with_workers_awake(|| self.advance_here(prev, next))
+                sartor_core::awake::with_workers_awake(|| self.advance_here(prev, next))
             }
         }
     }

@@ -46,7 +46,6 @@
 
 #![warn(missing_docs)]
 
-mod awake;
 mod benchmark;
 mod cloth;
 mod collider;

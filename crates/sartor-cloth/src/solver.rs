@@ -1255,7 +1255,7 @@ impl Simulator {
             Parallelism::Sequential => self.step_here(dt_secs, colliders),
             // The parallel loops find rayon's other workers awake (see `awake.rs`).
             Parallelism::Rayon => {
-                crate::awake::with_workers_awake(|| self.step_here(dt_secs, colliders))
+                sartor_core::awake::with_workers_awake(|| self.step_here(dt_secs, colliders))
             }
         }
     }

@@ -39,6 +39,7 @@
 //! ```
 
 pub mod asset;
+pub mod awake;
 mod binding;
 mod body_distance;
 mod error;

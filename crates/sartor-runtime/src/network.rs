@@ -12,15 +12,20 @@ use crate::kernels::{
 use crate::lowrank::truncated_svd;
 
 /// Whether a call of several products, some of which `splits` across rayon's threads, should
-/// first move onto rayon's pool and make them all from there: true for [`Parallelism::Rayon`]
-/// on a thread outside any pool. From outside, every split product is handed to the pool and
-/// waited for on its own (a wake-up each way), which on the AMD EPYC VM made the shipped
-/// model's step slower on two threads than on one: 46–62 µs in f32 against 39–41, 40–52 in f16
-/// against 25–26 (`cargo bench --bench kernels -- shipped`). Entered once: 31–33 and 24–31. A call
-/// whose products all stay on the calling thread does not move (entering cost the int8 step
-/// 8.5 → 20–21 µs).
+/// first move onto rayon's pool, with its other workers kept awake
+/// ([`sartor_core::awake::with_workers_awake`]), and make them all from there: true for
+/// [`Parallelism::Rayon`] unless this thread already runs such a call. From outside the pool,
+/// every split product is handed to the pool and waited for on its own (a wake-up each way),
+/// which on the AMD EPYC VM made the shipped model's step slower on two threads than on one:
+/// 46–62 µs in f32 against 39–41, 40–52 in f16 against 25–26 (`cargo bench --bench kernels --
+/// shipped`). Entered once: 31–33 and 24–31. Inside the pool, the helper still fell asleep
+/// between a step's products: on the Intel Xeon VM, in fresh two-thread pools, the f32 step
+/// took 27–29 µs in most frames and 68–80 µs (its one-thread time) in up to half of them,
+/// pool by pool (medians of 500 frames 29–79 µs); with the helper polling through the step,
+/// see the README. A call whose products all stay on the calling thread does not move
+/// (entering cost the int8 step 8.5 → 20–21 µs).
 fn enters_pool(splits: bool, par: Parallelism) -> bool {
-    splits && par == Parallelism::Rayon && rayon::current_thread_index().is_none()
+    splits && par == Parallelism::Rayon && !sartor_core::awake::is_awake()
 }
 
 /// `x ↦ (x − mean) / std` into `out`.
@@ -364,7 +369,9 @@ impl GarmentNetwork {
         self.check_batch(batch, ws)?;
         // Before the other checks, which then run once, on the pool.
         if enters_pool(self.fit.splits(batch, par), par) {
-            return rayon::scope(|_| self.fit_batch(betas, batch, out, ws, par));
+            return sartor_core::awake::with_workers_awake(|| {
+                self.fit_batch(betas, batch, out, ws, par)
+            });
         }
         check_len("betas", betas.len(), batch * self.n_betas())?;
         check_len("fit output", out.len(), batch * self.output_size())?;
@@ -415,7 +422,9 @@ impl GarmentNetwork {
         // Before the other checks, which then run once, on the pool.
         let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
         if enters_pool(splits, par) {
-            return rayon::scope(|_| self.wrinkle_step_batch(xs, batch, states, out, ws, par));
+            return sartor_core::awake::with_workers_awake(|| {
+                self.wrinkle_step_batch(xs, batch, states, out, ws, par)
+            });
         }
         let n_in = self.input_size();
         check_len("wrinkle input", xs.len(), batch * n_in)?;

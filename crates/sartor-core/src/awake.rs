@@ -1,23 +1,26 @@
-//! Keeping rayon's workers awake through a time step ([`with_workers_awake`]).
+//! Keeping rayon's workers awake through a step ([`with_workers_awake`]).
 //!
-//! A step runs a dozen short parallel loops (the frozen coefficients, the contact queries, the
-//! assembly, CG's broadcast, …) separated by serial code. Between them rayon's idle workers go to
+//! A step runs short parallel loops separated by serial code: the simulator's time step a dozen
+//! (the frozen coefficients, the contact queries, the assembly, CG's broadcast, …), the
+//! runtime's network step two or three split products. Between them rayon's idle workers go to
 //! sleep, and waking one costs more than a loop's hand-off: on the 2-core Intel Xeon VM a
 //! `rayon::join` of two 200 µs halves, called from inside the pool, took 7 µs more than 200 µs
 //! right after the previous join, 50 µs more after 30 µs of serial work, 75 after 100 µs and 94
-//! after 1 ms (from outside the pool: 31, 55, 89 and 171). The two-thread step lost a third of
-//! its speed-up this way: each parallel part of the 4,210-triangle walk ran at 0.63–0.68× of
-//! its one-thread time, although two one-thread simulations side by side each ran at full
-//! speed.
+//! after 1 ms (from outside the pool: 31, 55, 89 and 171). The two-thread simulator step lost a
+//! third of its speed-up this way: each parallel part of the 4,210-triangle walk ran at
+//! 0.63–0.68× of its one-thread time, although two one-thread simulations side by side each ran
+//! at full speed. The shipped model's f32 network step on two threads took 27–29 µs in most
+//! frames and 68–80 µs (its one-thread time: the helper asleep, the join done alone) in a
+//! third of them, pool by pool.
 //!
 //! [`with_workers_awake`] runs the step on a worker of the current pool while every other
 //! worker runs a poller that executes whatever work the pool has (`rayon::yield_now`) and
 //! otherwise yields its core to the OS scheduler, so that a parallel loop finds its helpers
 //! awake. The pollers are not needed for correctness: results are the same bits with or without
-//! them (every parallel loop of the simulator is deterministic by construction).
+//! them (every parallel loop of the simulator and the runtime is deterministic by construction).
 //!
 //! Deadlock-freedom: a poller that lands on the thread running the step returns at once, and a
-//! poller idle for [`IDLE_LIMIT`] returns too, so a poller can never wait on work that waits on
+//! poller idle for `IDLE_LIMIT` (5 ms) returns too, so a poller can never wait on work that waits on
 //! it for longer than that (e.g. several steps running at once on one pool, each poller nested
 //! inside another step's wait).
 
@@ -33,10 +36,15 @@ thread_local! {
     static AWAKE: Cell<bool> = const { Cell::new(false) };
 }
 
+/// Whether this thread is running the `f` of a [`with_workers_awake`] (its pollers are up).
+pub fn is_awake() -> bool {
+    AWAKE.get()
+}
+
 /// Run `f` on a worker of the current rayon pool while the pool's other workers poll for work
 /// (see the module docs). With one thread in the pool this is `f` on a worker; inside another
 /// `with_workers_awake` it is `f`, here (its pollers are already running).
-pub(crate) fn with_workers_awake<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+pub fn with_workers_awake<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     if AWAKE.get() {
         return f();
     }
