@@ -638,7 +638,7 @@ impl FrameStepper {
     ) -> std::result::Result<(usize, FrameChecks), (FrameError, usize)> {
         match self.sim.config().parallelism {
             Parallelism::Sequential => self.advance_here(prev, next),
-            // One set of awake workers for all the frame's substeps (see `awake.rs`).
+            // One set of awake workers for all the frame's substeps (see `sartor_core::awake`).
             Parallelism::Rayon => {
                 sartor_core::awake::with_workers_awake(|| self.advance_here(prev, next))
             }

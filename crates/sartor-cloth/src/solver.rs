@@ -1253,7 +1253,7 @@ impl Simulator {
     pub fn step(&mut self, dt_secs: f64, colliders: &[&dyn Collider]) -> Result<StepStats> {
         match self.config.parallelism {
             Parallelism::Sequential => self.step_here(dt_secs, colliders),
-            // The parallel loops find rayon's other workers awake (see `awake.rs`).
+            // The parallel loops find rayon's other workers awake (see `sartor_core::awake`).
             Parallelism::Rayon => {
                 sartor_core::awake::with_workers_awake(|| self.step_here(dt_secs, colliders))
             }

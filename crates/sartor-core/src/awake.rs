@@ -43,49 +43,69 @@ pub fn is_awake() -> bool {
 
 /// Run `f` on a worker of the current rayon pool while the pool's other workers poll for work
 /// (see the module docs). With one thread in the pool this is `f` on a worker; inside another
-/// `with_workers_awake` it is `f`, here (its pollers are already running).
+/// `with_workers_awake` it is `f`, here (its pollers are already running). The pollers are
+/// handed out by nested `rayon::join`s, whose jobs live on the stack: no heap allocation per
+/// call (the runtime's network step promises none).
 pub fn with_workers_awake<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     if AWAKE.get() {
         return f();
     }
+    let Some(owner) = rayon::current_thread_index() else {
+        // Onto a worker first: the pollers must know which thread runs `f`.
+        return rayon::scope(|_| with_workers_awake(f));
+    };
     let others = rayon::current_num_threads().saturating_sub(1);
     let done = AtomicBool::new(false);
-    rayon::scope(|s| {
-        let owner = rayon::current_thread_index();
-        for _ in 0..others {
-            let done = &done;
-            s.spawn(move |_| {
-                if rayon::current_thread_index() == owner {
+    with_pollers(others, owner, &done, f)
+}
+
+/// `f` here, with `others` pollers offered to the pool: one per level of nested joins, each
+/// level's first half run here (so `f` runs on `owner`), its second half a poller for any
+/// other worker to take. A poller left untaken is run here after `f` and returns at once.
+fn with_pollers<R: Send>(
+    others: usize,
+    owner: usize,
+    done: &AtomicBool,
+    f: impl FnOnce() -> R + Send,
+) -> R {
+    if others > 0 {
+        return rayon::join(
+            || with_pollers(others - 1, owner, done, f),
+            || poll(owner, done),
+        )
+        .0;
+    }
+    // Reset on the way out even if `f` unwinds (rayon re-raises the panic), and release the
+    // pollers then too.
+    struct Reset<'a>(&'a AtomicBool);
+    impl Drop for Reset<'_> {
+        fn drop(&mut self) {
+            AWAKE.set(false);
+            self.0.store(true, Ordering::Release);
+        }
+    }
+    AWAKE.set(true);
+    let _reset = Reset(done);
+    f()
+}
+
+/// Execute the pool's work until `done` (or [`IDLE_LIMIT`] without any); at once on `owner`.
+fn poll(owner: usize, done: &AtomicBool) {
+    if rayon::current_thread_index() == Some(owner) {
+        return;
+    }
+    let mut idle_since = Instant::now();
+    while !done.load(Ordering::Acquire) {
+        match rayon::yield_now() {
+            Some(rayon::Yield::Executed) => idle_since = Instant::now(),
+            _ => {
+                if idle_since.elapsed() > IDLE_LIMIT {
                     return;
                 }
-                let mut idle_since = Instant::now();
-                while !done.load(Ordering::Acquire) {
-                    match rayon::yield_now() {
-                        Some(rayon::Yield::Executed) => idle_since = Instant::now(),
-                        _ => {
-                            if idle_since.elapsed() > IDLE_LIMIT {
-                                return;
-                            }
-                            std::thread::yield_now();
-                        }
-                    }
-                }
-            });
-        }
-        // Reset on the way out even if `f` unwinds (rayon re-raises the panic).
-        struct Reset;
-        impl Drop for Reset {
-            fn drop(&mut self) {
-                AWAKE.set(false);
+                std::thread::yield_now();
             }
         }
-        AWAKE.set(true);
-        let reset = Reset;
-        let result = f();
-        drop(reset);
-        done.store(true, Ordering::Release);
-        result
-    })
+    }
 }
 
 #[cfg(test)]

@@ -12,19 +12,16 @@ use crate::kernels::{
 use crate::lowrank::truncated_svd;
 
 /// Whether a call of several products, some of which `splits` across rayon's threads, should
-/// first move onto rayon's pool, with its other workers kept awake
-/// ([`sartor_core::awake::with_workers_awake`]), and make them all from there: true for
-/// [`Parallelism::Rayon`] unless this thread already runs such a call. From outside the pool,
-/// every split product is handed to the pool and waited for on its own (a wake-up each way),
-/// which on the AMD EPYC VM made the shipped model's step slower on two threads than on one:
-/// 46–62 µs in f32 against 39–41, 40–52 in f16 against 25–26 (`cargo bench --bench kernels --
-/// shipped`). Entered once: 31–33 and 24–31. Inside the pool, the helper still fell asleep
-/// between a step's products: on the Intel Xeon VM, in fresh two-thread pools, the f32 step
-/// took 27–29 µs in most frames and 68–80 µs (its one-thread time) in up to half of them,
-/// pool by pool (medians of 500 frames 29–79 µs); with the helper polling through the step,
-/// see the README. A call whose products all stay on the calling thread does not move
-/// (entering cost the int8 step 8.5 → 20–21 µs).
-fn enters_pool(splits: bool, par: Parallelism) -> bool {
+/// run inside [`sartor_core::awake::with_workers_awake`]: on a worker of the pool, entered
+/// once, while the other workers poll for work. True for [`Parallelism::Rayon`] unless this
+/// thread already runs such a call. Entered from outside once per product, the shipped
+/// model's step took longer on two threads than on one (AMD EPYC VM: 46–62 µs in f32 against
+/// 39–41; entered once, 31–33); inside the pool the helper still fell asleep between the
+/// step's products (Intel Xeon VM, fresh two-thread pools: 27–29 µs in most frames, 68–80,
+/// its one-thread time, in up to half of them; polling, 27–30 in every pool: see the README).
+/// A call whose products all stay on the calling thread does not move (entering cost the int8
+/// step 8.5 → 20–21 µs).
+fn runs_awake(splits: bool, par: Parallelism) -> bool {
     splits && par == Parallelism::Rayon && !sartor_core::awake::is_awake()
 }
 
@@ -368,7 +365,7 @@ impl GarmentNetwork {
     ) -> Result<()> {
         self.check_batch(batch, ws)?;
         // Before the other checks, which then run once, on the pool.
-        if enters_pool(self.fit.splits(batch, par), par) {
+        if runs_awake(self.fit.splits(batch, par), par) {
             return sartor_core::awake::with_workers_awake(|| {
                 self.fit_batch(betas, batch, out, ws, par)
             });
@@ -421,7 +418,7 @@ impl GarmentNetwork {
         self.check_batch(batch, ws)?;
         // Before the other checks, which then run once, on the pool.
         let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
-        if enters_pool(splits, par) {
+        if runs_awake(splits, par) {
             return sartor_core::awake::with_workers_awake(|| {
                 self.wrinkle_step_batch(xs, batch, states, out, ws, par)
             });

@@ -150,3 +150,43 @@ fn frames_allocate_nothing() {
         assert!(allocations_during(|| avatar.set_shape(&[0.1; 10]).expect("finite")) > 0);
     }
 }
+
+/// A network step whose products split across a two-thread pool (run inside
+/// `sartor_core::awake::with_workers_awake`, the other worker polling) allocates nothing on
+/// the thread that runs it: the pollers go out by nested joins, not heap-allocated spawns.
+#[test]
+fn a_split_step_on_the_pool_allocates_nothing() {
+    use sartor_runtime::{GarmentNetwork, Parallelism};
+
+    use crate::common::{random, random_model, rng, sizes};
+
+    let mut big = sizes(OutputKind::Dense, false);
+    // 3·160 × 160 and 120·3 × 160: products of more than 2¹⁶ multiply–adds, which split.
+    big.gru_hidden = 160;
+    big.n_vertices = 120;
+    let net = GarmentNetwork::new(random_model(29, big), Precision::F32).expect("valid");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("pool");
+    let mut r = rng(30);
+    let xs: Vec<Vec<f32>> = (0..6)
+        .map(|_| random(&mut r, net.input_size(), 1.5))
+        .collect();
+    let (n, on_the_pool) = pool.install(|| {
+        let mut ws = net.workspace(1);
+        let mut state = net.initial_state();
+        let mut out = vec![0.0; net.output_size()];
+        net.wrinkle_step(&xs[0], &mut state, &mut out, &mut ws, Parallelism::Rayon)
+            .expect("finite");
+        let n = allocations_during(|| {
+            for x in &xs[1..] {
+                net.wrinkle_step(x, &mut state, &mut out, &mut ws, Parallelism::Rayon)
+                    .expect("finite");
+            }
+        });
+        (n, rayon::current_thread_index().is_some())
+    });
+    assert!(on_the_pool);
+    assert_eq!(n, 0, "{n} allocations");
+}
