@@ -209,8 +209,9 @@ fn model_without_baseline_says_so() {
 }
 
 /// From a thread outside rayon's pool (this test's), a step whose products split across
-/// threads runs on the pool with its other workers polling (`runs_awake`); its results are still bitwise those of the
-/// sequential step, frame after frame, for the fit and the wrinkle step.
+/// threads runs on the pool with its other workers polling (`runs_awake`); its results are
+/// still bitwise those of the sequential step, frame after frame, for the fit and the wrinkle
+/// step.
 #[test]
 fn rayon_from_outside_the_pool_equals_sequential_bitwise() {
     let mut big = sizes(OutputKind::Dense, false);
