@@ -236,8 +236,8 @@ macro_rules! widest_where_present {
 pub(crate) use widest_where_present;
 
 /// Bytes ahead of each stream's current chunk that the eight-row kernels ask the cache for
-/// where their rows come from memory: f16 rows (`dot8`, rows of `EIGHT_ROWS_FROM` columns or
-/// more) and int8's strided rows (`dot8_far`). At 32 or 64 bytes per row and step these
+/// where their rows come from memory: f16 rows (`dot8_block`, rows of `EIGHT_ROWS_FROM` columns
+/// or more) and int8's strided rows (`dot8_far`). At 32 or 64 bytes per row and step these
 /// streams advance too slowly for the hardware's prefetch: on the AMD EPYC VM the paper-size
 /// GRU + dense step took 1.45–1.50 → 1.27–1.31 ms in f16 and 0.66–0.68 → 0.54–0.55 in int8
 /// on one thread (`cargo bench --bench kernels -- gru1500_out13272`, alternating builds; 512,
@@ -341,12 +341,12 @@ macro_rules! isa_kernels {
         // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
         // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
         // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
-        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_f32, dotn_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_i8, dotn_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_f16, dotn_f16, madd1_f16, madd2_f16);
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_block_f32, dotn_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_block_i8, dotn_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_block_f16, dotn_f16, madd1_f16, madd2_f16);
     };
     (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
-        $dot:ident, $dot4:ident, $dot8:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
+        $dot:ident, $dot4:ident, $dot8_block:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
@@ -362,17 +362,86 @@ macro_rules! isa_kernels {
             $dotn::<4, 0>(w, x)
         }
 
+        /// `Engine::dot8_block`: eight rows at a time, each row prefetched `STREAM_AHEAD` bytes
+        /// ahead where `$prefetch` says.
+        ///
+        /// The loop over the block's groups of eight rows runs here, with the rows' pointers and
+        /// the input's last partial chunk worked out from `cols` once. Written as one call of
+        /// `dotn` per group (its rows passed as slices, each checked and split into chunks), the
+        /// paper-size 13,272 × 1,500 f32 product read its 80 MB at 40–41 GB/s on the AMD EPYC
+        /// VM; as it is here, with the same inner loop and the same bits, at 47–48 (1.92–1.98 →
+        /// 1.65–1.68 ms; eight plain u64 streams read 57–58 GB/s there). Which part of the
+        /// per-group work cost that was not isolated: the tail masks worked out once, the chunks
+        /// indexed rather than iterated and the loads' order each left `dotn` as slow.
         #[inline]
         #[target_feature(enable = $feat)]
-        pub(super) fn $dot8(w: [&[$t]; 8], x: &[f32]) -> [f32; 8] {
+        pub(super) fn $dot8_block(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
+            #[inline]
+            #[target_feature(enable = $feat)]
+            fn block<const AHEAD: usize>(
+                w: &[$t],
+                cols: usize,
+                x: &[f32],
+                n8: usize,
+                sums: &mut [f32],
+            ) {
+                assert!(
+                    x.len() == cols && w.len() >= 8 * n8 * cols && sums.len() >= 8 * n8,
+                    "a block shorter than its rows"
+                );
+                let (xc, xt) = x.as_chunks::<LANES>();
+                let full = xc.len() * LANES;
+                let xv_tail = x_tail(xt);
+                for q in 0..n8 {
+                    // SAFETY: row `q + k·n8 < 8·n8` starts inside `w`, which holds `8·n8` rows
+                    // of `cols` values (asserted above).
+                    let rows: [*const $t; 8] =
+                        std::array::from_fn(|k| unsafe { w.as_ptr().add((q + k * n8) * cols) });
+                    let zero = [0.0f32; LANES];
+                    let mut acc = [load_acc(&zero); 8];
+                    for i in 0..xc.len() {
+                        if AHEAD > 0 {
+                            for row in rows {
+                                let at = row.wrapping_add(i * LANES).cast::<i8>().wrapping_add(AHEAD);
+                                for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
+                                    prefetch(at.wrapping_add(64 * line));
+                                }
+                            }
+                        }
+                        let (xw, _) = xc[i].as_chunks::<W>();
+                        for k in 0..8 {
+                            // SAFETY: chunk `i` of a row of `cols ≥ (i + 1)·LANES` values.
+                            let chunk = unsafe { &*rows[k].add(i * LANES).cast::<[$t; LANES]>() };
+                            let (ww, _) = chunk.as_chunks::<W>();
+                            for r in 0..R {
+                                acc[k][r] = add(acc[k][r], mul($load(&ww[r]), load_f32(&xw[r])));
+                            }
+                        }
+                    }
+                    if !xt.is_empty() {
+                        // The partial last chunk read with loads that stop at the rows' ends,
+                        // zero beyond (the same sums as a zero-padded chunk).
+                        for (a, row) in acc.iter_mut().zip(rows) {
+                            // SAFETY: the row's last `cols − full` values.
+                            let tail = unsafe { std::slice::from_raw_parts(row.add(full), cols - full) };
+                            for r in 0..R {
+                                a[r] = add(a[r], mul($load_tail(tail, r), xv_tail[r]));
+                            }
+                        }
+                    }
+                    for (k, d) in reduce_rows(acc).into_iter().enumerate() {
+                        sums[q + k * n8] = d;
+                    }
+                }
+            }
             if $prefetch {
-                $dotn::<8, STREAM_AHEAD>(w, x)
+                block::<STREAM_AHEAD>(w, cols, x, n8, sums)
             } else {
-                $dotn::<8, 0>(w, x)
+                block::<0>(w, cols, x, n8, sums)
             }
         }
 
-        /// `dot` of `N` rows with one input, bitwise the same as `N` calls (`dot4`, `dot8`);
+        /// `dot` of `N` rows with one input, bitwise the same as `N` calls (`dot4`);
         /// each row prefetched `AHEAD` bytes ahead of its chunk (none if 0).
         #[inline]
         #[target_feature(enable = $feat)]
@@ -812,7 +881,7 @@ mod engines {
     use super::{avx2, avx512};
 
     macro_rules! engine {
-        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8_block:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -833,9 +902,9 @@ mod engines {
                 }
 
                 #[inline(always)]
-                fn dot8(w: [&[$t]; 8], x: &[f32]) -> [f32; 8] {
+                fn dot8_block(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
                     // SAFETY: as for `dot`.
-                    unsafe { $m::$dot8(w, x) }
+                    unsafe { $m::$dot8_block(w, cols, x, n8, sums) }
                 }
 
                 #[inline(always)]
@@ -860,22 +929,64 @@ mod engines {
     }
 
     engine!(
-        Avx2F32, avx2, f32, dot_f32, dot4_f32, dot8_f32, madd1_f32, madd2_f32
+        Avx2F32,
+        avx2,
+        f32,
+        dot_f32,
+        dot4_f32,
+        dot8_block_f32,
+        madd1_f32,
+        madd2_f32
     );
     engine!(
-        Avx2I8, avx2, i8, dot_i8, dot4_i8, dot8_i8, madd1_i8, madd2_i8
+        Avx2I8,
+        avx2,
+        i8,
+        dot_i8,
+        dot4_i8,
+        dot8_block_i8,
+        madd1_i8,
+        madd2_i8
     );
     engine!(
-        Avx2F16, avx2, F16Bits, dot_f16, dot4_f16, dot8_f16, madd1_f16, madd2_f16
+        Avx2F16,
+        avx2,
+        F16Bits,
+        dot_f16,
+        dot4_f16,
+        dot8_block_f16,
+        madd1_f16,
+        madd2_f16
     );
     engine!(
-        Avx512F32, avx512, f32, dot_f32, dot4_f32, dot8_f32, madd1_f32, madd2_f32
+        Avx512F32,
+        avx512,
+        f32,
+        dot_f32,
+        dot4_f32,
+        dot8_block_f32,
+        madd1_f32,
+        madd2_f32
     );
     engine!(
-        Avx512I8, avx512, i8, dot_i8, dot4_i8, dot8_i8, madd1_i8, madd2_i8
+        Avx512I8,
+        avx512,
+        i8,
+        dot_i8,
+        dot4_i8,
+        dot8_block_i8,
+        madd1_i8,
+        madd2_i8
     );
     engine!(
-        Avx512F16, avx512, F16Bits, dot_f16, dot4_f16, dot8_f16, madd1_f16, madd2_f16
+        Avx512F16,
+        avx512,
+        F16Bits,
+        dot_f16,
+        dot4_f16,
+        dot8_block_f16,
+        madd1_f16,
+        madd2_f16
     );
 }
 
@@ -1271,6 +1382,7 @@ pub(crate) fn rows_i8(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::rows::SPREAD_ROWS;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -1320,6 +1432,9 @@ mod tests {
             // The shipped model's GRU input (88) and the paper's hidden size (1,500).
             (7, 88, 1),
             (9, 1500, 1),
+            // Eight-row blocks of SPREAD_ROWS rows and a shorter one (eight streams 128 rows
+            // apart, then 3 apart), a partial last chunk, and three rows left over.
+            (2 * SPREAD_ROWS + 27, 520, 1),
         ] {
             let w: Vec<f32> = (0..n_rows * cols)
                 .map(|_| rng.random_range(-1.0..1.0))

@@ -225,11 +225,21 @@ pub(crate) trait Engine {
     /// are read as four concurrent streams (one stream per row leaves memory bandwidth unused
     /// on some machines) and each chunk of `x` is loaded once.
     fn dot4(w: [&[Self::Stored]; 4], x: &[f32]) -> [f32; 4];
-    /// [`Engine::dot4`] of eight rows (eight concurrent streams).
-    fn dot8(w: [&[Self::Stored]; 8], x: &[f32]) -> [f32; 8] {
-        let a = Self::dot4([w[0], w[1], w[2], w[3]], x);
-        let b = Self::dot4([w[4], w[5], w[6], w[7]], x);
-        [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]]
+    /// [`Engine::dot4`] of a block of `8·n8` rows of `cols` columns (`w`, row-major), eight at
+    /// a time as eight concurrent streams an eighth of the block apart: `sums[q + k·n8]` is row
+    /// `q + k·n8`'s dot product with `x`, for `q < n8` and `k < 8`.
+    fn dot8_block(w: &[Self::Stored], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
+        for q in 0..n8 {
+            let row = |k: usize| {
+                let i = q + k * n8;
+                &w[i * cols..(i + 1) * cols]
+            };
+            let a = Self::dot4([row(0), row(1), row(2), row(3)], x);
+            let b = Self::dot4([row(4), row(5), row(6), row(7)], x);
+            for (k, d) in a.into_iter().chain(b).enumerate() {
+                sums[q + k * n8] = d;
+            }
+        }
     }
     /// `s[j mod LANES] += w[j]·x[j]` over a span that starts at a multiple of [`LANES`]
     /// (a partial last chunk zero-padded).
@@ -328,17 +338,7 @@ pub(crate) fn rows<E: Engine>(
             let mut sums = [0.0f32; SPREAD_ROWS];
             for b0 in (0..whole).step_by(SPREAD_ROWS) {
                 let nb = SPREAD_ROWS.min(whole - b0);
-                let n8 = nb / 8;
-                for q in 0..n8 {
-                    let row = |k: usize| {
-                        let i = b0 + q + k * n8;
-                        &w[i * cols..(i + 1) * cols]
-                    };
-                    let d = E::dot8(std::array::from_fn(row), xs);
-                    for (k, d) in d.into_iter().enumerate() {
-                        sums[q + k * n8] = d;
-                    }
-                }
+                E::dot8_block(&w[b0 * cols..(b0 + nb) * cols], cols, xs, nb / 8, &mut sums);
                 for (j, (y, &d)) in ys_t[b0..b0 + nb].iter_mut().zip(&sums).enumerate() {
                     let i = b0 + j;
                     *y = epilogue(d, scales.map(|s| s[i]), bias.map(|b| b[i]));
