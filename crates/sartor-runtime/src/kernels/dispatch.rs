@@ -341,12 +341,12 @@ macro_rules! isa_kernels {
         // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
         // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
         // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
-        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_block_f32, dotn_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_block_i8, dotn_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_block_f16, dotn_f16, madd1_f16, madd2_f16);
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_block_f32, dot4_block_f32, dotn_block_f32, dotn_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_block_i8, dot4_block_i8, dotn_block_i8, dotn_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_block_f16, dot4_block_f16, dotn_block_f16, dotn_f16, madd1_f16, madd2_f16);
     };
     (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
-        $dot:ident, $dot4:ident, $dot8_block:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
+        $dot:ident, $dot4:ident, $dot8_block:ident, $dot4_block:ident, $dotn_block:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
@@ -364,80 +364,102 @@ macro_rules! isa_kernels {
 
         /// `Engine::dot8_block`: eight rows at a time, each row prefetched `STREAM_AHEAD` bytes
         /// ahead where `$prefetch` says.
-        ///
-        /// The loop over the block's groups of eight rows runs here, with the rows' pointers and
-        /// the input's last partial chunk worked out from `cols` once. Written as one call of
-        /// `dotn` per group (its rows passed as slices, each checked and split into chunks), the
-        /// paper-size 13,272 × 1,500 f32 product read its 80 MB at 40–41 GB/s on the AMD EPYC
-        /// VM; as it is here, with the same inner loop and the same bits, at 47–48 (1.92–1.98 →
-        /// 1.65–1.68 ms; eight plain u64 streams read 57–58 GB/s there). Which part of the
-        /// per-group work cost that was not isolated: the tail masks worked out once, the chunks
-        /// indexed rather than iterated and the loads' order each left `dotn` as slow.
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot8_block(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
-            #[inline]
-            #[target_feature(enable = $feat)]
-            fn block<const AHEAD: usize>(
-                w: &[$t],
-                cols: usize,
-                x: &[f32],
-                n8: usize,
-                sums: &mut [f32],
-            ) {
-                assert!(
-                    x.len() == cols && w.len() >= 8 * n8 * cols && sums.len() >= 8 * n8,
-                    "a block shorter than its rows"
-                );
-                let (xc, xt) = x.as_chunks::<LANES>();
-                let full = xc.len() * LANES;
-                let xv_tail = x_tail(xt);
-                for q in 0..n8 {
-                    // SAFETY: row `q + k·n8 < 8·n8` starts inside `w`, which holds `8·n8` rows
-                    // of `cols` values (asserted above).
-                    let rows: [*const $t; 8] =
-                        std::array::from_fn(|k| unsafe { w.as_ptr().add((q + k * n8) * cols) });
-                    let zero = [0.0f32; LANES];
-                    let mut acc = [load_acc(&zero); 8];
-                    for i in 0..xc.len() {
-                        if AHEAD > 0 {
-                            for row in rows {
-                                let at = row.wrapping_add(i * LANES).cast::<i8>().wrapping_add(AHEAD);
-                                for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
-                                    prefetch(at.wrapping_add(64 * line));
-                                }
-                            }
-                        }
-                        let (xw, _) = xc[i].as_chunks::<W>();
-                        for k in 0..8 {
-                            // SAFETY: chunk `i` of a row of `cols ≥ (i + 1)·LANES` values.
-                            let chunk = unsafe { &*rows[k].add(i * LANES).cast::<[$t; LANES]>() };
-                            let (ww, _) = chunk.as_chunks::<W>();
-                            for r in 0..R {
-                                acc[k][r] = add(acc[k][r], mul($load(&ww[r]), load_f32(&xw[r])));
+            if $prefetch {
+                $dotn_block::<8, STREAM_AHEAD>(w, cols, x, n8, 1, n8, sums)
+            } else {
+                $dotn_block::<8, 0>(w, cols, x, n8, 1, n8, sums)
+            }
+        }
+
+        /// `Engine::dot4_block`: four neighbouring rows at a time.
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $dot4_block(w: &[$t], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
+            $dotn_block::<4, 0>(w, cols, x, nq, 4, 1, sums)
+        }
+
+        /// `groups` groups of `N` rows, row `q·q_stride + k·k_stride` for group `q` and `k < N`
+        /// (all of them below `N·groups`): `sums[row]` is its dot product with `x`, each row
+        /// prefetched `AHEAD` bytes ahead of its chunk (none if 0). Per row the same sums as
+        /// `dot`, lane for lane.
+        ///
+        /// The loop over the groups runs here, with the rows' pointers and the input's last
+        /// partial chunk worked out from `cols` once. Written as one call of `dotn` per group
+        /// (its rows passed as slices, each checked and split into chunks), on the AMD EPYC VM
+        /// the paper-size 13,272 × 1,500 f32 product read its 80 MB at 40–41 GB/s, and at 47–48
+        /// as it is here, with the same inner loop and the same bits (1.92–1.98 → 1.65–1.68 ms;
+        /// eight plain u64 streams read 57–58 GB/s there); the shipped model's f32 step, whose
+        /// rows of 64 to 256 columns go four at a time, took 38.8–39.0 → 34.5–35.3 µs and f16
+        /// 23.5–24.0 → 21.5–21.7 (`cargo bench --bench kernels -- shipped`, alternating
+        /// builds). Which part of the per-group work cost that was not isolated: the tail masks
+        /// worked out once, the chunks indexed rather than iterated and the loads' order each
+        /// left `dotn` as slow.
+        #[inline]
+        #[target_feature(enable = $feat)]
+        fn $dotn_block<const N: usize, const AHEAD: usize>(
+            w: &[$t],
+            cols: usize,
+            x: &[f32],
+            groups: usize,
+            q_stride: usize,
+            k_stride: usize,
+            sums: &mut [f32],
+        ) {
+            let rows_in = N * groups;
+            assert!(
+                x.len() == cols
+                    && w.len() >= rows_in * cols
+                    && sums.len() >= rows_in
+                    && (groups == 0 || (groups - 1) * q_stride + (N - 1) * k_stride < rows_in),
+                "a block shorter than its rows"
+            );
+            let (xc, xt) = x.as_chunks::<LANES>();
+            let full = xc.len() * LANES;
+            let xv_tail = x_tail(xt);
+            for q in 0..groups {
+                let index = |k: usize| q * q_stride + k * k_stride;
+                // SAFETY: every row index is below `N·groups` (asserted above), and `w` holds
+                // that many rows of `cols` values.
+                let rows: [*const $t; N] =
+                    std::array::from_fn(|k| unsafe { w.as_ptr().add(index(k) * cols) });
+                let zero = [0.0f32; LANES];
+                let mut acc = [load_acc(&zero); N];
+                for i in 0..xc.len() {
+                    if AHEAD > 0 {
+                        for row in rows {
+                            let at = row.wrapping_add(i * LANES).cast::<i8>().wrapping_add(AHEAD);
+                            for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
+                                prefetch(at.wrapping_add(64 * line));
                             }
                         }
                     }
-                    if !xt.is_empty() {
-                        // The partial last chunk read with loads that stop at the rows' ends,
-                        // zero beyond (the same sums as a zero-padded chunk).
-                        for (a, row) in acc.iter_mut().zip(rows) {
-                            // SAFETY: the row's last `cols − full` values.
-                            let tail = unsafe { std::slice::from_raw_parts(row.add(full), cols - full) };
-                            for r in 0..R {
-                                a[r] = add(a[r], mul($load_tail(tail, r), xv_tail[r]));
-                            }
+                    let (xw, _) = xc[i].as_chunks::<W>();
+                    for k in 0..N {
+                        // SAFETY: chunk `i` of a row of `cols ≥ (i + 1)·LANES` values.
+                        let chunk = unsafe { &*rows[k].add(i * LANES).cast::<[$t; LANES]>() };
+                        let (ww, _) = chunk.as_chunks::<W>();
+                        for r in 0..R {
+                            acc[k][r] = add(acc[k][r], mul($load(&ww[r]), load_f32(&xw[r])));
                         }
-                    }
-                    for (k, d) in reduce_rows(acc).into_iter().enumerate() {
-                        sums[q + k * n8] = d;
                     }
                 }
-            }
-            if $prefetch {
-                block::<STREAM_AHEAD>(w, cols, x, n8, sums)
-            } else {
-                block::<0>(w, cols, x, n8, sums)
+                if !xt.is_empty() {
+                    // The partial last chunk read with loads that stop at the rows' ends, zero
+                    // beyond (the same sums as a zero-padded chunk).
+                    for (a, row) in acc.iter_mut().zip(rows) {
+                        // SAFETY: the row's last `cols − full` values.
+                        let tail = unsafe { std::slice::from_raw_parts(row.add(full), cols - full) };
+                        for r in 0..R {
+                            a[r] = add(a[r], mul($load_tail(tail, r), xv_tail[r]));
+                        }
+                    }
+                }
+                for (k, d) in reduce_rows(acc).into_iter().enumerate() {
+                    sums[index(k)] = d;
+                }
             }
         }
 
@@ -881,7 +903,7 @@ mod engines {
     use super::{avx2, avx512};
 
     macro_rules! engine {
-        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8_block:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8_block:ident, $dot4_block:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -905,6 +927,12 @@ mod engines {
                 fn dot8_block(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
                     // SAFETY: as for `dot`.
                     unsafe { $m::$dot8_block(w, cols, x, n8, sums) }
+                }
+
+                #[inline(always)]
+                fn dot4_block(w: &[$t], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
+                    // SAFETY: as for `dot`.
+                    unsafe { $m::$dot4_block(w, cols, x, nq, sums) }
                 }
 
                 #[inline(always)]
@@ -935,6 +963,7 @@ mod engines {
         dot_f32,
         dot4_f32,
         dot8_block_f32,
+        dot4_block_f32,
         madd1_f32,
         madd2_f32
     );
@@ -945,6 +974,7 @@ mod engines {
         dot_i8,
         dot4_i8,
         dot8_block_i8,
+        dot4_block_i8,
         madd1_i8,
         madd2_i8
     );
@@ -955,6 +985,7 @@ mod engines {
         dot_f16,
         dot4_f16,
         dot8_block_f16,
+        dot4_block_f16,
         madd1_f16,
         madd2_f16
     );
@@ -965,6 +996,7 @@ mod engines {
         dot_f32,
         dot4_f32,
         dot8_block_f32,
+        dot4_block_f32,
         madd1_f32,
         madd2_f32
     );
@@ -975,6 +1007,7 @@ mod engines {
         dot_i8,
         dot4_i8,
         dot8_block_i8,
+        dot4_block_i8,
         madd1_i8,
         madd2_i8
     );
@@ -985,6 +1018,7 @@ mod engines {
         dot_f16,
         dot4_f16,
         dot8_block_f16,
+        dot4_block_f16,
         madd1_f16,
         madd2_f16
     );

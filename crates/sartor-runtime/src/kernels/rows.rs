@@ -241,6 +241,15 @@ pub(crate) trait Engine {
             }
         }
     }
+    /// [`Engine::dot4`] of `4·nq` neighbouring rows of `cols` columns (`w`, row-major), four at
+    /// a time: `sums[i]` is row `i`'s dot product with `x`.
+    fn dot4_block(w: &[Self::Stored], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
+        for q in 0..nq {
+            let row = |k: usize| &w[(4 * q + k) * cols..(4 * q + k + 1) * cols];
+            let d = Self::dot4([row(0), row(1), row(2), row(3)], x);
+            sums[4 * q..4 * q + 4].copy_from_slice(&d);
+        }
+    }
     /// `s[j mod LANES] += w[j]·x[j]` over a span that starts at a multiple of [`LANES`]
     /// (a partial last chunk zero-padded).
     fn madd1(w: &[Self::Stored], x: &[f32], s: &mut [f32; LANES]);
@@ -347,17 +356,14 @@ pub(crate) fn rows<E: Engine>(
         }
         let base = whole;
         let after = &mut ys_t[base..];
-        let (quads, rest) = after.as_chunks_mut::<4>();
-        for (q, y) in quads.iter_mut().enumerate() {
-            let i0 = base + 4 * q;
-            let row = |k: usize| &w[(i0 + k) * cols..(i0 + k + 1) * cols];
-            let d = E::dot4([row(0), row(1), row(2), row(3)], xs);
-            for k in 0..4 {
-                let i = i0 + k;
-                y[k] = epilogue(d[k], scales.map(|s| s[i]), bias.map(|b| b[i]));
-            }
+        let nq = after.len() / 4;
+        let (quads, rest) = after.split_at_mut(4 * nq);
+        E::dot4_block(&w[base * cols..(base + 4 * nq) * cols], cols, xs, nq, quads);
+        for (j, y) in quads.iter_mut().enumerate() {
+            let i = base + j;
+            *y = epilogue(*y, scales.map(|s| s[i]), bias.map(|b| b[i]));
         }
-        let done = base + 4 * quads.len();
+        let done = base + 4 * nq;
         for (k, y) in rest.iter_mut().enumerate() {
             let i = done + k;
             let row = &w[i * cols..(i + 1) * cols];
