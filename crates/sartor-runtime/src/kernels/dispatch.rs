@@ -1466,8 +1466,8 @@ mod tests {
             // The shipped model's GRU input (88) and the paper's hidden size (1,500).
             (7, 88, 1),
             (9, 1500, 1),
-            // Eight-row blocks of SPREAD_ROWS rows and a shorter one (eight streams 128 rows
-            // apart, then 3 apart), a partial last chunk, and three rows left over.
+            // Two whole eight-row blocks (`spread_block` rows each) and a shorter one, a
+            // partial last chunk, and rows left over for the four-row groups and `dot`.
             (2 * SPREAD_ROWS + 27, 520, 1),
         ] {
             let w: Vec<f32> = (0..n_rows * cols)

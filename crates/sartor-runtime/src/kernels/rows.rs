@@ -21,8 +21,8 @@
 //! The single-vector path streams each weight row once with the conversion fused into the dot
 //! product, four rows at a time (four concurrent memory streams, each input chunk loaded once:
 //! one stream per row left a third of the memory bandwidth unused on an Intel Xeon), eight at
-//! a time, an eighth of a block of [`SPREAD_ROWS`] rows apart, for rows of [`EIGHT_ROWS_FROM`]
-//! columns or more (on
+//! a time, an eighth of a block of up to [`SPREAD_ROWS`] rows apart ([`spread_block`]), for
+//! rows of [`EIGHT_ROWS_FROM`] columns or more (on
 //! the AMD EPYC VM the paper-size 13,272 × 1,500 product took 5.0–6.4 ms in f32 with four
 //! streams, 4.5–5.0 with eight; the shipped model's rows of 64 to 256 columns, which live in
 //! cache, took twice as long with eight). The batched path tiles the work so that everything
@@ -345,8 +345,9 @@ pub(crate) fn rows<E: Engine>(
         if whole > 0 {
             // Only long rows take the buffer (short ones, the shipped model's, skip zeroing it).
             let mut sums = [0.0f32; SPREAD_ROWS];
-            for b0 in (0..whole).step_by(SPREAD_ROWS) {
-                let nb = SPREAD_ROWS.min(whole - b0);
+            let block = spread_block(cols * size_of::<E::Stored>());
+            for b0 in (0..whole).step_by(block) {
+                let nb = block.min(whole - b0);
                 E::dot8_block(&w[b0 * cols..(b0 + nb) * cols], cols, xs, nb / 8, &mut sums);
                 for (j, (y, &d)) in ys_t[b0..b0 + nb].iter_mut().zip(&sums).enumerate() {
                     let i = b0 + j;
@@ -402,9 +403,71 @@ pub(crate) fn rows<E: Engine>(
     }
 }
 
+/// Rows per block of the eight-row path: a multiple of 8 between `SPREAD_ROWS − 192` and
+/// [`SPREAD_ROWS`] for which the eight streams, `block / 8` rows of `row_bytes` apart, start as
+/// far apart as possible modulo 4 KiB (the span of one way of the L1 data cache's sets on the
+/// CPUs measured; the largest block among equals).
+///
+/// With blocks of 1,024 rows, f32 rows of 1,500 columns (6,000 bytes) put the eight streams at
+/// two offsets modulo 4 KiB, four streams on each, and rows of 1,504 or 1,536 columns at one:
+/// the 13,272-row product then read 38 GB/s against 41 (AMD EPYC VM, before the block kernels).
+/// Blocks of 1,000 rows put the streams 432 bytes apart: the 13,272 × 1,500 product took
+/// 1.75–1.77 → 1.63–1.68 ms on one thread (a throwaway harness, two builds alternated twice;
+/// `cargo bench --bench kernels`, alternating builds: the product 1.71 → 1.61–1.63 ms in f32
+/// and 678–682 → 641–648 µs in f16, the paper-size GRU + dense f32 step 2.57–2.63 → 2.36–2.40
+/// ms; two threads level within this VM's noise). Each row's sum does not depend on the block:
+/// the same bits.
+pub(crate) fn spread_block(row_bytes: usize) -> usize {
+    const WAY: usize = 4096;
+    // The offsets are an arithmetic progression, so the closest two are `j` strides apart
+    // for some `j` in 1..8.
+    let spread = |n8: usize| {
+        (1..8)
+            .map(|j| {
+                let d = (j * n8 * row_bytes) % WAY;
+                d.min(WAY - d)
+            })
+            .min()
+            .unwrap_or(0)
+    };
+    let top = SPREAD_ROWS / 8;
+    (top - 24..=top)
+        .rev()
+        .max_by_key(|&n8| (spread(n8), n8))
+        .map_or(SPREAD_ROWS, |n8| 8 * n8)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocks_spread_the_streams_over_the_cache_sets() {
+        let spread = |block: usize, row_bytes: usize| {
+            (1..8)
+                .map(|j| (j * block / 8 * row_bytes) % 4096)
+                .map(|d| d.min(4096 - d))
+                .min()
+                .expect("seven strides")
+        };
+        // f32 rows of 1,500 and 1,504 columns, f16 of 1,500, f32 of 520: with blocks of
+        // SPREAD_ROWS rows two or more streams start at one offset.
+        for row_bytes in [6000, 6016, 3000, 2080] {
+            let block = spread_block(row_bytes);
+            assert!(
+                block.is_multiple_of(8) && (SPREAD_ROWS - 192..=SPREAD_ROWS).contains(&block),
+                "{row_bytes} bytes: {block} rows"
+            );
+            assert_eq!(spread(SPREAD_ROWS, row_bytes), 0, "{row_bytes} bytes");
+            assert!(
+                spread(block, row_bytes) >= 256,
+                "{row_bytes} bytes: {block} rows, streams {} bytes apart",
+                spread(block, row_bytes)
+            );
+        }
+        // Rows of a whole number of 2 KiB: every block puts streams together; the largest.
+        assert_eq!(spread_block(6144), SPREAD_ROWS);
+    }
 
     #[test]
     fn f16_conversion_is_exact_for_every_finite_half() {
