@@ -1259,6 +1259,44 @@ mod int {
                     let sums = unsafe { $sums8($dotn::<8, STREAM_AHEAD>(w, x)) };
                     std::array::from_fn(|r| sums[r] + PortableInt::dot(&w[r][done..], &x[done..]))
                 }
+
+                #[inline(always)]
+                fn dot8_far_block(
+                    w: &[i8],
+                    x: &[i16],
+                    octs: usize,
+                    o0: usize,
+                    n: usize,
+                    sums: &mut [i32],
+                ) {
+                    /// The loop over the groups inside the target features.
+                    #[inline]
+                    #[target_feature(enable = $feat)]
+                    fn block(
+                        w: &[i8],
+                        x: &[i16],
+                        octs: usize,
+                        o0: usize,
+                        n: usize,
+                        sums: &mut [i32],
+                    ) {
+                        let cols = x.len();
+                        let done = cols / $w * $w;
+                        for o in o0..o0 + n {
+                            let rows: [&[i8]; 8] = std::array::from_fn(|r| {
+                                let i = o + r * octs;
+                                &w[i * cols..(i + 1) * cols]
+                            });
+                            let acc = $sums8($dotn::<8, STREAM_AHEAD>(rows, x));
+                            for r in 0..8 {
+                                sums[r * n + o - o0] =
+                                    acc[r] + PortableInt::dot(&rows[r][done..], &x[done..]);
+                            }
+                        }
+                    }
+                    // SAFETY: as for `dot`.
+                    unsafe { block(w, x, octs, o0, n, sums) }
+                }
             }
         };
     }
