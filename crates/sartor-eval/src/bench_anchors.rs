@@ -120,8 +120,12 @@ struct ScriptCheck {
 #[derive(Clone, Debug, Serialize)]
 struct SartorTime {
     precision: &'static str,
-    /// Median over the timed frames.
+    /// The mean of `ms_per_frame_before` and `ms_per_frame_after`: the ratios use it.
     ms_per_frame: f64,
+    /// Median over the timed frames, timed just before the anchors.
+    ms_per_frame_before: f64,
+    /// The same, timed again just after them.
+    ms_per_frame_after: f64,
 }
 
 /// The memory-bandwidth floor of one precision's weights.
@@ -130,8 +134,15 @@ struct Floor {
     precision: &'static str,
     /// Weight bytes the step reads per frame (GRU and output layer, int8 scales included).
     bytes: usize,
-    /// Median ms to stream that many bytes once: the fastest of the four ways below.
+    /// Median ms to stream that many bytes once: the mean of `ms_before` and `ms_after`, as
+    /// sartor's `ms_per_frame` is (so that `sartor_*_over_floor` compares times taken at the
+    /// same moments).
     ms: f64,
+    /// The fastest of the four ways, measured just before the anchors (the four below are
+    /// that measurement's).
+    ms_before: f64,
+    /// The same, measured again just after them.
+    ms_after: f64,
     /// Implied bandwidth, GB/s (10^9 bytes).
     gb_per_s: f64,
     /// The same from a buffer in ordinary (4 KiB) pages.
@@ -742,39 +753,34 @@ fn model_anchors(
         precision_errors.push(precision_error(n.precision(), &outputs(n, &x)?, &want));
     }
 
-    let mut per_thread = Vec::new();
-    for &threads in &options.threads {
-        let mut sartor = Vec::new();
-        let mut floor = Vec::new();
-        for n in &networks {
-            let ms = time_step(n, &x, threads, options.warmup, options.frames)?;
-            let bytes = n.wrinkle_weight_bytes();
-            let streams = stream_floor(bytes, threads, floor_reps(bytes))?;
-            let floor_ms = streams.ms();
-            progress.println(&format!(
-                "  anchors {} sartor {:>4} {threads} thread(s): {ms:.4} ms/frame; floor {floor_ms:.4} \
-                 ms for {:.1} MB",
-                m.name,
-                n.precision().name(),
-                bytes as f64 / 1e6
-            ));
-            sartor.push(SartorTime {
-                precision: n.precision().name(),
-                ms_per_frame: ms,
-            });
-            floor.push(Floor {
-                precision: n.precision().name(),
-                bytes,
-                ms: floor_ms,
-                gb_per_s: bytes as f64 / (floor_ms * 1e6),
-                ms_small_pages: streams.small_pages_ms,
-                ms_huge_pages: streams.huge_pages_ms,
-                ms_small_pages_prefetched: streams.small_pages_prefetched_ms,
-                ms_huge_pages_prefetched: streams.huge_pages_prefetched_ms,
-            });
+    // sartor's step and the floor at every thread count and precision: (ms, floor) per
+    // precision, per thread count.
+    let time_all = |when: &str| -> Result<Vec<Vec<(f64, StreamFloor)>>> {
+        let mut all = Vec::new();
+        for &threads in &options.threads {
+            let mut row = Vec::new();
+            for n in &networks {
+                let ms = time_step(n, &x, threads, options.warmup, options.frames)?;
+                let bytes = n.wrinkle_weight_bytes();
+                let streams = stream_floor(bytes, threads, floor_reps(bytes))?;
+                progress.println(&format!(
+                    "  anchors {} sartor {:>4} {threads} thread(s), {when}: {ms:.4} ms/frame; \
+                     floor {:.4} ms for {:.1} MB",
+                    m.name,
+                    n.precision().name(),
+                    streams.ms(),
+                    bytes as f64 / 1e6
+                ));
+                row.push((ms, streams));
+            }
+            all.push(row);
         }
-        per_thread.push((threads, sartor, floor));
-    }
+        Ok(all)
+    };
+    // Timed on both sides of the anchors, which run a minute or more: a machine whose memory
+    // or two-thread speed drifts over minutes (the 2-core AMD EPYC VM's two-thread step moved
+    // by half between runs minutes apart) then tilts the ratios less.
+    let before = time_all("before the anchors")?;
 
     progress.println(&format!(
         "  anchors {}: running {} (PyTorch eager and compiled, ONNX Runtime; a few minutes)",
@@ -806,6 +812,37 @@ fn model_anchors(
             out_path.as_os_str(),
         ],
     )?;
+    let after = time_all("after the anchors")?;
+    let mut per_thread = Vec::new();
+    for ((&threads, before), after) in options.threads.iter().zip(before).zip(after) {
+        let mut sartor = Vec::new();
+        let mut floor = Vec::new();
+        for ((n, (ms_before, streams)), (ms_after, streams_after)) in
+            networks.iter().zip(before).zip(after)
+        {
+            let bytes = n.wrinkle_weight_bytes();
+            sartor.push(SartorTime {
+                precision: n.precision().name(),
+                ms_per_frame: 0.5 * (ms_before + ms_after),
+                ms_per_frame_before: ms_before,
+                ms_per_frame_after: ms_after,
+            });
+            let floor_ms = 0.5 * (streams.ms() + streams_after.ms());
+            floor.push(Floor {
+                precision: n.precision().name(),
+                bytes,
+                ms: floor_ms,
+                ms_before: streams.ms(),
+                ms_after: streams_after.ms(),
+                gb_per_s: bytes as f64 / (floor_ms * 1e6),
+                ms_small_pages: streams.small_pages_ms,
+                ms_huge_pages: streams.huge_pages_ms,
+                ms_small_pages_prefetched: streams.small_pages_prefetched_ms,
+                ms_huge_pages_prefetched: streams.huge_pages_prefetched_ms,
+            });
+        }
+        per_thread.push((threads, sartor, floor));
+    }
     let text = std::fs::read_to_string(&out_path).map_err(|e| Error::io(&out_path, e))?;
     let script = parse_script_output(&text, options.check_frames)?;
     let max_abs_output_m = want.iter().fold(0.0f64, |a, &v| a.max(f64::from(v).abs()));
@@ -886,14 +923,20 @@ pub(crate) fn anchors(
             "Every engine runs the same per-frame wrinkle step on the same weights: \
              normalisation, GRU cell, output layer (dense, or PCA coefficients then basis), \
              denormalisation; batch 1, one frame per call, the GRU state carried from frame to \
-             frame. ms_per_frame is the median over the timed frames. The fit MLP (once per \
-             shape), skinning and the post-process are not included on either side.",
+             frame. ms_per_frame is the median over the timed frames; sartor's step is timed \
+             just before and again just after the anchors (ms_per_frame_before, \
+             ms_per_frame_after) and its ms_per_frame, which the ratios use, is their mean, so \
+             that a machine drifting over the minute of the anchors tilts the ratios less. The \
+             fit MLP (once per shape), skinning and the post-process are not included on either \
+             side.",
             "Ratios are sartor / anchor: below 1, sartor is faster. 'fastest' is sartor's \
              fastest precision at that thread count.",
             "floor: the median time to stream the step's weight bytes once (sum of a buffer of \
              that many bytes, warm, back to back as the frames are), per precision's weight \
              size, the faster of a buffer in 4 KiB pages (ms_small_pages) and one advised to \
-             2 MiB pages (ms_huge_pages, Linux); sartor_*_over_floor = sartor's ms / that floor \
+             2 MiB pages (ms_huge_pages, Linux), each read plainly and prefetched, measured \
+             before and after the anchors with sartor's step (ms_before, ms_after; ms is their \
+             mean, as sartor's ms_per_frame is); sartor_*_over_floor = sartor's ms / that floor \
              (1: at the memory bandwidth).",
             "max_abs_diff_m: the engine's displacements against sartor's f32 ones for the same \
              inputs from a zero state, metres; max_abs_output_m is their scale; \
@@ -932,14 +975,20 @@ mod tests {
             SartorTime {
                 precision: "f32",
                 ms_per_frame: f32_ms,
+                ms_per_frame_before: f32_ms,
+                ms_per_frame_after: f32_ms,
             },
             SartorTime {
                 precision: "f16",
                 ms_per_frame: f16_ms,
+                ms_per_frame_before: f16_ms,
+                ms_per_frame_after: f16_ms,
             },
             SartorTime {
                 precision: "int8",
                 ms_per_frame: int8_ms,
+                ms_per_frame_before: int8_ms,
+                ms_per_frame_after: int8_ms,
             },
         ]
     }
@@ -951,6 +1000,8 @@ mod tests {
                 precision,
                 bytes,
                 ms,
+                ms_before: ms,
+                ms_after: ms,
                 gb_per_s: bytes as f64 / (ms * 1e6),
                 ms_small_pages: ms,
                 ms_huge_pages: None,
