@@ -903,6 +903,12 @@ mod engines {
     use super::{avx2, avx512};
 
     macro_rules! engine {
+        ($t:ty: $($name:ident $m:ident),+; $kernels:tt) => {
+            $(engine!(@one $name, $m, $t, $kernels);)+
+        };
+        (@one $name:ident, $m:ident, $t:ty, ($($kernel:ident),+)) => {
+            engine!($name, $m, $t, $($kernel),+);
+        };
         ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8_block:ident, $dot4_block:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
@@ -956,72 +962,14 @@ mod engines {
         };
     }
 
-    engine!(
-        Avx2F32,
-        avx2,
-        f32,
-        dot_f32,
-        dot4_f32,
-        dot8_block_f32,
-        dot4_block_f32,
-        madd1_f32,
-        madd2_f32
-    );
-    engine!(
-        Avx2I8,
-        avx2,
-        i8,
-        dot_i8,
-        dot4_i8,
-        dot8_block_i8,
-        dot4_block_i8,
-        madd1_i8,
-        madd2_i8
-    );
-    engine!(
-        Avx2F16,
-        avx2,
-        F16Bits,
-        dot_f16,
-        dot4_f16,
-        dot8_block_f16,
-        dot4_block_f16,
-        madd1_f16,
-        madd2_f16
-    );
-    engine!(
-        Avx512F32,
-        avx512,
-        f32,
-        dot_f32,
-        dot4_f32,
-        dot8_block_f32,
-        dot4_block_f32,
-        madd1_f32,
-        madd2_f32
-    );
-    engine!(
-        Avx512I8,
-        avx512,
-        i8,
-        dot_i8,
-        dot4_i8,
-        dot8_block_i8,
-        dot4_block_i8,
-        madd1_i8,
-        madd2_i8
-    );
-    engine!(
-        Avx512F16,
-        avx512,
-        F16Bits,
-        dot_f16,
-        dot4_f16,
-        dot8_block_f16,
-        dot4_block_f16,
-        madd1_f16,
-        madd2_f16
-    );
+    // One engine per instruction set and storage type: the same kernels' names in `avx2` and
+    // `avx512`.
+    engine!(f32: Avx2F32 avx2, Avx512F32 avx512;
+        (dot_f32, dot4_f32, dot8_block_f32, dot4_block_f32, madd1_f32, madd2_f32));
+    engine!(i8: Avx2I8 avx2, Avx512I8 avx512;
+        (dot_i8, dot4_i8, dot8_block_i8, dot4_block_i8, madd1_i8, madd2_i8));
+    engine!(F16Bits: Avx2F16 avx2, Avx512F16 avx512;
+        (dot_f16, dot4_f16, dot8_block_f16, dot4_block_f16, madd1_f16, madd2_f16));
 }
 
 /// A kernel `$name(isa, w, cols, xs, batch, scales, bias, ys_t)` that calls `$portable` or,
@@ -1148,7 +1096,7 @@ mod int {
     };
 
     use super::super::int8::PortableInt;
-    use super::super::int8::{IntEngine, QUAD_BYTES, QUAD_PANEL, QuadEngine};
+    use super::super::int8::{FarGroups, IntEngine, QUAD_BYTES, QUAD_PANEL, QuadEngine};
     use super::{STREAM_AHEAD, prefetch};
 
     /// The sum of the eight 32-bit lanes.
@@ -1261,41 +1209,21 @@ mod int {
                 }
 
                 #[inline(always)]
-                fn dot8_far_block(
-                    w: &[i8],
-                    x: &[i16],
-                    octs: usize,
-                    o0: usize,
-                    n: usize,
-                    sums: &mut [i32],
-                ) {
+                fn dot8_far_block(w: &[i8], x: &[i16], g: FarGroups, sums: &mut [i32]) {
                     /// The loop over the groups inside the target features.
                     #[inline]
                     #[target_feature(enable = $feat)]
-                    fn block(
-                        w: &[i8],
-                        x: &[i16],
-                        octs: usize,
-                        o0: usize,
-                        n: usize,
-                        sums: &mut [i32],
-                    ) {
-                        let cols = x.len();
-                        let done = cols / $w * $w;
-                        for o in o0..o0 + n {
-                            let rows: [&[i8]; 8] = std::array::from_fn(|r| {
-                                let i = o + r * octs;
-                                &w[i * cols..(i + 1) * cols]
-                            });
+                    fn block(w: &[i8], x: &[i16], g: FarGroups, sums: &mut [i32]) {
+                        let done = x.len() / $w * $w;
+                        for (o, rows) in g.rows(w, x.len()) {
                             let acc = $sums8($dotn::<8, STREAM_AHEAD>(rows, x));
-                            for r in 0..8 {
-                                sums[r * n + o - o0] =
-                                    acc[r] + PortableInt::dot(&rows[r][done..], &x[done..]);
+                            for (r, (row, acc)) in rows.iter().zip(acc).enumerate() {
+                                sums[g.at(o, r)] = acc + PortableInt::dot(&row[done..], &x[done..]);
                             }
                         }
                     }
                     // SAFETY: as for `dot`.
-                    unsafe { block(w, x, octs, o0, n, sums) }
+                    unsafe { block(w, x, g, sums) }
                 }
             }
         };

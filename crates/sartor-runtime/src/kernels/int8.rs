@@ -91,20 +91,43 @@ pub(crate) trait IntEngine {
     fn dot8_far(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
         Self::dot8(w, x)
     }
-    /// [`IntEngine::dot8_far`] of the groups `o0 .. o0 + n` of a matrix `w` (rows of
-    /// `x.len()` values) read as eight streams `octs` rows apart: row `o + r·octs`'s sum goes
-    /// to `sums[r·n + o − o0]`.
-    fn dot8_far_block(w: &[i8], x: &[i16], octs: usize, o0: usize, n: usize, sums: &mut [i32]) {
-        let cols = x.len();
-        for o in o0..o0 + n {
-            let rows: [&[i8]; 8] = std::array::from_fn(|r| {
-                let i = o + r * octs;
-                &w[i * cols..(i + 1) * cols]
-            });
+    /// [`IntEngine::dot8_far`] of the groups `g` of a matrix `w` (rows of `x.len()` values)
+    /// read as eight streams `g.octs` rows apart: row `o + r·octs`'s sum goes to
+    /// `sums[r·count + o − first]`.
+    fn dot8_far_block(w: &[i8], x: &[i16], g: FarGroups, sums: &mut [i32]) {
+        for (o, rows) in g.rows(w, x.len()) {
             for (r, sum) in Self::dot8_far(rows, x).into_iter().enumerate() {
-                sums[r * n + o - o0] = sum;
+                sums[g.at(o, r)] = sum;
             }
         }
+    }
+}
+
+/// Groups `first .. first + count` of eight rows, group `o`'s rows `o + r·octs` (`r < 8`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct FarGroups {
+    pub(crate) octs: usize,
+    pub(crate) first: usize,
+    pub(crate) count: usize,
+}
+
+impl FarGroups {
+    /// Each group and its eight rows of `cols` values in `w`.
+    #[inline(always)]
+    pub(crate) fn rows(self, w: &[i8], cols: usize) -> impl Iterator<Item = (usize, [&[i8]; 8])> {
+        (self.first..self.first + self.count).map(move |o| {
+            let rows = std::array::from_fn(|r| {
+                let i = o + r * self.octs;
+                &w[i * cols..(i + 1) * cols]
+            });
+            (o, rows)
+        })
+    }
+
+    /// Where row `r` of group `o`'s sum goes in a block's sums.
+    #[inline(always)]
+    pub(crate) fn at(self, o: usize, r: usize) -> usize {
+        r * self.count + o - self.first
     }
 }
 
@@ -282,7 +305,12 @@ fn group<E: IntEngine>(
             let mut sums = [0i32; 8 * BLOCK];
             for o0 in (0..octs).step_by(BLOCK) {
                 let n = BLOCK.min(octs - o0);
-                E::dot8_far_block(w, input(0), octs, o0, n, &mut sums[..8 * n]);
+                let g = FarGroups {
+                    octs,
+                    first: o0,
+                    count: n,
+                };
+                E::dot8_far_block(w, input(0), g, &mut sums[..8 * n]);
                 for (r, part) in sums[..8 * n].chunks_exact(n).enumerate() {
                     for (j, &sum) in part.iter().enumerate() {
                         let i = o0 + j + r * octs;
