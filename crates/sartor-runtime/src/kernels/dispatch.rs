@@ -341,12 +341,12 @@ macro_rules! isa_kernels {
         // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
         // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
         // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
-        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot4_f32, dot8_block_f32, dot4_block_f32, dotn_block_f32, dotn_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot4_i8, dot8_block_i8, dot4_block_i8, dotn_block_i8, dotn_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot4_f16, dot8_block_f16, dot4_block_f16, dotn_block_f16, dotn_f16, madd1_f16, madd2_f16);
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot8_block_f32, dot4_block_f32, dotn_block_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot8_block_i8, dot4_block_i8, dotn_block_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot8_block_f16, dot4_block_f16, dotn_block_f16, madd1_f16, madd2_f16);
     };
     (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
-        $dot:ident, $dot4:ident, $dot8_block:ident, $dot4_block:ident, $dotn_block:ident, $dotn:ident, $madd1:ident, $madd2:ident) => {
+        $dot:ident, $dot8_block:ident, $dot4_block:ident, $dotn_block:ident, $madd1:ident, $madd2:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
@@ -354,12 +354,6 @@ macro_rules! isa_kernels {
             let mut s = [0.0f32; LANES];
             $madd1(w, x, &mut s);
             reduce_acc(load_acc(&s))
-        }
-
-        #[inline]
-        #[target_feature(enable = $feat)]
-        pub(super) fn $dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
-            $dotn::<4, 0>(w, x)
         }
 
         /// `Engine::dot8_block`: eight rows at a time, each row prefetched `STREAM_AHEAD` bytes
@@ -387,8 +381,9 @@ macro_rules! isa_kernels {
         /// `dot`, lane for lane.
         ///
         /// The loop over the groups runs here, with the rows' pointers and the input's last
-        /// partial chunk worked out from `cols` once. Written as one call of `dotn` per group
-        /// (its rows passed as slices, each checked and split into chunks), on the AMD EPYC VM
+        /// partial chunk worked out from `cols` once. Written as one call of a kernel of `N`
+        /// rows per group (its rows passed as slices, each checked and split into chunks: the
+        /// `dotn` of git history before 2026-12-01), on the AMD EPYC VM
         /// the paper-size 13,272 × 1,500 f32 product read its 80 MB at 40–41 GB/s, and at 47–48
         /// as it is here, with the same inner loop and the same bits (1.92–1.98 → 1.65–1.68 ms;
         /// eight plain u64 streams read 57–58 GB/s there); the shipped model's f32 step, whose
@@ -396,7 +391,7 @@ macro_rules! isa_kernels {
         /// 23.5–24.0 → 21.5–21.7 (`cargo bench --bench kernels -- shipped`, alternating
         /// builds). Which part of the per-group work cost that was not isolated: the tail masks
         /// worked out once, the chunks indexed rather than iterated and the loads' order each
-        /// left `dotn` as slow.
+        /// left that kernel as slow.
         #[inline]
         #[target_feature(enable = $feat)]
         fn $dotn_block<const N: usize, const AHEAD: usize>(
@@ -461,61 +456,6 @@ macro_rules! isa_kernels {
                     sums[index(k)] = d;
                 }
             }
-        }
-
-        /// `dot` of `N` rows with one input, bitwise the same as `N` calls (`dot4`);
-        /// each row prefetched `AHEAD` bytes ahead of its chunk (none if 0).
-        #[inline]
-        #[target_feature(enable = $feat)]
-        fn $dotn<const N: usize, const AHEAD: usize>(w: [&[$t]; N], x: &[f32]) -> [f32; N] {
-            // Per row the same sums as `dot`, lane for lane; the N rows interleaved.
-            #[inline]
-            #[target_feature(enable = $feat)]
-            fn step<const N: usize>(acc: &mut [[V; R]; N], w: [&[$t; LANES]; N], x: &[f32; LANES]) {
-                let (xw, _) = x.as_chunks::<W>();
-                for r in 0..R {
-                    let xv = load_f32(&xw[r]);
-                    for k in 0..N {
-                        let (ww, _) = w[k].as_chunks::<W>();
-                        acc[k][r] = add(acc[k][r], mul($load(&ww[r]), xv));
-                    }
-                }
-            }
-            let zero = [0.0f32; LANES];
-            let mut acc = [load_acc(&zero); N];
-            let (xc, xt) = x.as_chunks::<LANES>();
-            let wc = w.map(|row| row.as_chunks::<LANES>());
-            // The rows' lengths checked once, so that the loop below reads them without a
-            // bounds check per row and chunk.
-            let n = xc.len();
-            let rows: [*const [$t; LANES]; N] = std::array::from_fn(|k| {
-                assert!(wc[k].0.len() >= n, "a row shorter than the input");
-                wc[k].0.as_ptr()
-            });
-            for (i, b) in xc.iter().enumerate() {
-                if AHEAD > 0 {
-                    for row in rows {
-                        let at = row.wrapping_add(i).cast::<i8>().wrapping_add(AHEAD);
-                        for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
-                            prefetch(at.wrapping_add(64 * line));
-                        }
-                    }
-                }
-                // SAFETY: `i < n` and every row has at least `n` whole chunks (checked above).
-                step(&mut acc, std::array::from_fn(|k| unsafe { &*rows[k].add(i) }), b);
-            }
-            if !xt.is_empty() {
-                // The partial last chunk read with loads that stop at the rows' ends, zero
-                // beyond (the same sums as a zero-padded chunk, without copying each row's
-                // tail through the stack).
-                let xv = x_tail(xt);
-                for r in 0..R {
-                    for k in 0..N {
-                        acc[k][r] = add(acc[k][r], mul($load_tail(wc[k].1, r), xv[r]));
-                    }
-                }
-            }
-            reduce_rows(acc)
         }
 
         #[inline]
@@ -909,7 +849,7 @@ mod engines {
         (@one $name:ident, $m:ident, $t:ty, ($($kernel:ident),+)) => {
             engine!($name, $m, $t, $($kernel),+);
         };
-        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot4:ident, $dot8_block:ident, $dot4_block:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot8_block:ident, $dot4_block:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -921,12 +861,6 @@ mod engines {
                     // `#[target_feature]`, which are only called for an `Isa` made after
                     // detection found those features.
                     unsafe { $m::$dot(w, x) }
-                }
-
-                #[inline(always)]
-                fn dot4(w: [&[$t]; 4], x: &[f32]) -> [f32; 4] {
-                    // SAFETY: as for `dot`.
-                    unsafe { $m::$dot4(w, x) }
                 }
 
                 #[inline(always)]
@@ -965,11 +899,11 @@ mod engines {
     // One engine per instruction set and storage type: the same kernels' names in `avx2` and
     // `avx512`.
     engine!(f32: Avx2F32 avx2, Avx512F32 avx512;
-        (dot_f32, dot4_f32, dot8_block_f32, dot4_block_f32, madd1_f32, madd2_f32));
+        (dot_f32, dot8_block_f32, dot4_block_f32, madd1_f32, madd2_f32));
     engine!(i8: Avx2I8 avx2, Avx512I8 avx512;
-        (dot_i8, dot4_i8, dot8_block_i8, dot4_block_i8, madd1_i8, madd2_i8));
+        (dot_i8, dot8_block_i8, dot4_block_i8, madd1_i8, madd2_i8));
     engine!(F16Bits: Avx2F16 avx2, Avx512F16 avx512;
-        (dot_f16, dot4_f16, dot8_block_f16, dot4_block_f16, madd1_f16, madd2_f16));
+        (dot_f16, dot8_block_f16, dot4_block_f16, madd1_f16, madd2_f16));
 }
 
 /// A kernel `$name(isa, w, cols, xs, batch, scales, bias, ys_t)` that calls `$portable` or,
@@ -1153,7 +1087,7 @@ mod int {
             fn $dotn<const N: usize, const AHEAD: usize>(w: [&[i8]; N], x: &[i16]) -> [$x; N] {
                 let (xc, _) = x.as_chunks::<$w>();
                 let mut acc = [$zero(); N];
-                // The rows' lengths checked once, not per row and step (see `dotn` of
+                // The rows' lengths checked once, not per row and step (see `dotn_block` of
                 // `isa_kernels!`).
                 let n = xc.len() * $w;
                 let rows: [*const i8; N] = std::array::from_fn(|k| {

@@ -221,33 +221,22 @@ pub(crate) trait Engine {
     type Stored: Copy + Default + Send + Sync + 'static;
     /// `w · x` under the lane rule (all slices the same length).
     fn dot(w: &[Self::Stored], x: &[f32]) -> f32;
-    /// [`Engine::dot`] of four rows with one input, bitwise the same as four calls: the rows
-    /// are read as four concurrent streams (one stream per row leaves memory bandwidth unused
-    /// on some machines) and each chunk of `x` is loaded once.
-    fn dot4(w: [&[Self::Stored]; 4], x: &[f32]) -> [f32; 4];
-    /// [`Engine::dot4`] of a block of `8·n8` rows of `cols` columns (`w`, row-major), eight at
-    /// a time as eight concurrent streams an eighth of the block apart: `sums[q + k·n8]` is row
-    /// `q + k·n8`'s dot product with `x`, for `q < n8` and `k < 8`.
+    /// [`Engine::dot`] of a block of `8·n8` rows of `cols` columns (`w`, row-major), bitwise
+    /// the same as one call per row: the SIMD engines read them eight at a time as eight
+    /// concurrent streams an eighth of the block apart, each chunk of `x` loaded once.
+    /// `sums[q + k·n8]` is row `q + k·n8`'s dot product with `x`, for `q < n8` and `k < 8`.
     fn dot8_block(w: &[Self::Stored], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
-        for q in 0..n8 {
-            let row = |k: usize| {
-                let i = q + k * n8;
-                &w[i * cols..(i + 1) * cols]
-            };
-            let a = Self::dot4([row(0), row(1), row(2), row(3)], x);
-            let b = Self::dot4([row(4), row(5), row(6), row(7)], x);
-            for (k, d) in a.into_iter().chain(b).enumerate() {
-                sums[q + k * n8] = d;
-            }
+        for (i, s) in sums[..8 * n8].iter_mut().enumerate() {
+            *s = Self::dot(&w[i * cols..(i + 1) * cols], x);
         }
     }
-    /// [`Engine::dot4`] of `4·nq` neighbouring rows of `cols` columns (`w`, row-major), four at
-    /// a time: `sums[i]` is row `i`'s dot product with `x`.
+    /// [`Engine::dot`] of `4·nq` neighbouring rows of `cols` columns (`w`, row-major), bitwise
+    /// the same as one call per row: the SIMD engines read them four at a time as four
+    /// concurrent streams (one stream per row leaves memory bandwidth unused on some machines).
+    /// `sums[i]` is row `i`'s dot product with `x`.
     fn dot4_block(w: &[Self::Stored], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
-        for q in 0..nq {
-            let row = |k: usize| &w[(4 * q + k) * cols..(4 * q + k + 1) * cols];
-            let d = Self::dot4([row(0), row(1), row(2), row(3)], x);
-            sums[4 * q..4 * q + 4].copy_from_slice(&d);
+        for (i, s) in sums[..4 * nq].iter_mut().enumerate() {
+            *s = Self::dot(&w[i * cols..(i + 1) * cols], x);
         }
     }
     /// `s[j mod LANES] += w[j]·x[j]` over a span that starts at a multiple of [`LANES`]
@@ -272,11 +261,6 @@ impl<C: Codec> Engine for Portable<C> {
     #[inline(always)]
     fn dot(w: &[C::Stored], x: &[f32]) -> f32 {
         dot::<C>(w, x)
-    }
-
-    #[inline(always)]
-    fn dot4(w: [&[C::Stored]; 4], x: &[f32]) -> [f32; 4] {
-        w.map(|row| dot::<C>(row, x))
     }
 
     #[inline(always)]
@@ -328,7 +312,7 @@ pub(crate) fn rows<E: Engine>(
         // outputs and biases each stream wrote and read stayed close too (before the buffer
         // below took them out of the streams' way): on the AMD EPYC VM
         // the same step took 3.82–3.93 → 3.21–3.28 ms in f32 with the bounds checks out of
-        // `dotn` (`dispatch.rs`), of which the blocks gave about 7 % (f16 1.99 → 1.81–1.83).
+        // the eight-row kernel (`dispatch.rs`), of which the blocks gave about 7 % (f16 1.99 → 1.81–1.83).
         // Every row's sum is the same either way.
         //
         // A block's sums wait in a buffer on the stack, and its outputs are written (and its
