@@ -59,6 +59,7 @@ use std::path::Path;
 use nalgebra::Matrix2;
 use serde::{Deserialize, Serialize};
 
+use crate::energy::{F64x4, Real};
 use crate::{Error, Result};
 
 /// Number of samples per axis of ARCSim's stretching-stiffness grid.
@@ -66,36 +67,54 @@ pub const STRAIN_GRID_SAMPLES: usize = 30;
 
 /// The stiffness of a membrane quadratic form in the Green strain (see the module docs):
 /// `ψ = ½ k_uu G00² + k_uv G00 G11 + ½ k_vv G11² + ½ k_shear G01²`, N/m.
+///
+/// `T` is `f64`, or [`crate::energy::F64x4`] for four triangles' stiffnesses side by side.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct StrainStiffness {
+pub struct StrainStiffness<T = f64> {
     /// Warp (u) stiffness.
-    pub k_uu: f64,
+    pub k_uu: T,
     /// u–v coupling.
-    pub k_uv: f64,
+    pub k_uv: T,
     /// Weft (v) stiffness.
-    pub k_vv: f64,
+    pub k_vv: T,
     /// Shear stiffness (multiplies `½ G01²`).
-    pub k_shear: f64,
+    pub k_shear: T,
 }
 
-impl StrainStiffness {
+impl<T: Real> StrainStiffness<T> {
     /// Energy density ψ (J/m²) of the Green strain `g`.
-    pub fn energy_density(&self, g: &Matrix2<f64>) -> f64 {
+    #[inline(always)]
+    pub fn energy_density(&self, g: &Matrix2<T>) -> T {
         let (g00, g11, g01) = (g[(0, 0)], g[(1, 1)], g[(0, 1)]);
-        0.5 * self.k_uu * g00 * g00
+        let half = T::splat(0.5);
+        half * self.k_uu * g00 * g00
             + self.k_uv * g00 * g11
-            + 0.5 * self.k_vv * g11 * g11
-            + 0.5 * self.k_shear * g01 * g01
+            + half * self.k_vv * g11 * g11
+            + half * self.k_shear * g01 * g01
     }
 
     /// Second Piola–Kirchhoff stress `S = ∂ψ/∂G` (N/m), symmetric 2 × 2.
-    pub fn stress(&self, g: &Matrix2<f64>) -> Matrix2<f64> {
+    #[inline(always)]
+    pub fn stress(&self, g: &Matrix2<T>) -> Matrix2<T> {
         let (g00, g11, g01) = (g[(0, 0)], g[(1, 1)], g[(0, 1)]);
         let s00 = self.k_uu * g00 + self.k_uv * g11;
         let s11 = self.k_uv * g00 + self.k_vv * g11;
         // ∂ψ/∂G01 = k_shear G01 is shared by the two symmetric entries.
-        let s01 = 0.5 * self.k_shear * g01;
+        let s01 = T::splat(0.5) * self.k_shear * g01;
         Matrix2::new(s00, s01, s01, s11)
+    }
+}
+
+impl StrainStiffness {
+    /// Four triangles' stiffnesses side by side.
+    #[inline(always)]
+    pub(crate) fn lanes(k: [&Self; 4]) -> StrainStiffness<F64x4> {
+        StrainStiffness {
+            k_uu: F64x4(k.map(|k| k.k_uu)),
+            k_uv: F64x4(k.map(|k| k.k_uv)),
+            k_vv: F64x4(k.map(|k| k.k_vv)),
+            k_shear: F64x4(k.map(|k| k.k_shear)),
+        }
     }
 }
 
@@ -265,6 +284,21 @@ impl MembraneModel {
                 k_vv: 2.0 * s.mu_n_per_m + s.lambda_n_per_m,
                 k_shear: 4.0 * s.mu_n_per_m,
             },
+        }
+    }
+
+    /// [`Self::stiffness`] lane by lane (each lane's strain looked up alone).
+    #[inline(always)]
+    pub(crate) fn stiffness_lanes<T: Real>(&self, g: &Matrix2<T>) -> StrainStiffness<T> {
+        let mut k = [StrainStiffness::default(); 4];
+        for (l, k) in k.iter_mut().enumerate().take(T::LANES) {
+            *k = self.stiffness(&g.map(|v| v.lane(l)));
+        }
+        StrainStiffness {
+            k_uu: T::from_fn(|l| k[l].k_uu),
+            k_uv: T::from_fn(|l| k[l].k_uv),
+            k_vv: T::from_fn(|l| k[l].k_vv),
+            k_shear: T::from_fn(|l| k[l].k_shear),
         }
     }
 }

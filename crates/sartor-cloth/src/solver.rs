@@ -71,8 +71,8 @@ use serde::{Deserialize, Serialize};
 use crate::cloth::Cloth;
 use crate::collider::{Collider, Contact, MotionBound};
 use crate::energy::{
-    BendingHessian, ElementDerivatives, ObstacleContact, Penalty, Projection, SelfContact,
-    friction_velocity_change,
+    BendingHessian, ElementDerivatives, F64x4, MembraneRest, ObstacleContact, Penalty, Projection,
+    SelfContact, friction_velocity_change,
 };
 use crate::error::StepFailure;
 use crate::linsolve::{
@@ -618,16 +618,47 @@ impl Shared<'_> {
             out.gradient[k] = -gravity * masses[i];
         }
         let material = self.cloth.material();
-        // The element's corners, gathered into one buffer that the derivatives read in place
-        // (see [`gather_into`]).
-        let mut xt = [Vector3::zeros(); 3];
-        for (n, &t) in share.triangles.iter().enumerate() {
+        let prefetch_triangle = |out: &Rows<'_, WHOLE>, n: usize| {
             if let Some(&ahead) = share.triangles.get(n + PREFETCH_AHEAD) {
                 let (f, places) = (faces[ahead as usize], &self.tri_places[ahead as usize]);
                 for (k, &place) in places.iter().enumerate() {
                     out.prefetch(f[k / 3], place);
                 }
             }
+        };
+        // Four triangles at a time (each lane bitwise its triangle alone, see
+        // `crate::energy::Real`), added one after the other in the share's order.
+        let groups = share.triangles.chunks_exact(4);
+        let leftover = groups.remainder();
+        let mut xl = [Vector3::from_element(F64x4([0.0; 4])); 3];
+        let mut dl = ElementDerivatives::<3, F64x4>::default();
+        for (g, group) in groups.enumerate() {
+            let t = [0, 1, 2, 3].map(|l| group[l] as usize);
+            for (l, &t) in t.iter().enumerate() {
+                prefetch_triangle(out, 4 * g + l);
+                for (v, &i) in faces[t].iter().enumerate() {
+                    let p = &self.x[i as usize];
+                    for c in 0..3 {
+                        xl[v][c].0[l] = p[c];
+                    }
+                }
+            }
+            let frozen = (!self.frozen_here).then(|| t.map(|t| &self.stiffness[t]));
+            let rests = t.map(|t| &membranes[t]);
+            let model = material.membrane();
+            MembraneRest::derivatives_lanes(rests, &xl, model, frozen, Projection::Psd, &mut dl);
+            for (l, &t) in t.iter().enumerate() {
+                let gradient = dl.gradient.map(|g| lane_vector(&g, l));
+                let block = |a: usize, b: usize| lane_matrix(&dl.hessian[a][b], l);
+                out.add_element(&faces[t], &self.tri_places[t], &gradient, block);
+            }
+        }
+        // The element's corners, gathered into one buffer that the derivatives read in place
+        // (see [`gather_into`]).
+        let mut xt = [Vector3::zeros(); 3];
+        let first = share.triangles.len() - leftover.len();
+        for (n, &t) in leftover.iter().enumerate() {
+            prefetch_triangle(out, first + n);
             let (t, f) = (t as usize, faces[t as usize]);
             let m = &membranes[t];
             gather_into(self.x, f, &mut xt);
@@ -803,6 +834,29 @@ pub struct Simulator {
 
 fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N] {
     idx.map(|i| x[i as usize])
+}
+
+/// Lane `l` of a vector of [`F64x4`].
+#[inline(always)]
+fn lane_vector(v: &Vector3<F64x4>, l: usize) -> Vector3<f64> {
+    Vector3::new(v[0].0[l], v[1].0[l], v[2].0[l])
+}
+
+/// Lane `l` of a matrix of [`F64x4`].
+#[inline(always)]
+fn lane_matrix(m: &Matrix3<F64x4>, l: usize) -> Matrix3<f64> {
+    let e = |r: usize, c: usize| m[(r, c)].0[l];
+    Matrix3::new(
+        e(0, 0),
+        e(0, 1),
+        e(0, 2),
+        e(1, 0),
+        e(1, 1),
+        e(1, 2),
+        e(2, 0),
+        e(2, 1),
+        e(2, 2),
+    )
 }
 
 /// [`gather`] into `out`, for the assembly's hot loops, which reuse one buffer: a gathered

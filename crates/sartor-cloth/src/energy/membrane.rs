@@ -19,8 +19,9 @@
 //! `max(G00, 0)`, `max(G11, 0)` diagonal terms and drops the `G01` term, a cruder version of
 //! the same idea.)
 
-use nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
 
+use super::lanes::{F64x4, Real};
 use super::psd::project_psd2;
 use crate::material::{MembraneModel, StrainStiffness};
 
@@ -43,21 +44,22 @@ pub enum Projection {
     Psd,
 }
 
-/// Energy, gradient and Hessian (3 × 3 blocks) of one element with `N` vertices.
+/// Energy, gradient and Hessian (3 × 3 blocks) of one element with `N` vertices (of four
+/// elements side by side for `T` = [`F64x4`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ElementDerivatives<const N: usize> {
+pub struct ElementDerivatives<const N: usize, T = f64> {
     /// Energy, J.
-    pub energy_j: f64,
+    pub energy_j: T,
     /// `∂E/∂x_i`, N.
-    pub gradient: [Vector3<f64>; N],
+    pub gradient: [Vector3<T>; N],
     /// `∂²E/∂x_i∂x_j`, N/m.
-    pub hessian: [[Matrix3<f64>; N]; N],
+    pub hessian: [[Matrix3<T>; N]; N],
 }
 
-impl<const N: usize> Default for ElementDerivatives<N> {
+impl<const N: usize, T: Real> Default for ElementDerivatives<N, T> {
     fn default() -> Self {
         Self {
-            energy_j: 0.0,
+            energy_j: T::zero(),
             gradient: [Vector3::zeros(); N],
             hessian: [[Matrix3::zeros(); N]; N],
         }
@@ -84,22 +86,10 @@ impl MembraneRest {
         (area_m2 > 0.0 && inv_dm.iter().all(|v| v.is_finite())).then_some(Self { inv_dm, area_m2 })
     }
 
-    /// Shape-function gradients `w_i` (rows of `[−1ᵀ Dm⁻¹; Dm⁻¹]`): `F = Σ_i x_i w_iᵀ`.
-    fn weights(&self) -> [Vector2<f64>; 3] {
-        let p = &self.inv_dm;
-        let w1 = Vector2::new(p[(0, 0)], p[(0, 1)]);
-        let w2 = Vector2::new(p[(1, 0)], p[(1, 1)]);
-        [-(w1 + w2), w1, w2]
-    }
-
     /// Deformation gradient (3 × 2).
     pub fn deformation_gradient(&self, x: &[Vector3<f64>; 3]) -> Matrix3x2<f64> {
-        let w = self.weights();
-        let mut f = Matrix3x2::zeros();
-        for i in 0..3 {
-            f += x[i] * w[i].transpose();
-        }
-        f
+        let [fu, fv] = deformation_gradient(&weights(&self.inv_dm), x);
+        Matrix3x2::from_fn(|r, c| [fu, fv][c][r])
     }
 
     /// Green strain `G = ½ (FᵀF − I)` in the material frame.
@@ -121,7 +111,7 @@ impl MembraneRest {
         k: &StrainStiffness,
         projection: Projection,
     ) -> ElementDerivatives<3> {
-        self.derivatives_with(x, Stiffness::Frozen(k), projection)
+        self.derivatives_with(x, Stiffness::Frozen(*k), projection)
     }
 
     /// [`Self::derivatives`] with the stiffness frozen at `x` itself, bitwise
@@ -143,66 +133,174 @@ impl MembraneRest {
     fn derivatives_with(
         &self,
         x: &[Vector3<f64>; 3],
-        stiffness: Stiffness<'_>,
+        stiffness: Stiffness<'_, f64>,
         projection: Projection,
     ) -> ElementDerivatives<3> {
-        let w = self.weights();
-        let f = self.deformation_gradient(x);
-        let (fu, fv) = (f.column(0).into_owned(), f.column(1).into_owned());
-        let g = (f.transpose() * f - Matrix2::identity()) * 0.5;
-        let k = &match stiffness {
-            Stiffness::Frozen(k) => *k,
-            Stiffness::Model(model) => model.stiffness(&g),
-        };
-        let a = self.area_m2;
-        let s = k.stress(&g);
-        // ∂g_m/∂x_i for g = (G00, G11, G01).
-        let dg: [[Vector3<f64>; 3]; 3] =
-            std::array::from_fn(|i| [fu * w[i].x, fv * w[i].y, (fv * w[i].x + fu * w[i].y) * 0.5]);
-        let mut out = ElementDerivatives::<3> {
-            energy_j: a * k.energy_density(&g),
-            ..Default::default()
-        };
-        // ∂ψ/∂g = (S00, S11, 2 S01) (G01 appears once in g but twice in G).
-        let dpsi = [s[(0, 0)], s[(1, 1)], 2.0 * s[(0, 1)]];
-        for i in 0..3 {
-            out.gradient[i] = (dg[i][0] * dpsi[0] + dg[i][1] * dpsi[1] + dg[i][2] * dpsi[2]) * a;
-        }
-        // Stiffness of g: [[k_uu, k_uv, 0], [k_uv, k_vv, 0], [0, 0, k_shear]].
-        let mut kblock = Matrix2::new(k.k_uu, k.k_uv, k.k_uv, k.k_vv);
-        let mut k_shear = k.k_shear;
-        let mut stress = s;
-        if projection == Projection::Psd {
-            kblock = project_psd2(&kblock);
-            k_shear = k_shear.max(0.0);
-            stress = project_psd2(&s);
-        }
-        // The blocks on and above the diagonal; those below are their transposes, so that
-        // the assembled system is symmetric bit for bit (the CG loop stores one triangle).
-        for i in 0..3 {
-            for j in i..3 {
-                let mut h = dg[i][0]
-                    * (dg[j][0] * kblock[(0, 0)] + dg[j][1] * kblock[(0, 1)]).transpose()
-                    + dg[i][1]
-                        * (dg[j][0] * kblock[(1, 0)] + dg[j][1] * kblock[(1, 1)]).transpose()
-                    + dg[i][2] * dg[j][2].transpose() * k_shear;
-                let geometric = w[i].dot(&(stress * w[j]));
-                h += Matrix3::identity() * geometric;
-                out.hessian[i][j] = h * a;
-                out.hessian[j][i] = out.hessian[i][j].transpose();
-            }
-        }
+        let mut out = ElementDerivatives::default();
+        derivatives_with(
+            &self.inv_dm,
+            self.area_m2,
+            x,
+            stiffness,
+            projection,
+            &mut out,
+        );
         out
+    }
+
+    /// [`Self::derivatives_frozen_here`] (`frozen` = `None`) or [`Self::derivatives`]
+    /// (`frozen` = the four stiffnesses) of four triangles at once, each lane bitwise what
+    /// its triangle gives alone (see [`crate::energy::Real`]).
+    #[inline(always)]
+    pub(crate) fn derivatives_lanes(
+        rests: [&Self; 4],
+        x: &[Vector3<F64x4>; 3],
+        model: &MembraneModel,
+        frozen: Option<[&StrainStiffness; 4]>,
+        projection: Projection,
+        out: &mut ElementDerivatives<3, F64x4>,
+    ) {
+        let entry = |r: usize, c: usize| F64x4(rests.map(|m| m.inv_dm[(r, c)]));
+        let inv_dm = Matrix2::new(entry(0, 0), entry(0, 1), entry(1, 0), entry(1, 1));
+        let area = F64x4(rests.map(|m| m.area_m2));
+        let stiffness = match frozen {
+            Some(k) => Stiffness::Frozen(StrainStiffness::lanes(k)),
+            None => Stiffness::Model(model),
+        };
+        derivatives_with(&inv_dm, area, x, stiffness, projection, out);
     }
 }
 
-/// Where [`MembraneRest::derivatives_with`] takes the stiffness from (an enum, not a closure:
-/// a closure's body is compiled apart, and the step's assembly wants it inlined into its
-/// AVX2 build; see `crate::isa`).
+/// Shape-function gradients `w_i` (rows of `[−1ᵀ Dm⁻¹; Dm⁻¹]`): `F = Σ_i x_i w_iᵀ`.
+#[inline(always)]
+fn weights<T: Real>(inv_dm: &Matrix2<T>) -> [[T; 2]; 3] {
+    let p = inv_dm;
+    let (w1, w2) = ([p[(0, 0)], p[(0, 1)]], [p[(1, 0)], p[(1, 1)]]);
+    [[-(w1[0] + w2[0]), -(w1[1] + w2[1])], w1, w2]
+}
+
+/// Deformation gradient (3 × 2) for the shape-function gradients `w`: its columns `fu`, `fv`.
+///
+/// The arithmetic below is written out, in the order nalgebra's products take (`Σ_k` from
+/// `k = 0`, a sum starting from `0`), rather than left to nalgebra: on [`F64x4`] its generic
+/// products and temporaries are not inlined into the assembly's AVX2 build.
+#[inline(always)]
+fn deformation_gradient<T: Real>(w: &[[T; 2]; 3], x: &[Vector3<T>; 3]) -> [[T; 3]; 2] {
+    let mut f = [[T::zero(); 3]; 2];
+    for (c, column) in f.iter_mut().enumerate() {
+        for (r, sum) in column.iter_mut().enumerate() {
+            for i in 0..3 {
+                *sum += x[i][r] * w[i][c];
+            }
+        }
+    }
+    f
+}
+
+/// `a · b` of two 3-vectors, summed from the first.
+#[inline(always)]
+fn dot3<T: Real>(a: &[T; 3], b: &[T; 3]) -> T {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Energy, gradient and Hessian of a triangle with rest data `inv_dm`, `area` at `x` (of four
+/// side by side for [`F64x4`]), into `out`.
+#[inline(always)]
+fn derivatives_with<T: Real>(
+    inv_dm: &Matrix2<T>,
+    area: T,
+    x: &[Vector3<T>; 3],
+    stiffness: Stiffness<'_, T>,
+    projection: Projection,
+    out: &mut ElementDerivatives<3, T>,
+) {
+    let (zero, one, half) = (T::zero(), T::one(), T::splat(0.5));
+    let w = weights(inv_dm);
+    let [fu, fv] = deformation_gradient(&w, x);
+    // G = ½ (FᵀF − I).
+    let (ff00, ff01, ff11) = (dot3(&fu, &fu), dot3(&fu, &fv), dot3(&fv, &fv));
+    let g = Matrix2::new(
+        (ff00 - one) * half,
+        (ff01 - zero) * half,
+        (ff01 - zero) * half,
+        (ff11 - one) * half,
+    );
+    let k = &match stiffness {
+        Stiffness::Frozen(k) => k,
+        Stiffness::Model(model) => model.stiffness_lanes(&g),
+    };
+    let a = area;
+    let s = k.stress(&g);
+    // ∂g_m/∂x_i for g = (G00, G11, G01).
+    let mut dg = [[[zero; 3]; 3]; 3];
+    for i in 0..3 {
+        let [wu, wv] = w[i];
+        for r in 0..3 {
+            dg[i][0][r] = fu[r] * wu;
+            dg[i][1][r] = fv[r] * wv;
+            dg[i][2][r] = (fv[r] * wu + fu[r] * wv) * half;
+        }
+    }
+    out.energy_j = a * k.energy_density(&g);
+    // ∂ψ/∂g = (S00, S11, 2 S01) (G01 appears once in g but twice in G).
+    let dpsi = [s[(0, 0)], s[(1, 1)], T::splat(2.0) * s[(0, 1)]];
+    for i in 0..3 {
+        let d = &dg[i];
+        for r in 0..3 {
+            out.gradient[i][r] = (d[0][r] * dpsi[0] + d[1][r] * dpsi[1] + d[2][r] * dpsi[2]) * a;
+        }
+    }
+    // Stiffness of g: [[k_uu, k_uv, 0], [k_uv, k_vv, 0], [0, 0, k_shear]].
+    let mut kblock = Matrix2::new(k.k_uu, k.k_uv, k.k_uv, k.k_vv);
+    let mut k_shear = k.k_shear;
+    let mut stress = s;
+    if projection == Projection::Psd {
+        kblock = project_psd2(&kblock);
+        k_shear = k_shear.max(zero);
+        stress = project_psd2(&s);
+    }
+    // The blocks on and above the diagonal; those below are their transposes, so that
+    // the assembled system is symmetric bit for bit (the CG loop stores one triangle).
+    for i in 0..3 {
+        for j in i..3 {
+            let (di, dj) = (&dg[i], &dg[j]);
+            let (mut u, mut v) = ([zero; 3], [zero; 3]);
+            for c in 0..3 {
+                u[c] = dj[0][c] * kblock[(0, 0)] + dj[1][c] * kblock[(0, 1)];
+                v[c] = dj[0][c] * kblock[(1, 0)] + dj[1][c] * kblock[(1, 1)];
+            }
+            // wᵢ · (S wⱼ).
+            let sw = [
+                stress[(0, 0)] * w[j][0] + stress[(0, 1)] * w[j][1],
+                stress[(1, 0)] * w[j][0] + stress[(1, 1)] * w[j][1],
+            ];
+            let geometric = w[i][0] * sw[0] + w[i][1] * sw[1];
+            // `I · geometric` adds `0 · geometric` off the diagonal (a signed zero).
+            let off = zero * geometric;
+            // Entry by entry into place (nalgebra's constructors from closures are not
+            // inlined on `F64x4`): block (i, j), and its transpose as block (j, i), which for
+            // a diagonal block replaces it (the blocks' symmetry exact, as the sum is not).
+            for r in 0..3 {
+                for c in 0..3 {
+                    let sum = di[0][r] * u[c] + di[1][r] * v[c] + di[2][r] * dj[2][c] * k_shear;
+                    let h = (sum + if r == c { geometric } else { off }) * a;
+                    if i != j {
+                        out.hessian[i][j][(r, c)] = h;
+                    }
+                    out.hessian[j][i][(c, r)] = h;
+                }
+            }
+        }
+    }
+}
+
+/// Where [`derivatives_with`] takes the stiffness from (an enum, not a closure: a closure's
+/// body is compiled apart, and the step's assembly wants it inlined into its AVX2 build; see
+/// `crate::isa`).
 #[derive(Clone, Copy)]
-enum Stiffness<'a> {
+enum Stiffness<'a, T> {
     /// Frozen at these values.
-    Frozen(&'a StrainStiffness),
+    Frozen(StrainStiffness<T>),
     /// The model's at the element's strain `G`.
     Model(&'a MembraneModel),
 }
@@ -243,22 +341,90 @@ mod tests {
                 Projection::Psd,
             );
             let here = rest.derivatives_frozen_here(&x, model, Projection::Psd);
-            let bits = |d: &ElementDerivatives<3>| {
-                let mut v = vec![d.energy_j.to_bits()];
-                v.extend(
-                    d.gradient
-                        .iter()
-                        .flat_map(|g| g.iter().map(|c| c.to_bits())),
-                );
-                v.extend(
-                    d.hessian
-                        .iter()
-                        .flatten()
-                        .flat_map(|h| h.iter().map(|c| c.to_bits())),
-                );
-                v
-            };
             assert_eq!(bits(&frozen), bits(&here), "triangle {k}");
+        }
+    }
+
+    /// Every bit of an element's energy, gradient and Hessian.
+    fn bits(d: &ElementDerivatives<3>) -> Vec<u64> {
+        let mut v = vec![d.energy_j.to_bits()];
+        v.extend(
+            d.gradient
+                .iter()
+                .flat_map(|g| g.iter().map(|c| c.to_bits())),
+        );
+        v.extend(
+            d.hessian
+                .iter()
+                .flatten()
+                .flat_map(|h| h.iter().map(|c| c.to_bits())),
+        );
+        v
+    }
+
+    #[test]
+    fn four_triangles_at_once_are_bitwise_each_alone() {
+        // Rest shapes and deformations from crushed and inverted to stretched, sheared and
+        // axis-aligned (G01 = 0 exactly: the projections' zero off-diagonal branch), with the
+        // tabulated membrane looked up per lane and frozen stiffnesses given per lane.
+        let material = Material::gray_interlock();
+        let model = material.membrane();
+        let mut next = crate::energy::uniform(0x9E37_79B9_7F4A_7C15);
+        let mut cases = Vec::new();
+        for k in 0..400 {
+            let rest_x = [
+                Vector3::zeros(),
+                Vector3::new(0.012 + 0.008 * next(), 0.0, 0.0),
+                Vector3::new(0.004 * next(), 0.011 + 0.008 * next(), 0.0),
+            ];
+            let rest = MembraneRest::new(&rest_x, &Vector3::x(), &Vector3::y())
+                .expect("a proper triangle");
+            let x = match k % 4 {
+                // Axis-aligned stretch or compression.
+                0 => {
+                    let (su, sv) = (1.0 + 0.6 * next(), 1.0 + 0.6 * next());
+                    rest_x.map(|p| Vector3::new(p.x * su, p.y * sv, 0.0))
+                }
+                // Inverted (mirrored across u).
+                1 => rest_x.map(|p| Vector3::new(p.x, -p.y * (1.0 + next()), next() * 0.002)),
+                // Crushed to nearly a segment.
+                2 => rest_x.map(|p| Vector3::new(p.x, p.y * 0.01 * next(), p.y * 0.01 * next())),
+                _ => rest_x.map(|p| {
+                    p * (1.0 + 0.5 * next()) + Vector3::new(next(), next(), next()) * 0.004
+                }),
+            };
+            cases.push((rest, x));
+        }
+        for projection in [Projection::Psd, Projection::Exact] {
+            for group in cases.chunks_exact(4) {
+                let x: [Vector3<F64x4>; 3] = std::array::from_fn(|v| {
+                    Vector3::from_fn(|c, _| F64x4(std::array::from_fn(|l| group[l].1[v][c])))
+                });
+                let rests = std::array::from_fn(|l| &group[l].0);
+                let frozen: [StrainStiffness; 4] =
+                    std::array::from_fn(|l| model.stiffness(&group[l].0.green_strain(&group[l].1)));
+                let (mut here, mut given) = Default::default();
+                MembraneRest::derivatives_lanes(rests, &x, model, None, projection, &mut here);
+                MembraneRest::derivatives_lanes(
+                    rests,
+                    &x,
+                    model,
+                    Some(std::array::from_fn(|l| &frozen[l])),
+                    projection,
+                    &mut given,
+                );
+                for (l, (rest, x)) in group.iter().enumerate() {
+                    let lane = |d: &ElementDerivatives<3, F64x4>| ElementDerivatives::<3> {
+                        energy_j: d.energy_j.0[l],
+                        gradient: d.gradient.map(|g| g.map(|c| c.0[l])),
+                        hessian: d.hessian.map(|r| r.map(|h| h.map(|c| c.0[l]))),
+                    };
+                    let alone = rest.derivatives_frozen_here(x, model, projection);
+                    assert_eq!(bits(&lane(&here)), bits(&alone), "{projection:?} lane {l}");
+                    let alone = rest.derivatives(x, &frozen[l], projection);
+                    assert_eq!(bits(&lane(&given)), bits(&alone), "{projection:?} lane {l}");
+                }
+            }
         }
     }
 }

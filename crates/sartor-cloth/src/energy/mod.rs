@@ -9,6 +9,7 @@
 mod bending;
 mod contact;
 pub(crate) mod diff;
+mod lanes;
 mod membrane;
 mod psd;
 
@@ -18,6 +19,7 @@ pub use bending::{
 pub use contact::{
     ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_velocity_change,
 };
+pub use lanes::{F64x4, Real};
 pub use membrane::{ElementDerivatives, MembraneRest, Projection};
 pub use psd::{project_psd, project_psd2};
 

@@ -3,6 +3,8 @@
 
 use nalgebra::{Const, DimMin, Matrix2, SMatrix};
 
+use super::lanes::Real;
+
 /// The nearest (Frobenius) PSD matrix: eigen-decompose, clamp negative eigenvalues to 0.
 /// Returns the (symmetrised) input when it is already PSD.
 ///
@@ -55,28 +57,30 @@ where
     sym
 }
 
-/// Closed-form PSD projection of a symmetric 2 × 2 matrix.
+/// Closed-form PSD projection of a symmetric 2 × 2 matrix (of each lane's, for
+/// [`crate::energy::F64x4`]: branches as selects, see [`crate::energy::Real`]).
 #[inline(always)]
-pub fn project_psd2(m: &Matrix2<f64>) -> Matrix2<f64> {
-    let (a, b, d) = (m[(0, 0)], 0.5 * (m[(0, 1)] + m[(1, 0)]), m[(1, 1)]);
-    let mean = 0.5 * (a + d);
-    let radius = (0.25 * (a - d) * (a - d) + b * b).sqrt();
+pub fn project_psd2<T: Real>(m: &Matrix2<T>) -> Matrix2<T> {
+    let (zero, one) = (T::zero(), T::one());
+    let half = T::splat(0.5);
+    let (a, b, d) = (m[(0, 0)], half * (m[(0, 1)] + m[(1, 0)]), m[(1, 1)]);
+    let mean = half * (a + d);
+    let radius = (T::splat(0.25) * (a - d) * (a - d) + b * b).sqrt();
     let (l1, l2) = (mean + radius, mean - radius);
-    if l2 >= 0.0 {
-        return Matrix2::new(a, b, b, d);
-    }
-    if l1 <= 0.0 {
-        return Matrix2::zeros();
-    }
-    // Keep l1 only: l1 · v vᵀ with v the unit eigenvector of l1.
-    let v = if b.abs() > 0.0 {
-        nalgebra::Vector2::new(l1 - d, b).normalize()
-    } else if a >= d {
-        nalgebra::Vector2::new(1.0, 0.0)
-    } else {
-        nalgebra::Vector2::new(0.0, 1.0)
-    };
-    v * v.transpose() * l1
+    // Keep l1 only: l1 · v vᵀ with v the unit eigenvector of l1 (`normalize`'s arithmetic).
+    let (v0, v1) = (l1 - d, b);
+    let norm = (v0 * v0 + v1 * v1).sqrt();
+    let b_nonzero = b.abs().gt(zero);
+    let a_first = a.ge(d);
+    let v = [
+        T::select(b_nonzero, v0 / norm, T::select(a_first, one, zero)),
+        T::select(b_nonzero, v1 / norm, T::select(a_first, zero, one)),
+    ];
+    // Both eigenvalues ≥ 0: the matrix itself; both ≤ 0: zero.
+    let (keep, drop) = (l2.ge(zero), l1.le(zero));
+    let pick =
+        |i: usize, j: usize, own: T| T::select(keep, own, T::select(drop, zero, v[i] * v[j] * l1));
+    Matrix2::new(pick(0, 0, a), pick(0, 1, b), pick(1, 0, b), pick(1, 1, d))
 }
 
 #[cfg(test)]
@@ -110,5 +114,35 @@ mod tests {
         tiny[(2, 1)] = -4.7232e-2;
         tiny[(2, 2)] = 2.3616e-2;
         assert!(project_psd(&tiny).iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn four_projections_at_once_are_bitwise_each_alone() {
+        use crate::energy::F64x4;
+        // Every branch: PSD, negative semi-definite, indefinite with a coupling, and
+        // indefinite without one (either diagonal entry the larger).
+        let cases = [
+            Matrix2::new(2.0, 0.5, 0.5, 1.0),
+            Matrix2::new(-2.0, 0.5, 0.5, -1.0),
+            Matrix2::new(1.0, 3.0, 3.0, -2.0),
+            Matrix2::new(3.0, 0.0, 0.0, -1.0),
+            Matrix2::new(-1.0, 0.0, 0.0, 2.0),
+            Matrix2::new(0.0, 0.0, 0.0, 0.0),
+            Matrix2::new(-4.0, 1e-9, 1e-9, 1e-3),
+            Matrix2::new(1e-3, -2.0, -2.0, 1e-3),
+        ];
+        assert_eq!(project_psd2(&cases[3]), Matrix2::new(3.0, 0.0, 0.0, 0.0));
+        assert_eq!(project_psd2(&cases[4]), Matrix2::new(0.0, 0.0, 0.0, 2.0));
+        assert_eq!(project_psd2(&cases[1]), Matrix2::zeros());
+        for group in cases.chunks_exact(4) {
+            let lanes = Matrix2::from_fn(|r, c| F64x4(std::array::from_fn(|l| group[l][(r, c)])));
+            let projected = project_psd2(&lanes);
+            for (l, m) in group.iter().enumerate() {
+                let alone = project_psd2(m);
+                for (a, b) in projected.iter().zip(alone.iter()) {
+                    assert_eq!(a.0[l].to_bits(), b.to_bits(), "{m}");
+                }
+            }
+        }
     }
 }
