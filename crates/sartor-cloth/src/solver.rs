@@ -71,8 +71,8 @@ use serde::{Deserialize, Serialize};
 use crate::cloth::Cloth;
 use crate::collider::{Collider, Contact, MotionBound};
 use crate::energy::{
-    BendingHessian, ElementDerivatives, F64x4, MembraneRest, ObstacleContact, Penalty, Projection,
-    SelfContact, friction_velocity_change,
+    BendingHessian, BendingRest, ElementDerivatives, F64x4, GaussNewtonHinge, MembraneRest,
+    ObstacleContact, Penalty, Projection, SelfContact, friction_velocity_change,
 };
 use crate::error::StepFailure;
 use crate::linsolve::{
@@ -671,8 +671,7 @@ impl Shared<'_> {
             out.add_element(&f, places, &d.gradient, |a, b| d.hessian[a][b]);
         }
         let bending_hessian = self.config.bending_hessian;
-        let mut x = [Vector3::zeros(); 4];
-        for (n, &e) in share.hinges.iter().enumerate() {
+        let prefetch_hinge = |out: &Rows<'_, WHOLE>, n: usize| {
             if let Some(&ahead) = share.hinges.get(n + PREFETCH_AHEAD) {
                 let (v, places) = (
                     hinges[ahead as usize].vertices,
@@ -682,6 +681,46 @@ impl Shared<'_> {
                     out.prefetch(v[k / 4], place);
                 }
             }
+        };
+        // ARCSim's Hessian (the default) four hinges at a time, as the triangles.
+        let mut first = 0;
+        if bending_hessian == BendingHessian::GaussNewton {
+            let groups = share.hinges.chunks_exact(4);
+            first = share.hinges.len() - groups.remainder().len();
+            let mut xl = [Vector3::from_element(F64x4([0.0; 4])); 4];
+            let mut dl = GaussNewtonHinge::<F64x4>::default();
+            for (g, group) in groups.enumerate() {
+                let e = [0, 1, 2, 3].map(|l| group[l] as usize);
+                for (l, &e) in e.iter().enumerate() {
+                    prefetch_hinge(out, 4 * g + l);
+                    for (v, &i) in hinges[e].vertices.iter().enumerate() {
+                        let p = &self.x[i as usize];
+                        for c in 0..3 {
+                            xl[v][c].0[l] = p[c];
+                        }
+                    }
+                }
+                let frozen = (!self.frozen_here).then(|| e.map(|e| self.coefficient[e]));
+                let rests = e.map(|e| &hinges[e]);
+                let model = material.bending();
+                let has = BendingRest::gauss_newton_lanes(rests, &xl, model, frozen, &mut dl);
+                for (l, &e) in e.iter().enumerate() {
+                    if has[l] {
+                        let d = GaussNewtonHinge {
+                            energy_j: dl.energy_j.0[l],
+                            gradient: dl.gradient.map(|g| lane_vector(&g, l)),
+                            angle: dl.angle.map(|g| lane_vector(&g, l)),
+                            curvature: dl.curvature.0[l],
+                        };
+                        let (v, places) = (&hinges[e].vertices, &self.hinge_places[e]);
+                        out.add_element(v, places, &d.gradient, |a, b| d.block(a, b));
+                    }
+                }
+            }
+        }
+        let mut x = [Vector3::zeros(); 4];
+        for (n, &e) in share.hinges.iter().enumerate().skip(first) {
+            prefetch_hinge(out, n);
             let (e, h) = (e as usize, &hinges[e as usize]);
             gather_into(self.x, h.vertices, &mut x);
             let places = &self.hinge_places[e];

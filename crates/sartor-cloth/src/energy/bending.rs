@@ -35,7 +35,10 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::diff::{Grad9, Scalar9, V9, expand_to_vertices};
+#[cfg(test)]
+use super::diff::V9;
+use super::diff::{Grad9, Scalar9, cross3, dot3, expand_to_vertices, norm3};
+use super::lanes::{F64x4, Real};
 use super::membrane::ElementDerivatives;
 use super::psd::project_psd;
 use crate::material::BendingModel;
@@ -62,17 +65,29 @@ pub enum BendingHessian {
 /// [`BendingRest::crushed`].
 pub const CRUSHED_AREA_FRACTION: f64 = 0.01;
 
-/// A hinge's Gauss–Newton derivatives in factored form ([`BendingRest::gauss_newton`]).
+/// A hinge's Gauss–Newton derivatives in factored form ([`BendingRest::gauss_newton`]); of four
+/// hinges side by side for `T` = [`F64x4`].
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GaussNewtonHinge {
+pub struct GaussNewtonHinge<T = f64> {
     /// Energy, J.
-    pub energy_j: f64,
+    pub energy_j: T,
     /// `∂E/∂x_i`, N.
-    pub gradient: [Vector3<f64>; 4],
+    pub gradient: [Vector3<T>; 4],
     /// `∂θ/∂x_i`, 1/m.
-    pub angle: [Vector3<f64>; 4],
+    pub angle: [Vector3<T>; 4],
     /// `2c`, the factor of `∇θ ∇θᵀ`, J.
-    pub curvature: f64,
+    pub curvature: T,
+}
+
+impl<T: Real> Default for GaussNewtonHinge<T> {
+    fn default() -> Self {
+        Self {
+            energy_j: T::zero(),
+            gradient: [Vector3::zeros(); 4],
+            angle: [Vector3::zeros(); 4],
+            curvature: T::zero(),
+        }
+    }
 }
 
 impl GaussNewtonHinge {
@@ -97,8 +112,10 @@ pub struct BendingRest {
 }
 
 /// The three difference vectors `(x1 − x0, x2 − x0, x3 − x0)`.
-fn differences(x: &[Vector3<f64>; 4]) -> [Vector3<f64>; 3] {
-    [x[1] - x[0], x[2] - x[0], x[3] - x[0]]
+#[inline(always)]
+fn differences<T: Real>(x: &[Vector3<T>; 4]) -> [Vector3<T>; 3] {
+    let d = |k: usize| Vector3::new(x[k][0] - x[0][0], x[k][1] - x[0][1], x[k][2] - x[0][2]);
+    [d(1), d(2), d(3)]
 }
 
 /// ARCSim's signed dihedral angle of a hinge (0 when flat), rad.
@@ -133,25 +150,108 @@ fn dihedral_angle_derivatives(x: &[Vector3<f64>; 4]) -> Option<Scalar9> {
 
 /// [`dihedral_angle_derivatives`] without the Hessian: the angle and its gradient (bitwise
 /// the same), for the Gauss–Newton Hessian.
-#[inline(always)]
+#[cfg(test)]
 fn dihedral_angle_gradient(x: &[Vector3<f64>; 4]) -> Option<(f64, V9)> {
-    let z = differences(x);
-    let ee = Grad9::dot(&z, 0, 0);
-    let scale = ee.v.max(z[1].norm_squared()).max(z[2].norm_squared());
-    if !(ee.v > 1e-20 * scale && scale > 0.0) {
-        return None;
-    }
+    let (proper, theta) = angle_gradient(&differences(x));
+    proper.then(|| (theta.v, V9::from(theta.g)))
+}
+
+/// The angle and its gradient in the differences `z`, and whether the hinge is proper (lane
+/// by lane: a degenerate lane's values are computed and meaningless).
+#[inline(always)]
+fn angle_gradient<T: Real>(z: &[Vector3<T>; 3]) -> (T::Mask, Grad9<T>) {
+    let ee = Grad9::dot(z, 0, 0);
+    let scale = ee.v.max(dot3(&z[1], &z[1])).max(dot3(&z[2], &z[2]));
+    let proper = T::and(ee.v.gt(T::splat(1e-20) * scale), scale.gt(T::zero()));
     let len = ee.sqrt();
-    let sine = len.mul(&Grad9::triple(&z));
-    let cosine = Grad9::dot(&z, 0, 1)
-        .mul(&Grad9::dot(&z, 0, 2))
-        .sub(&ee.mul(&Grad9::dot(&z, 1, 2)));
+    let sine = len.mul(&Grad9::triple(z));
+    let cosine = Grad9::dot(z, 0, 1)
+        .mul(&Grad9::dot(z, 0, 2))
+        .sub(&ee.mul(&Grad9::dot(z, 1, 2)));
     let r2 = sine.v * sine.v + cosine.v * cosine.v;
-    if !(r2 > 1e-30 * scale.powi(4) && r2.is_finite()) {
-        return None;
+    let proper = T::and(
+        proper,
+        T::and(r2.gt(T::splat(1e-30) * scale.pow4()), r2.is_finite()),
+    );
+    (proper, sine.atan2(&cosine))
+}
+
+/// [`BendingRest::crushed`] for the differences `z`, lane by lane.
+#[inline(always)]
+fn crushed<T: Real>(z: &[Vector3<T>; 3], area_sum: T) -> T::Mask {
+    let twice_min_area = norm3(&cross3(&z[0], &z[1])).min(norm3(&cross3(&z[0], &z[2])));
+    // Twice a face's area against twice the mean rest face area (= the rest area sum).
+    twice_min_area.lt(T::splat(CRUSHED_AREA_FRACTION) * area_sum)
+}
+
+/// Where a hinge's coefficient comes from (an enum, not a closure, to be inlined into the
+/// assembly's AVX2 build; see `crate::isa`).
+#[derive(Clone, Copy)]
+pub(crate) enum HingeCoefficient<'a, T> {
+    /// Frozen at these values.
+    Frozen(T),
+    /// The model's at the hinge's angle and edge length.
+    Model(&'a BendingModel),
+}
+
+/// The hinges' coefficients `c = ke · l² / (8 (A0 + A1))` (`rests`: one per lane) for the
+/// edges `e = x1 − x0` and angles `theta`; the table is looked up lane by lane.
+#[inline(always)]
+fn coefficient_lanes<T: Real>(
+    rests: &[&BendingRest],
+    e: &Vector3<T>,
+    theta: T,
+    model: &BendingModel,
+) -> T {
+    let l = norm3(e);
+    let ke = T::from_fn(|lane| {
+        let (rest, theta, l) = (rests[lane], theta.lane(lane), l.lane(lane));
+        let side = |k: usize| model.stiffness(theta, l, rest.area_sum_m2, rest.edge_angle_rad[k]);
+        side(0).min(side(1))
+    });
+    let area = T::from_fn(|lane| rests[lane].area_sum_m2);
+    ke * l * l / (T::splat(8.0) * area)
+}
+
+/// [`BendingRest::gauss_newton`] of one hinge per lane (`rests`: one per lane) into `out`;
+/// returns the lanes that have one (not [`BendingRest::crushed`], not degenerate).
+#[inline(always)]
+fn gauss_newton_into<T: Real>(
+    rests: &[&BendingRest],
+    x: &[Vector3<T>; 4],
+    coefficient: HingeCoefficient<'_, T>,
+    out: &mut GaussNewtonHinge<T>,
+) -> T::Mask {
+    let area = T::from_fn(|lane| rests[lane].area_sum_m2);
+    let z = differences(x);
+    let crushed = crushed(&z, area);
+    // First derivatives of θ suffice: no 9 × 9 second derivatives (same numbers). The
+    // angle's gradient per vertex (z = x1 − x0, x2 − x0, x3 − x0), and the Gauss–Newton
+    // Hessian 2c ∇θ ∇θᵀ block by block: the same matrix as mapping the 9 × 9 one of z to
+    // the vertices, at a third of the work. `∇θ_b ∇θ_aᵀ` is bitwise the transpose of
+    // `∇θ_a ∇θ_bᵀ` (each entry one product), so every block is computed the same way.
+    let (proper, theta) = angle_gradient(&z);
+    let coefficient = match coefficient {
+        HingeCoefficient::Frozen(c) => c,
+        HingeCoefficient::Model(model) => coefficient_lanes(rests, &z[0], theta.v, model),
+    };
+    let rest_angle = T::from_fn(|lane| rests[lane].rest_angle_rad);
+    let d = theta.v - rest_angle;
+    let g = |k: usize| Vector3::new(theta.g[3 * k], theta.g[3 * k + 1], theta.g[3 * k + 2]);
+    let (g1, g2, g3) = (g(0), g(1), g(2));
+    let first = Vector3::new(
+        -g1[0] - g2[0] - g3[0],
+        -g1[1] - g2[1] - g3[1],
+        -g1[2] - g2[2] - g3[2],
+    );
+    out.angle = [first, g1, g2, g3];
+    let slope = T::splat(2.0) * coefficient * d;
+    for (gradient, angle) in out.gradient.iter_mut().zip(&out.angle) {
+        *gradient = Vector3::new(angle[0] * slope, angle[1] * slope, angle[2] * slope);
     }
-    let theta = sine.atan2(&cosine);
-    Some((theta.v, theta.g))
+    out.energy_j = coefficient * d * d;
+    out.curvature = T::splat(2.0) * coefficient;
+    T::and(T::not(crushed), proper)
 }
 
 impl BendingRest {
@@ -164,11 +264,7 @@ impl BendingRest {
     /// [`Self::coefficient`] for the hinge's dihedral angle `theta` at `x`, already known.
     #[inline(always)]
     fn coefficient_at(&self, x: &[Vector3<f64>; 4], theta: f64, model: &BendingModel) -> f64 {
-        let l = (x[1] - x[0]).norm();
-        let ke = model
-            .stiffness(theta, l, self.area_sum_m2, self.edge_angle_rad[0])
-            .min(model.stiffness(theta, l, self.area_sum_m2, self.edge_angle_rad[1]));
-        ke * l * l / (8.0 * self.area_sum_m2)
+        coefficient_lanes(&[self], &differences(x)[0], theta, model)
     }
 
     /// Whether a face of the hinge is crushed below [`CRUSHED_AREA_FRACTION`] of the mean rest
@@ -178,13 +274,7 @@ impl BendingRest {
     /// Such a hinge is left out of the energy until the membrane reopens the face.
     #[inline(always)]
     pub fn crushed(&self, x: &[Vector3<f64>; 4]) -> bool {
-        let e = x[1] - x[0];
-        let twice_min_area = e
-            .cross(&(x[2] - x[0]))
-            .norm()
-            .min(e.cross(&(x[3] - x[0])).norm());
-        // Twice a face's area against twice the mean rest face area (= the rest area sum).
-        twice_min_area < CRUSHED_AREA_FRACTION * self.area_sum_m2
+        crushed(&differences(x), self.area_sum_m2)
     }
 
     /// Energy `c (θ − θ̄)²`, J (0 for a [`Self::crushed`] hinge).
@@ -208,7 +298,7 @@ impl BendingRest {
         x: &[Vector3<f64>; 4],
         coefficient: f64,
     ) -> Option<GaussNewtonHinge> {
-        self.gauss_newton_with(x, |_| coefficient)
+        self.gauss_newton_with(x, HingeCoefficient::Frozen(coefficient))
     }
 
     /// [`Self::gauss_newton`] with the coefficient frozen at `x` itself, bitwise
@@ -221,37 +311,36 @@ impl BendingRest {
         x: &[Vector3<f64>; 4],
         model: &BendingModel,
     ) -> Option<GaussNewtonHinge> {
-        self.gauss_newton_with(x, |theta| self.coefficient_at(x, theta, model))
+        self.gauss_newton_with(x, HingeCoefficient::Model(model))
     }
 
-    /// [`Self::gauss_newton`] with the coefficient given by `coefficient(θ)`.
+    /// [`Self::gauss_newton`] with the coefficient from `coefficient`.
     #[inline(always)]
     fn gauss_newton_with(
         &self,
         x: &[Vector3<f64>; 4],
-        coefficient: impl FnOnce(f64) -> f64,
+        coefficient: HingeCoefficient<'_, f64>,
     ) -> Option<GaussNewtonHinge> {
-        if self.crushed(x) {
-            return None;
-        }
-        // First derivatives of θ suffice: no 9 × 9 second derivatives (same numbers). The
-        // angle's gradient per vertex (z = x1 − x0, x2 − x0, x3 − x0), and the Gauss–Newton
-        // Hessian 2c ∇θ ∇θᵀ block by block: the same matrix as mapping the 9 × 9 one of z to
-        // the vertices, at a third of the work. `∇θ_b ∇θ_aᵀ` is bitwise the transpose of
-        // `∇θ_a ∇θ_bᵀ` (each entry one product), so every block is computed the same way.
-        let (theta, grad) = dihedral_angle_gradient(x)?;
-        let coefficient = coefficient(theta);
-        let d = theta - self.rest_angle_rad;
-        let [g1, g2, g3]: [Vector3<f64>; 3] =
-            std::array::from_fn(|k| grad.fixed_rows::<3>(3 * k).into_owned());
-        let angle = [-g1 - g2 - g3, g1, g2, g3];
-        let slope = 2.0 * coefficient * d;
-        Some(GaussNewtonHinge {
-            energy_j: coefficient * d * d,
-            gradient: angle.map(|g| g * slope),
-            angle,
-            curvature: 2.0 * coefficient,
-        })
+        let mut out = GaussNewtonHinge::default();
+        gauss_newton_into(&[self], x, coefficient, &mut out).then_some(out)
+    }
+
+    /// [`Self::gauss_newton_frozen_here`] (`frozen` = `None`) or [`Self::gauss_newton`]
+    /// (`frozen` = the four coefficients) of four hinges at once into `out`, each lane bitwise
+    /// what its hinge gives alone; returns the lanes that have one.
+    #[inline(always)]
+    pub(crate) fn gauss_newton_lanes(
+        rests: [&Self; 4],
+        x: &[Vector3<F64x4>; 4],
+        model: &BendingModel,
+        frozen: Option<[f64; 4]>,
+        out: &mut GaussNewtonHinge<F64x4>,
+    ) -> [bool; 4] {
+        let coefficient = match frozen {
+            Some(c) => HingeCoefficient::Frozen(F64x4(c)),
+            None => HingeCoefficient::Model(model),
+        };
+        gauss_newton_into(&rests, x, coefficient, out)
     }
 
     /// Energy, gradient and Hessian for a frozen coefficient (zero for a [`Self::crushed`]
@@ -368,13 +457,6 @@ mod tests {
             let here = hinge.gauss_newton_frozen_here(&x, model);
             match (frozen, here) {
                 (Some(a), Some(b)) => {
-                    let bits = |h: &GaussNewtonHinge| {
-                        let mut v = vec![h.energy_j.to_bits(), h.curvature.to_bits()];
-                        for g in h.gradient.iter().chain(&h.angle) {
-                            v.extend(g.iter().map(|c| c.to_bits()));
-                        }
-                        v
-                    };
                     assert_eq!(bits(&a), bits(&b), "hinge {k}");
                     compared += 1;
                 }
@@ -383,5 +465,80 @@ mod tests {
             }
         }
         assert!(compared > 400, "{compared}");
+    }
+
+    /// Every bit of a hinge's Gauss–Newton derivatives.
+    fn bits(h: &GaussNewtonHinge) -> Vec<u64> {
+        let mut v = vec![h.energy_j.to_bits(), h.curvature.to_bits()];
+        for g in h.gradient.iter().chain(&h.angle) {
+            v.extend(g.iter().map(|c| c.to_bits()));
+        }
+        v
+    }
+
+    #[test]
+    fn four_hinges_at_once_are_bitwise_each_alone() {
+        // Random hinges, flat-ish ones, crushed ones (a tip on the edge's line) and degenerate
+        // ones (a zero-length edge) mixed within each group of four; the tabulated bending
+        // looked up per lane, and frozen coefficients given per lane.
+        let material = crate::material::Material::gray_interlock();
+        let model = material.bending();
+        let mut next = crate::energy::uniform(0xD1B5_4A32_D192_ED03);
+        let mut cases = Vec::new();
+        for k in 0..600 {
+            let mut x: [Vector3<f64>; 4] =
+                std::array::from_fn(|_| Vector3::new(next(), next(), next()) * 0.02);
+            match k % 5 {
+                0 => x = x.map(|p| Vector3::new(p.x, p.y, p.z * 0.01)),
+                1 => x[2] = x[0] + (x[1] - x[0]) * (0.5 + next()),
+                2 if k % 3 == 0 => x[1] = x[0],
+                _ => {}
+            }
+            let hinge = BendingRest {
+                vertices: [0, 1, 2, 3],
+                rest_angle_rad: next(),
+                area_sum_m2: 2e-4 * (1.0 + next()),
+                edge_angle_rad: [next() * 7.0, next() * 7.0],
+            };
+            cases.push((hinge, x));
+        }
+        let (mut missing, mut compared) = (0, 0);
+        for group in cases.chunks_exact(4) {
+            let x: [Vector3<F64x4>; 4] = std::array::from_fn(|v| {
+                Vector3::from_fn(|c, _| F64x4(std::array::from_fn(|l| group[l].1[v][c])))
+            });
+            let rests = std::array::from_fn(|l| &group[l].0);
+            let frozen: [f64; 4] =
+                std::array::from_fn(|l| group[l].0.coefficient(&group[l].1, model));
+            let (mut here, mut given) = Default::default();
+            let has_here = BendingRest::gauss_newton_lanes(rests, &x, model, None, &mut here);
+            let has_given =
+                BendingRest::gauss_newton_lanes(rests, &x, model, Some(frozen), &mut given);
+            for (l, (hinge, x)) in group.iter().enumerate() {
+                let lane = |d: &GaussNewtonHinge<F64x4>| GaussNewtonHinge {
+                    energy_j: d.energy_j.0[l],
+                    gradient: d.gradient.map(|g| g.map(|c| c.0[l])),
+                    angle: d.angle.map(|g| g.map(|c| c.0[l])),
+                    curvature: d.curvature.0[l],
+                };
+                let alone = hinge.gauss_newton_frozen_here(x, model);
+                assert_eq!(alone.is_some(), has_here[l], "lane {l} of {x:?}");
+                if let Some(alone) = alone {
+                    assert_eq!(bits(&lane(&here)), bits(&alone), "lane {l} of {x:?}");
+                    compared += 1;
+                } else {
+                    missing += 1;
+                }
+                let alone = hinge.gauss_newton(x, frozen[l]);
+                assert_eq!(alone.is_some(), has_given[l], "lane {l} of {x:?}");
+                if let Some(alone) = alone {
+                    assert_eq!(bits(&lane(&given)), bits(&alone), "lane {l} of {x:?}");
+                }
+            }
+        }
+        assert!(
+            compared > 400 && missing > 50,
+            "{compared} compared, {missing} missing"
+        );
     }
 }

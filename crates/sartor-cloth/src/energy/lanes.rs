@@ -41,8 +41,22 @@ pub trait Real:
     fn sqrt(self) -> Self;
     /// `f64::max` in every lane (the other value where one is NaN).
     fn max(self, other: Self) -> Self;
+    /// `f64::min` in every lane (the other value where one is NaN).
+    fn min(self, other: Self) -> Self;
     /// `f64::abs` in every lane.
     fn abs(self) -> Self;
+    /// `f64::atan2(self, x)` in every lane (libm's, one lane at a time).
+    fn atan2(self, x: Self) -> Self;
+    /// `f64::powi(self, 4)` in every lane.
+    fn pow4(self) -> Self;
+    /// `self < other`, lane by lane.
+    fn lt(self, other: Self) -> Self::Mask;
+    /// Whether each lane is finite.
+    fn is_finite(self) -> Self::Mask;
+    /// Both masks, lane by lane.
+    fn and(a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// The mask's complement, lane by lane.
+    fn not(a: Self::Mask) -> Self::Mask;
     /// `self >= other`, lane by lane.
     fn ge(self, other: Self) -> Self::Mask;
     /// `self <= other`, lane by lane.
@@ -78,8 +92,36 @@ impl Real for f64 {
         f64::max(self, other)
     }
     #[inline(always)]
+    fn min(self, other: Self) -> Self {
+        f64::min(self, other)
+    }
+    #[inline(always)]
     fn abs(self) -> Self {
         f64::abs(self)
+    }
+    #[inline(always)]
+    fn atan2(self, x: Self) -> Self {
+        f64::atan2(self, x)
+    }
+    #[inline(always)]
+    fn pow4(self) -> Self {
+        f64::powi(self, 4)
+    }
+    #[inline(always)]
+    fn lt(self, other: Self) -> bool {
+        self < other
+    }
+    #[inline(always)]
+    fn is_finite(self) -> bool {
+        f64::is_finite(self)
+    }
+    #[inline(always)]
+    fn and(a: bool, b: bool) -> bool {
+        a && b
+    }
+    #[inline(always)]
+    fn not(a: bool) -> bool {
+        !a
     }
     #[inline(always)]
     fn ge(self, other: Self) -> bool {
@@ -203,8 +245,36 @@ impl Real for F64x4 {
         self.zip(other, f64::max)
     }
     #[inline(always)]
+    fn min(self, other: Self) -> Self {
+        self.zip(other, f64::min)
+    }
+    #[inline(always)]
     fn abs(self) -> Self {
         self.map(f64::abs)
+    }
+    #[inline(always)]
+    fn atan2(self, x: Self) -> Self {
+        self.zip(x, f64::atan2)
+    }
+    #[inline(always)]
+    fn pow4(self) -> Self {
+        self.map(|v| v.powi(4))
+    }
+    #[inline(always)]
+    fn lt(self, other: Self) -> [bool; 4] {
+        self.test(other, |a, b| a < b)
+    }
+    #[inline(always)]
+    fn is_finite(self) -> [bool; 4] {
+        self.test(self, |a, _| a.is_finite())
+    }
+    #[inline(always)]
+    fn and(a: [bool; 4], b: [bool; 4]) -> [bool; 4] {
+        [a[0] && b[0], a[1] && b[1], a[2] && b[2], a[3] && b[3]]
+    }
+    #[inline(always)]
+    fn not(a: [bool; 4]) -> [bool; 4] {
+        [!a[0], !a[1], !a[2], !a[3]]
     }
     #[inline(always)]
     fn ge(self, other: Self) -> [bool; 4] {
