@@ -321,6 +321,7 @@ impl BendingModel {
     /// `theta_rad` is the signed dihedral angle, `edge_length_m` the current edge length,
     /// `area_sum_m2` the sum of the rest areas of the two faces and `edge_angle_rad` the edge's
     /// direction in this face's material frame (`atan2(v, u)`).
+    #[inline(always)]
     pub fn stiffness(
         &self,
         theta_rad: f64,

@@ -484,6 +484,14 @@ impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
         }
     }
 
+    /// [`Self::prefetch`] the blocks of an element with vertices `idx` at `places` (`N²`).
+    #[inline(always)]
+    fn prefetch_element<const N: usize>(&self, idx: &[u32; N], places: &[u32]) {
+        for (k, &place) in places.iter().enumerate() {
+            self.prefetch(idx[k / N], place);
+        }
+    }
+
     /// Start loading into the cache the block at `place` (in the upper triangle's numbering)
     /// of vertex `i`'s row, if the row is this share's: the assembly asks for the blocks of the
     /// element [`PREFETCH_AHEAD`] places ahead of the one it adds.
@@ -618,24 +626,21 @@ impl Shared<'_> {
             out.gradient[k] = -gravity * masses[i];
         }
         let material = self.cloth.material();
-        let prefetch_triangle = |out: &Rows<'_, WHOLE>, n: usize| {
-            if let Some(&ahead) = share.triangles.get(n + PREFETCH_AHEAD) {
-                let (f, places) = (faces[ahead as usize], &self.tri_places[ahead as usize]);
-                for (k, &place) in places.iter().enumerate() {
-                    out.prefetch(f[k / 3], place);
-                }
-            }
-        };
         // Four triangles at a time (each lane bitwise its triangle alone, see
         // `crate::energy::Real`), added one after the other in the share's order.
         let groups = share.triangles.chunks_exact(4);
         let leftover = groups.remainder();
         let mut xl = [Vector3::from_element(F64x4([0.0; 4])); 3];
         let mut dl = ElementDerivatives::<3, F64x4>::default();
+        // (The prefetches and lane copies are written out: closures here were compiled apart,
+        // for the baseline instruction set, and called.)
         for (g, group) in groups.enumerate() {
-            let t = [0, 1, 2, 3].map(|l| group[l] as usize);
+            let t = [group[0], group[1], group[2], group[3]].map(|t| t as usize);
             for (l, &t) in t.iter().enumerate() {
-                prefetch_triangle(out, 4 * g + l);
+                if let Some(&ahead) = share.triangles.get(4 * g + l + PREFETCH_AHEAD) {
+                    let ahead = ahead as usize;
+                    out.prefetch_element(&faces[ahead], &self.tri_places[ahead]);
+                }
                 for (v, &i) in faces[t].iter().enumerate() {
                     let p = &self.x[i as usize];
                     for c in 0..3 {
@@ -643,12 +648,25 @@ impl Shared<'_> {
                     }
                 }
             }
-            let frozen = (!self.frozen_here).then(|| t.map(|t| &self.stiffness[t]));
-            let rests = t.map(|t| &membranes[t]);
+            let stiffness = &self.stiffness;
+            let frozen = (!self.frozen_here).then(|| {
+                [
+                    &stiffness[t[0]],
+                    &stiffness[t[1]],
+                    &stiffness[t[2]],
+                    &stiffness[t[3]],
+                ]
+            });
+            let rests = [
+                &membranes[t[0]],
+                &membranes[t[1]],
+                &membranes[t[2]],
+                &membranes[t[3]],
+            ];
             let model = material.membrane();
             MembraneRest::derivatives_lanes(rests, &xl, model, frozen, Projection::Psd, &mut dl);
             for (l, &t) in t.iter().enumerate() {
-                let gradient = dl.gradient.map(|g| lane_vector(&g, l));
+                let gradient = lane_vectors(&dl.gradient, l);
                 let block = |a: usize, b: usize| lane_matrix(&dl.hessian[a][b], l);
                 out.add_element(&faces[t], &self.tri_places[t], &gradient, block);
             }
@@ -658,7 +676,10 @@ impl Shared<'_> {
         let mut xt = [Vector3::zeros(); 3];
         let first = share.triangles.len() - leftover.len();
         for (n, &t) in leftover.iter().enumerate() {
-            prefetch_triangle(out, first + n);
+            if let Some(&ahead) = share.triangles.get(first + n + PREFETCH_AHEAD) {
+                let ahead = ahead as usize;
+                out.prefetch_element(&faces[ahead], &self.tri_places[ahead]);
+            }
             let (t, f) = (t as usize, faces[t as usize]);
             let m = &membranes[t];
             gather_into(self.x, f, &mut xt);
@@ -671,17 +692,6 @@ impl Shared<'_> {
             out.add_element(&f, places, &d.gradient, |a, b| d.hessian[a][b]);
         }
         let bending_hessian = self.config.bending_hessian;
-        let prefetch_hinge = |out: &Rows<'_, WHOLE>, n: usize| {
-            if let Some(&ahead) = share.hinges.get(n + PREFETCH_AHEAD) {
-                let (v, places) = (
-                    hinges[ahead as usize].vertices,
-                    &self.hinge_places[ahead as usize],
-                );
-                for (k, &place) in places.iter().enumerate() {
-                    out.prefetch(v[k / 4], place);
-                }
-            }
-        };
         // ARCSim's Hessian (the default) four hinges at a time, as the triangles.
         let mut first = 0;
         if bending_hessian == BendingHessian::GaussNewton {
@@ -690,9 +700,12 @@ impl Shared<'_> {
             let mut xl = [Vector3::from_element(F64x4([0.0; 4])); 4];
             let mut dl = GaussNewtonHinge::<F64x4>::default();
             for (g, group) in groups.enumerate() {
-                let e = [0, 1, 2, 3].map(|l| group[l] as usize);
+                let e = [group[0], group[1], group[2], group[3]].map(|e| e as usize);
                 for (l, &e) in e.iter().enumerate() {
-                    prefetch_hinge(out, 4 * g + l);
+                    if let Some(&ahead) = share.hinges.get(4 * g + l + PREFETCH_AHEAD) {
+                        let ahead = ahead as usize;
+                        out.prefetch_element(&hinges[ahead].vertices, &self.hinge_places[ahead]);
+                    }
                     for (v, &i) in hinges[e].vertices.iter().enumerate() {
                         let p = &self.x[i as usize];
                         for c in 0..3 {
@@ -700,16 +713,17 @@ impl Shared<'_> {
                         }
                     }
                 }
-                let frozen = (!self.frozen_here).then(|| e.map(|e| self.coefficient[e]));
-                let rests = e.map(|e| &hinges[e]);
+                let c = &self.coefficient;
+                let frozen = (!self.frozen_here).then(|| [c[e[0]], c[e[1]], c[e[2]], c[e[3]]]);
+                let rests = [&hinges[e[0]], &hinges[e[1]], &hinges[e[2]], &hinges[e[3]]];
                 let model = material.bending();
                 let has = BendingRest::gauss_newton_lanes(rests, &xl, model, frozen, &mut dl);
                 for (l, &e) in e.iter().enumerate() {
                     if has[l] {
                         let d = GaussNewtonHinge {
                             energy_j: dl.energy_j.0[l],
-                            gradient: dl.gradient.map(|g| lane_vector(&g, l)),
-                            angle: dl.angle.map(|g| lane_vector(&g, l)),
+                            gradient: lane_vectors(&dl.gradient, l),
+                            angle: lane_vectors(&dl.angle, l),
                             curvature: dl.curvature.0[l],
                         };
                         let (v, places) = (&hinges[e].vertices, &self.hinge_places[e]);
@@ -720,7 +734,10 @@ impl Shared<'_> {
         }
         let mut x = [Vector3::zeros(); 4];
         for (n, &e) in share.hinges.iter().enumerate().skip(first) {
-            prefetch_hinge(out, n);
+            if let Some(&ahead) = share.hinges.get(n + PREFETCH_AHEAD) {
+                let ahead = ahead as usize;
+                out.prefetch_element(&hinges[ahead].vertices, &self.hinge_places[ahead]);
+            }
             let (e, h) = (e as usize, &hinges[e as usize]);
             gather_into(self.x, h.vertices, &mut x);
             let places = &self.hinge_places[e];
@@ -875,10 +892,14 @@ fn gather<const N: usize>(x: &[Vector3<f64>], idx: [u32; N]) -> [Vector3<f64>; N
     idx.map(|i| x[i as usize])
 }
 
-/// Lane `l` of a vector of [`F64x4`].
+/// Lane `l` of vectors of [`F64x4`].
 #[inline(always)]
-fn lane_vector(v: &Vector3<F64x4>, l: usize) -> Vector3<f64> {
-    Vector3::new(v[0].0[l], v[1].0[l], v[2].0[l])
+fn lane_vectors<const N: usize>(v: &[Vector3<F64x4>; N], l: usize) -> [Vector3<f64>; N] {
+    let mut out = [Vector3::zeros(); N];
+    for (out, v) in out.iter_mut().zip(v) {
+        *out = Vector3::new(v[0].0[l], v[1].0[l], v[2].0[l]);
+    }
+    out
 }
 
 /// Lane `l` of a matrix of [`F64x4`].

@@ -204,12 +204,18 @@ fn coefficient_lanes<T: Real>(
     model: &BendingModel,
 ) -> T {
     let l = norm3(e);
-    let ke = T::from_fn(|lane| {
+    // A loop, not a closure given to `from_fn`: that closure was compiled apart, for the
+    // baseline instruction set, and called.
+    let (mut ke, mut area) = ([0.0; 4], [0.0; 4]);
+    for lane in 0..T::LANES {
         let (rest, theta, l) = (rests[lane], theta.lane(lane), l.lane(lane));
-        let side = |k: usize| model.stiffness(theta, l, rest.area_sum_m2, rest.edge_angle_rad[k]);
-        side(0).min(side(1))
-    });
-    let area = T::from_fn(|lane| rests[lane].area_sum_m2);
+        let a = rest.area_sum_m2;
+        ke[lane] = model
+            .stiffness(theta, l, a, rest.edge_angle_rad[0])
+            .min(model.stiffness(theta, l, a, rest.edge_angle_rad[1]));
+        area[lane] = a;
+    }
+    let (ke, area) = (T::from_fn(|lane| ke[lane]), T::from_fn(|lane| area[lane]));
     ke * l * l / (T::splat(8.0) * area)
 }
 
