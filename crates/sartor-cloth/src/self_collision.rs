@@ -36,6 +36,8 @@
 //! rounded to nearest: a monotone map, so it drops only vertices the f64 box drops), then in
 //! f64.
 
+use std::ops::Range;
+
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{MeshTopology, Parallelism};
@@ -103,6 +105,7 @@ const CELLS_PER_VERTEX: usize = 4;
 const MIN_CELLS: usize = 4096;
 
 /// Signed distance of `p` to the plane of `t` and whether its projection is inside `t`.
+#[inline(always)]
 fn vertex_triangle(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> Option<f64> {
     let (e1, e2) = (t[1] - t[0], t[2] - t[0]);
     let n = e1.cross(&e2);
@@ -153,6 +156,7 @@ impl Cells {
     }
 
     /// The cell coordinates of `p`, clamped to the grid.
+    #[inline(always)]
     fn coords(&self, p: &Vector3<f64>) -> [usize; 3] {
         [0, 1, 2].map(|k| {
             // Clamped at 0 first, the cast's truncation is the floor (and NaN lands in cell 0).
@@ -161,6 +165,7 @@ impl Cells {
         })
     }
 
+    #[inline(always)]
     fn index(&self, c: [usize; 3]) -> usize {
         c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
     }
@@ -181,7 +186,7 @@ struct Table<'a> {
 
 /// `v − origin` in f32, rounded to nearest. Both steps are monotone, so a point within a box
 /// in f64 stays within the box's own image: the f32 test passes every vertex the f64 one does.
-#[inline]
+#[inline(always)]
 fn relative(v: f64, origin: f64) -> f32 {
     (v - origin) as f32
 }
@@ -190,6 +195,7 @@ fn relative(v: f64, origin: f64) -> f32 {
 /// test at radius `r`: a vertex passing the plane test lies within the radius of a point whose
 /// barycentrics are ≥ −1e-6, i.e. within 2e-6 of the face's extent outside its box, so this
 /// reach keeps every such vertex inside the inflated box.
+#[inline(always)]
 fn face_box(tx: &[Vector3<f64>; 3], r: f64) -> (Vector3<f64>, Vector3<f64>, f64) {
     let (lo, hi) = (tx[0].inf(&tx[1]).inf(&tx[2]), tx[0].sup(&tx[1]).sup(&tx[2]));
     (lo, hi, r + 1e-5 * (hi - lo).max() + 1e-12)
@@ -200,6 +206,7 @@ impl Table<'_> {
     /// overlaps (one contiguous run of vertices per row of cells), that lie in that box and are
     /// neither a corner of `f` nor in a corner's one-ring: every vertex that can pass `f`'s test
     /// ([`check_face`]) while no vertex has moved more than `skin / 2` along an axis.
+    #[inline(always)]
     fn list_face(&self, f: usize, skin: f64, stamp: &mut [u32], list: &mut Vec<u32>) {
         let t = self.faces[f];
         for &c in &t {
@@ -262,8 +269,66 @@ impl Table<'_> {
     }
 }
 
+/// A block of faces' candidate lists ([`Table::list_face`]) as a [`crate::isa::Kernel`]: the
+/// box tests compiled for AVX2 (eight f32 lanes at once) where the CPU has it; the same lists.
+struct ListFaces<'t, 'a> {
+    table: &'t Table<'a>,
+    faces: Range<usize>,
+    skin: f64,
+    stamp: &'t mut [u32],
+    lists: &'t mut Candidates,
+}
+
+impl crate::isa::Kernel for ListFaces<'_, '_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn call(self) {
+        let lists = self.lists;
+        lists.offsets.clear();
+        lists.vertices.clear();
+        lists.offsets.push(0);
+        for f in self.faces {
+            self.table
+                .list_face(f, self.skin, self.stamp, &mut lists.vertices);
+            lists.offsets.push(lists.vertices.len() as u32);
+        }
+    }
+}
+
+/// A block of faces against their lists ([`check_face`]) as a [`crate::isa::Kernel`]: compiled
+/// for AVX2 where the CPU has it (no fused operations: the same pairs and distances).
+struct CheckFaces<'t> {
+    x: &'t [Vector3<f64>],
+    faces: &'t [[u32; 3]],
+    radius_m: f64,
+    first: usize,
+    lists: &'t Candidates,
+    found: &'t mut Vec<Found>,
+}
+
+impl crate::isa::Kernel for CheckFaces<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn call(self) {
+        self.found.clear();
+        for (k, w) in self.lists.offsets.windows(2).enumerate() {
+            let list = &self.lists.vertices[w[0] as usize..w[1] as usize];
+            check_face(
+                self.x,
+                self.faces,
+                self.radius_m,
+                self.first + k,
+                list,
+                self.found,
+            );
+        }
+    }
+}
+
 /// Whether `p` lies in the box `[lo, hi]` (without a branch per coordinate).
-#[inline]
+#[inline(always)]
 fn in_box(p: &Vector3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>) -> bool {
     (p.x >= lo.x) & (p.x <= hi.x) & (p.y >= lo.y) & (p.y <= hi.y) & (p.z >= lo.z) & (p.z <= hi.z)
 }
@@ -271,6 +336,7 @@ fn in_box(p: &Vector3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>) -> bool {
 /// Append to `found` the pairs of face `f` (corners `faces[f]`) with its candidate vertices
 /// `list` at positions `x`: those in the face's box inflated by the radius and its slack, that
 /// project inside the face within the radius of its plane.
+#[inline(always)]
 fn check_face(
     x: &[Vector3<f64>],
     faces: &[[u32; 3]],
@@ -305,7 +371,7 @@ fn check_face(
 
 /// The plane test of vertex `v` against face `f` (corners at `tx`), a pair in `found` if it
 /// passes.
-#[inline]
+#[inline(always)]
 fn check_pair(
     x: &[Vector3<f64>],
     tx: &[Vector3<f64>; 3],
@@ -400,13 +466,14 @@ impl SelfCollisionGrid {
             stamp.resize(x.len(), u32::MAX);
         }
         let block = |(b, (lists, stamp)): (usize, (&mut Candidates, &mut Vec<u32>))| {
-            lists.offsets.clear();
-            lists.vertices.clear();
-            lists.offsets.push(0);
-            for f in b * FACE_BLOCK..((b + 1) * FACE_BLOCK).min(faces.len()) {
-                table.list_face(f, skin, stamp, &mut lists.vertices);
-                lists.offsets.push(lists.vertices.len() as u32);
-            }
+            let faces = b * FACE_BLOCK..((b + 1) * FACE_BLOCK).min(faces.len());
+            crate::isa::widest(ListFaces {
+                table: &table,
+                faces,
+                skin,
+                stamp,
+                lists,
+            });
         };
         match par {
             Parallelism::Sequential => self
@@ -460,12 +527,14 @@ impl SelfCollisionGrid {
         self.found
             .resize_with(faces.len().div_ceil(FACE_BLOCK), Vec::new);
         let block = |(b, (found, lists)): (usize, (&mut Vec<Found>, &Candidates))| {
-            found.clear();
-            let first = b * FACE_BLOCK;
-            for (k, w) in lists.offsets.windows(2).enumerate() {
-                let list = &lists.vertices[w[0] as usize..w[1] as usize];
-                check_face(x, faces, radius_m, first + k, list, found);
-            }
+            crate::isa::widest(CheckFaces {
+                x,
+                faces,
+                radius_m,
+                first: b * FACE_BLOCK,
+                lists,
+                found,
+            });
         };
         match par {
             Parallelism::Sequential => self
