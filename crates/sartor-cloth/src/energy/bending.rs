@@ -335,7 +335,7 @@ impl BendingRest {
     /// (`frozen` = the four coefficients) of four hinges at once into `out`, each lane bitwise
     /// what its hinge gives alone; returns the lanes that have one.
     #[inline(always)]
-    pub(crate) fn gauss_newton_lanes(
+    pub fn gauss_newton_lanes(
         rests: [&Self; 4],
         x: &[Vector3<F64x4>; 4],
         model: &BendingModel,

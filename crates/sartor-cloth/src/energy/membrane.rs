@@ -152,7 +152,7 @@ impl MembraneRest {
     /// (`frozen` = the four stiffnesses) of four triangles at once, each lane bitwise what
     /// its triangle gives alone (see [`crate::energy::Real`]).
     #[inline(always)]
-    pub(crate) fn derivatives_lanes(
+    pub fn derivatives_lanes(
         rests: [&Self; 4],
         x: &[Vector3<F64x4>; 3],
         model: &MembraneModel,
