@@ -774,58 +774,160 @@ fn triangle_box_distance_sq(p: &Vector3<f64>, [a, b, c]: [&Vector3<f64>; 3]) -> 
 
 /// Closest point on triangle `[a, b, c]` to `p` (Ericson, Real-Time Collision Detection §5.1.5),
 /// with barycentrics and the feature it lies on.
+///
+/// Without branches: every region's answer is computed by Ericson's formula, and the region
+/// his tests pick, in his order, indexes them. Which region a face near a point answers from
+/// is as good as random (the face under the point from its interior, its neighbours from an
+/// edge or a vertex), and his early returns mispredicted. The same numbers: each answer's
+/// arithmetic is his, and the unused ones (maybe a division by zero) are dropped.
+#[inline]
 fn closest_on_triangle(
     p: &Vector3<f64>,
     [a, b, c]: [&Vector3<f64>; 3],
 ) -> (Vector3<f64>, [f64; 3], ClosestFeature) {
+    use std::hint::select_unpredictable as pick;
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
     let d1 = ab.dot(&ap);
     let d2 = ac.dot(&ap);
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return (*a, [1.0, 0.0, 0.0], ClosestFeature::Vertex(0));
-    }
     let bp = p - b;
     let d3 = ab.dot(&bp);
     let d4 = ac.dot(&bp);
-    if d3 >= 0.0 && d4 <= d3 {
-        return (*b, [0.0, 1.0, 0.0], ClosestFeature::Vertex(1));
-    }
     let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (a + ab * v, [1.0 - v, v, 0.0], ClosestFeature::Edge(0));
-    }
     let cp = p - c;
     let d5 = ab.dot(&cp);
     let d6 = ac.dot(&cp);
-    if d6 >= 0.0 && d5 <= d6 {
-        return (*c, [0.0, 0.0, 1.0], ClosestFeature::Vertex(2));
-    }
     let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (a + ac * w, [1.0 - w, 0.0, w], ClosestFeature::Edge(2));
-    }
     let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (b + (c - b) * w, [0.0, 1.0 - w, w], ClosestFeature::Edge(1));
+    // Ericson's tests, the first that holds deciding (`&`, not `&&`: no branch).
+    let tests = [
+        (d1 <= 0.0) & (d2 <= 0.0),
+        (d3 >= 0.0) & (d4 <= d3),
+        (vc <= 0.0) & (d1 >= 0.0) & (d3 <= 0.0),
+        (d6 >= 0.0) & (d5 <= d6),
+        (vb <= 0.0) & (d2 >= 0.0) & (d6 <= 0.0),
+        (va <= 0.0) & ((d4 - d3) >= 0.0) & ((d5 - d6) >= 0.0),
+    ];
+    let mut region = tests.len();
+    for (k, &holds) in tests.iter().enumerate().rev() {
+        region = pick(holds, k, region);
     }
+    let v_ab = d1 / (d1 - d3);
+    let w_ac = d2 / (d2 - d6);
+    let w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6));
     let denom = 1.0 / (va + vb + vc);
-    let v = vb * denom;
-    let w = vc * denom;
-    (
+    let (v, w) = (vb * denom, vc * denom);
+    let points = [
+        *a,
+        *b,
+        a + ab * v_ab,
+        *c,
+        a + ac * w_ac,
+        b + (c - b) * w_bc,
         a + ab * v + ac * w,
+    ];
+    let barycentric = [
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0 - v_ab, v_ab, 0.0],
+        [0.0, 0.0, 1.0],
+        [1.0 - w_ac, 0.0, w_ac],
+        [0.0, 1.0 - w_bc, w_bc],
         [1.0 - v - w, v, w],
+    ];
+    let features = [
+        ClosestFeature::Vertex(0),
+        ClosestFeature::Vertex(1),
+        ClosestFeature::Edge(0),
+        ClosestFeature::Vertex(2),
+        ClosestFeature::Edge(2),
+        ClosestFeature::Edge(1),
         ClosestFeature::Face,
-    )
+    ];
+    (points[region], barycentric[region], features[region])
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Ericson's closest point with his early returns: the oracle of the branchless version.
+    fn closest_on_triangle_branching(
+        p: &Vector3<f64>,
+        [a, b, c]: [&Vector3<f64>; 3],
+    ) -> (Vector3<f64>, [f64; 3], ClosestFeature) {
+        let (ab, ac, ap) = (b - a, c - a, p - a);
+        let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
+        if d1 <= 0.0 && d2 <= 0.0 {
+            return (*a, [1.0, 0.0, 0.0], ClosestFeature::Vertex(0));
+        }
+        let bp = p - b;
+        let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
+        if d3 >= 0.0 && d4 <= d3 {
+            return (*b, [0.0, 1.0, 0.0], ClosestFeature::Vertex(1));
+        }
+        let vc = d1 * d4 - d3 * d2;
+        if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+            let v = d1 / (d1 - d3);
+            return (a + ab * v, [1.0 - v, v, 0.0], ClosestFeature::Edge(0));
+        }
+        let cp = p - c;
+        let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
+        if d6 >= 0.0 && d5 <= d6 {
+            return (*c, [0.0, 0.0, 1.0], ClosestFeature::Vertex(2));
+        }
+        let vb = d5 * d2 - d1 * d6;
+        if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+            let w = d2 / (d2 - d6);
+            return (a + ac * w, [1.0 - w, 0.0, w], ClosestFeature::Edge(2));
+        }
+        let va = d3 * d6 - d5 * d4;
+        if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+            let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+            return (b + (c - b) * w, [0.0, 1.0 - w, w], ClosestFeature::Edge(1));
+        }
+        let denom = 1.0 / (va + vb + vc);
+        let (v, w) = (vb * denom, vc * denom);
+        (
+            a + ab * v + ac * w,
+            [1.0 - v - w, v, w],
+            ClosestFeature::Face,
+        )
+    }
+
+    #[test]
+    fn the_branchless_closest_point_is_ericson_s_bit_for_bit() {
+        // Points around triangles from regular to slivers and degenerate ones (two corners
+        // equal, all three on a line), every region answering.
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut seen = std::collections::BTreeSet::new();
+        for k in 0..20_000 {
+            let mut t: [Vector3<f64>; 3] =
+                std::array::from_fn(|_| Vector3::new(next(), next(), next()));
+            match k % 50 {
+                0 => t[1] = t[0],
+                1 => t[2] = t[0] + (t[1] - t[0]) * 0.5,
+                _ => {}
+            }
+            let p = Vector3::new(next(), next(), next()) * 2.0;
+            let tri = [&t[0], &t[1], &t[2]];
+            let (q, bary, feature) = closest_on_triangle(&p, tri);
+            let (q0, bary0, feature0) = closest_on_triangle_branching(&p, tri);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(q.as_slice()), bits(q0.as_slice()), "{p} {t:?}");
+            assert_eq!(bits(&bary), bits(&bary0), "{p} {t:?}");
+            assert_eq!(feature, feature0, "{p} {t:?}");
+            seen.insert(format!("{feature:?}"));
+        }
+        assert_eq!(seen.len(), 7, "every region answered: {seen:?}");
+    }
 
     /// An axis-aligned unit cube centred at the origin, outward-oriented.
     fn cube() -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
