@@ -780,7 +780,7 @@ fn triangle_box_distance_sq(p: &Vector3<f64>, [a, b, c]: [&Vector3<f64>; 3]) -> 
 /// is as good as random (the face under the point from its interior, its neighbours from an
 /// edge or a vertex), and his early returns mispredicted. The same numbers: each answer's
 /// arithmetic is his, and the unused ones (maybe a division by zero) are dropped.
-#[inline]
+#[inline(always)]
 fn closest_on_triangle(
     p: &Vector3<f64>,
     [a, b, c]: [&Vector3<f64>; 3],
