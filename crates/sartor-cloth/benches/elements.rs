@@ -11,6 +11,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
 use sartor_cloth::energy::{
     BendingRest, ElementDerivatives, F64x4, GaussNewtonHinge, MembraneRest, Projection,
+    gather_lanes,
 };
 use sartor_cloth::{Cloth, Material, rectangle_sheet};
 
@@ -40,20 +41,6 @@ fn sheet() -> (Cloth, Vec<Vector3<f64>>) {
         .map(|p| p + Vector3::new(jitter(), jitter(), jitter()))
         .collect();
     (cloth, x)
-}
-
-/// The corners of `idx` at `x`, four elements' side by side, into `out` (written out, as in the
-/// assembly: closures here are not inlined).
-#[inline(always)]
-fn lanes<const N: usize>(x: &[Vector3<f64>], idx: [&[u32; N]; 4], out: &mut [Vector3<F64x4>; N]) {
-    for (l, idx) in idx.iter().enumerate() {
-        for (v, &i) in idx.iter().enumerate() {
-            let p = &x[i as usize];
-            for c in 0..3 {
-                out[v][c].0[l] = p[c];
-            }
-        }
-    }
 }
 
 /// One pass over the sheet's elements, for [`widest`]: `run` and what it calls are
@@ -117,7 +104,7 @@ impl Pass for MembraneFour<'_> {
             .chunks_exact(4)
             .zip(cloth.membranes().chunks_exact(4))
         {
-            lanes(x, [&f[0], &f[1], &f[2], &f[3]], &mut self.xl);
+            gather_lanes(x, [&f[0], &f[1], &f[2], &f[3]], &mut self.xl);
             let rests = [&m[0], &m[1], &m[2], &m[3]];
             let d = &mut self.d;
             MembraneRest::derivatives_lanes(rests, &self.xl, model, None, Projection::Psd, d);
@@ -170,7 +157,7 @@ impl Pass for HingeFour<'_> {
                 &h[2].vertices,
                 &h[3].vertices,
             ];
-            lanes(x, idx, &mut self.xl);
+            gather_lanes(x, idx, &mut self.xl);
             let rests = [&h[0], &h[1], &h[2], &h[3]];
             let d = &mut self.d;
             let has = BendingRest::gauss_newton_lanes(rests, &self.xl, model, None, d);

@@ -72,7 +72,7 @@ use crate::cloth::Cloth;
 use crate::collider::{Collider, Contact, MotionBound};
 use crate::energy::{
     BendingHessian, BendingRest, ElementDerivatives, F64x4, GaussNewtonHinge, MembraneRest,
-    ObstacleContact, Penalty, Projection, SelfContact, friction_velocity_change,
+    ObstacleContact, Penalty, Projection, SelfContact, friction_velocity_change, gather_lanes,
 };
 use crate::error::StepFailure;
 use crate::linsolve::{
@@ -510,7 +510,7 @@ impl<'a, const WHOLE: bool> Rows<'a, WHOLE> {
     /// element [`PREFETCH_AHEAD`] places ahead of the one it adds.
     #[inline(always)]
     fn prefetch(&self, i: u32, place: u32) {
-        if self.own(i).is_some() && place != ELSEWHERE {
+        if self.own(i).is_some() {
             let at = (place as usize).wrapping_sub(self.first_place);
             crate::prefetch::prefetch(self.upper.address(at));
         }
@@ -658,18 +658,14 @@ impl Shared<'_> {
         // for the baseline instruction set, and called.)
         for (g, group) in groups.enumerate() {
             let t = [group[0], group[1], group[2], group[3]].map(|t| t as usize);
-            for (l, &t) in t.iter().enumerate() {
+            for l in 0..4 {
                 if let Some(&ahead) = share.triangles.get(4 * g + l + PREFETCH_AHEAD) {
                     let ahead = ahead as usize;
                     out.prefetch_element(&faces[ahead], &self.tri_places[ahead]);
                 }
-                for (v, &i) in faces[t].iter().enumerate() {
-                    let p = &self.x[i as usize];
-                    for c in 0..3 {
-                        xl[v][c].0[l] = p[c];
-                    }
-                }
             }
+            let corners = [&faces[t[0]], &faces[t[1]], &faces[t[2]], &faces[t[3]]];
+            gather_lanes(self.x, corners, &mut xl);
             let stiffness = &self.stiffness;
             let frozen = (!self.frozen_here).then(|| {
                 [
@@ -723,21 +719,22 @@ impl Shared<'_> {
             let mut dl = GaussNewtonHinge::<F64x4>::default();
             for (g, group) in groups.enumerate() {
                 let e = [group[0], group[1], group[2], group[3]].map(|e| e as usize);
-                for (l, &e) in e.iter().enumerate() {
+                for l in 0..4 {
                     if let Some(&ahead) = share.hinges.get(4 * g + l + PREFETCH_AHEAD) {
                         let ahead = ahead as usize;
                         out.prefetch_element(&hinges[ahead].vertices, &self.hinge_places[ahead]);
                     }
-                    for (v, &i) in hinges[e].vertices.iter().enumerate() {
-                        let p = &self.x[i as usize];
-                        for c in 0..3 {
-                            xl[v][c].0[l] = p[c];
-                        }
-                    }
                 }
+                let rests = [&hinges[e[0]], &hinges[e[1]], &hinges[e[2]], &hinges[e[3]]];
+                let corners = [
+                    &rests[0].vertices,
+                    &rests[1].vertices,
+                    &rests[2].vertices,
+                    &rests[3].vertices,
+                ];
+                gather_lanes(self.x, corners, &mut xl);
                 let c = &self.coefficient;
                 let frozen = (!self.frozen_here).then(|| [c[e[0]], c[e[1]], c[e[2]], c[e[3]]]);
-                let rests = [&hinges[e[0]], &hinges[e[1]], &hinges[e[2]], &hinges[e[3]]];
                 let model = material.bending();
                 let has = BendingRest::gauss_newton_lanes(rests, &xl, model, frozen, &mut dl);
                 for (l, &e) in e.iter().enumerate() {

@@ -11,7 +11,9 @@
 
 use std::ops::{Add, AddAssign, Div, DivAssign, Mul, MulAssign, Neg, Sub, SubAssign};
 
-use nalgebra::{ClosedAddAssign, ClosedDivAssign, ClosedMulAssign, ClosedSubAssign, Scalar};
+use nalgebra::{
+    ClosedAddAssign, ClosedDivAssign, ClosedMulAssign, ClosedSubAssign, Scalar, Vector3,
+};
 use num_traits::{One, Zero};
 
 /// A real scalar, or several side by side (see the module docs).
@@ -293,5 +295,24 @@ impl Real for F64x4 {
         let (m, y, n) = (mask, yes.0, no.0);
         let pick = |l: usize| if m[l] { y[l] } else { n[l] };
         Self([pick(0), pick(1), pick(2), pick(3)])
+    }
+}
+
+/// The corners `idx` of four elements at positions `x`, side by side into `out` (lane `l` the
+/// corners of `idx[l]`). Written out, no closures: in the assembly's AVX2 loop a closure's body
+/// is compiled apart, for the baseline, and called.
+#[inline(always)]
+pub fn gather_lanes<const N: usize>(
+    x: &[Vector3<f64>],
+    idx: [&[u32; N]; 4],
+    out: &mut [Vector3<F64x4>; N],
+) {
+    for (l, idx) in idx.iter().enumerate() {
+        for (v, &i) in idx.iter().enumerate() {
+            let p = &x[i as usize];
+            for c in 0..3 {
+                out[v][c].0[l] = p[c];
+            }
+        }
     }
 }

@@ -21,6 +21,7 @@
 
 use nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
 
+use super::diff::dot3;
 use super::lanes::{F64x4, Real};
 use super::psd::project_psd2;
 use crate::material::{MembraneModel, StrainStiffness};
@@ -89,13 +90,13 @@ impl MembraneRest {
     /// Deformation gradient (3 × 2).
     pub fn deformation_gradient(&self, x: &[Vector3<f64>; 3]) -> Matrix3x2<f64> {
         let [fu, fv] = deformation_gradient(&weights(&self.inv_dm), x);
-        Matrix3x2::from_fn(|r, c| [fu, fv][c][r])
+        Matrix3x2::from_columns(&[fu, fv])
     }
 
     /// Green strain `G = ½ (FᵀF − I)` in the material frame.
     pub fn green_strain(&self, x: &[Vector3<f64>; 3]) -> Matrix2<f64> {
-        let f = self.deformation_gradient(x);
-        (f.transpose() * f - Matrix2::identity()) * 0.5
+        let [fu, fv] = deformation_gradient(&weights(&self.inv_dm), x);
+        green_strain(&fu, &fv)
     }
 
     /// Energy `A ψ(G)` for a given (frozen) stiffness, J.
@@ -185,22 +186,27 @@ fn weights<T: Real>(inv_dm: &Matrix2<T>) -> [[T; 2]; 3] {
 /// `k = 0`, a sum starting from `0`), rather than left to nalgebra: on [`F64x4`] its generic
 /// products and temporaries are not inlined into the assembly's AVX2 build.
 #[inline(always)]
-fn deformation_gradient<T: Real>(w: &[[T; 2]; 3], x: &[Vector3<T>; 3]) -> [[T; 3]; 2] {
-    let mut f = [[T::zero(); 3]; 2];
+fn deformation_gradient<T: Real>(w: &[[T; 2]; 3], x: &[Vector3<T>; 3]) -> [Vector3<T>; 2] {
+    let mut f = [Vector3::zeros(); 2];
     for (c, column) in f.iter_mut().enumerate() {
-        for (r, sum) in column.iter_mut().enumerate() {
+        for r in 0..3 {
             for i in 0..3 {
-                *sum += x[i][r] * w[i][c];
+                column[r] += x[i][r] * w[i][c];
             }
         }
     }
     f
 }
 
-/// `a · b` of two 3-vectors, summed from the first.
+/// Green strain `G = ½ (FᵀF − I)` from the columns `fu`, `fv` of `F` (nalgebra's order; the one
+/// formula of [`MembraneRest::green_strain`] and the derivatives).
 #[inline(always)]
-fn dot3<T: Real>(a: &[T; 3], b: &[T; 3]) -> T {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+fn green_strain<T: Real>(fu: &Vector3<T>, fv: &Vector3<T>) -> Matrix2<T> {
+    let (one, half) = (T::one(), T::splat(0.5));
+    let (ff00, ff01, ff11) = (dot3(fu, fu), dot3(fu, fv), dot3(fv, fv));
+    // `FᵀF − I` subtracts 0 off the diagonal, which changes nothing.
+    let off = ff01 * half;
+    Matrix2::new((ff00 - one) * half, off, off, (ff11 - one) * half)
 }
 
 /// Energy, gradient and Hessian of a triangle with rest data `inv_dm`, `area` at `x` (of four
@@ -214,17 +220,10 @@ fn derivatives_with<T: Real>(
     projection: Projection,
     out: &mut ElementDerivatives<3, T>,
 ) {
-    let (zero, one, half) = (T::zero(), T::one(), T::splat(0.5));
+    let (zero, half) = (T::zero(), T::splat(0.5));
     let w = weights(inv_dm);
     let [fu, fv] = deformation_gradient(&w, x);
-    // G = ½ (FᵀF − I).
-    let (ff00, ff01, ff11) = (dot3(&fu, &fu), dot3(&fu, &fv), dot3(&fv, &fv));
-    let g = Matrix2::new(
-        (ff00 - one) * half,
-        (ff01 - zero) * half,
-        (ff01 - zero) * half,
-        (ff11 - one) * half,
-    );
+    let g = green_strain(&fu, &fv);
     let k = &match stiffness {
         Stiffness::Frozen(k) => k,
         Stiffness::Model(model) => model.stiffness_lanes(&g),

@@ -19,7 +19,7 @@ pub use bending::{
 pub use contact::{
     ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_velocity_change,
 };
-pub use lanes::{F64x4, Real};
+pub use lanes::{F64x4, Real, gather_lanes};
 pub use membrane::{ElementDerivatives, MembraneRest, Projection};
 pub use psd::{project_psd, project_psd2};
 
