@@ -708,36 +708,49 @@ mod tests {
         }
     }
 
+    /// `detect` on the folded sheet at radius 6 mm over 24 calls, the sheet moved by
+    /// `step(call, x)` after each: every call must find what testing every pair finds. Returns
+    /// how many calls built lists and how many found other pairs than the call before.
+    fn follow(
+        par: Parallelism,
+        mut step: impl FnMut(usize, &mut [Vector3<f64>]),
+    ) -> (usize, usize) {
+        let (mut x, faces) = folded_sheet();
+        let topology = MeshTopology::new(x.len(), &faces);
+        let areas = vec![1e-4; x.len()];
+        let tri_areas = vec![5e-5; faces.len()];
+        let radius = 0.006;
+        let mut grid = SelfCollisionGrid::default();
+        let (mut builds, mut changed, mut last) = (0, 0, Vec::new());
+        for call in 0..24 {
+            let mut out = Vec::new();
+            builds += usize::from(grid.detect(
+                &x, &faces, &topology, &areas, &tri_areas, radius, par, &mut out,
+            ));
+            let got = pairs(&out, &faces);
+            assert_eq!(
+                got,
+                brute_force(&x, &faces, &topology, radius),
+                "call {call}, {par:?}"
+            );
+            changed += usize::from(got != last);
+            last = got;
+            step(call, &mut x);
+        }
+        (builds, changed)
+    }
+
     #[test]
     fn reused_lists_find_what_testing_every_pair_finds_while_the_cloth_moves() {
         // The folded sheet's top layer lifts off 1 mm per call and comes back, while the layers
         // slide against each other 0.3 mm per call, with a jitter: pairs go and come between
         // calls, most calls reuse the lists (the skin allows 1.5 mm), and coming back the top
         // layer's pairs appear in calls that reuse lists built while it was out of reach.
-        let (mut x, faces) = folded_sheet();
-        let topology = MeshTopology::new(x.len(), &faces);
-        let areas = vec![1e-4; x.len()];
-        let tri_areas = vec![5e-5; faces.len()];
-        let radius = 0.006;
         let mut jitter = jitter(0x2545_f491_4f6c_dd1d, 2e-4);
         for par in [Parallelism::Sequential, Parallelism::Rayon] {
-            let mut grid = SelfCollisionGrid::default();
-            let (mut builds, mut changed, mut last) = (0, 0, Vec::new());
-            for call in 0..24 {
-                let mut out = Vec::new();
-                builds += usize::from(grid.detect(
-                    &x, &faces, &topology, &areas, &tri_areas, radius, par, &mut out,
-                ));
-                let got = pairs(&out, &faces);
-                assert_eq!(
-                    got,
-                    brute_force(&x, &faces, &topology, radius),
-                    "call {call}, {par:?}"
-                );
-                changed += usize::from(got != last);
-                last = got;
+            let (builds, changed) = follow(par, |call, x| {
                 let lift = if call < 12 { 1e-3 } else { -1e-3 };
-                for p in &mut x {
+                for p in x {
                     let layer = (p.y / 0.004).round().clamp(0.0, 5.0);
                     if layer == 5.0 && p.y > 0.018 {
                         p.y += lift;
@@ -746,7 +759,7 @@ mod tests {
                     p.y += jitter();
                     p.z += jitter();
                 }
-            }
+            });
             assert!(changed > 10, "the pairs changed in only {changed} calls");
             assert!(
                 builds > 3 && builds < 16,
@@ -762,36 +775,10 @@ mod tests {
         // 0.3 mm per call against each other, with a jitter: the pairs change, the lists are
         // rebuilt only when the layers have slid apart by the skin, and every call finds what
         // testing every pair finds.
-        let (mut x, faces) = folded_sheet();
-        let topology = MeshTopology::new(x.len(), &faces);
-        let areas = vec![1e-4; x.len()];
-        let tri_areas = vec![5e-5; faces.len()];
-        let radius = 0.006;
         let travel = Vector3::new(3e-3, -2e-3, 1.5e-3);
         let mut jitter = jitter(0x5851_f42d_4c95_7f2d, 2e-4);
-        let mut grid = SelfCollisionGrid::default();
-        let (mut builds, mut changed, mut last) = (0, 0, Vec::new());
-        for call in 0..24 {
-            let mut out = Vec::new();
-            builds += usize::from(grid.detect(
-                &x,
-                &faces,
-                &topology,
-                &areas,
-                &tri_areas,
-                radius,
-                Parallelism::Sequential,
-                &mut out,
-            ));
-            let got = pairs(&out, &faces);
-            assert_eq!(
-                got,
-                brute_force(&x, &faces, &topology, radius),
-                "call {call}"
-            );
-            changed += usize::from(got != last);
-            last = got;
-            for p in &mut x {
+        let (builds, changed) = follow(Parallelism::Sequential, |call, x| {
+            for p in x {
                 let layer = ((p.y - travel.y * call as f64) / 0.004)
                     .round()
                     .clamp(0.0, 5.0);
@@ -800,7 +787,7 @@ mod tests {
                 p.y += jitter();
                 p.z += jitter();
             }
-        }
+        });
         assert!(changed > 10, "the pairs changed in only {changed} calls");
         // The layers slide apart by 0.6 mm and the jitter by up to 0.4 mm per call: the 3 mm
         // skin lasts at least three calls.
