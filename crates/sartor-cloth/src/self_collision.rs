@@ -12,19 +12,21 @@
 //! The search is split in two. A *build* lists, per triangle, the vertices that could pass its
 //! test in the next few substeps: those within its box inflated by the radius plus a skin
 //! (half the radius), minus the triangle's corners and their one-rings. Every call then checks
-//! only its lists, and the lists serve until some vertex has moved more than half the skin
-//! along an axis since the build (then a vertex inside a triangle's test box now was inside its
-//! build box then), not counting a move all vertices share ([`moves_within_skin`]: on the
-//! walk, builds in 19.0 → 12.7 % of the substeps at 8,710 triangles and self-collision 21.1,
-//! 20.2 → 15.8, 15.8 ms per frame; 4,210: 25.9 → 16.7 %; 26,066: 9.3 → 7.5 %; the same cloth
-//! hashes; 2-core AMD EPYC VM, builds alternated, `bench sim --frames 10 --single-thread-only`). The pairs found are exactly those a full search finds, and in the same
-//! order of triangles, so the contacts are the same bits. On the walk the lists were rebuilt in
-//! 19 % of the substeps at 8,710 triangles and 26 % at 4,210 (`self_collision_builds_percent`
-//! in `bench-sim.json`), and self-collision took 72 → 29 ms per frame at 8,710 and 20 → 7.4
-//! at 4,210 on one thread, the same cloth hashes (2-core Intel Xeon VM, binaries before and
-//! after, `cargo xtask bench sim --frames 10 --single-thread-only`, twice each). A full search
-//! spent most of its work on the one-ring exclusion, now done at the build only: about 7.6
-//! vertices per triangle pass its box, 0.1 of them outside its one-ring.
+//! only its lists, and the lists serve while no vertex has moved more than half the skin along
+//! an axis since the build, not counting a move all vertices share ([`moves_within_skin`]):
+//! then a vertex inside a triangle's test box now was inside its build box then. The pairs
+//! found are exactly those a full search finds, and in the same order of triangles, so the
+//! contacts are the same bits. A full search spent most of its work on the one-ring exclusion,
+//! now done at the build only: about 7.6 vertices per triangle pass its box, 0.1 of them
+//! outside its one-ring.
+//!
+//! Measured, one thread, the same cloth hashes, builds before and after alternated (`cargo
+//! xtask bench sim --frames 10 --single-thread-only`): the lists took self-collision 72 → 29
+//! ms per frame at 8,710 triangles and 20 → 7.4 at 4,210 (2-core Intel Xeon VM); not counting
+//! the common move then cut the builds from 19.0 to 12.7 % of the substeps at 8,710 triangles
+//! (4,210: 25.9 → 16.7 %; 26,066: 9.3 → 7.5 %) and self-collision 21 → 16 ms per frame there
+//! (2-core AMD EPYC VM). `self_collision_builds_percent` in `bench-sim.json` reports the
+//! builds.
 //!
 //! The build's grid: the cell is at least the mean edge and the diameter of the inflated reach,
 //! and grows until the grid has at most four cells per vertex, so clearing and summing the
