@@ -4,7 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use clap::{Args, Subcommand};
-use sartor_cloth::STABLE_STEP_PER_EDGE_S_PER_M;
+use sartor_cloth::{
+    FrictionModel, IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M, IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME,
+};
 use sartor_core::BodyModel;
 use sartor_eval::{
     AnchorOptions, GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime,
@@ -40,6 +42,15 @@ pub enum SolverArg {
     Cg,
     /// faer's sparse Cholesky (symbolic analysis reused).
     Cholesky,
+}
+
+/// How friction enters the substep ([`FrictionModel`]).
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum FrictionArg {
+    /// ARCSim's damper in the solve.
+    Implicit,
+    /// A Coulomb impulse after the solve.
+    Impulse,
 }
 
 /// Arguments of `bench sim`.
@@ -80,10 +91,19 @@ pub struct SimBenchArgs {
     /// Linear solver of the implicit step.
     #[arg(long, value_enum, default_value_t = SolverArg::Cg)]
     pub solver: SolverArg,
+    /// How friction enters the substep: `implicit` (ARCSim's damper in the solve) or `impulse` (after the solve only; the reference configs'
+    /// until they are re-simulated: run it with `--max-step-per-edge-s-per-m 0.066 --substeps
+    /// 10`).
+    #[arg(long, value_enum, default_value_t = FrictionArg::Implicit)]
+    pub friction: FrictionArg,
+    /// The fewest substeps per frame.
+    #[arg(long, default_value_t = IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME)]
+    pub substeps: usize,
     /// The longest substep, seconds per metre of the garment's median rest edge: the
-    /// substeps per frame rise with the resolution so that every size stays stable (28, 40
-    /// and 69 at 4,210, 8,710 and 26,066 triangles). 0: 10 substeps at every size.
-    #[arg(long, default_value_t = STABLE_STEP_PER_EDGE_S_PER_M)]
+    /// substeps per frame rise with the resolution so that every size stays stable (20, 20,
+    /// 28 and 34 at 4,210, 8,710, 17,710 and 26,066 triangles with the other defaults). 0:
+    /// `--substeps` at every size.
+    #[arg(long, default_value_t = IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M)]
     pub max_step_per_edge_s_per_m: f64,
     /// Hold the arms out of the torso as the reference configs do (`arm_clearance` with
     /// `upper_arm_clearance_m` 5 mm): for retargeted motion capture.
@@ -211,6 +231,11 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
                 }),
                 max_step_per_edge_s_per_m: (a.max_step_per_edge_s_per_m > 0.0)
                     .then_some(a.max_step_per_edge_s_per_m),
+                substeps_per_frame: a.substeps,
+                friction: match a.friction {
+                    FrictionArg::Implicit => FrictionModel::Implicit,
+                    FrictionArg::Impulse => FrictionModel::Impulse,
+                },
                 solver: match a.solver {
                     SolverArg::Cg => Solver::Cg,
                     SolverArg::Cholesky => Solver::Cholesky,

@@ -67,9 +67,11 @@ pub use benchmark::{SequenceBenchmark, benchmark_sequence, folded_hinge_percent}
 pub use cloth::{Cloth, rectangle_sheet};
 pub use collider::{Collider, Contact, MotionBound, Plane, Sphere};
 pub use drive::{
-    DriveConfig, LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig,
-    STABLE_STEP_PER_EDGE_S_PER_M, contact_region, simulate_sequence,
+    DriveConfig, IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M, IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME,
+    LEFT_BODY_M, PreviewConfig, RegionConfig, RetryConfig, STABLE_STEP_PER_EDGE_S_PER_M,
+    contact_region, simulate_sequence,
 };
+pub use energy::FrictionModel;
 pub use error::{Error, Result, SequenceFailure, StepFailure};
 pub use garment::{
     BodyFit, GARMENT_HEADER, GARMENT_OBJ, GARMENT_REPORT, GARMENT_TENSORS, Garment, GarmentBuild,

@@ -71,8 +71,9 @@ use serde::{Deserialize, Serialize};
 use crate::cloth::Cloth;
 use crate::collider::{Collider, Contact, MotionBound};
 use crate::energy::{
-    BendingHessian, BendingRest, ElementDerivatives, F64x4, GaussNewtonHinge, MembraneRest,
-    ObstacleContact, Penalty, Projection, SelfContact, friction_velocity_change, gather_lanes,
+    BendingHessian, BendingRest, ElementDerivatives, F64x4, FrictionModel, GaussNewtonHinge,
+    MembraneRest, ObstacleContact, Penalty, Projection, SelfContact, friction_damping,
+    friction_velocity_change, gather_lanes,
 };
 use crate::error::StepFailure;
 use crate::linsolve::{
@@ -105,6 +106,11 @@ pub struct SimConfig {
     pub contact_penalty: Penalty,
     /// Cloth–obstacle friction coefficient μ (ARCSim's `obs_friction`, 0.3).
     pub friction_coefficient: f64,
+    /// How friction enters the substep (default [`FrictionModel::Impulse`]; a config that
+    /// leaves it out reads as the impulse and keeps its hash). [`FrictionModel::Implicit`]
+    /// stays smooth with twice as long substeps (see [`crate::drive`]).
+    #[serde(skip_serializing_if = "FrictionModel::is_impulse")]
+    pub friction_model: FrictionModel,
     /// Vertex–triangle self-collision repulsion.
     pub self_collision: bool,
     /// Penetration depth beyond which the guarantee step projects a vertex out, m (1 mm).
@@ -131,6 +137,7 @@ impl Default for SimConfig {
             bending_hessian: BendingHessian::GaussNewton,
             contact_penalty: Penalty::default(),
             friction_coefficient: 0.3,
+            friction_model: FrictionModel::Impulse,
             self_collision: true,
             max_penetration_m: 1e-3,
             max_speed_m_per_s: 50.0,
@@ -261,6 +268,9 @@ struct Workspace {
     hinge_coefficient: Vec<f64>,
     self_out: Vec<ElementDerivatives<4>>,
     obstacle_contacts: Vec<ObstacleContact>,
+    /// Per obstacle contact, [`FrictionModel::Implicit`]'s damping coefficient (N·s/m; empty
+    /// with the impulse model).
+    friction_damping: Vec<f64>,
     query: Vec<Option<Contact>>,
     /// Per collider and vertex, what the last queries left (see [`QueryState`]).
     query_state: Vec<QueryState>,
@@ -383,6 +393,8 @@ struct Shared<'a> {
     v_plus: &'a [Vector3<f64>],
     velocities: &'a [Vector3<f64>],
     obstacle_contacts: &'a [ObstacleContact],
+    /// Per obstacle contact, the friction damper (empty: no damper in the system).
+    friction_damping: &'a [f64],
     self_contacts: &'a [SelfContact],
     self_out: &'a [ElementDerivatives<4>],
     h: f64,
@@ -823,6 +835,18 @@ impl Shared<'_> {
                 - kv * (h * beta)
                 - self.v_plus[i] * (h * alpha * masses[i]);
         }
+        // The friction dampers, `f = −c T (v⁺ − v_o)`: `A += h c T`, `rhs += h f`.
+        for (c, &damping) in self.obstacle_contacts.iter().zip(self.friction_damping) {
+            if damping == 0.0 {
+                continue;
+            }
+            if let Some(k) = out.own(c.vertex) {
+                let i = c.vertex as usize;
+                let t = Matrix3::identity() - c.normal * c.normal.transpose();
+                out.add(self.pattern.upper_start(i) as u32, &(t * (h * damping)));
+                out.rhs[k] -= t * (self.v_plus[i] - c.velocity_m_per_s) * (h * damping);
+            }
+        }
     }
 }
 
@@ -1152,6 +1176,7 @@ impl Simulator {
             hinge_coefficient: vec![0.0; sim_cloth.hinges().len()],
             self_out: Vec::new(),
             obstacle_contacts: Vec::new(),
+            friction_damping: Vec::new(),
             query: vec![None; n],
             query_state: Vec::new(),
             near_state: Vec::new(),
@@ -1419,6 +1444,7 @@ impl Simulator {
 
         let h = dt_secs;
         let n = self.x.len();
+        self.freeze_friction(h);
         for i in 0..n {
             self.ws.pin_velocity[i] = if self.pins[i] {
                 (self.pin_targets[i] - self.x[i]) / h
@@ -1701,6 +1727,7 @@ impl Simulator {
             v_plus: &ws.v_plus,
             velocities: &self.v,
             obstacle_contacts: &ws.obstacle_contacts,
+            friction_damping: &ws.friction_damping,
             self_contacts: &ws.self_contacts,
             self_out: &ws.self_out,
             h,
@@ -1739,10 +1766,35 @@ impl Simulator {
         }
     }
 
-    /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]).
+    /// [`FrictionModel::Implicit`]'s damper per obstacle contact, from the state at the start
+    /// of the substep (none with the impulse model, or without friction).
+    fn freeze_friction(&mut self, h: f64) {
+        let ws = &mut self.ws;
+        ws.friction_damping.clear();
+        let mu = self.config.friction_coefficient;
+        if self.config.friction_model != FrictionModel::Implicit || mu == 0.0 {
+            return;
+        }
+        let penalty = self.config.contact_penalty;
+        let masses = self.sim_cloth.masses_kg();
+        ws.friction_damping
+            .extend(ws.obstacle_contacts.iter().map(|c| {
+                let i = c.vertex as usize;
+                if self.pins[i] {
+                    return 0.0;
+                }
+                let (_, de, _) = penalty.evaluate(c.distance_at(&self.x[i]), c.area_m2);
+                let relative = self.v[i] - c.velocity_m_per_s;
+                friction_damping(&relative, &c.normal, mu, -de, masses[i], h)
+            }));
+    }
+
+    /// Coulomb friction impulses on `v⁺` for every obstacle contact (see [`crate::energy`]),
+    /// with [`FrictionModel::Impulse`] (the damper of [`FrictionModel::Implicit`] acted in the
+    /// solve).
     fn apply_friction(&mut self, h: f64) {
         let mu = self.config.friction_coefficient;
-        if mu == 0.0 {
+        if mu == 0.0 || self.config.friction_model != FrictionModel::Impulse {
             return;
         }
         let penalty = self.config.contact_penalty;

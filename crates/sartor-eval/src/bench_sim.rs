@@ -7,8 +7,8 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use sartor_cloth::{
-    DriveConfig, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig, SequenceBenchmark,
-    benchmark_sequence, build_garment, relax_on_body,
+    DriveConfig, FrictionModel, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig,
+    SequenceBenchmark, benchmark_sequence, build_garment, relax_on_body,
 };
 use sartor_core::io::read_file;
 use sartor_core::{BodyModel, Parallelism};
@@ -42,8 +42,12 @@ pub struct SimBenchOptions {
     /// The linear solver of the implicit step.
     pub solver: Solver,
     /// [`DriveConfig::max_step_per_edge_s_per_m`]: the substeps per frame follow the garment's
-    /// resolution (`None`: 10 at every size).
+    /// resolution (`None`: `substeps_per_frame` at every size).
     pub max_step_per_edge_s_per_m: Option<f64>,
+    /// [`DriveConfig::substeps_per_frame`]: the fewest substeps per frame.
+    pub substeps_per_frame: usize,
+    /// [`SimConfig::friction_model`](sartor_cloth::SimConfig::friction_model).
+    pub friction: FrictionModel,
     /// Where to write a picture of each size's last frame (one thread), front and back:
     /// `tshirt-<n>.png`.
     pub pictures: Option<PathBuf>,
@@ -130,6 +134,12 @@ pub struct SimBenchReport {
     pub blend_frames: usize,
     /// Rest frames before the motion.
     pub rest_frames: usize,
+    /// How friction enters the substep.
+    pub friction: FrictionModel,
+    /// The fewest substeps per frame (more where the garment's edges ask for them).
+    pub min_substeps_per_frame: usize,
+    /// The longest substep, seconds per metre of median rest edge (none: no such rule).
+    pub max_step_per_edge_s_per_m: Option<f64>,
     /// Hash of the driver settings.
     pub drive_config_sha256: String,
     /// Where it ran.
@@ -162,6 +172,8 @@ pub fn bench_sim(
         ..DriveConfig::default()
     };
     config.sim.linear_solver = args.solver.linear_solver();
+    config.sim.friction_model = args.friction;
+    config.substeps_per_frame = args.substeps_per_frame;
     config.max_step_per_edge_s_per_m = args.max_step_per_edge_s_per_m;
     config.arm_clearance.clone_from(&args.arm_clearance);
     let mut sizes = Vec::new();
@@ -219,6 +231,9 @@ pub fn bench_sim(
         motion_frames: args.motion_frames.clone(),
         blend_frames: args.blend_frames,
         rest_frames: args.rest_frames,
+        friction: args.friction,
+        min_substeps_per_frame: args.substeps_per_frame,
+        max_step_per_edge_s_per_m: args.max_step_per_edge_s_per_m,
         drive_config_sha256: config.sha256()?,
         machine: Machine::current(),
         load_average_before,

@@ -17,7 +17,8 @@ pub use bending::{
     BendingHessian, BendingRest, CRUSHED_AREA_FRACTION, GaussNewtonHinge, dihedral_angle,
 };
 pub use contact::{
-    ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_velocity_change,
+    FrictionModel, ObstacleContact, Penalty, PenaltyProfile, SelfContact, friction_damping,
+    friction_velocity_change,
 };
 pub use lanes::{F64x4, Real, gather_lanes};
 pub use membrane::{ElementDerivatives, MembraneRest, Projection};

@@ -1,6 +1,7 @@
-//! The simulator's regression pin: a short simulation (the committed 500-triangle T-shirt on
+//! The simulator's regression pins: a short simulation (the committed 500-triangle T-shirt on
 //! the built-in body, β₀ = 0.5, 3 blend + 2 rest frames and 4 frames of a fast clip) against its
-//! result stored in `tests/data/regression-sim.json`.
+//! result stored in `tests/data/regression-sim.json`, and the same with
+//! [`FrictionModel::Implicit`] in `tests/data/regression-sim-implicit-friction.json`.
 //!
 //! What the pin depends on: the garment, the body, the material, the drive settings and the
 //! simulator's equations. It is independent of the thread count: the same run on the calling
@@ -25,7 +26,7 @@
 use std::path::{Path, PathBuf};
 
 use sartor_cloth::{
-    ClothSequence, DriveConfig, Garment, LinearSolver, Material, simulate_sequence,
+    ClothSequence, DriveConfig, FrictionModel, Garment, LinearSolver, Material, simulate_sequence,
 };
 use sartor_core::Parallelism;
 use sartor_core::io::sha256_hex;
@@ -45,11 +46,18 @@ struct Pinned {
     frames: Vec<Vec<[f32; 3]>>,
 }
 
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/regression-sim.json")
+/// The fixture of a friction model.
+fn fixture(friction: FrictionModel) -> PathBuf {
+    let name = match friction {
+        FrictionModel::Impulse => "regression-sim.json",
+        FrictionModel::Implicit => "regression-sim-implicit-friction.json",
+    };
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
 }
 
-fn config(parallelism: Parallelism) -> DriveConfig {
+fn config(parallelism: Parallelism, friction: FrictionModel) -> DriveConfig {
     let mut c = DriveConfig {
         blend_frames: 3,
         rest_frames: 2,
@@ -62,10 +70,11 @@ fn config(parallelism: Parallelism) -> DriveConfig {
         fallback_to_cholesky: true,
     };
     c.sim.parallelism = parallelism;
+    c.sim.friction_model = friction;
     c
 }
 
-fn simulate(parallelism: Parallelism) -> ClothSequence {
+fn simulate(parallelism: Parallelism, friction: FrictionModel) -> ClothSequence {
     let body = crate::common::load_builtin().expect("the built-in body");
     let garment = Garment::load(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/garments/tshirt-tiny"),
@@ -83,7 +92,7 @@ fn simulate(parallelism: Parallelism) -> ClothSequence {
         &Material::gray_interlock(),
         &betas,
         Some(&motion),
-        &config(parallelism),
+        &config(parallelism, friction),
         &mut |_, _| {},
     )
     .expect("simulates")
@@ -105,29 +114,41 @@ fn hash(frames: &[Vec<[f32; 3]>]) -> String {
 
 #[test]
 fn a_short_simulation_keeps_its_pinned_result_on_any_thread_count() {
-    let seq = frames(&simulate(Parallelism::Sequential));
-    let par = frames(&simulate(Parallelism::Rayon));
+    keeps_its_pinned_result(FrictionModel::Impulse);
+}
+
+#[test]
+fn with_implicit_friction_a_short_simulation_keeps_its_pinned_result() {
+    keeps_its_pinned_result(FrictionModel::Implicit);
+}
+
+fn keeps_its_pinned_result(friction: FrictionModel) {
+    let seq = frames(&simulate(Parallelism::Sequential, friction));
+    let par = frames(&simulate(Parallelism::Rayon, friction));
     assert!(
         seq == par,
         "the calling thread and rayon's pool give different frames"
     );
     if std::env::var_os("SARTOR_BLESS").is_some() {
         let pinned = Pinned {
-            description: "tshirt-tiny on the built-in body, β0 = 0.5, 3 blend + 2 rest frames, \
-                          arm_circles_fast frames 40..44, CG 1e-10 (tests/it/regression.rs)"
-                .into(),
+            description: format!(
+                "tshirt-tiny on the built-in body, β0 = 0.5, 3 blend + 2 rest frames, \
+                 arm_circles_fast frames 40..44, CG 1e-10, friction {friction:?} \
+                 (tests/it/regression.rs)"
+            ),
             sha256: hash(&seq),
             frames: seq,
         };
         let mut json = serde_json::to_string(&pinned).expect("json");
         json.push('\n');
-        std::fs::create_dir_all(fixture().parent().expect("tests/data")).expect("folder");
-        std::fs::write(fixture(), json).expect("write the fixture");
+        let path = fixture(friction);
+        std::fs::create_dir_all(path.parent().expect("tests/data")).expect("folder");
+        std::fs::write(path, json).expect("write the fixture");
         return;
     }
     let pinned: Pinned = serde_json::from_slice(
-        &std::fs::read(fixture())
-            .expect("tests/data/regression-sim.json (SARTOR_BLESS=1 writes it)"),
+        &std::fs::read(fixture(friction))
+            .expect("the fixture in tests/data (SARTOR_BLESS=1 writes it)"),
     )
     .expect("a valid fixture");
     assert_eq!(pinned.frames.len(), seq.len(), "frame count");
