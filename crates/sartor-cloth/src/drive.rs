@@ -316,8 +316,18 @@ impl DriveConfig {
         (needed as usize).clamp(self.substeps_per_frame, cap)
     }
 
+    /// The longest step per metre of median rest edge measured to keep the T-shirt smooth
+    /// with this config's friction model: [`STABLE_STEP_PER_EDGE_S_PER_M`] with the impulse,
+    /// [`IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M`] with the damper in the solve.
+    pub fn stable_step_per_edge_s_per_m(&self) -> f64 {
+        match self.sim.friction_model {
+            crate::FrictionModel::Impulse => STABLE_STEP_PER_EDGE_S_PER_M,
+            crate::FrictionModel::Implicit => IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M,
+        }
+    }
+
     /// The step [`DriveConfig::substeps_for_edge`] gives, in seconds per metre of the median
-    /// rest edge: above [`STABLE_STEP_PER_EDGE_S_PER_M`] the cloth may crumple.
+    /// rest edge: above [`DriveConfig::stable_step_per_edge_s_per_m`] the cloth may crumple.
     pub fn step_per_edge_s_per_m(&self, median_edge_m: f64, fps: f64) -> f64 {
         1.0 / (fps * self.substeps_for_edge(median_edge_m, fps) as f64 * median_edge_m)
     }
@@ -1262,6 +1272,14 @@ mod tests {
             .expect("reads");
         assert_eq!(back, on);
         assert_ne!(old.sha256().expect("hash"), on.sha256().expect("hash"));
+        assert_eq!(
+            old.stable_step_per_edge_s_per_m(),
+            STABLE_STEP_PER_EDGE_S_PER_M
+        );
+        assert_eq!(
+            on.stable_step_per_edge_s_per_m(),
+            IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M
+        );
         // 1 / (30 × 0.135 × edge): 13.5, 19.3, 27.9 and 33.4 for the T-shirts' median edges,
         // never below 20.
         for (edge, substeps) in [(18.28e-3, 20), (12.77e-3, 20), (8.86e-3, 28), (7.40e-3, 34)] {

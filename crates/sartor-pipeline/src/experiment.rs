@@ -764,7 +764,7 @@ mod tests {
             .median_rest_edge_m();
             let step = e.simulation.step_per_edge_s_per_m(edge, sartor_core::FPS);
             assert!(
-                step <= sartor_cloth::STABLE_STEP_PER_EDGE_S_PER_M * (1.0 + 1e-9),
+                step <= e.simulation.stable_step_per_edge_s_per_m() * (1.0 + 1e-9),
                 "{}: {step} s per metre of edge",
                 e.garment.display()
             );

@@ -25,9 +25,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
-use sartor_cloth::{
-    Cloth, DriveConfig, Garment, Material, STABLE_STEP_PER_EDGE_S_PER_M, simulate_sequence,
-};
+use sartor_cloth::{Cloth, DriveConfig, Garment, Material, simulate_sequence};
 use sartor_core::BodyModel;
 use sartor_dataset::{FAILED_DIR, REST_MOTION, sequence_stem};
 use sartor_eval::{Machine, Progress, write_json};
@@ -243,7 +241,7 @@ pub struct SimulateReport {
     /// Substeps per frame (without retries) for this garment.
     pub substeps_per_frame: usize,
     /// Their step in seconds per metre of the garment's median rest edge: above
-    /// [`STABLE_STEP_PER_EDGE_S_PER_M`] the cloth may crumple (set
+    /// [`DriveConfig::stable_step_per_edge_s_per_m`] the cloth may crumple (set
     /// `simulation.max_step_per_edge_s_per_m`).
     pub step_per_edge_s_per_m: f64,
     /// Where it ran.
@@ -303,14 +301,16 @@ pub fn simulate(
     let edge = Cloth::from_garment(&inputs.garment, inputs.material.clone())?.median_rest_edge_m();
     let substeps_per_frame = inputs.drive.substeps_for_edge(edge, sartor_core::FPS);
     let step_per_edge_s_per_m = inputs.drive.step_per_edge_s_per_m(edge, sartor_core::FPS);
-    if step_per_edge_s_per_m > STABLE_STEP_PER_EDGE_S_PER_M * (1.0 + 1e-9) {
+    let stable = inputs.drive.stable_step_per_edge_s_per_m();
+    if step_per_edge_s_per_m > stable * (1.0 + 1e-9) {
         progress.println(&format!(
             "warning: {} substeps per frame are a step of {step_per_edge_s_per_m:.3} s per metre \
-             of the garment's median edge ({:.1} mm), above the {STABLE_STEP_PER_EDGE_S_PER_M} \
-             at which the T-shirts stay smooth: the cloth may crumple (set \
+             of the garment's median edge ({:.1} mm), above the {stable} at which the T-shirts \
+             stay smooth with {:?} friction: the cloth may crumple (set \
              simulation.max_step_per_edge_s_per_m)",
             substeps_per_frame,
-            edge * 1e3
+            edge * 1e3,
+            inputs.drive.sim.friction_model
         ));
     }
     let out = e.sim_dir();
