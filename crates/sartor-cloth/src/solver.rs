@@ -49,7 +49,10 @@
 //! # After the solve
 //!
 //! 1. Friction: a Coulomb impulse per obstacle contact (see [`crate::energy`]), `μ` =
-//!    [`SimConfig::friction_coefficient`].
+//!    [`SimConfig::friction_coefficient`], with [`FrictionModel::Impulse`]. With
+//!    [`FrictionModel::Implicit`] the friction acted in the solve instead: each obstacle contact
+//!    adds ARCSim's tangential damper (frozen at the start of the substep) to its vertex's
+//!    diagonal block and right-hand side.
 //! 2. Positions `x⁺ = x + h v⁺`.
 //! 3. Guarantee: a vertex more than [`SimConfig::max_penetration_m`] inside an obstacle is
 //!    projected to its surface and its inward normal velocity (relative to the obstacle) removed.
