@@ -111,7 +111,8 @@ pub struct SimConfig {
     pub friction_coefficient: f64,
     /// How friction enters the substep (default [`FrictionModel::Impulse`]; a config that
     /// leaves it out reads as the impulse and keeps its hash). [`FrictionModel::Implicit`]
-    /// stays smooth with twice as long substeps (see [`crate::drive`]).
+    /// stays smooth with twice as long substeps
+    /// ([`crate::IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M`]).
     #[serde(skip_serializing_if = "FrictionModel::is_impulse")]
     pub friction_model: FrictionModel,
     /// Vertex–triangle self-collision repulsion.
