@@ -7,12 +7,13 @@ use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 use sartor_cloth::{
-    Cloth, ClothSequence, DriveConfig, Error, Garment, LinearSolver, Material, Phase, RelaxConfig,
+    Cloth, ClothSequence, DriveConfig, Error, FrictionModel, Garment,
+    IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME, LinearSolver, Material, Phase, RelaxConfig,
     STABLE_STEP_PER_EDGE_S_PER_M, SequenceFailure, StepFailure, contact_region,
     folded_hinge_percent, relax_on_body, simulate_sequence,
 };
 use sartor_core::{BodyModel, MeshProximity};
-use sartor_motion::{ClearanceOptions, Motion};
+use sartor_motion::{ClearanceOptions, Motion, MotionSourceOptions, RetargetBody, load_motion};
 
 fn body() -> &'static BodyModel {
     static BODY: OnceLock<BodyModel> = OnceLock::new();
@@ -528,6 +529,68 @@ fn the_shipped_tshirts_get_their_stable_substeps_and_start_unfolded() {
         let positions: Vec<[f32; 3]> = p.iter().map(|v| v.cast::<f32>().into()).collect();
         let folded = folded_hinge_percent(&positions, garment.faces());
         assert!(folded < 0.2, "{name}: {folded} % of hinges folded at rest");
+    }
+}
+
+/// The deepest any cloth vertex of `seq` goes into the whole body, posed from each frame's
+/// stored β and pose, m (0 when none is inside).
+fn deepest_inside(seq: &ClothSequence) -> f64 {
+    let mut deepest: f64 = 0.0;
+    for frame in &seq.frames {
+        let posed = body()
+            .posed_vertices(&frame.betas, &frame.pose)
+            .expect("pose");
+        let whole = MeshProximity::new(&posed, body().faces()).expect("body");
+        for p in frame.positions_vec3() {
+            deepest = deepest.max(-whole.closest(&p.cast()).signed_distance_m);
+        }
+    }
+    deepest
+}
+
+#[test]
+fn both_friction_models_follow_real_motion_capture_at_their_stable_steps() {
+    // The CMU crouch (`cmu/02_04`, imported, retargeted onto the body at load) from its
+    // start, where the body goes down fastest, with the reference configs' arm clearance.
+    let options = MotionSourceOptions {
+        motions_dir: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/motions"),
+        body: Some(
+            RetargetBody::load(&crate::common::builtin_model_dir()).expect("the built-in body"),
+        ),
+        ..MotionSourceOptions::default()
+    };
+    let motion = load_motion("cmu/02_04@0+12", &options).expect("cmu/02_04");
+    for model in [FrictionModel::Impulse, FrictionModel::Implicit] {
+        let mut config = quick_config();
+        config.arm_clearance = Some(ClearanceOptions {
+            upper_arm_clearance_m: Some(0.005),
+            ..ClearanceOptions::default()
+        });
+        config.sim.friction_model = model;
+        config.max_step_per_edge_s_per_m = Some(config.stable_step_per_edge_s_per_m());
+        if model == FrictionModel::Implicit {
+            config.substeps_per_frame = IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME;
+        }
+        let seq = simulate(&betas(0.5), Some(&motion), &config).expect("simulates");
+        let h = &seq.header;
+        let last = &seq.frames.last().expect("frames").positions;
+        let folded = folded_hinge_percent(last, tshirt().faces());
+        let deepest = deepest_inside(&seq);
+        eprintln!(
+            "{model:?}: {} substeps per frame, {} frames retried, {:.2} mm deepest, {folded:.2} % \
+             of hinges folded, {} vertex-substeps through the fallback",
+            h.substeps.base,
+            h.substeps.retried_frames,
+            deepest * 1e3,
+            h.solver.projected_vertices
+        );
+        assert!(
+            deepest <= config.penetration_tolerance_m + 1e-6,
+            "{model:?}: {:.3} mm inside",
+            deepest * 1e3
+        );
+        assert_eq!(h.substeps.retried_frames, 0, "{model:?}: frames redone");
+        assert!(folded < 3.0, "{model:?}: {folded} % of hinges folded");
     }
 }
 
