@@ -701,7 +701,14 @@ mod tests {
 
     #[test]
     fn committed_configs_are_valid_and_their_plans_do_not_leak() {
-        for name in ["tiny", "default", "default-8710", "procedural", "paper"] {
+        for name in [
+            "tiny",
+            "default",
+            "default-8710",
+            "default-implicit-friction",
+            "procedural",
+            "paper",
+        ] {
             let e = config(name);
             let plan = e.plan();
             plan.validate(10).expect("a valid plan");
@@ -754,7 +761,25 @@ mod tests {
         // Both simulate with the same settings, each at a step its garment's resolution keeps
         // smooth (at 10 substeps per frame the shirts crumple on fast motion).
         assert_eq!(a.simulation, b.simulation);
-        for e in [&a, &b] {
+        // The reference experiment with ARCSim's friction in the solve: the same plan and
+        // training, the simulation different only in its friction model and step.
+        let c = config("default-implicit-friction");
+        assert_eq!(ids(&a), ids(&c));
+        assert_eq!(
+            serde_json::to_value(&a.training).expect("json"),
+            serde_json::to_value(&c.training).expect("json")
+        );
+        assert_eq!(a.garment, c.garment);
+        assert_eq!(
+            c.simulation.sim.friction_model,
+            sartor_cloth::FrictionModel::Implicit
+        );
+        let mut back = c.simulation.clone();
+        back.sim.friction_model = sartor_cloth::FrictionModel::Impulse;
+        back.substeps_per_frame = a.simulation.substeps_per_frame;
+        back.max_step_per_edge_s_per_m = a.simulation.max_step_per_edge_s_per_m;
+        assert_eq!(back, a.simulation);
+        for e in [&a, &b, &c] {
             let garment = sartor_cloth::Garment::load(&e.garment).expect("the config's garment");
             let edge = sartor_cloth::Cloth::from_garment(
                 &garment,
