@@ -91,9 +91,9 @@ pub struct SimBenchArgs {
     /// Linear solver of the implicit step.
     #[arg(long, value_enum, default_value_t = SolverArg::Cg)]
     pub solver: SolverArg,
-    /// How friction enters the substep: `implicit` (ARCSim's damper in the solve) or `impulse` (after the solve only; the reference configs'
-    /// until they are re-simulated: run it with `--max-step-per-edge-s-per-m 0.066 --substeps
-    /// 10`).
+    /// How friction enters the substep: `implicit` (ARCSim's damper in the solve) or
+    /// `impulse` (after the solve only, as the shipped reference configs; their steps are
+    /// `--max-step-per-edge-s-per-m 0.066 --substeps 10`).
     #[arg(long, value_enum, default_value_t = FrictionArg::Implicit)]
     pub friction: FrictionArg,
     /// The fewest substeps per frame.

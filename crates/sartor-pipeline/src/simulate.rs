@@ -25,7 +25,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
-use sartor_cloth::{Cloth, DriveConfig, Garment, Material, simulate_sequence};
+use sartor_cloth::{
+    Cloth, DriveConfig, FrictionModel, Garment, IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME, Material,
+    simulate_sequence,
+};
 use sartor_core::BodyModel;
 use sartor_dataset::{FAILED_DIR, REST_MOTION, sequence_stem};
 use sartor_eval::{Machine, Progress, write_json};
@@ -311,6 +314,15 @@ pub fn simulate(
             substeps_per_frame,
             edge * 1e3,
             inputs.drive.sim.friction_model
+        ));
+    }
+    if inputs.drive.sim.friction_model == FrictionModel::Implicit
+        && substeps_per_frame < IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME
+    {
+        progress.println(&format!(
+            "warning: {substeps_per_frame} substeps per frame, fewer than the \
+             {IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME} at which the implicit friction kept contacts \
+             off the projection fallback (set simulation.substeps_per_frame)"
         ));
     }
     let out = e.sim_dir();

@@ -219,6 +219,12 @@ impl FrictionModel {
     }
 }
 
+/// The part of `v` along the surface of unit normal `normal`: `T v`, `T = I − n nᵀ`.
+#[inline]
+fn tangential(v: &Vector3<f64>, normal: &Vector3<f64>) -> Vector3<f64> {
+    v - normal * normal.dot(v)
+}
+
 /// The tangential damping coefficient `c` (N·s/m) of [`FrictionModel::Implicit`] for a vertex
 /// of mass `mass_kg` pressed with `normal_force_n` against a surface of unit normal `normal`,
 /// moving at `relative_velocity` (vertex minus surface) at the start of a step of `h_s`
@@ -234,7 +240,7 @@ pub fn friction_damping(
     if !(normal_force_n > 0.0 && mu > 0.0) {
         return 0.0;
     }
-    let vt = relative_velocity - normal * normal.dot(relative_velocity);
+    let vt = tangential(relative_velocity, normal);
     let cap = mass_kg / h_s;
     let speed = vt.norm();
     if speed * cap <= mu * normal_force_n {
@@ -254,7 +260,7 @@ pub fn friction_velocity_change(
     normal_impulse_n_s: f64,
     mass_kg: f64,
 ) -> Vector3<f64> {
-    let vt = relative_velocity - normal * normal.dot(relative_velocity);
+    let vt = tangential(relative_velocity, normal);
     let speed = vt.norm();
     if speed == 0.0 || normal_impulse_n_s <= 0.0 || mu <= 0.0 {
         return Vector3::zeros();
