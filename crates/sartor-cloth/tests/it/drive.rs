@@ -620,3 +620,41 @@ fn folded_hinges_are_counted_beyond_a_right_angle_only() {
     // A lone triangle has no interior edge.
     assert_eq!(folded_hinge_percent(&pair(0.0), &faces[..1]), 0.0);
 }
+
+#[test]
+fn sequences_benchmarked_in_turn_simulate_what_they_do_alone_and_time_only_their_own_frames() {
+    let motion = clip();
+    let one = quick_config();
+    let mut all = one.clone();
+    all.sim.parallelism = sartor_core::Parallelism::Rayon;
+    let (body, garment, material) = (body(), tshirt(), Material::gray_interlock());
+    let alone = sartor_cloth::benchmark_sequence(body, &garment, &material, &motion, &one)
+        .expect("simulates alone");
+    let started = std::time::Instant::now();
+    let runs = sartor_cloth::benchmark_sequences_in_turn(
+        body,
+        &garment,
+        &material,
+        &motion,
+        &[one.clone(), all, one],
+    )
+    .expect("simulates in turn");
+    let wall_ms = started.elapsed().as_secs_f64() * 1e3;
+    assert_eq!(runs.len(), 3);
+    let mut timed_ms = 0.0;
+    for run in &runs {
+        // The simulation does not depend on the turns (nor on the threads).
+        assert_eq!(run.cloth_sha256, alone.cloth_sha256);
+        assert_eq!(run.frames_timed, motion.n_frames());
+        assert_eq!(run.frames_total, alone.frames_total);
+        assert!(run.ms_per_frame > 0.0 && run.max_ms_per_frame >= run.ms_per_frame);
+        timed_ms += run.ms_per_frame * run.frames_timed as f64;
+    }
+    // Each frame's time is its own turn: the three runs' frames add up to less than the wall
+    // time of the whole (had a frame's time included the others' turns, each run's frames
+    // alone would add up to nearly all of it).
+    assert!(
+        timed_ms < wall_ms,
+        "{timed_ms:.1} ms timed in {wall_ms:.1} ms"
+    );
+}
