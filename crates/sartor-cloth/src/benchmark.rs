@@ -1,6 +1,5 @@
 //! Timing the driver on a motion: the figures of `cargo xtask bench sim`.
 
-use std::sync::{Condvar, Mutex, PoisonError};
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -107,145 +106,11 @@ pub fn benchmark_sequence(
     motion: &Motion,
     config: &DriveConfig,
 ) -> Result<SequenceBenchmark> {
-    timed_sequence(body, garment, material, motion, config, &mut || {})
-}
-
-/// [`benchmark_sequence`] for each of `configs`, the sequences simulated side by side a frame
-/// at a time in turn (the first config's frame, the second's, …, then each one's next frame),
-/// so that a machine whose speed drifts over minutes meets every config in the same state: the
-/// ratio of two configs' times (one thread against two) is then measured frame by frame rather
-/// than a minute apart. Each sequence runs on its own thread, and only the one whose turn it is
-/// works; a frame's time runs from its turn's start to its end. Results are those of separate
-/// runs (the simulation does not depend on timing).
-pub fn benchmark_sequences_in_turn(
-    body: &BodyModel,
-    garment: &Garment,
-    material: &Material,
-    motion: &Motion,
-    configs: &[DriveConfig],
-) -> Result<Vec<SequenceBenchmark>> {
-    let turns = Turns::new(configs.len());
-    let results: Vec<Result<SequenceBenchmark>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = configs
-            .iter()
-            .enumerate()
-            .map(|(k, config)| {
-                let turns = &turns;
-                std::thread::Builder::new()
-                    .name(format!("sequence {k}"))
-                    // The main thread's stack, which the one-config benchmark runs on.
-                    .stack_size(8 << 20)
-                    .spawn_scoped(scope, move || {
-                        let _leave = turns.enter(k);
-                        timed_sequence(body, garment, material, motion, config, &mut || {
-                            turns.pass(k);
-                        })
-                    })
-                    .inspect_err(|_| turns.finish(k))
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| match h {
-                Ok(h) => h
-                    .join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
-                Err(e) => Err(crate::Error::invalid(
-                    "benchmark",
-                    format!("no thread for a sequence: {e}"),
-                )),
-            })
-            .collect()
-    });
-    results.into_iter().collect()
-}
-
-/// Whose turn it is among `n` sequences, and which are finished.
-struct Turns {
-    state: Mutex<(usize, Vec<bool>)>,
-    changed: Condvar,
-}
-
-/// Finishes its sequence's turns when dropped (also on a panic), handing on the turn.
-struct Leave<'a>(&'a Turns, usize);
-
-impl Drop for Leave<'_> {
-    fn drop(&mut self) {
-        self.0.finish(self.1);
-    }
-}
-
-impl Turns {
-    fn new(n: usize) -> Self {
-        Self {
-            state: Mutex::new((0, vec![false; n])),
-            changed: Condvar::new(),
-        }
-    }
-
-    /// Wait for sequence `k`'s first turn; the guard ends its turns.
-    fn enter(&self, k: usize) -> Leave<'_> {
-        self.wait(k);
-        Leave(self, k)
-    }
-
-    fn wait(&self, k: usize) {
-        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-        while state.0 != k {
-            state = self
-                .changed
-                .wait(state)
-                .unwrap_or_else(PoisonError::into_inner);
-        }
-    }
-
-    /// Sequence `k` takes no more turns (its turn, if it is, goes on).
-    fn finish(&self, k: usize) {
-        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-        state.1[k] = true;
-        if state.0 == k {
-            Self::hand_on(&mut state, k);
-        }
-        self.changed.notify_all();
-    }
-
-    /// End sequence `k`'s turn and wait for its next.
-    fn pass(&self, k: usize) {
-        {
-            let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-            Self::hand_on(&mut state, k);
-            self.changed.notify_all();
-        }
-        self.wait(k);
-    }
-
-    /// The turn to the next unfinished sequence after `k` (`k` itself if it is the only one).
-    fn hand_on(state: &mut (usize, Vec<bool>), k: usize) {
-        let n = state.1.len();
-        state.0 = (1..=n)
-            .map(|d| (k + d) % n)
-            .find(|&j| !state.1[j])
-            .unwrap_or(usize::MAX);
-    }
-}
-
-/// [`benchmark_sequence`]'s run and summary; `between_frames` is called after each frame's
-/// time is taken and returns when the next frame may start.
-fn timed_sequence(
-    body: &BodyModel,
-    garment: &Garment,
-    material: &Material,
-    motion: &Motion,
-    config: &DriveConfig,
-    between_frames: &mut dyn FnMut(),
-) -> Result<SequenceBenchmark> {
     let betas = vec![0.0; body.n_betas()];
-    let capacity = motion.n_frames() + config.blend_frames + config.rest_frames;
-    // Per frame, its wall and CPU seconds from its turn's start.
-    let mut frame_secs: Vec<f64> = Vec::with_capacity(capacity);
-    let mut frame_cpu: Vec<Option<f64>> = Vec::with_capacity(capacity);
-    let mut started = Instant::now();
-    let mut cpu_started = process_cpu_secs();
+    let mut stamps =
+        Vec::with_capacity(motion.n_frames() + config.blend_frames + config.rest_frames);
+    let mut cpu_stamps = Vec::with_capacity(stamps.capacity());
+    let start = Instant::now();
     let sequence = simulate_sequence(
         body,
         garment,
@@ -255,13 +120,10 @@ fn timed_sequence(
         config,
         &mut |done, _| {
             // A region restart starts again from frame 0: keep the last run's times.
-            frame_secs.truncate(done - 1);
-            frame_secs.push(started.elapsed().as_secs_f64());
-            frame_cpu.truncate(done - 1);
-            frame_cpu.push(process_cpu_secs().zip(cpu_started).map(|(b, a)| b - a));
-            between_frames();
-            started = Instant::now();
-            cpu_started = process_cpu_secs();
+            stamps.truncate(done - 1);
+            stamps.push(start.elapsed().as_secs_f64());
+            cpu_stamps.truncate(done - 1);
+            cpu_stamps.push(process_cpu_secs());
         },
     )?;
     let first_motion = sequence
@@ -269,17 +131,19 @@ fn timed_sequence(
         .iter()
         .position(|f| f.phase == Phase::Motion)
         .unwrap_or(sequence.frames.len());
-    let frame_ms: Vec<f64> = frame_secs[first_motion.min(frame_secs.len())..]
-        .iter()
-        .map(|s| s * 1e3)
+    let frame_ms: Vec<f64> = (first_motion..stamps.len())
+        .map(|i| (stamps[i] - if i == 0 { 0.0 } else { stamps[i - 1] }) * 1e3)
         .collect();
-    // The CPU time of the motion's frames, all the process's threads.
-    let cpu_ms_per_frame = frame_cpu[first_motion.min(frame_cpu.len())..]
-        .iter()
-        .copied()
-        .sum::<Option<f64>>()
-        .filter(|_| !frame_ms.is_empty())
-        .map(|secs| secs * 1e3 / frame_ms.len() as f64);
+    // The CPU time from the end of the last frame before the motion to the end of the last.
+    let cpu_ms_per_frame = match (
+        first_motion.checked_sub(1).and_then(|i| cpu_stamps.get(i)),
+        cpu_stamps.last(),
+    ) {
+        (Some(Some(a)), Some(Some(b))) if !frame_ms.is_empty() => {
+            Some((b - a) * 1e3 / frame_ms.len() as f64)
+        }
+        _ => None,
+    };
     let h = &sequence.header;
     let substeps = h.substeps.total.max(1) as f64;
     let n_frames = sequence.frames.len().max(1) as f64;

@@ -63,9 +63,7 @@ mod self_collision;
 mod sequence;
 mod solver;
 
-pub use benchmark::{
-    SequenceBenchmark, benchmark_sequence, benchmark_sequences_in_turn, folded_hinge_percent,
-};
+pub use benchmark::{SequenceBenchmark, benchmark_sequence, folded_hinge_percent};
 pub use cloth::{Cloth, rectangle_sheet};
 pub use collider::{Collider, Contact, MotionBound, Plane, Sphere};
 pub use drive::{

@@ -8,8 +8,7 @@ use nalgebra::Vector3;
 
 use sartor_cloth::{
     DriveConfig, FrictionModel, Garment, GarmentConfig, LinearSolver, Material, RelaxConfig,
-    SequenceBenchmark, benchmark_sequence, benchmark_sequences_in_turn, build_garment,
-    relax_on_body,
+    SequenceBenchmark, benchmark_sequence, build_garment, relax_on_body,
 };
 use sartor_core::io::read_file;
 use sartor_core::{BodyModel, Parallelism};
@@ -151,11 +150,6 @@ pub struct SimBenchReport {
     pub load_average_after: Option<[f64; 3]>,
     /// Wall time, seconds.
     pub wall_time_s: f64,
-    /// Whether each size's one-thread and all-threads runs took their frames in turn (see
-    /// `benchmark_sequences_in_turn`), so that `all_threads_over_one_thread` compares frames
-    /// timed seconds apart; false for `--single-thread-only`.
-    #[serde(default)]
-    pub threads_in_turn: bool,
     /// Per garment size.
     pub sizes: Vec<SizeEntry>,
 }
@@ -191,42 +185,30 @@ pub fn bench_sim(
             garment.faces().len(),
             garment.positions().len()
         ));
-        // One thread and all threads side by side, a frame of each in turn: their ratio is
-        // then measured in the same seconds, not a minute apart on a machine that drifts.
-        let (single, all) = if args.single_thread_only {
-            let single = benchmark_sequence(body, &garment, &material, motion, &config)
-                .with_context(|| format!("simulating {}", garment.name()))?;
-            (single, None)
-        } else {
-            let mut parallel = config.clone();
-            parallel.sim.parallelism = Parallelism::Rayon;
-            let mut runs = benchmark_sequences_in_turn(
-                body,
-                &garment,
-                &material,
-                motion,
-                &[config.clone(), parallel],
-            )
-            .with_context(|| format!("simulating {} on one and all threads", garment.name()))?;
-            let all = runs.pop().context("the all-threads run")?;
-            let single = runs.pop().context("the one-thread run")?;
-            (single, Some(all))
-        };
+        let single = benchmark_sequence(body, &garment, &material, motion, &config)
+            .with_context(|| format!("simulating {}", garment.name()))?;
         progress.println(&format!(
             "  one thread:  {:.1} ms/frame",
             single.ms_per_frame
         ));
-        if let Some(all) = &all {
-            progress.println(&format!("  all threads: {:.1} ms/frame", all.ms_per_frame));
-            if all.cloth_sha256 != single.cloth_sha256 {
-                progress.println("  all threads: the cloth differs from the one-thread run's");
-            }
-        }
         if let Some(dir) = &args.pictures {
             let path = dir.join(format!("{}.png", garment.name()));
             picture(&path, body, &single, garment.faces())?;
             progress.println(&format!("  picture: {}", path.display()));
         }
+        let all = if args.single_thread_only {
+            None
+        } else {
+            let mut parallel = config.clone();
+            parallel.sim.parallelism = Parallelism::Rayon;
+            let all = benchmark_sequence(body, &garment, &material, motion, &parallel)
+                .with_context(|| format!("simulating {} on all threads", garment.name()))?;
+            progress.println(&format!("  all threads: {:.1} ms/frame", all.ms_per_frame));
+            if all.cloth_sha256 != single.cloth_sha256 {
+                progress.println("  all threads: the cloth differs from the one-thread run's");
+            }
+            Some(all)
+        };
         sizes.push(SizeEntry {
             garment: garment.name().to_string(),
             garment_source: source,
@@ -257,7 +239,6 @@ pub fn bench_sim(
         load_average_before,
         load_average_after: load_average(),
         wall_time_s: started.elapsed().as_secs_f64(),
-        threads_in_turn: !args.single_thread_only,
         sizes,
     };
     Ok(report)
