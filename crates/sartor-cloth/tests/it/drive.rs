@@ -594,6 +594,70 @@ fn both_friction_models_follow_real_motion_capture_at_their_stable_steps() {
     }
 }
 
+/// The largest and the mean distance a vertex moved between two frames, m.
+fn moved_between(a: &[[f32; 3]], b: &[[f32; 3]]) -> (f64, f64) {
+    let distances = a.iter().zip(b).map(|(p, q)| {
+        let d: [f64; 3] = std::array::from_fn(|k| f64::from(q[k] - p[k]));
+        Vector3::from(d).norm()
+    });
+    let (largest, sum) = distances.fold((0.0f64, 0.0), |(m, s), d| (m.max(d), s + d));
+    (largest, sum / a.len() as f64)
+}
+
+#[test]
+fn a_shirt_at_rest_is_held_by_friction() {
+    // A shirt on a standing body, watched for 5 s after a second of settling. The impulse's
+    // static friction holds every vertex within half the contact layer. ARCSim's damper cannot
+    // hold a vertex against a force below the Coulomb limit (it creeps at `F_t Δt / m`, see
+    // `contact.rs`): the shirt goes on settling, but ever more slowly, towards where the cloth's
+    // own elasticity holds it, rather than sliding steadily.
+    let settle = 30;
+    let half = 75;
+    let moved = |model: FrictionModel, mu: f64| {
+        let mut config = quick_config();
+        config.rest_frames = settle + 2 * half + 1;
+        config.preview.every_n_frames = 0;
+        config.sim.friction_model = model;
+        config.sim.friction_coefficient = mu;
+        config.max_step_per_edge_s_per_m = Some(config.stable_step_per_edge_s_per_m());
+        if model == FrictionModel::Implicit {
+            config.substeps_per_frame = IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME;
+        }
+        let seq = simulate(&betas(0.0), None, &config).expect("simulates");
+        let at = |k: usize| &seq.frames[config.blend_frames + settle + k].positions;
+        let first = moved_between(at(0), at(half)).0;
+        let second = moved_between(at(half), at(2 * half)).0;
+        let (whole, mean) = moved_between(at(0), at(2 * half));
+        eprintln!(
+            "{model:?}, μ = {mu}: in {:.0} s at rest the shirt moved {:.3} mm at most ({:.3} \
+             and {:.3} mm in each half), {:.3} mm on average",
+            (2 * half) as f64 / 30.0,
+            whole * 1e3,
+            first * 1e3,
+            second * 1e3,
+            mean * 1e3
+        );
+        (whole, first, second, config.sim.contact_penalty.thickness_m)
+    };
+    let (impulse, _, _, thickness) = moved(FrictionModel::Impulse, 0.3);
+    let (damper, first, second, _) = moved(FrictionModel::Implicit, 0.3);
+    // The control, printed: without friction the shirt is held by its elasticity alone.
+    moved(FrictionModel::Impulse, 0.0);
+    assert!(
+        impulse < 0.5 * thickness,
+        "the impulse let a vertex move {:.2} mm at rest",
+        impulse * 1e3
+    );
+    assert!(
+        second < first,
+        "with the damper the shirt moved {:.2} mm in the second half, {:.2} in the first \
+         ({:.2} in all)",
+        second * 1e3,
+        first * 1e3,
+        damper * 1e3
+    );
+}
+
 #[test]
 fn folded_hinges_are_counted_beyond_a_right_angle_only() {
     // Two triangles on the edge (0, 1), the second turned about it by `angle`.
