@@ -613,6 +613,8 @@ fn a_shirt_at_rest_is_held_by_friction() {
     // own elasticity holds it, rather than sliding steadily.
     let settle = 30;
     let half = 75;
+    // With friction: the config's coefficient (ARCSim's cloth–body 0.3).
+    let mu = quick_config().sim.friction_coefficient;
     let moved = |model: FrictionModel, mu: f64| {
         let mut config = quick_config();
         config.rest_frames = settle + 2 * half + 1;
@@ -639,8 +641,8 @@ fn a_shirt_at_rest_is_held_by_friction() {
         );
         (whole, first, second, config.sim.contact_penalty.thickness_m)
     };
-    let (impulse, _, _, thickness) = moved(FrictionModel::Impulse, 0.3);
-    let (damper, first, second, _) = moved(FrictionModel::Implicit, 0.3);
+    let (impulse, _, _, thickness) = moved(FrictionModel::Impulse, mu);
+    let (damper, first, second, _) = moved(FrictionModel::Implicit, mu);
     // The control, printed: without friction the shirt is held by its elasticity alone.
     moved(FrictionModel::Impulse, 0.0);
     assert!(
