@@ -12,7 +12,7 @@ this script builds the per-frame wrinkle step
                                                   y = pca.mean + pca.basis · y)
     displacement = y · wrinkle_out_std + wrinkle_out_mean
 
-and times it at batch 1, one frame per call, the state carried from frame to frame as a game
+and runs it at batch 1, one frame per call, the state carried from frame to frame as a game
 would, in
 
 - PyTorch eager (`torch.inference_mode`),
@@ -23,16 +23,21 @@ would, in
   `inter_op_num_threads` = 1, called both with `InferenceSession.run` and with an I/O binding
   (preallocated buffers, the state output bound as the next input); the faster is reported.
 
-for each thread count (`torch.set_num_threads` / `intra_op_num_threads`): median ms per frame
-over the timed frames, after warm-up frames. Before timing, every engine runs the stored input
-frames from a zero state and its displacements are compared with sartor's (max abs difference,
-metres).
+for each thread count (`torch.set_num_threads` / `intra_op_num_threads`). First every engine
+runs the stored input frames from a zero state and its displacements are compared with sartor's
+(max abs difference, metres).
 
 The inputs file (safetensors, f32): `inputs` [T, I] raw wrinkle inputs in the model's layout,
 `outputs` [T, 3V] sartor's f32 displacements for them (zero initial state).
 
-Output: one JSON document, on stdout or to `--out`. `--check` only checks that the Python
-packages are importable (exit status 3 and an install hint on stderr when they are not).
+Output: one JSON line on stdout with the set-up (versions, the ONNX export, each engine's
+agreement or error); then the script answers timing requests on stdin, one JSON line each
+(`{"threads": t, "frames": f}` → the median and mean ms per frame of every working engine at
+`t` threads over `f` frames after the warm-up frames), until stdin closes. The caller times
+sartor's own step between the requests, so that every round of the comparison is taken within
+seconds (on a VM whose speed drifts over minutes, timings a minute apart disagreed by a third).
+`--check` only checks that the Python packages are importable (exit status 3 and an install hint
+on stderr when they are not).
 
 Install (a plain `pip install torch` pulls about 5 GB of CUDA packages; fine for a benchmark
 venv):
@@ -52,7 +57,7 @@ import time
 import traceback
 
 FORMAT = "sartor-anchors"
-VERSION = 1
+VERSION = 2
 PACKAGES = ["numpy", "safetensors", "torch", "onnx", "onnxruntime"]
 INSTALL_HINT = (
     "python3 -m venv .venv-anchors && "
@@ -277,31 +282,6 @@ def timing(engine, inputs, warmup, frames):
     return median(ms), sum(ms) / len(ms)
 
 
-def measure(engine_name, make, inputs, want, warmup, frames, threads, extra=None):
-    """One report entry: agreement then timing, or the error text."""
-    entry = {"engine": engine_name, "threads": threads}
-    entry.update(extra or {})
-    try:
-        start = time.perf_counter()
-        engine = make()
-        entry["max_abs_diff"] = agreement(engine, inputs, want)
-        entry["setup_s"] = time.perf_counter() - start
-        entry["ms_per_frame"], entry["ms_per_frame_mean"] = timing(engine, inputs, warmup, frames)
-        entry["error"] = None
-    except Exception as e:  # noqa: BLE001 - recorded in the report, as the brief asks
-        entry["ms_per_frame"] = None
-        entry["error"] = error_text(e)
-        entry["traceback_tail"] = traceback.format_exc()[-MAX_ERROR_CHARS:]
-    print(
-        f"  anchors {engine_name} {threads} thread(s): "
-        + (f"{entry['ms_per_frame']:.4f} ms/frame, max abs diff {entry['max_abs_diff']:.2e}"
-           if entry["error"] is None else f"failed: {entry['error'][:200]}"),
-        file=sys.stderr,
-        flush=True,
-    )
-    return entry
-
-
 def export_onnx(step, n_in, hidden, path):
     """Export the step; returns (exporter name, None) or (None, error text)."""
     import torch
@@ -322,15 +302,99 @@ def export_onnx(step, n_in, hidden, path):
     return None, " | ".join(errors)
 
 
+def build_engines(args, threads, step, n_in, hidden, n_out, inputs, want, onnx_path, export_error):
+    """Every engine at every thread count, each checked against sartor's outputs: a list of
+    entries (`engine`, `threads`, `call` for ONNX Runtime, `max_abs_diff`, `setup_s`, `error`)
+    and, for those that work, the engine object under `obj`."""
+    import copy
+
+    import onnxruntime as ort
+    import torch
+
+    entries = []
+
+    def add(name, t, make, extra=None):
+        entry = {"engine": name, "threads": t}
+        entry.update(extra or {})
+        try:
+            start = time.perf_counter()
+            torch.set_num_threads(t)
+            with torch.inference_mode():
+                engine = make()
+                entry["max_abs_diff"] = agreement(engine, inputs, want)
+            entry["setup_s"] = time.perf_counter() - start
+            entry["error"] = None
+            entry["obj"] = engine
+        except Exception as e:  # noqa: BLE001 - recorded in the report, as the brief asks
+            entry["error"] = error_text(e)
+            entry["traceback_tail"] = traceback.format_exc()[-MAX_ERROR_CHARS:]
+        print(
+            f"  anchors {name} {t} thread(s): "
+            + (f"ready, max abs diff {entry['max_abs_diff']:.2e}"
+               if entry["error"] is None else f"failed: {entry['error'][:200]}"),
+            file=sys.stderr,
+            flush=True,
+        )
+        entries.append(entry)
+
+    for t in threads:
+        add("pytorch_eager", t, lambda: TorchEngine(step, hidden))
+        if args.no_compile:
+            entries.append({"engine": "pytorch_compiled", "threads": t, "error": "skipped (--no-compile)"})
+        else:
+            # A copy of the module per thread count: Inductor builds the thread count into the
+            # code it generates, and Dynamo keeps one compiled entry per module object.
+            add("pytorch_compiled", t,
+                lambda: TorchEngine(torch.compile(copy.deepcopy(step), fullgraph=True, dynamic=False), hidden))
+        if export_error is not None:
+            entries.append({"engine": "onnxruntime", "threads": t, "error": "ONNX export failed: " + export_error})
+            continue
+
+        def session(t=t):
+            options = ort.SessionOptions()
+            options.intra_op_num_threads = t
+            options.inter_op_num_threads = 1
+            options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+            return ort.InferenceSession(onnx_path, options, providers=["CPUExecutionProvider"])
+
+        add("onnxruntime", t, lambda: OrtRunEngine(session(), hidden), {"call": "run"})
+        add("onnxruntime", t, lambda: OrtBindingEngine(session(), hidden, n_out), {"call": "io_binding"})
+    return entries
+
+
+def serve(entries, inputs, warmup):
+    """Answer timing requests on stdin until it closes: each line a JSON object `{"threads": t,
+    "frames": f}`; each answer one JSON line `{"threads": t, "times": [...]}` with the median
+    and mean ms per frame of every working engine at `t` threads over `f` frames after `warmup`
+    (the state reset first)."""
+    import torch
+
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        request = json.loads(line)
+        t, frames = int(request["threads"]), int(request["frames"])
+        torch.set_num_threads(t)
+        times = []
+        with torch.inference_mode():
+            for e in entries:
+                if e["threads"] != t or e.get("obj") is None:
+                    continue
+                median_ms, mean_ms = timing(e["obj"], inputs, warmup, frames)
+                times.append({"engine": e["engine"], "call": e.get("call"),
+                              "ms_per_frame": median_ms, "ms_per_frame_mean": mean_ms})
+        print(json.dumps({"threads": t, "times": times}), flush=True)
+
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", help="exported sartor model folder")
     parser.add_argument("--io", help="safetensors with `inputs` [T, I] and sartor's `outputs` [T, 3V]")
     parser.add_argument("--threads", default="1,2", help="comma-separated thread counts")
-    parser.add_argument("--warmup", type=int, default=50, help="untimed frames before timing")
-    parser.add_argument("--frames", type=int, default=500, help="timed frames")
+    parser.add_argument("--warmup", type=int, default=50, help="untimed frames before each timing")
     parser.add_argument("--no-compile", action="store_true", help="skip torch.compile")
-    parser.add_argument("--out", help="write the JSON here instead of stdout")
     parser.add_argument("--check", action="store_true", help="only check the Python packages")
     args = parser.parse_args()
 
@@ -342,7 +406,6 @@ def main():
         parser.error("--model and --io are required (unless --check)")
 
     import numpy as np
-    import onnxruntime as ort
     import torch
     from safetensors.numpy import load_file
 
@@ -366,12 +429,8 @@ def main():
         "processor": platform.processor() or platform.machine(),
         "frames_checked": int(inputs.shape[0]),
         "warmup_frames": args.warmup,
-        "timed_frames": args.frames,
         "max_abs_output": float(np.max(np.abs(want))),
-        "engines": [],
     }
-    entries = report["engines"]
-
     with tempfile.TemporaryDirectory(prefix="sartor-anchors-") as tmp:
         onnx_path = os.path.join(tmp, "step.onnx")
         start = time.perf_counter()
@@ -381,59 +440,11 @@ def main():
             "error": export_error,
             "seconds": time.perf_counter() - start,
         }
-
-        for n_threads in threads:
-            torch.set_num_threads(n_threads)
-            with torch.inference_mode():
-                entries.append(
-                    measure("pytorch_eager", lambda: TorchEngine(step, hidden), inputs, want,
-                            args.warmup, args.frames, n_threads)
-                )
-                if args.no_compile:
-                    entries.append({"engine": "pytorch_compiled", "threads": n_threads,
-                                    "ms_per_frame": None, "error": "skipped (--no-compile)"})
-                else:
-                    def compiled():
-                        torch._dynamo.reset()
-                        return TorchEngine(torch.compile(step, fullgraph=True, dynamic=False), hidden)
-
-                    entries.append(measure("pytorch_compiled", compiled, inputs, want,
-                                           args.warmup, args.frames, n_threads))
-
-            if export_error is not None:
-                entries.append({"engine": "onnxruntime", "threads": n_threads, "ms_per_frame": None,
-                                "error": "ONNX export failed: " + export_error})
-                continue
-
-            def session():
-                options = ort.SessionOptions()
-                options.intra_op_num_threads = n_threads
-                options.inter_op_num_threads = 1
-                options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-                options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-                return ort.InferenceSession(onnx_path, options, providers=["CPUExecutionProvider"])
-
-            calls = [
-                measure("onnxruntime", lambda: OrtRunEngine(session(), hidden), inputs, want,
-                        args.warmup, args.frames, n_threads, {"call": "run"}),
-                measure("onnxruntime", lambda: OrtBindingEngine(session(), hidden, n_out), inputs,
-                        want, args.warmup, args.frames, n_threads, {"call": "io_binding"}),
-            ]
-            ok = [c for c in calls if c["ms_per_frame"] is not None]
-            best = min(ok, key=lambda c: c["ms_per_frame"]) if ok else calls[0]
-            best = dict(best)
-            best["other_calls"] = [
-                {"call": c["call"], "ms_per_frame": c["ms_per_frame"], "error": c["error"]}
-                for c in calls if c is not best and c["call"] != best["call"]
-            ]
-            entries.append(best)
-
-    text = json.dumps(report, indent=2)
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as f:
-            f.write(text + "\n")
-    else:
-        print(text)
+        entries = build_engines(args, threads, step, n_in, hidden, n_out, inputs, want, onnx_path, export_error)
+        report["engines"] = [{k: v for k, v in e.items() if k != "obj"} for e in entries]
+        # The set-up, then timings on request (see `serve`).
+        print(json.dumps(report), flush=True)
+        serve(entries, inputs, args.warmup)
 
 
 if __name__ == "__main__":

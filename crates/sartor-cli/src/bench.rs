@@ -162,9 +162,14 @@ pub struct RuntimeBenchArgs {
     /// Frames before timing, for every anchor and sartor's network step.
     #[arg(long, default_value_t = 50)]
     pub anchors_warmup: usize,
-    /// Frames timed, for every anchor and sartor's network step.
+    /// Frames timed, for every anchor and sartor's network step, per round.
     #[arg(long, default_value_t = 500)]
     pub anchors_frames: usize,
+    /// Rounds of the anchors' comparison: in each, sartor, the floor and every anchor are
+    /// timed seconds apart, and the report's ratios are medians over the rounds of the ratios
+    /// within a round (a machine whose speed drifts over minutes then tilts them less).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
+    pub anchors_rounds: u64,
 }
 
 /// Environment variable naming the anchors' Python (`--anchors-python` overrides it).
@@ -187,6 +192,7 @@ impl RuntimeBenchArgs {
             threads: vec![1, 2],
             warmup: self.anchors_warmup,
             frames: self.anchors_frames,
+            rounds: usize::try_from(self.anchors_rounds).unwrap_or(1),
             check_frames: 60,
         })
     }

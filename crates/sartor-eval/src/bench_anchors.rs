@@ -7,16 +7,24 @@
 //!    folder: `inputs` `[T, I]` (seeded random raw wrinkle inputs, `mean + std · u`,
 //!    `u ∈ [−1, 1]`) and `outputs` `[T, 3V]`, sartor's f32 displacements for them from a zero
 //!    state;
-//! 2. times sartor's own wrinkle step ([`GarmentNetwork::wrinkle_step`]: normalisation, GRU,
-//!    output layer, denormalisation) at batch 1, one frame per call, the state carried, in f32,
-//!    f16 and int8, on 1 and 2 threads (a rayon pool of exactly that many threads);
-//! 3. measures a memory-bandwidth floor: the time to stream the step's weight bytes once (a
-//!    sum over a buffer of exactly that many bytes, median of many repetitions), for each
-//!    precision's weight size and thread count;
-//! 4. runs `bench/anchors.py` (PyTorch eager and compiled, ONNX Runtime; see the script's
-//!    docs), which checks its outputs against sartor's and reports median ms per frame;
-//! 5. records ms per frame per engine and thread count, and the ratios sartor / anchor for
-//!    sartor's f32 and for its fastest precision, and sartor / floor.
+//! 2. starts `bench/anchors.py` (PyTorch eager and compiled, ONNX Runtime; see the script's
+//!    docs), which builds every engine and checks its outputs against sartor's, then answers
+//!    timing requests;
+//! 3. in each of [`AnchorOptions::rounds`] rounds, per thread count (1 and 2; sartor on a rayon
+//!    pool of exactly that many threads): times sartor's own wrinkle step
+//!    ([`GarmentNetwork::wrinkle_step`]: normalisation, GRU, output layer, denormalisation) at
+//!    batch 1, one frame per call, the state carried, in f32, f16 and int8; measures a
+//!    memory-bandwidth floor, the time to stream each precision's weight bytes once (a sum over
+//!    a buffer of exactly that many bytes, median of many repetitions); and asks the script
+//!    to time every anchor the same way;
+//! 4. records ms per frame per engine and thread count (the median over the rounds), and the
+//!    ratios sartor / anchor for sartor's f32 and for its fastest precision, and sartor /
+//!    floor, each the median over the rounds of the ratio within a round.
+//!
+//! Rounds, because the 2-core VMs this was built on drift: timings a minute apart disagreed by
+//! a third (the paper-size f32 step on two threads read 1.77 ms before a minute of anchors and
+//! 1.16 after them, 2026-12-01), and a comparison of engines timed minutes apart measured the
+//! machine as much as the engines. Within a round, sartor and the anchors run seconds apart.
 //!
 //! The anchors need Python with torch, onnx, onnxruntime, numpy and safetensors
 //! ([`ANCHORS_INSTALL`]); when they are missing, [`check_anchors`] fails with that hint.
@@ -67,14 +75,16 @@ pub struct AnchorOptions {
     pub threads: Vec<usize>,
     /// Untimed frames before timing, every engine.
     pub warmup: usize,
-    /// Timed frames, every engine.
+    /// Timed frames, every engine, per round.
     pub frames: usize,
+    /// Rounds of the comparison (see the module docs).
+    pub rounds: usize,
     /// Input frames whose outputs every engine checks against sartor's (from a zero state);
     /// the timed frames cycle through them.
     pub check_frames: usize,
 }
 
-/// One engine of the script's output.
+/// One engine of the script's set-up line.
 #[derive(Clone, Debug, Deserialize)]
 struct ScriptEntry {
     engine: String,
@@ -82,12 +92,26 @@ struct ScriptEntry {
     /// How ONNX Runtime was called (`run` or `io_binding`); absent for torch.
     #[serde(default)]
     call: Option<String>,
-    ms_per_frame: Option<f64>,
-    #[serde(default)]
-    ms_per_frame_mean: Option<f64>,
     #[serde(default)]
     max_abs_diff: Option<f64>,
     error: Option<String>,
+}
+
+/// One timing of one engine in the script's answer to a request.
+#[derive(Clone, Debug, Deserialize)]
+struct ScriptTime {
+    engine: String,
+    #[serde(default)]
+    call: Option<String>,
+    ms_per_frame: f64,
+    ms_per_frame_mean: f64,
+}
+
+/// The script's answer to one timing request: every working engine at `threads`.
+#[derive(Clone, Debug, Deserialize)]
+struct ScriptTimes {
+    threads: usize,
+    times: Vec<ScriptTime>,
 }
 
 /// The ONNX export's outcome.
@@ -97,7 +121,7 @@ struct OnnxExport {
     error: Option<String>,
 }
 
-/// The script's JSON (see `bench/anchors.py`).
+/// The script's set-up line (see `bench/anchors.py`).
 #[derive(Clone, Debug, Deserialize)]
 struct ScriptOutput {
     format: String,
@@ -120,12 +144,10 @@ struct ScriptCheck {
 #[derive(Clone, Debug, Serialize)]
 struct SartorTime {
     precision: &'static str,
-    /// The mean of `ms_per_frame_before` and `ms_per_frame_after`: the ratios use it.
+    /// The median over the rounds of `ms_per_frame_rounds`.
     ms_per_frame: f64,
-    /// Median over the timed frames, timed just before the anchors.
-    ms_per_frame_before: f64,
-    /// The same, timed again just after them.
-    ms_per_frame_after: f64,
+    /// Each round's median over the timed frames.
+    ms_per_frame_rounds: Vec<f64>,
 }
 
 /// The memory-bandwidth floor of one precision's weights.
@@ -134,20 +156,17 @@ struct Floor {
     precision: &'static str,
     /// Weight bytes the step reads per frame (GRU and output layer, int8 scales included).
     bytes: usize,
-    /// Median ms to stream that many bytes once: the mean of `ms_before` and `ms_after`, as
-    /// sartor's `ms_per_frame` is (so that `sartor_*_over_floor` compares times taken at the
-    /// same moments).
+    /// Median ms to stream that many bytes once: the median over the rounds of `ms_rounds`.
     ms: f64,
-    /// The fastest of the four ways, measured just before the anchors (the four below are
-    /// that measurement's).
-    ms_before: f64,
-    /// The same, measured again just after them.
-    ms_after: f64,
+    /// Each round's floor: the fastest of the four ways below, measured in that round
+    /// beside sartor's step.
+    ms_rounds: Vec<f64>,
     /// Implied bandwidth, GB/s (10^9 bytes).
     gb_per_s: f64,
-    /// The same from a buffer in ordinary (4 KiB) pages.
+    /// From a buffer in ordinary (4 KiB) pages (the median over the rounds, as the three
+    /// below).
     ms_small_pages: f64,
-    /// The same from a buffer advised to huge pages (Linux only; `None` elsewhere).
+    /// From a buffer advised to huge pages (Linux only; `None` elsewhere).
     ms_huge_pages: Option<f64>,
     /// `ms_small_pages` with each stream prefetched [`PREFETCH_AHEAD_BYTES`] ahead (x86-64
     /// only), as sartor's f16 rows and, on Intel CPUs, its f32 rows are read.
@@ -161,8 +180,12 @@ struct Floor {
 struct AnchorTime {
     engine: String,
     call: Option<String>,
-    /// Median; `None` where the engine failed (see `error`).
+    /// The median over the rounds of `ms_per_frame_rounds`; `None` where the engine failed
+    /// (see `error`).
     ms_per_frame: Option<f64>,
+    /// Each round's median over the timed frames.
+    ms_per_frame_rounds: Vec<f64>,
+    /// The median over the rounds of each round's mean.
     ms_per_frame_mean: Option<f64>,
     /// Against sartor's f32 displacements over the checked frames, metres.
     max_abs_diff_m: Option<f64>,
@@ -170,9 +193,10 @@ struct AnchorTime {
     /// disagrees times another computation and is never the best anchor.
     agrees_with_sartor: Option<bool>,
     error: Option<String>,
-    /// sartor f32 / this anchor (below 1: sartor is faster).
+    /// sartor f32 / this anchor, the median over the rounds of the ratio within a round
+    /// (below 1: sartor is faster).
     ratio_f32: Option<f64>,
-    /// sartor's fastest precision / this anchor.
+    /// sartor's fastest precision / this anchor, the same way.
     ratio_fastest: Option<f64>,
 }
 
@@ -183,16 +207,23 @@ struct ThreadAnchors {
     sartor: Vec<SartorTime>,
     fastest_precision: &'static str,
     floor: Vec<Floor>,
-    /// sartor f32 / the f32 floor (1: at the bandwidth).
+    /// sartor f32 / the f32 floor (1: at the bandwidth), the median over the rounds of the
+    /// ratio within a round.
     sartor_f32_over_floor: Option<f64>,
-    /// sartor's fastest precision / the floor of that precision's weight bytes.
+    /// sartor's fastest precision / the floor of that precision's weight bytes, the same way.
     sartor_fastest_over_floor: Option<f64>,
     anchors: Vec<AnchorTime>,
     /// The fastest anchor that ran and agrees with sartor.
     best_anchor: Option<String>,
     best_anchor_ms_per_frame: Option<f64>,
+    /// sartor f32 / the best anchor: the median of `ratio_f32_to_best_anchor_rounds`.
     ratio_f32_to_best_anchor: Option<f64>,
+    /// sartor's fastest precision / the best anchor, the same way.
     ratio_fastest_to_best_anchor: Option<f64>,
+    /// sartor f32 / the best anchor within each round.
+    ratio_f32_to_best_anchor_rounds: Vec<f64>,
+    /// sartor's fastest precision / the best anchor within each round.
+    ratio_fastest_to_best_anchor_rounds: Vec<f64>,
 }
 
 /// sartor's f16 or int8 displacements against its f32 ones over the checked frames.
@@ -235,6 +266,7 @@ pub struct AnchorsReport {
     warmup_frames: usize,
     timed_frames: usize,
     check_frames: usize,
+    rounds: usize,
     models: Vec<ModelAnchors>,
     notes: Vec<&'static str>,
 }
@@ -296,6 +328,121 @@ fn run_script(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<Stri
         );
     }
     Ok(String::from_utf8_lossy(&output.stdout).into_owned())
+}
+
+/// The anchors script running as a server (see `bench/anchors.py`): its set-up line read, it
+/// answers timing requests until its stdin closes. Its stderr (progress and errors) goes to
+/// ours. Killed when dropped before [`Server::finish`].
+struct Server {
+    child: std::process::Child,
+    stdin: Option<std::process::ChildStdin>,
+    stdout: std::io::BufReader<std::process::ChildStdout>,
+    what: String,
+}
+
+impl Server {
+    /// Start the script with `args`; returns it and its set-up line.
+    fn start(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<(Self, String)> {
+        ensure!(
+            options.script.is_file(),
+            "anchors script {} not found (run from the repository, or pass --anchors-script)",
+            options.script.display()
+        );
+        let mut child = Command::new(&options.python)
+            .arg(&options.script)
+            .args(args)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .map_err(|e| {
+                Error::Invalid(format!(
+                    "could not start {}: {e}; {}",
+                    options.python.display(),
+                    install_hint(&options.python)
+                ))
+            })?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            bail!(
+                "{}: no pipes to the anchors script",
+                options.python.display()
+            );
+        };
+        let mut server = Self {
+            child,
+            stdin: Some(stdin),
+            stdout: std::io::BufReader::new(stdout),
+            what: format!("{} {}", options.python.display(), options.script.display()),
+        };
+        let setup = server.line()?;
+        Ok((server, setup))
+    }
+
+    /// The script's next line; a clear error when it has ended instead.
+    fn line(&mut self) -> Result<String> {
+        use std::io::BufRead;
+        let mut line = String::new();
+        let n = self
+            .stdout
+            .read_line(&mut line)
+            .with_context(|| format!("{}: reading its answer", self.what))?;
+        if n == 0 {
+            let status = self
+                .child
+                .wait()
+                .map_or_else(|e| e.to_string(), |s| s.to_string());
+            bail!(
+                "{} ended without answering ({status}); see its output above",
+                self.what
+            );
+        }
+        Ok(line)
+    }
+
+    /// Time every working engine at `threads` threads over `frames` frames.
+    fn time(&mut self, threads: usize, frames: usize) -> Result<ScriptTimes> {
+        use std::io::Write;
+        let stdin = self
+            .stdin
+            .as_mut()
+            .context("the anchors script has finished")?;
+        writeln!(stdin, "{{\"threads\": {threads}, \"frames\": {frames}}}")
+            .and_then(|()| stdin.flush())
+            .with_context(|| format!("{}: sending a timing request", self.what))?;
+        let line = self.line()?;
+        let answer: ScriptTimes = serde_json::from_str(&line)
+            .with_context(|| format!("{}: its answer {:?}", self.what, line.trim()))?;
+        ensure!(
+            answer.threads == threads,
+            "{} answered for {} thread(s), {threads} were asked for",
+            self.what,
+            answer.threads
+        );
+        Ok(answer)
+    }
+
+    /// Close its stdin and wait for it to end; an error unless it ends well.
+    fn finish(mut self) -> Result<()> {
+        drop(self.stdin.take());
+        let status = self
+            .child
+            .wait()
+            .with_context(|| format!("{}: waiting for it to end", self.what))?;
+        ensure!(
+            status.success(),
+            "{} failed at the end ({status})",
+            self.what
+        );
+        Ok(())
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if self.stdin.is_some() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
 }
 
 /// Check that the script runs and its Python packages import; returns their versions. Run
@@ -641,73 +788,136 @@ fn ratio(a: f64, b: Option<f64>) -> Option<f64> {
     b.filter(|b| *b > 0.0 && b.is_finite()).map(|b| a / b)
 }
 
-/// Combine sartor's timings, the floors and the script's entries at one thread count: the
-/// fastest precision, the ratios to every anchor and to the fastest one, and to the floor.
-/// `max_abs_output_m` is the scale of the agreement check.
+/// The ratios `a[r] / b[r]` of the rounds (none where `b` is not positive).
+fn round_ratios(a: &[f64], b: &[f64]) -> Vec<f64> {
+    a.iter()
+        .zip(b)
+        .filter_map(|(&a, &b)| ratio(a, Some(b)))
+        .collect()
+}
+
+/// The median of the rounds' ratios `a[r] / b[r]`; `None` without a round.
+fn paired(a: &[f64], b: &[f64]) -> Option<f64> {
+    let r = round_ratios(a, b);
+    (!r.is_empty()).then(|| median(&r))
+}
+
+/// Combine sartor's timings, the floors, the script's engines and its answers at one thread
+/// count (`answers`: one per round, in the order of sartor's rounds): the fastest precision,
+/// the ratios to every anchor and to the fastest one, and to the floor, each the median over
+/// the rounds of the ratio within a round. `max_abs_output_m` is the scale of the agreement
+/// check.
 fn thread_anchors(
     threads: usize,
     sartor: Vec<SartorTime>,
     floor: Vec<Floor>,
     entries: &[ScriptEntry],
+    answers: &[ScriptTimes],
     max_abs_output_m: f64,
 ) -> Result<ThreadAnchors> {
-    let f32_ms = sartor
+    let rounds = answers.len();
+    ensure!(
+        sartor.iter().all(|s| s.ms_per_frame_rounds.len() == rounds)
+            && floor.iter().all(|f| f.ms_rounds.len() == rounds)
+            && answers.iter().all(|a| a.threads == threads),
+        "the rounds of sartor, the floor and the anchors at {threads} thread(s) differ"
+    );
+    let f32_rounds = &sartor
         .iter()
         .find(|s| s.precision == Precision::F32.name())
-        .map(|s| s.ms_per_frame)
-        .context("no f32 timing of sartor")?;
+        .context("no f32 timing of sartor")?
+        .ms_per_frame_rounds;
     let fastest = sartor
         .iter()
         .min_by(|a, b| a.ms_per_frame.total_cmp(&b.ms_per_frame))
         .context("no timing of sartor")?
         .clone();
-    let floor_of = |p: &str| floor.iter().find(|f| f.precision == p).map(|f| f.ms);
+    let floor_of = |p: &str| {
+        floor
+            .iter()
+            .find(|f| f.precision == p)
+            .map(|f| f.ms_rounds.as_slice())
+    };
     let anchors: Vec<AnchorTime> = entries
         .iter()
         .filter(|e| e.threads == threads)
-        .map(|e| AnchorTime {
-            engine: e.engine.clone(),
-            call: e.call.clone(),
-            ms_per_frame: e.ms_per_frame,
-            ms_per_frame_mean: e.ms_per_frame_mean,
-            max_abs_diff_m: e.max_abs_diff,
-            agrees_with_sartor: e
-                .max_abs_diff
-                .map(|d| d <= AGREEMENT_TOLERANCE * max_abs_output_m),
-            error: e.error.clone(),
-            ratio_f32: ratio(f32_ms, e.ms_per_frame),
-            ratio_fastest: ratio(fastest.ms_per_frame, e.ms_per_frame),
+        .map(|e| {
+            let timed: Vec<&ScriptTime> = if e.error.is_some() {
+                Vec::new()
+            } else {
+                answers
+                    .iter()
+                    .filter_map(|a| {
+                        a.times
+                            .iter()
+                            .find(|t| t.engine == e.engine && t.call == e.call)
+                    })
+                    .collect()
+            };
+            let ms: Vec<f64> = timed.iter().map(|t| t.ms_per_frame).collect();
+            let means: Vec<f64> = timed.iter().map(|t| t.ms_per_frame_mean).collect();
+            let complete = rounds > 0 && ms.len() == rounds;
+            AnchorTime {
+                engine: e.engine.clone(),
+                call: e.call.clone(),
+                ms_per_frame: complete.then(|| median(&ms)),
+                ms_per_frame_mean: complete.then(|| median(&means)),
+                max_abs_diff_m: e.max_abs_diff,
+                agrees_with_sartor: e
+                    .max_abs_diff
+                    .map(|d| d <= AGREEMENT_TOLERANCE * max_abs_output_m),
+                error: match (&e.error, complete) {
+                    (Some(err), _) => Some(err.clone()),
+                    (None, false) => Some(format!("timed in {} of {rounds} rounds", ms.len())),
+                    (None, true) => None,
+                },
+                ratio_f32: paired(f32_rounds, &ms).filter(|_| complete),
+                ratio_fastest: paired(&fastest.ms_per_frame_rounds, &ms).filter(|_| complete),
+                ms_per_frame_rounds: ms,
+            }
         })
         .collect();
     let best = anchors
         .iter()
         .filter(|a| a.agrees_with_sartor == Some(true))
         .filter_map(|a| a.ms_per_frame.map(|ms| (a, ms)))
-        .min_by(|a, b| a.1.total_cmp(&b.1));
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|b| b.0);
+    let best_rounds = best.map_or(&[][..], |b| b.ms_per_frame_rounds.as_slice());
     Ok(ThreadAnchors {
         threads,
         fastest_precision: fastest.precision,
-        sartor_f32_over_floor: ratio(f32_ms, floor_of(Precision::F32.name())),
-        sartor_fastest_over_floor: ratio(fastest.ms_per_frame, floor_of(fastest.precision)),
-        best_anchor: best.map(|(a, _)| match &a.call {
+        sartor_f32_over_floor: floor_of(Precision::F32.name()).and_then(|f| paired(f32_rounds, f)),
+        sartor_fastest_over_floor: floor_of(fastest.precision)
+            .and_then(|f| paired(&fastest.ms_per_frame_rounds, f)),
+        best_anchor: best.map(|a| match &a.call {
             Some(c) => format!("{} ({c})", a.engine),
             None => a.engine.clone(),
         }),
-        best_anchor_ms_per_frame: best.map(|b| b.1),
-        ratio_f32_to_best_anchor: ratio(f32_ms, best.map(|b| b.1)),
-        ratio_fastest_to_best_anchor: ratio(fastest.ms_per_frame, best.map(|b| b.1)),
+        best_anchor_ms_per_frame: best.and_then(|b| b.ms_per_frame),
+        ratio_f32_to_best_anchor: paired(f32_rounds, best_rounds),
+        ratio_fastest_to_best_anchor: paired(&fastest.ms_per_frame_rounds, best_rounds),
+        ratio_f32_to_best_anchor_rounds: round_ratios(f32_rounds, best_rounds),
+        ratio_fastest_to_best_anchor_rounds: round_ratios(
+            &fastest.ms_per_frame_rounds,
+            best_rounds,
+        ),
         sartor,
         floor,
         anchors,
     })
 }
 
-/// Parse and check the script's JSON for a model of `sizes` over `check_frames` frames.
+/// The version of the script's protocol (a set-up line, then answers to timing requests).
+const SCRIPT_VERSION: u32 = 2;
+
+/// Parse and check the script's set-up line for a model over `check_frames` frames.
 fn parse_script_output(text: &str, check_frames: usize) -> Result<ScriptOutput> {
     let out: ScriptOutput = serde_json::from_str(text).context("the anchors script's JSON")?;
     ensure!(
-        out.format == SCRIPT_FORMAT && out.version == 1,
-        "the anchors script wrote format {:?} version {}, expected {SCRIPT_FORMAT:?} 1",
+        out.format == SCRIPT_FORMAT && out.version == SCRIPT_VERSION,
+        "the anchors script wrote format {:?} version {}, expected {SCRIPT_FORMAT:?} \
+         {SCRIPT_VERSION}",
         out.format,
         out.version
     );
@@ -753,49 +963,20 @@ fn model_anchors(
         precision_errors.push(precision_error(n.precision(), &outputs(n, &x)?, &want));
     }
 
-    // sartor's step and the floor at every thread count and precision: (ms, floor) per
-    // precision, per thread count.
-    let time_all = |when: &str| -> Result<Vec<Vec<(f64, StreamFloor)>>> {
-        let mut all = Vec::new();
-        for &threads in &options.threads {
-            let mut row = Vec::new();
-            for n in &networks {
-                let ms = time_step(n, &x, threads, options.warmup, options.frames)?;
-                let bytes = n.wrinkle_weight_bytes();
-                let streams = stream_floor(bytes, threads, floor_reps(bytes))?;
-                progress.println(&format!(
-                    "  anchors {} sartor {:>4} {threads} thread(s), {when}: {ms:.4} ms/frame; \
-                     floor {:.4} ms for {:.1} MB",
-                    m.name,
-                    n.precision().name(),
-                    streams.ms(),
-                    bytes as f64 / 1e6
-                ));
-                row.push((ms, streams));
-            }
-            all.push(row);
-        }
-        Ok(all)
-    };
-    // Timed on both sides of the anchors, which run a minute or more: a machine whose memory
-    // or two-thread speed drifts over minutes (the 2-core AMD EPYC VM's two-thread step moved
-    // by half between runs minutes apart) then tilts the ratios less.
-    let before = time_all("before the anchors")?;
-
-    progress.println(&format!(
-        "  anchors {}: running {} (PyTorch eager and compiled, ONNX Runtime; a few minutes)",
-        m.name,
-        options.script.display()
-    ));
-    let out_path = tmp.join(format!("{}-anchors.json", m.name));
     let threads_arg = options
         .threads
         .iter()
         .map(usize::to_string)
         .collect::<Vec<_>>()
         .join(",");
-    let (warmup, frames) = (options.warmup.to_string(), options.frames.to_string());
-    run_script(
+    let warmup = options.warmup.to_string();
+    progress.println(&format!(
+        "  anchors {}: starting {} (PyTorch eager and compiled, ONNX Runtime: export, compile \
+         and agreement first, a minute or two)",
+        m.name,
+        options.script.display()
+    ));
+    let (mut server, setup) = Server::start(
         options,
         &[
             "--model".as_ref(),
@@ -806,49 +987,92 @@ fn model_anchors(
             threads_arg.as_ref(),
             "--warmup".as_ref(),
             warmup.as_ref(),
-            "--frames".as_ref(),
-            frames.as_ref(),
-            "--out".as_ref(),
-            out_path.as_os_str(),
         ],
     )?;
-    let after = time_all("after the anchors")?;
-    let mut per_thread = Vec::new();
-    for ((&threads, before), after) in options.threads.iter().zip(before).zip(after) {
+    let script = parse_script_output(&setup, options.check_frames)?;
+
+    // Per thread count: sartor's step per precision, the floor per precision and the
+    // anchors' answer, round by round.
+    let n_threads = options.threads.len();
+    let mut sartor_ms = vec![vec![Vec::new(); networks.len()]; n_threads];
+    let mut floors: Vec<Vec<Vec<StreamFloor>>> = vec![vec![Vec::new(); networks.len()]; n_threads];
+    let mut answers = vec![Vec::new(); n_threads];
+    for round in 0..options.rounds {
+        for (i, &threads) in options.threads.iter().enumerate() {
+            for (k, n) in networks.iter().enumerate() {
+                let ms = time_step(n, &x, threads, options.warmup, options.frames)?;
+                let bytes = n.wrinkle_weight_bytes();
+                let streams = stream_floor(bytes, threads, floor_reps(bytes))?;
+                progress.println(&format!(
+                    "  anchors {} round {}: sartor {:>4} {threads} thread(s) {ms:.4} ms/frame; \
+                     floor {:.4} ms for {:.1} MB",
+                    m.name,
+                    round + 1,
+                    n.precision().name(),
+                    streams.ms(),
+                    bytes as f64 / 1e6
+                ));
+                sartor_ms[i][k].push(ms);
+                floors[i][k].push(streams);
+            }
+            let answer = server.time(threads, options.frames)?;
+            for t in &answer.times {
+                progress.println(&format!(
+                    "  anchors {} round {}: {}{} {threads} thread(s) {:.4} ms/frame",
+                    m.name,
+                    round + 1,
+                    t.engine,
+                    t.call
+                        .as_ref()
+                        .map_or_else(String::new, |c| format!(" ({c})")),
+                    t.ms_per_frame
+                ));
+            }
+            answers[i].push(answer);
+        }
+    }
+    server.finish()?;
+
+    let max_abs_output_m = want.iter().fold(0.0f64, |a, &v| a.max(f64::from(v).abs()));
+    let mut threads = Vec::new();
+    for (i, &t) in options.threads.iter().enumerate() {
         let mut sartor = Vec::new();
         let mut floor = Vec::new();
-        for ((n, (ms_before, streams)), (ms_after, streams_after)) in
-            networks.iter().zip(before).zip(after)
-        {
-            let bytes = n.wrinkle_weight_bytes();
+        for (k, n) in networks.iter().enumerate() {
+            let ms = &sartor_ms[i][k];
             sartor.push(SartorTime {
                 precision: n.precision().name(),
-                ms_per_frame: 0.5 * (ms_before + ms_after),
-                ms_per_frame_before: ms_before,
-                ms_per_frame_after: ms_after,
+                ms_per_frame: median(ms),
+                ms_per_frame_rounds: ms.clone(),
             });
-            let floor_ms = 0.5 * (streams.ms() + streams_after.ms());
+            let rounds = &floors[i][k];
+            let of = |way: fn(&StreamFloor) -> Option<f64>| -> Option<f64> {
+                let v: Vec<f64> = rounds.iter().filter_map(way).collect();
+                (v.len() == rounds.len() && !v.is_empty()).then(|| median(&v))
+            };
+            let ms_rounds: Vec<f64> = rounds.iter().map(StreamFloor::ms).collect();
+            let floor_ms = median(&ms_rounds);
+            let bytes = n.wrinkle_weight_bytes();
             floor.push(Floor {
                 precision: n.precision().name(),
                 bytes,
                 ms: floor_ms,
-                ms_before: streams.ms(),
-                ms_after: streams_after.ms(),
+                ms_rounds,
                 gb_per_s: bytes as f64 / (floor_ms * 1e6),
-                ms_small_pages: streams.small_pages_ms,
-                ms_huge_pages: streams.huge_pages_ms,
-                ms_small_pages_prefetched: streams.small_pages_prefetched_ms,
-                ms_huge_pages_prefetched: streams.huge_pages_prefetched_ms,
+                ms_small_pages: of(|f| Some(f.small_pages_ms)).unwrap_or(f64::NAN),
+                ms_huge_pages: of(|f| f.huge_pages_ms),
+                ms_small_pages_prefetched: of(|f| f.small_pages_prefetched_ms),
+                ms_huge_pages_prefetched: of(|f| f.huge_pages_prefetched_ms),
             });
         }
-        per_thread.push((threads, sartor, floor));
-    }
-    let text = std::fs::read_to_string(&out_path).map_err(|e| Error::io(&out_path, e))?;
-    let script = parse_script_output(&text, options.check_frames)?;
-    let max_abs_output_m = want.iter().fold(0.0f64, |a, &v| a.max(f64::from(v).abs()));
-    let mut threads = Vec::new();
-    for (t, sartor, floor) in per_thread {
-        let ta = thread_anchors(t, sartor, floor, &script.engines, max_abs_output_m)?;
+        let ta = thread_anchors(
+            t,
+            sartor,
+            floor,
+            &script.engines,
+            &answers[i],
+            max_abs_output_m,
+        )?;
         for a in &ta.anchors {
             progress.println(&format!(
                 "  anchors {} {} {t} thread(s): {} (sartor f32 / it {}; max abs diff {}{})",
@@ -918,26 +1142,29 @@ pub(crate) fn anchors(
         warmup_frames: options.warmup,
         timed_frames: options.frames,
         check_frames: options.check_frames,
+        rounds: options.rounds,
         models: reports,
         notes: vec![
             "Every engine runs the same per-frame wrinkle step on the same weights: \
              normalisation, GRU cell, output layer (dense, or PCA coefficients then basis), \
              denormalisation; batch 1, one frame per call, the GRU state carried from frame to \
-             frame. ms_per_frame is the median over the timed frames; sartor's step is timed \
-             just before and again just after the anchors (ms_per_frame_before, \
-             ms_per_frame_after) and its ms_per_frame, which the ratios use, is their mean, so \
-             that a machine drifting over the minute of the anchors tilts the ratios less. The \
-             fit MLP (once per shape), skinning and the post-process are not included on either \
-             side.",
-            "Ratios are sartor / anchor: below 1, sartor is faster. 'fastest' is sartor's \
-             fastest precision at that thread count.",
+             frame. The comparison runs in rounds: in each, per thread count, sartor's step in \
+             every precision, the floors, then every anchor, seconds apart. A round's time is \
+             the median over its timed frames (ms_per_frame_rounds); ms_per_frame is the median \
+             over the rounds. The fit MLP (once per shape), skinning and the post-process are \
+             not included on either side.",
+            "Ratios are sartor / anchor: below 1, sartor is faster. Each is the median over the \
+             rounds of the ratio within a round (the rounds' ratios to the best anchor are kept \
+             in ratio_*_to_best_anchor_rounds), so that a machine whose speed drifts between \
+             rounds tilts them less. 'fastest' is sartor's fastest precision at that thread \
+             count (by its median).",
             "floor: the median time to stream the step's weight bytes once (sum of a buffer of \
              that many bytes, warm, back to back as the frames are), per precision's weight \
              size, the faster of a buffer in 4 KiB pages (ms_small_pages) and one advised to \
-             2 MiB pages (ms_huge_pages, Linux), each read plainly and prefetched, measured \
-             before and after the anchors with sartor's step (ms_before, ms_after; ms is their \
-             mean, as sartor's ms_per_frame is); sartor_*_over_floor = sartor's ms / that floor \
-             (1: at the memory bandwidth).",
+             2 MiB pages (ms_huge_pages, Linux), each read plainly and prefetched, measured in \
+             every round beside sartor's step (ms_rounds; ms is their median); \
+             sartor_*_over_floor = the median over the rounds of sartor's ms / that round's \
+             floor (1: at the memory bandwidth).",
             "max_abs_diff_m: the engine's displacements against sartor's f32 ones for the same \
              inputs from a zero state, metres; max_abs_output_m is their scale; \
              agrees_with_sartor: within 1e-4 of that scale (an engine that disagrees is never \
@@ -952,56 +1179,66 @@ pub(crate) fn anchors(
 mod tests {
     use super::*;
 
-    /// A script output as `bench/anchors.py` writes it (trimmed), one failed compile.
+    /// A set-up line as `bench/anchors.py` writes it (trimmed), one failed compile.
     const CANNED: &str = r#"{
-      "format": "sartor-anchors", "version": 1, "model": "/tmp/x/paper",
+      "format": "sartor-anchors", "version": 2, "model": "/tmp/x/paper",
       "sizes": {}, "versions": {"torch": "2.9.0", "onnxruntime": "1.23.0"},
       "torch_cpu_capability": "AVX2", "frames_checked": 4, "max_abs_output": 0.01,
       "onnx_export": {"exporter": "torchscript", "error": null, "seconds": 1.0},
       "engines": [
-        {"engine": "pytorch_eager", "threads": 1, "ms_per_frame": 5.0,
-         "ms_per_frame_mean": 5.1, "max_abs_diff": 2e-7, "error": null},
-        {"engine": "pytorch_compiled", "threads": 1, "ms_per_frame": null,
+        {"engine": "pytorch_eager", "threads": 1, "max_abs_diff": 2e-7, "error": null,
+         "setup_s": 0.1},
+        {"engine": "pytorch_compiled", "threads": 1,
          "error": "InductorError: no compiler", "traceback_tail": "..."},
-        {"engine": "onnxruntime", "threads": 1, "call": "io_binding", "ms_per_frame": 4.0,
-         "max_abs_diff": 1e-7, "error": null, "other_calls": []},
-        {"engine": "onnxruntime", "threads": 2, "call": "run", "ms_per_frame": 2.5,
-         "max_abs_diff": 1e-7, "error": null}
+        {"engine": "onnxruntime", "threads": 1, "call": "io_binding", "max_abs_diff": 1e-7,
+         "error": null},
+        {"engine": "onnxruntime", "threads": 2, "call": "run", "max_abs_diff": 1e-7,
+         "error": null}
       ]
     }"#;
 
-    fn sartor(f32_ms: f64, f16_ms: f64, int8_ms: f64) -> Vec<SartorTime> {
-        vec![
-            SartorTime {
-                precision: "f32",
-                ms_per_frame: f32_ms,
-                ms_per_frame_before: f32_ms,
-                ms_per_frame_after: f32_ms,
-            },
-            SartorTime {
-                precision: "f16",
-                ms_per_frame: f16_ms,
-                ms_per_frame_before: f16_ms,
-                ms_per_frame_after: f16_ms,
-            },
-            SartorTime {
-                precision: "int8",
-                ms_per_frame: int8_ms,
-                ms_per_frame_before: int8_ms,
-                ms_per_frame_after: int8_ms,
-            },
-        ]
+    /// The script's answers at `threads`, one per round: (engine, call, ms) each.
+    fn answers(threads: usize, rounds: &[&[(&str, Option<&str>, f64)]]) -> Vec<ScriptTimes> {
+        rounds
+            .iter()
+            .map(|times| {
+                let times = times
+                    .iter()
+                    .map(|&(engine, call, ms)| {
+                        let call = call.map_or_else(|| "null".to_string(), |c| format!("\"{c}\""));
+                        let mean = ms + 0.1;
+                        format!(
+                            r#"{{"engine": "{engine}", "call": {call}, "ms_per_frame": {ms},
+                                "ms_per_frame_mean": {mean}}}"#
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                let line = format!(r#"{{"threads": {threads}, "times": [{times}]}}"#);
+                serde_json::from_str(&line).expect("a canned answer")
+            })
+            .collect()
     }
 
-    fn floors() -> Vec<Floor> {
+    fn sartor(f32_ms: &[f64], f16_ms: &[f64], int8_ms: &[f64]) -> Vec<SartorTime> {
+        [("f32", f32_ms), ("f16", f16_ms), ("int8", int8_ms)]
+            .into_iter()
+            .map(|(precision, ms)| SartorTime {
+                precision,
+                ms_per_frame: median(ms),
+                ms_per_frame_rounds: ms.to_vec(),
+            })
+            .collect()
+    }
+
+    fn floors(rounds: usize) -> Vec<Floor> {
         [("f32", 100, 2.0), ("f16", 50, 1.0), ("int8", 25, 0.5)]
             .into_iter()
             .map(|(precision, bytes, ms)| Floor {
                 precision,
                 bytes,
                 ms,
-                ms_before: ms,
-                ms_after: ms,
+                ms_rounds: vec![ms; rounds],
                 gb_per_s: bytes as f64 / (ms * 1e6),
                 ms_small_pages: ms,
                 ms_huge_pages: None,
@@ -1011,16 +1248,34 @@ mod tests {
             .collect()
     }
 
+    fn close(a: Option<f64>, b: f64) -> bool {
+        a.is_some_and(|a| (a - b).abs() < 1e-12)
+    }
+
     #[test]
-    fn ratios_from_a_canned_script_output() -> Result<()> {
+    fn ratios_are_medians_of_the_rounds_ratios() -> Result<()> {
         let script = parse_script_output(CANNED, 4)?;
         assert_eq!(script.onnx_export.exporter.as_deref(), Some("torchscript"));
-        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 0.01)?;
+        let io = Some("io_binding");
+        let one = answers(
+            1,
+            &[
+                &[("pytorch_eager", None, 5.0), ("onnxruntime", io, 4.0)],
+                &[("pytorch_eager", None, 4.0), ("onnxruntime", io, 5.0)],
+                &[("pytorch_eager", None, 6.0), ("onnxruntime", io, 4.5)],
+            ],
+        );
+        let s1 = || sartor(&[4.0, 6.0, 5.0], &[2.0, 2.0, 2.0], &[1.1, 1.0, 1.2]);
+        let t1 = thread_anchors(1, s1(), floors(3), &script.engines, &one, 0.01)?;
         assert_eq!(t1.anchors.len(), 3, "only the one-thread entries");
         assert_eq!(t1.fastest_precision, "int8");
         let eager = &t1.anchors[0];
-        assert!((eager.ratio_f32.unwrap_or(f64::NAN) - 4.4 / 5.0).abs() < 1e-12);
-        assert!((eager.ratio_fastest.unwrap_or(f64::NAN) - 1.1 / 5.0).abs() < 1e-12);
+        assert_eq!(eager.ms_per_frame, Some(5.0));
+        assert_eq!(eager.ms_per_frame_rounds, [5.0, 4.0, 6.0]);
+        assert!(close(eager.ms_per_frame_mean, 5.1));
+        // The median of 4/5, 6/4 and 5/6, not the ratio of the medians (5/5).
+        assert!(close(eager.ratio_f32, 5.0 / 6.0));
+        assert!(close(eager.ratio_fastest, 1.1 / 5.0));
         assert_eq!(eager.max_abs_diff_m, Some(2e-7));
         assert_eq!(eager.agrees_with_sartor, Some(true));
         let compiled = &t1.anchors[1];
@@ -1033,28 +1288,122 @@ mod tests {
                 .is_some_and(|e| e.contains("no compiler"))
         );
         assert_eq!(t1.best_anchor.as_deref(), Some("onnxruntime (io_binding)"));
-        assert_eq!(t1.best_anchor_ms_per_frame, Some(4.0));
-        assert!((t1.ratio_f32_to_best_anchor.unwrap_or(f64::NAN) - 1.1).abs() < 1e-12);
-        assert!((t1.ratio_fastest_to_best_anchor.unwrap_or(f64::NAN) - 0.275).abs() < 1e-12);
-        assert!((t1.sartor_f32_over_floor.unwrap_or(f64::NAN) - 2.2).abs() < 1e-12);
-        // The fastest precision (int8) against the floor of int8's bytes.
-        assert!((t1.sartor_fastest_over_floor.unwrap_or(f64::NAN) - 2.2).abs() < 1e-12);
+        assert_eq!(t1.best_anchor_ms_per_frame, Some(4.5));
+        // f32 / ONNX Runtime per round: 1.0, 1.2, 1.111…
+        assert_eq!(t1.ratio_f32_to_best_anchor_rounds.len(), 3);
+        assert!(close(t1.ratio_f32_to_best_anchor, 5.0 / 4.5));
+        // int8 / ONNX Runtime: 0.275, 0.2, 0.266…
+        assert!(close(t1.ratio_fastest_to_best_anchor, 1.2 / 4.5));
+        // f32 against a floor of 2 ms: 2, 3, 2.5; int8 against 0.5 ms: 2.2, 2, 2.4.
+        assert!(close(t1.sartor_f32_over_floor, 2.5));
+        assert!(close(t1.sartor_fastest_over_floor, 2.2));
 
-        let t2 = thread_anchors(2, sartor(2.0, 3.0, 4.0), floors(), &script.engines, 0.01)?;
+        let two = answers(2, &[&[("onnxruntime", Some("run"), 2.5)]]);
+        let t2 = thread_anchors(
+            2,
+            sartor(&[2.0], &[3.0], &[4.0]),
+            floors(1),
+            &script.engines,
+            &two,
+            0.01,
+        )?;
         assert_eq!(t2.fastest_precision, "f32");
         assert_eq!(t2.anchors.len(), 1);
-        assert!((t2.ratio_f32_to_best_anchor.unwrap_or(f64::NAN) - 0.8).abs() < 1e-12);
+        assert!(close(t2.ratio_f32_to_best_anchor, 0.8));
 
-        // At a scale of 1e-3 m, ONNX Runtime's 1e-7 agrees, eager's 2e-7 does not: eager is
+        // An engine missing from a round's answer is not timed (and not the best anchor).
+        let gap = answers(
+            1,
+            &[
+                &[("pytorch_eager", None, 5.0), ("onnxruntime", io, 4.0)],
+                &[("pytorch_eager", None, 4.0)],
+                &[("pytorch_eager", None, 6.0), ("onnxruntime", io, 4.5)],
+            ],
+        );
+        let t = thread_anchors(1, s1(), floors(3), &script.engines, &gap, 0.01)?;
+        assert_eq!(t.anchors[2].ms_per_frame, None);
+        assert!(
+            t.anchors[2]
+                .error
+                .as_deref()
+                .is_some_and(|e| e.contains("2 of 3"))
+        );
+        assert_eq!(t.best_anchor.as_deref(), Some("pytorch_eager"));
+        // Rounds that do not match are refused.
+        assert!(thread_anchors(1, s1(), floors(2), &script.engines, &one, 0.01).is_err());
+        assert!(thread_anchors(2, s1(), floors(3), &script.engines, &one, 0.01).is_err());
+
+        // At a scale of 1.5e-3 m, ONNX Runtime's 1e-7 agrees, eager's 2e-7 does not: eager is
         // no longer a candidate, and the fastest that agrees is still ONNX Runtime.
-        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 1.5e-3)?;
+        let t1 = thread_anchors(1, s1(), floors(3), &script.engines, &one, 1.5e-3)?;
         assert_eq!(t1.anchors[0].agrees_with_sartor, Some(false));
         assert_eq!(t1.anchors[2].agrees_with_sartor, Some(true));
-        assert_eq!(t1.best_anchor_ms_per_frame, Some(4.0));
+        assert_eq!(t1.best_anchor_ms_per_frame, Some(4.5));
         // Nothing agrees: no best anchor, no ratio to it.
-        let t1 = thread_anchors(1, sartor(4.4, 2.0, 1.1), floors(), &script.engines, 1e-4)?;
+        let t1 = thread_anchors(1, s1(), floors(3), &script.engines, &one, 1e-4)?;
         assert_eq!(t1.best_anchor, None);
         assert_eq!(t1.ratio_f32_to_best_anchor, None);
+        assert!(t1.ratio_f32_to_best_anchor_rounds.is_empty());
+        Ok(())
+    }
+
+    #[test]
+    fn the_server_answers_requests_and_its_end_is_an_error() -> Result<()> {
+        // A stand-in for `bench/anchors.py --serve` in sh: the set-up line, then one answer
+        // per request for one thread, and for two threads an answer for the wrong count; it
+        // exits with status 7 on any other request.
+        let dir = tempfile::tempdir().context("a temporary folder for the test")?;
+        let script = dir.path().join("fake-anchors.sh");
+        let setup = CANNED
+            .replace('\n', " ")
+            .replace("\"frames_checked\": 4", "\"frames_checked\": 1");
+        let one = r#"{"threads": 1, "times": [{"engine": "onnxruntime", "call": "run",
+            "ms_per_frame": 1.5, "ms_per_frame_mean": 1.6}]}"#
+            .replace('\n', " ");
+        let text = format!(
+            "echo '{setup}'\n\
+             while read line; do\n\
+               case \"$line\" in\n\
+                 *'\"threads\": 1,'*) echo '{one}' ;;\n\
+                 *'\"threads\": 2,'*) echo '{{\"threads\": 3, \"times\": []}}' ;;\n\
+                 *) exit 7 ;;\n\
+               esac\n\
+             done\n"
+        );
+        std::fs::write(&script, text).context("the fake script")?;
+        let options = AnchorOptions {
+            python: "sh".into(),
+            script,
+            shipped_model: dir.path().into(),
+            threads: vec![1, 2],
+            warmup: 1,
+            frames: 1,
+            rounds: 1,
+            check_frames: 1,
+        };
+        let (mut server, line) = Server::start(&options, &[])?;
+        assert_eq!(parse_script_output(&line, 1)?.engines.len(), 4);
+        for _ in 0..2 {
+            let answer = server.time(1, 10)?;
+            assert_eq!((answer.threads, answer.times.len()), (1, 1));
+            assert_eq!(answer.times[0].ms_per_frame, 1.5);
+        }
+        let err = server
+            .time(2, 10)
+            .expect_err("the wrong thread count")
+            .to_string();
+        assert!(err.contains("3 thread(s), 2 were asked for"), "{err}");
+        server.finish()?;
+
+        let (mut server, _) = Server::start(&options, &[])?;
+        let err = server
+            .time(5, 10)
+            .expect_err("the script exits")
+            .to_string();
+        assert!(
+            err.contains("ended without answering") && err.contains('7'),
+            "{err}"
+        );
         Ok(())
     }
 
@@ -1127,6 +1476,7 @@ mod tests {
             threads: vec![1],
             warmup: 1,
             frames: 1,
+            rounds: 1,
             check_frames: 1,
         };
         let err = check_anchors(&options)
