@@ -288,25 +288,33 @@ fn install_hint(python: &Path) -> String {
     )
 }
 
-/// Run the script with `args`; its stdout, with a clear error when Python, the script or its
-/// packages are missing or it fails.
-fn run_script(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<String> {
+/// `python script args`, once the script is found to be there.
+fn script_command(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<Command> {
     ensure!(
         options.script.is_file(),
         "anchors script {} not found (run from the repository, or pass --anchors-script)",
         options.script.display()
     );
-    let output = Command::new(&options.python)
-        .arg(&options.script)
-        .args(args)
+    let mut command = Command::new(&options.python);
+    command.arg(&options.script).args(args);
+    Ok(command)
+}
+
+/// The error of an interpreter that would not start, with the install hint.
+fn start_failed(options: &AnchorOptions, e: &std::io::Error) -> Error {
+    Error::Invalid(format!(
+        "could not start {}: {e}; {}",
+        options.python.display(),
+        install_hint(&options.python)
+    ))
+}
+
+/// Run the script with `args`; its stdout, with a clear error when Python, the script or its
+/// packages are missing or it fails.
+fn run_script(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<String> {
+    let output = script_command(options, args)?
         .output()
-        .map_err(|e| {
-            Error::Invalid(format!(
-                "could not start {}: {e}; {}",
-                options.python.display(),
-                install_hint(&options.python)
-            ))
-        })?;
+        .map_err(|e| start_failed(options, &e))?;
     let stderr = String::from_utf8_lossy(&output.stderr);
     if !output.status.success() {
         let tail: String = {
@@ -343,24 +351,11 @@ struct Server {
 impl Server {
     /// Start the script with `args`; returns it and its set-up line.
     fn start(options: &AnchorOptions, args: &[&std::ffi::OsStr]) -> Result<(Self, String)> {
-        ensure!(
-            options.script.is_file(),
-            "anchors script {} not found (run from the repository, or pass --anchors-script)",
-            options.script.display()
-        );
-        let mut child = Command::new(&options.python)
-            .arg(&options.script)
-            .args(args)
+        let mut child = script_command(options, args)?
             .stdin(std::process::Stdio::piped())
             .stdout(std::process::Stdio::piped())
             .spawn()
-            .map_err(|e| {
-                Error::Invalid(format!(
-                    "could not start {}: {e}; {}",
-                    options.python.display(),
-                    install_hint(&options.python)
-                ))
-            })?;
+            .map_err(|e| start_failed(options, &e))?;
         let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
             bail!(
                 "{}: no pipes to the anchors script",
