@@ -166,15 +166,12 @@ fn outputs<const N: usize>(
     sums: &[i32; N],
     t: f32,
     scale: impl Fn(usize) -> f32,
-    bias: Option<&[f32]>,
+    bias: Option<&[f32; N]>,
     ys: &mut [f32; N],
 ) {
     let d: [f32; N] = std::array::from_fn(|r| scale(r) * (sums[r] as f32 * t));
     match bias {
-        Some(b) => {
-            let b: &[f32; N] = b.try_into().expect("a bias per row");
-            *ys = std::array::from_fn(|r| d[r] + b[r]);
-        }
+        Some(b) => *ys = std::array::from_fn(|r| d[r] + b[r]),
         None => *ys = d,
     }
 }
@@ -281,7 +278,7 @@ fn group<E: IntEngine>(
                 &sums,
                 t,
                 |r| scales(i0 + r),
-                bias.map(|b| &b[i0..i0 + 8]),
+                bias.map(|b| (&b[i0..i0 + 8]).try_into().expect("a bias per row")),
                 ys,
             );
         }
@@ -456,34 +453,73 @@ pub(crate) fn quads_int<E: QuadEngine>(
                 .enumerate()
                 .fold(0, |w, (c, &v)| w | u64::from(v as u16) << (16 * c));
         }
+        let words = &words[..quads];
+        // A whole panel of one finite input: its 16 outputs side by side, the panels, their
+        // outputs, scales and biases zipped (no bounds check or look at the options per panel).
+        let whole = match (step, batch) {
+            (Some(t), 1) => {
+                let whole = n_rows / QUAD_PANEL;
+                let panels = q.chunks_exact(quads * QUAD_BYTES).take(whole);
+                let ys = ys_t[..whole * QUAD_PANEL].as_chunks_mut::<QUAD_PANEL>().0;
+                let s = scales.map(|s| s[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
+                let b = bias.map(|b| b[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
+                whole_panels::<E>(panels, words, t, ys, s, b);
+                whole
+            }
+            _ => 0,
+        };
         for (p, panel) in q
             .chunks_exact(quads * QUAD_BYTES)
             .take(n_rows.div_ceil(QUAD_PANEL))
             .enumerate()
+            .skip(whole)
         {
-            let sums = E::panel(panel, &words[..quads]);
+            let sums = E::panel(panel, words);
             let i0 = p * QUAD_PANEL;
             let n = QUAD_PANEL.min(n_rows - i0);
-            let (Some(t), true, 1) = (step, n == QUAD_PANEL, batch) else {
-                for (r, &sum) in sums.iter().enumerate().take(n) {
-                    let i = i0 + r;
-                    let scale = scales.map_or(1.0, |s| s[i]);
-                    ys_t[i * batch + k] = output(sum, step, scale, bias.map(|b| b[i]));
-                }
-                continue;
-            };
-            // A whole panel of one finite input: its 16 outputs side by side.
-            let ys: &mut [f32; QUAD_PANEL] = (&mut ys_t[i0..i0 + QUAD_PANEL])
-                .try_into()
-                .expect("a whole panel");
-            let b = bias.map(|b| &b[i0..i0 + QUAD_PANEL]);
-            match scales {
-                Some(s) => {
-                    let s: &[f32; QUAD_PANEL] =
-                        s[i0..i0 + QUAD_PANEL].try_into().expect("a whole panel");
-                    outputs(&sums, t, |r| s[r], b, ys);
-                }
-                None => outputs(&sums, t, |_| 1.0, b, ys),
+            for (r, &sum) in sums.iter().enumerate().take(n) {
+                let i = i0 + r;
+                let scale = scales.map_or(1.0, |s| s[i]);
+                ys_t[i * batch + k] = output(sum, step, scale, bias.map(|b| b[i]));
+            }
+        }
+    }
+}
+
+/// Whole quad panels of one finite input (quantisation step `t`): each panel's 16 sums, then
+/// its 16 outputs side by side (`outputs`), the panels zipped with their outputs, scales and
+/// biases. One loop per combination of scales and bias, so that no panel looks at the options
+/// or checks a bound: the shipped model's 6,504 × 64 PCA decode (407 panels of 16 quads) spent
+/// about a quarter of its time between the panels' sums.
+#[inline(always)]
+fn whole_panels<'a, E: QuadEngine>(
+    panels: impl Iterator<Item = &'a [i8]>,
+    words: &[u64],
+    t: f32,
+    ys: &mut [[f32; QUAD_PANEL]],
+    scales: Option<&[[f32; QUAD_PANEL]]>,
+    bias: Option<&[[f32; QUAD_PANEL]]>,
+) {
+    let one = |_: usize| 1.0;
+    match (scales, bias) {
+        (Some(s), Some(b)) => {
+            for (((panel, y), s), b) in panels.zip(ys).zip(s).zip(b) {
+                outputs(&E::panel(panel, words), t, |r| s[r], Some(b), y);
+            }
+        }
+        (Some(s), None) => {
+            for ((panel, y), s) in panels.zip(ys).zip(s) {
+                outputs(&E::panel(panel, words), t, |r| s[r], None, y);
+            }
+        }
+        (None, Some(b)) => {
+            for ((panel, y), b) in panels.zip(ys).zip(b) {
+                outputs(&E::panel(panel, words), t, one, Some(b), y);
+            }
+        }
+        (None, None) => {
+            for (panel, y) in panels.zip(ys) {
+                outputs(&E::panel(panel, words), t, one, None, y);
             }
         }
     }
