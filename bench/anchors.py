@@ -21,7 +21,8 @@ would, in
 - ONNX Runtime on the CPU (the step exported with `torch.onnx.export`; inputs `x` and `h`,
   outputs `displacement` and `h_next`), with `intra_op_num_threads` = threads and
   `inter_op_num_threads` = 1, called both with `InferenceSession.run` and with an I/O binding
-  (preallocated buffers, the state output bound as the next input); the faster is reported.
+  (preallocated buffers, the state output bound as the next input); both are timed, and the
+  caller takes the faster as the best anchor.
 
 for each thread count (`torch.set_num_threads` / `intra_op_num_threads`). First every engine
 runs the stored input frames from a zero state and its displacements are compared with sartor's
@@ -385,7 +386,6 @@ def serve(entries, inputs, warmup):
                 times.append({"engine": e["engine"], "call": e.get("call"),
                               "ms_per_frame": median_ms, "ms_per_frame_mean": mean_ms})
         print(json.dumps({"threads": t, "times": times}), flush=True)
-
 
 
 def main():

@@ -1117,6 +1117,7 @@ pub(crate) fn anchors(
     versions: BTreeMap<String, String>,
     progress: &dyn Progress,
 ) -> Result<AnchorsReport> {
+    ensure!(options.rounds > 0, "the anchors need at least one round");
     let tmp = tempfile::Builder::new()
         .prefix("sartor-anchors-")
         .tempdir()
