@@ -36,6 +36,9 @@
 use std::sync::OnceLock;
 
 use super::int8::{self, PortableInt, rows_int};
+#[cfg(target_arch = "x86_64")]
+use super::interleaved::IL_AHEAD;
+use super::interleaved::interleaved;
 use super::panels::panels;
 use super::rows::{F16Bits, F16Codec, F32Codec, I8Codec, Portable, rows};
 
@@ -341,12 +344,12 @@ macro_rules! isa_kernels {
         // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
         // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
         // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
-        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot8_block_f32, dot4_block_f32, dotn_block_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot8_block_i8, dot4_block_i8, dotn_block_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot8_block_f16, dot4_block_f16, dotn_block_f16, madd1_f16, madd2_f16);
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, dotn_block_f32, madd1_f32, madd2_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, dotn_block_i8, madd1_i8, madd2_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, dotn_block_f16, madd1_f16, madd2_f16);
     };
     (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
-        $dot:ident, $dot8_block:ident, $dot4_block:ident, $dotn_block:ident, $madd1:ident, $madd2:ident) => {
+        $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $dotn_block:ident, $madd1:ident, $madd2:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
@@ -362,23 +365,34 @@ macro_rules! isa_kernels {
         #[target_feature(enable = $feat)]
         pub(super) fn $dot8_block(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
             if $prefetch {
-                $dotn_block::<8, STREAM_AHEAD>(w, cols, x, n8, 1, n8, sums)
+                $dotn_block::<8, STREAM_AHEAD, false>(w, cols, x, n8, 1, n8, sums)
             } else {
-                $dotn_block::<8, 0>(w, cols, x, n8, 1, n8, sums)
+                $dotn_block::<8, 0, false>(w, cols, x, n8, 1, n8, sums)
             }
+        }
+
+        /// `Engine::dot8_interleaved`: each panel of eight rows read as one stream, prefetched
+        /// `IL_AHEAD` bytes ahead.
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $dot8_il(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
+            $dotn_block::<8, IL_AHEAD, true>(w, cols, x, n8, 8, 1, sums)
         }
 
         /// `Engine::dot4_block`: four neighbouring rows at a time.
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot4_block(w: &[$t], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
-            $dotn_block::<4, 0>(w, cols, x, nq, 4, 1, sums)
+            $dotn_block::<4, 0, false>(w, cols, x, nq, 4, 1, sums)
         }
 
         /// `groups` groups of `N` rows, row `q·q_stride + k·k_stride` for group `q` and `k < N`
         /// (all of them below `N·groups`): `sums[row]` is its dot product with `x`, each row
         /// prefetched `AHEAD` bytes ahead of its chunk (none if 0). Per row the same sums as
-        /// `dot`, lane for lane.
+        /// `dot`, lane for lane. Rows are row-major, or with `IL` interleaved
+        /// (`interleaved.rs`: group `q` is panel `q`, `q_stride = N`, `k_stride = 1`, each row
+        /// zero-padded to whole chunks, so that its last chunk is read whole: the zeros meet
+        /// the input's zero-padded tail and add `+0`, as the masked loads' zeros do).
         ///
         /// The loop over the groups runs here, with the rows' pointers and the input's last
         /// partial chunk worked out from `cols` once. Written as one call of a kernel of `N`
@@ -394,7 +408,7 @@ macro_rules! isa_kernels {
         /// left that kernel as slow.
         #[inline]
         #[target_feature(enable = $feat)]
-        fn $dotn_block<const N: usize, const AHEAD: usize>(
+        fn $dotn_block<const N: usize, const AHEAD: usize, const IL: bool>(
             w: &[$t],
             cols: usize,
             x: &[f32],
@@ -404,28 +418,40 @@ macro_rules! isa_kernels {
             sums: &mut [f32],
         ) {
             let rows_in = N * groups;
+            // Values per row as stored.
+            let stored = if IL { cols.next_multiple_of(LANES) } else { cols };
             assert!(
                 x.len() == cols
-                    && w.len() >= rows_in * cols
+                    && w.len() >= rows_in * stored
                     && sums.len() >= rows_in
-                    && (groups == 0 || (groups - 1) * q_stride + (N - 1) * k_stride < rows_in),
+                    && (groups == 0 || (groups - 1) * q_stride + (N - 1) * k_stride < rows_in)
+                    && (!IL || (q_stride == N && k_stride == 1)),
                 "a block shorter than its rows"
             );
             let (xc, xt) = x.as_chunks::<LANES>();
             let full = xc.len() * LANES;
             let xv_tail = x_tail(xt);
+            // From one chunk of a row to its next: the row's next values, or (interleaved)
+            // past the other rows' chunks of the panel.
+            let step = if IL { N * LANES } else { LANES };
             for q in 0..groups {
                 let index = |k: usize| q * q_stride + k * k_stride;
                 // SAFETY: every row index is below `N·groups` (asserted above), and `w` holds
-                // that many rows of `cols` values.
-                let rows: [*const $t; N] =
-                    std::array::from_fn(|k| unsafe { w.as_ptr().add(index(k) * cols) });
+                // that many rows of `stored` values; interleaved, panel `q` is the
+                // `N·stored` values from `q·N·stored`, row `k`'s first chunk `k·LANES` into it.
+                let rows: [*const $t; N] = std::array::from_fn(|k| unsafe {
+                    if IL {
+                        w.as_ptr().add(q * N * stored + k * LANES)
+                    } else {
+                        w.as_ptr().add(index(k) * cols)
+                    }
+                });
                 let zero = [0.0f32; LANES];
                 let mut acc = [load_acc(&zero); N];
                 for i in 0..xc.len() {
                     if AHEAD > 0 {
                         for row in rows {
-                            let at = row.wrapping_add(i * LANES).cast::<i8>().wrapping_add(AHEAD);
+                            let at = row.wrapping_add(i * step).cast::<i8>().wrapping_add(AHEAD);
                             for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
                                 prefetch(at.wrapping_add(64 * line));
                             }
@@ -433,8 +459,9 @@ macro_rules! isa_kernels {
                     }
                     let (xw, _) = xc[i].as_chunks::<W>();
                     for k in 0..N {
-                        // SAFETY: chunk `i` of a row of `cols ≥ (i + 1)·LANES` values.
-                        let chunk = unsafe { &*rows[k].add(i * LANES).cast::<[$t; LANES]>() };
+                        // SAFETY: chunk `i` of a row of `cols ≥ (i + 1)·LANES` values (interleaved,
+                        // `(i·N + k)·LANES` into a panel of `N·stored`).
+                        let chunk = unsafe { &*rows[k].add(i * step).cast::<[$t; LANES]>() };
                         let (ww, _) = chunk.as_chunks::<W>();
                         for r in 0..R {
                             acc[k][r] = add(acc[k][r], mul($load(&ww[r]), load_f32(&xw[r])));
@@ -445,10 +472,20 @@ macro_rules! isa_kernels {
                     // The partial last chunk read with loads that stop at the rows' ends, zero
                     // beyond (the same sums as a zero-padded chunk).
                     for (a, row) in acc.iter_mut().zip(rows) {
-                        // SAFETY: the row's last `cols − full` values.
-                        let tail = unsafe { std::slice::from_raw_parts(row.add(full), cols - full) };
-                        for r in 0..R {
-                            a[r] = add(a[r], mul($load_tail(tail, r), xv_tail[r]));
+                        if IL {
+                            // SAFETY: the row's zero-padded last chunk, `(full/LANES·N + k)·LANES`
+                            // into its panel of `N·stored` values.
+                            let chunk = unsafe { &*row.add(xc.len() * step).cast::<[$t; LANES]>() };
+                            let (ww, _) = chunk.as_chunks::<W>();
+                            for r in 0..R {
+                                a[r] = add(a[r], mul($load(&ww[r]), xv_tail[r]));
+                            }
+                        } else {
+                            // SAFETY: the row's last `cols − full` values.
+                            let tail = unsafe { std::slice::from_raw_parts(row.add(full), cols - full) };
+                            for r in 0..R {
+                                a[r] = add(a[r], mul($load_tail(tail, r), xv_tail[r]));
+                            }
                         }
                     }
                 }
@@ -543,7 +580,7 @@ mod avx2 {
     };
 
     use super::super::rows::{F16Bits, LANES};
-    use super::{STREAM_AHEAD, prefetch, prefetch_f32_rows};
+    use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m256;
     const W: usize = 8;
@@ -660,7 +697,7 @@ mod avx512 {
     };
 
     use super::super::rows::{F16Bits, LANES};
-    use super::{STREAM_AHEAD, prefetch, prefetch_f32_rows};
+    use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m512;
     const W: usize = 16;
@@ -849,7 +886,7 @@ mod engines {
         (@one $name:ident, $m:ident, $t:ty, ($($kernel:ident),+)) => {
             engine!($name, $m, $t, $($kernel),+);
         };
-        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot8_block:ident, $dot4_block:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $madd1:ident, $madd2:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -876,6 +913,12 @@ mod engines {
                 }
 
                 #[inline(always)]
+                fn dot8_interleaved(w: &[$t], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
+                    // SAFETY: as for `dot`.
+                    unsafe { $m::$dot8_il(w, cols, x, n8, sums) }
+                }
+
+                #[inline(always)]
                 fn madd1(w: &[$t], x: &[f32], s: &mut [f32; LANES]) {
                     // SAFETY: as for `dot`.
                     unsafe { $m::$madd1(w, x, s) }
@@ -899,11 +942,11 @@ mod engines {
     // One engine per instruction set and storage type: the same kernels' names in `avx2` and
     // `avx512`.
     engine!(f32: Avx2F32 avx2, Avx512F32 avx512;
-        (dot_f32, dot8_block_f32, dot4_block_f32, madd1_f32, madd2_f32));
+        (dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, madd1_f32, madd2_f32));
     engine!(i8: Avx2I8 avx2, Avx512I8 avx512;
-        (dot_i8, dot8_block_i8, dot4_block_i8, madd1_i8, madd2_i8));
+        (dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, madd1_i8, madd2_i8));
     engine!(F16Bits: Avx2F16 avx2, Avx512F16 avx512;
-        (dot_f16, dot8_block_f16, dot4_block_f16, madd1_f16, madd2_f16));
+        (dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, madd1_f16, madd2_f16));
 }
 
 /// A kernel `$name(isa, w, cols, xs, batch, scales, bias, ys_t)` that calls `$portable` or,
@@ -976,6 +1019,22 @@ dispatched!(
     rows::<Portable<F16Codec>>,
     rows::<engines::Avx2F16>,
     rows::<engines::Avx512F16>
+);
+dispatched!(
+    /// f32 rows stored interleaved (`interleaved.rs`).
+    interleaved_f32,
+    f32,
+    interleaved::<Portable<F32Codec>>,
+    interleaved::<engines::Avx2F32>,
+    interleaved::<engines::Avx512F32>
+);
+dispatched!(
+    /// f16 rows (bits) stored interleaved.
+    interleaved_f16,
+    F16Bits,
+    interleaved::<Portable<F16Codec>>,
+    interleaved::<engines::Avx2F16>,
+    interleaved::<engines::Avx512F16>
 );
 dispatched!(
     /// int8 rows with a per-row scale, by the lane rule (weights converted to f32): the rows

@@ -33,11 +33,13 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, panels_f16, panels_f32, panels_i8, quads_i8, rows_f16, rows_f32, rows_i8,
+    Isa, interleaved_f16, interleaved_f32, panels_f16, panels_f32, panels_i8, quads_i8, rows_f16,
+    rows_f32, rows_i8,
 };
 use super::int8::{self, QUAD, QUAD_PANEL};
+use super::interleaved::{IL_ROWS, from_interleaved, padded_cols, to_interleaved};
 use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
-use super::rows::F16Bits;
+use super::rows::{EIGHT_ROWS_FROM, F16Bits};
 use crate::error::{Error, Result, check_len};
 
 /// Storage precision of weight matrices, chosen when a network is loaded. Biases, scales,
@@ -115,16 +117,23 @@ enum Layout {
     /// int8 only: panels of `QUAD_PANEL` rows, four columns by four (`int8.rs`): rows the
     /// integer kernels take that are read from cache.
     Quads,
+    /// f32 and f16 only: panels of `IL_ROWS` rows, 32 columns of each in turn
+    /// (`interleaved.rs`): rows the single-vector path reads eight at a time.
+    Interleaved,
 }
 
 impl Layout {
     /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows; quad
-    /// panels for int8 matrices `int8::quads_apply` takes; rows otherwise.
+    /// panels for int8 matrices `int8::quads_apply` takes; interleaved rows for f32 and f16
+    /// matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows; rows
+    /// otherwise.
     fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
         if (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
             Self::Panels
         } else if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
             Self::Quads
+        } else if precision != Precision::Int8 && cols >= EIGHT_ROWS_FROM && rows >= IL_ROWS {
+            Self::Interleaved
         } else {
             Self::RowMajor
         }
@@ -133,8 +142,10 @@ impl Layout {
 
 /// A `rows × cols` weight matrix in the storage of its [`Precision`]: row-major, or for a thin
 /// matrix (at most 16 columns, such as a PCA basis at a low rank) in panels of 8 rows stored
-/// column by column (`panels.rs`; the same results bit for bit, faster). Built only from finite f32 values;
-/// immutable after construction.
+/// column by column (`panels.rs`), for int8 rows of 17 to 511 columns in quad panels
+/// (`int8.rs`), for f32 and f16 rows of 512 columns or more in panels of 8 rows stored 32
+/// columns of each at a time (`interleaved.rs`); each the same results bit for bit, faster.
+/// Built only from finite f32 values; immutable after construction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Matrix {
     rows: usize,
@@ -219,6 +230,14 @@ impl Matrix {
                     "quad panels hold int8 weights only",
                 ));
             }
+            (Layout::Interleaved, Storage::F32(w)) => Storage::F32(to_interleaved(&w, rows, cols)),
+            (Layout::Interleaved, Storage::F16(w)) => Storage::F16(to_interleaved(&w, rows, cols)),
+            (Layout::Interleaved, Storage::Int8 { .. }) => {
+                return Err(Error::invalid(
+                    "matrix",
+                    "interleaved rows hold f32 and f16 weights only",
+                ));
+            }
         };
         Ok(Self {
             rows,
@@ -248,7 +267,7 @@ impl Matrix {
     }
 
     /// Bytes held by the weights (and int8 scales; a thin matrix's last panel is padded to 8
-    /// rows).
+    /// rows, interleaved rows to whole chunks of 32 and whole panels of 8).
     pub fn weight_bytes(&self) -> usize {
         match &self.storage {
             Storage::F32(w) => 4 * w.len(),
@@ -287,6 +306,7 @@ impl Matrix {
         match self.layout {
             Layout::RowMajor => w.to_vec(),
             Layout::Panels => from_panels(w, self.rows, self.cols),
+            Layout::Interleaved => from_interleaved(w, self.rows, self.cols),
             Layout::Quads => unreachable!("quad panels hold int8 weights only"),
         }
     }
@@ -352,6 +372,7 @@ impl Matrix {
         let align = match self.layout {
             Layout::Panels => PANEL,
             Layout::Quads => QUAD_PANEL,
+            Layout::Interleaved => IL_ROWS,
             Layout::RowMajor => 1,
         };
         // The integer kernels' products are worth splitting only from eight times the size:
@@ -389,12 +410,17 @@ impl Matrix {
         let cols = self.cols;
         let panels = self.layout == Layout::Panels;
         let quads = self.layout == Layout::Quads;
+        let il = self.layout == Layout::Interleaved;
         let task = |r0: usize, ys: &mut [f32]| {
             let r1 = r0 + ys.len() / batch;
             let b = bias.map(|b| &b[r0..r1]);
-            // Panels: whole panels from `r0` (a multiple of PANEL) to past `r1`.
+            // Panels: whole panels from `r0` (a multiple of PANEL) to past `r1`; interleaved,
+            // of rows padded to whole chunks.
             let span = if panels {
                 r0 * cols..r1.next_multiple_of(PANEL) * cols
+            } else if il {
+                let stored = padded_cols(cols);
+                r0 * stored..r1.next_multiple_of(IL_ROWS) * stored
             } else {
                 r0 * cols..r1 * cols
             };
@@ -407,6 +433,12 @@ impl Matrix {
                 return;
             }
             match (&self.storage, panels) {
+                (Storage::F32(w), false) if il => {
+                    interleaved_f32(isa, &w[span], cols, xs, batch, None, b, ys)
+                }
+                (Storage::F16(w), false) if il => {
+                    interleaved_f16(isa, &w[span], cols, xs, batch, None, b, ys)
+                }
                 (Storage::F32(w), false) => rows_f32(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::F32(w), true) => panels_f32(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::F16(w), false) => rows_f16(isa, &w[span], cols, xs, batch, None, b, ys),
@@ -872,6 +904,102 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn interleaved_rows_equal_the_row_kernels_bitwise() {
+        use crate::kernels::dispatch::Isa;
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        // Whole chunks only, a partial last chunk of every kind, rows left over after the
+        // panels (for the four-row groups and `dot`), more than one block of panels, the
+        // paper's hidden size and rows wider than a batched tile.
+        let sizes = [
+            (8, 512),
+            (17, 520),
+            (12, 531),
+            (31, 1500),
+            (2 * crate::kernels::rows::SPREAD_ROWS + 21, 544),
+            (9, 1057),
+        ];
+        for (rows, cols) in sizes {
+            let mut w = random(&mut rng, rows * cols, 1.0);
+            // Zeros of both signs and products that underflow, as for the panels.
+            for (k, v) in w.iter_mut().enumerate() {
+                match k % 13 {
+                    0 => *v = -0.0,
+                    1 => *v *= 1.0e-30,
+                    _ => {}
+                }
+            }
+            for precision in [Precision::F32, Precision::F16] {
+                let il = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::Interleaved)
+                    .expect("finite");
+                let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
+                    .expect("finite");
+                assert_eq!(il.to_f32(), plain.to_f32());
+                // Padded to whole panels of rows of whole chunks.
+                let elem = plain.weight_bytes() / (rows * cols);
+                assert_eq!(
+                    il.weight_bytes(),
+                    elem * rows.next_multiple_of(8) * cols.next_multiple_of(32)
+                );
+                for batch in [1, 2, 9] {
+                    let mut xs = random(&mut rng, batch * cols, 2.0);
+                    xs[1] = -0.0;
+                    if batch > 1 {
+                        // An input that is not finite.
+                        xs[cols + 7] = f32::NAN;
+                    }
+                    let bias = random(&mut rng, rows, 0.5);
+                    for &isa in &Isa::available() {
+                        for (b, par) in [
+                            (None, Parallelism::Sequential),
+                            (Some(&bias[..]), Parallelism::Rayon),
+                        ] {
+                            let run = |m: &Matrix| {
+                                let mut y = vec![f32::NAN; rows * batch];
+                                m.run_rows(isa, &xs, batch, b, &mut y, par);
+                                y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                            };
+                            assert_eq!(
+                                run(&il),
+                                run(&plain),
+                                "{rows} × {cols} {} batch {batch} {} bias {}",
+                                precision.name(),
+                                isa.name(),
+                                b.is_some()
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            Matrix::with_layout(
+                8,
+                512,
+                vec![0.5; 8 * 512],
+                Precision::Int8,
+                Layout::Interleaved
+            )
+            .is_err()
+        );
+        // Rows of 512 columns or more from 8 rows on are stored interleaved in f32 and f16;
+        // narrower rows, fewer rows and int8 are not.
+        for (rows, cols, precision, want) in [
+            (13_272, 1_500, Precision::F32, Layout::Interleaved),
+            (4_500, 1_500, Precision::F16, Layout::Interleaved),
+            (8, 512, Precision::F32, Layout::Interleaved),
+            (7, 4_099, Precision::F32, Layout::RowMajor),
+            (13_272, 1_500, Precision::Int8, Layout::RowMajor),
+            (40_000, 511, Precision::F32, Layout::RowMajor),
+        ] {
+            assert_eq!(
+                Layout::for_shape(rows, cols, precision),
+                want,
+                "{rows} × {cols}"
+            );
         }
     }
 

@@ -9,6 +9,7 @@
 mod dispatch;
 mod gru;
 mod int8;
+mod interleaved;
 mod matrix;
 mod mlp;
 mod panels;

@@ -33,17 +33,19 @@
 
 use std::marker::PhantomData;
 
+use super::interleaved::{IL_ROWS, gather, padded_cols};
+
 /// Independent accumulators per dot product (4 × 256-bit registers on AVX2).
 pub(crate) const LANES: usize = 32;
 /// Columns from which the single-vector path reads eight rows at a time.
-const EIGHT_ROWS_FROM: usize = 512;
+pub(crate) const EIGHT_ROWS_FROM: usize = 512;
 /// The single-vector path's eight streams run through blocks of this many rows (a multiple
 /// of 8), each stream an eighth of the block.
 pub(crate) const SPREAD_ROWS: usize = 1024;
 /// Rows per tile of the batched path.
 const ROW_BLOCK: usize = 4;
 /// Columns per tile of the batched path (a multiple of [`LANES`]).
-const COL_BLOCK: usize = 512;
+pub(crate) const COL_BLOCK: usize = 512;
 /// Inputs per tile of the batched path.
 const GROUP: usize = 8;
 
@@ -134,7 +136,7 @@ pub(crate) fn reduce(mut s: [f32; LANES]) -> f32 {
 }
 
 #[inline(always)]
-fn epilogue(d: f32, scale: Option<f32>, bias: Option<f32>) -> f32 {
+pub(crate) fn epilogue(d: f32, scale: Option<f32>, bias: Option<f32>) -> f32 {
     let d = match scale {
         Some(s) => s * d,
         None => d,
@@ -237,6 +239,26 @@ pub(crate) trait Engine {
     fn dot4_block(w: &[Self::Stored], cols: usize, x: &[f32], nq: usize, sums: &mut [f32]) {
         for (i, s) in sums[..4 * nq].iter_mut().enumerate() {
             *s = Self::dot(&w[i * cols..(i + 1) * cols], x);
+        }
+    }
+    /// [`Engine::dot`] of the `8·n8` rows of `n8` interleaved panels of `cols` columns
+    /// (`interleaved.rs`: eight rows, chunk by chunk, each row zero-padded to whole chunks),
+    /// bitwise the same as one call per row: the SIMD engines read each panel as one stream,
+    /// prefetched. `sums[i]` is row `i`'s dot product with `x`.
+    fn dot8_interleaved(w: &[Self::Stored], cols: usize, x: &[f32], n8: usize, sums: &mut [f32]) {
+        let stride = IL_ROWS * padded_cols(cols);
+        for (q, s8) in sums[..IL_ROWS * n8].chunks_exact_mut(IL_ROWS).enumerate() {
+            let panel = &w[q * stride..(q + 1) * stride];
+            for (k, d) in s8.iter_mut().enumerate() {
+                let mut s = [0.0f32; LANES];
+                for c in (0..cols).step_by(LANES) {
+                    // The padding is not read: a partial chunk of the row's length.
+                    let at = c * IL_ROWS + k * LANES;
+                    let n = LANES.min(cols - c);
+                    Self::madd1(&panel[at..at + n], &x[c..c + n], &mut s);
+                }
+                *d = reduce(s);
+            }
         }
     }
     /// `s[j mod LANES] += w[j]·x[j]` over a span that starts at a multiple of [`LANES`]
@@ -356,6 +378,23 @@ pub(crate) fn rows<E: Engine>(
         }
         return;
     }
+    batched::<E, false>(w, cols, xs, batch, scales, bias, ys_t);
+}
+
+/// The batched path of [`rows`] (and, with `IL`, of `interleaved.rs`'s panels, each row's
+/// column block gathered into a buffer first): tiles of [`ROW_BLOCK`] rows × [`COL_BLOCK`]
+/// columns × up to [`GROUP`] inputs.
+#[inline(always)]
+pub(crate) fn batched<E: Engine, const IL: bool>(
+    w: &[E::Stored],
+    cols: usize,
+    xs: &[f32],
+    batch: usize,
+    scales: Option<&[f32]>,
+    bias: Option<&[f32]>,
+    ys_t: &mut [f32],
+) {
+    let mut buf = [E::Stored::default(); COL_BLOCK];
     let n_rows = ys_t.len() / batch;
     for r0 in (0..n_rows).step_by(ROW_BLOCK) {
         let nr = ROW_BLOCK.min(n_rows - r0);
@@ -366,7 +405,11 @@ pub(crate) fn rows<E: Engine>(
                 let c1 = (c0 + COL_BLOCK).min(cols);
                 let x = |k: usize| &xs[(g0 + k) * cols + c0..(g0 + k) * cols + c1];
                 for (r, s) in sums[..nr].iter_mut().enumerate() {
-                    let row = &w[(r0 + r) * cols + c0..(r0 + r) * cols + c1];
+                    let row = if IL {
+                        gather(w, cols, r0 + r, (c0, c1), &mut buf)
+                    } else {
+                        &w[(r0 + r) * cols + c0..(r0 + r) * cols + c1]
+                    };
                     let (pairs, odd) = s[..ng].as_chunks_mut::<2>();
                     for (p, [s0, s1]) in pairs.iter_mut().enumerate() {
                         E::madd2(row, x(2 * p), x(2 * p + 1), s0, s1);
