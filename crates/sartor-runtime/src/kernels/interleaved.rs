@@ -26,6 +26,10 @@
 //!   (2.80–3.17 ms against 3.71–4.46; 1.10–1.25× the floor against 1.46–1.65), two threads
 //!   0.87–0.97× (2.15–2.38 against 2.30–2.68; 1.01–1.27× the floor); f16 0.91–0.96× on one
 //!   thread and 0.89–0.92× on two;
+//! - matrices that sit in cache (1,536 × 512, 768 × 1,024, 2,048 × 1,500 and 4,500 × 1,500,
+//!   the same product repeated, two runs): level within the VM's noise, 0.61–1.10× the
+//!   row-major time in f32 and 0.87–1.29× in f16 (the worst of each in one run only), so
+//!   every matrix of such rows is stored interleaved, not only those read from memory;
 //! - the prefetch distance, in the first version on the dense product (per call against
 //!   row-major): 2, 4, 8, 12 and 16 KiB ahead level within 3 % in f32; in f16 (half the bytes
 //!   per step) 8 KiB 0.97–1.00× on one thread, 4 KiB 1.18–1.21× and 16 KiB 1.11–1.13×.
