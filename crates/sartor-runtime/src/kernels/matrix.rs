@@ -823,9 +823,45 @@ mod tests {
         assert_eq!(y, [1.5, 2.5]);
     }
 
+    /// `a` and `b` give the same bits for `xs` (`batch` inputs) under every instruction set,
+    /// on the calling thread without a bias and on rayon's pool with `bias`; `a`'s outputs of
+    /// each run are returned (`what` names the case in a failure).
+    fn same_bits_everywhere(
+        a: &Matrix,
+        b: &Matrix,
+        xs: &[f32],
+        batch: usize,
+        bias: &[f32],
+        what: &str,
+    ) -> Vec<Vec<u32>> {
+        use crate::kernels::dispatch::Isa;
+        let mut outputs = Vec::new();
+        for &isa in &Isa::available() {
+            for (bias, par) in [
+                (None, Parallelism::Sequential),
+                (Some(bias), Parallelism::Rayon),
+            ] {
+                let run = |m: &Matrix| {
+                    let mut y = vec![f32::NAN; m.rows() * batch];
+                    m.run_rows(isa, xs, batch, bias, &mut y, par);
+                    y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                };
+                let got = run(a);
+                let bias = bias.is_some();
+                assert_eq!(
+                    got,
+                    run(b),
+                    "{what} batch {batch} {} bias {bias}",
+                    isa.name()
+                );
+                outputs.push(got);
+            }
+        }
+        outputs
+    }
+
     #[test]
     fn int8_quad_panels_equal_the_row_kernels_bitwise() {
-        use crate::kernels::dispatch::Isa;
         let mut rng = ChaCha8Rng::seed_from_u64(29);
         // Widths of every remainder modulo 4 (a partial last quad), a partial last panel, the
         // shipped model's products (GRU input 88 and state 256, PCA 64) and the widest rows
@@ -875,32 +911,15 @@ mod tests {
                     xs[2 * cols..3 * cols].fill(0.0);
                 }
                 let bias = random(&mut rng, rows, 0.5);
-                for &isa in &Isa::available() {
-                    for (b, par) in [
-                        (None, Parallelism::Sequential),
-                        (Some(&bias[..]), Parallelism::Rayon),
-                    ] {
-                        let run = |m: &Matrix| {
-                            let mut y = vec![0.5; rows * batch];
-                            m.run_rows(isa, &xs, batch, b, &mut y, par);
-                            y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                        };
-                        let got = run(&quads);
-                        assert_eq!(
-                            got,
-                            run(&plain),
-                            "{rows} × {cols} batch {batch} {} bias {}",
-                            isa.name(),
-                            b.is_some()
+                let what = format!("{rows} × {cols}");
+                for got in same_bits_everywhere(&quads, &plain, &xs, batch, &bias, &what) {
+                    if batch > 1 {
+                        assert!(
+                            got.iter()
+                                .skip(1)
+                                .step_by(batch)
+                                .all(|&v| f32::from_bits(v).is_nan())
                         );
-                        if batch > 1 {
-                            assert!(
-                                got.iter()
-                                    .skip(1)
-                                    .step_by(batch)
-                                    .all(|&v| f32::from_bits(v).is_nan())
-                            );
-                        }
                     }
                 }
             }
@@ -909,7 +928,6 @@ mod tests {
 
     #[test]
     fn interleaved_rows_equal_the_row_kernels_bitwise() {
-        use crate::kernels::dispatch::Isa;
         let mut rng = ChaCha8Rng::seed_from_u64(31);
         // Whole chunks only, a partial last chunk of every kind, rows left over after the
         // panels (for the four-row groups and `dot`), more than one block of panels, the
@@ -952,26 +970,8 @@ mod tests {
                         xs[cols + 7] = f32::NAN;
                     }
                     let bias = random(&mut rng, rows, 0.5);
-                    for &isa in &Isa::available() {
-                        for (b, par) in [
-                            (None, Parallelism::Sequential),
-                            (Some(&bias[..]), Parallelism::Rayon),
-                        ] {
-                            let run = |m: &Matrix| {
-                                let mut y = vec![f32::NAN; rows * batch];
-                                m.run_rows(isa, &xs, batch, b, &mut y, par);
-                                y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                            };
-                            assert_eq!(
-                                run(&il),
-                                run(&plain),
-                                "{rows} × {cols} {} batch {batch} {} bias {}",
-                                precision.name(),
-                                isa.name(),
-                                b.is_some()
-                            );
-                        }
-                    }
+                    let what = format!("{rows} × {cols} {}", precision.name());
+                    same_bits_everywhere(&il, &plain, &xs, batch, &bias, &what);
                 }
             }
         }
@@ -1005,7 +1005,6 @@ mod tests {
 
     #[test]
     fn thin_matrices_in_panels_equal_the_row_kernels_bitwise() {
-        use crate::kernels::dispatch::Isa;
         let mut rng = ChaCha8Rng::seed_from_u64(23);
         let sizes = [
             (8, 1),
@@ -1063,26 +1062,8 @@ mod tests {
                         *x *= 1.0e-20;
                     }
                     let bias = random(&mut rng, rows, 0.5);
-                    for &isa in &Isa::available() {
-                        for (b, par) in [
-                            (None, Parallelism::Sequential),
-                            (Some(&bias[..]), Parallelism::Rayon),
-                        ] {
-                            let run = |m: &Matrix| {
-                                let mut y = vec![f32::NAN; rows * batch];
-                                m.run_rows(isa, &xs, batch, b, &mut y, par);
-                                y.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                            };
-                            assert_eq!(
-                                run(&thin),
-                                run(&plain),
-                                "{rows} × {cols} {} batch {batch} {} bias {}",
-                                precision.name(),
-                                isa.name(),
-                                b.is_some()
-                            );
-                        }
-                    }
+                    let what = format!("{rows} × {cols} {}", precision.name());
+                    same_bits_everywhere(&thin, &plain, &xs, batch, &bias, &what);
                 }
             }
         }
