@@ -256,7 +256,10 @@ const STREAM_AHEAD: usize = 2048;
 /// 4.80–5.53 → 4.21–4.74 ms, two 2.53 → 2.13–2.22 (one core of this Xeon keeps too few lines
 /// in flight on its own); on the AMD EPYC (Zen 5) VM every distance and hint tried was 3–10 %
 /// slower (its own prefetch keeps up with eight f32 streams). `SARTOR_RUNTIME_F32_PREFETCH`
-/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result.
+/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result. Since
+/// 2026-12-02 `Matrix` stores f32 rows of that length interleaved (`interleaved.rs`), read as
+/// one stream per panel and always prefetched, so this choice only concerns row-major blocks
+/// passed to the row kernels directly (the tests).
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn prefetch_f32_rows() -> bool {
     static CHOICE: OnceLock<bool> = OnceLock::new();

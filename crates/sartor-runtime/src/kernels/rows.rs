@@ -25,7 +25,10 @@
 //! rows of [`EIGHT_ROWS_FROM`] columns or more (on
 //! the AMD EPYC VM the paper-size 13,272 × 1,500 product took 5.0–6.4 ms in f32 with four
 //! streams, 4.5–5.0 with eight; the shipped model's rows of 64 to 256 columns, which live in
-//! cache, took twice as long with eight). The batched path tiles the work so that everything
+//! cache, took twice as long with eight; `Matrix` now stores f32 and f16 matrices of such rows
+//! interleaved, `interleaved.rs`, read by the same kernel as one stream per panel, and these
+//! row-major streams serve int8 rows of more than 2,048 columns). The batched path tiles the
+//! work so that everything
 //! but the weights stays in L1:
 //! blocks of [`ROW_BLOCK`] rows × [`COL_BLOCK`] columns × up to [`GROUP`] inputs, inputs taken
 //! two at a time (one weight load feeds two products), lane sums carried across column
