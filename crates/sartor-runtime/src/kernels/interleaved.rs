@@ -56,22 +56,32 @@ pub(crate) fn index(r: usize, c: usize, cols: usize) -> usize {
     panel + (c / LANES * IL_ROWS + r % IL_ROWS) * LANES + c % LANES
 }
 
-/// Row-major `rows × cols` → interleaved (zeros in the padding).
+/// Row-major `rows × cols` → interleaved (zeros in the padding), a chunk at a time.
 pub(crate) fn to_interleaved<T: Copy + Default>(w: &[T], rows: usize, cols: usize) -> Vec<T> {
     let mut out = vec![T::default(); rows.next_multiple_of(IL_ROWS) * padded_cols(cols)];
-    for r in 0..rows {
-        for c in 0..cols {
-            out[index(r, c, cols)] = w[r * cols + c];
+    if cols > 0 {
+        for (r, row) in w[..rows * cols].chunks_exact(cols).enumerate() {
+            for (c, chunk) in row.chunks(LANES).enumerate() {
+                let at = index(r, c * LANES, cols);
+                out[at..at + chunk.len()].copy_from_slice(chunk);
+            }
         }
     }
     out
 }
 
-/// Interleaved → row-major.
-pub(crate) fn from_interleaved<T: Copy>(w: &[T], rows: usize, cols: usize) -> Vec<T> {
-    (0..rows * cols)
-        .map(|i| w[index(i / cols, i % cols, cols)])
-        .collect()
+/// Interleaved → row-major, a chunk at a time.
+pub(crate) fn from_interleaved<T: Copy + Default>(w: &[T], rows: usize, cols: usize) -> Vec<T> {
+    let mut out = vec![T::default(); rows * cols];
+    if cols > 0 {
+        for (r, row) in out.chunks_exact_mut(cols).enumerate() {
+            for (c, chunk) in row.chunks_mut(LANES).enumerate() {
+                let at = index(r, c * LANES, cols);
+                chunk.copy_from_slice(&w[at..at + chunk.len()]);
+            }
+        }
+    }
+    out
 }
 
 /// Columns `c0..c1` of row `r` of panels `w` (`c0` a multiple of [`LANES`], at most
@@ -144,6 +154,11 @@ mod tests {
                 "{rows} × {cols}: every value once, zeros elsewhere"
             );
             assert_eq!(from_interleaved(&il, rows, cols), w);
+            for r in 0..rows {
+                for c in 0..cols {
+                    assert_eq!(il[index(r, c, cols)], w[r * cols + c], "({r}, {c})");
+                }
+            }
             // Chunk 1 of row 3 follows chunk 1 of row 2; a panel's rows are 32 apart.
             if rows >= 8 && cols >= 2 * LANES {
                 assert_eq!(index(3, LANES, cols), index(2, LANES, cols) + LANES);
