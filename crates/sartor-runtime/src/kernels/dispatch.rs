@@ -9,8 +9,13 @@
 //! are written once (`isa_kernels!`) over each module's vector type. One instruction set is
 //! picked at run time with `is_x86_feature_detected!`: the widest.
 //!
+//! Within the AVX-512 level the int8 quad panels (`int8.rs`) use VNNI (`vpdpbusd`) where the
+//! CPU has it (`has_vnni`; `SARTOR_RUNTIME_VNNI=0` turns it off for benchmarking), with their
+//! weights on cache lines ([`LineAligned`]): exact integer sums, so the same bits.
+//!
 //! Unsafe operations, each with its `SAFETY` comment: the unaligned loads and stores of the
-//! intrinsics (from references of exactly the size they touch), and calls of
+//! intrinsics (from references of exactly the size they touch), the byte view of
+//! [`LineAligned`]'s lines, and calls of
 //! `#[target_feature]` functions, which are sound exactly when the CPU has those features. An
 //! [`Isa`] other than the portable one can only be made after detection succeeded, and the
 //! SIMD engines are private to this module and only instantiated inside the wrappers with
@@ -76,6 +81,72 @@ fn has_avx512() -> bool {
         && is_x86_feature_detected!("avx512bw")
         && is_x86_feature_detected!("avx512vl")
         && is_x86_feature_detected!("avx512dq")
+}
+
+/// Whether the AVX-512 quad panels use VNNI (`vpdpbusd`): where this CPU has it, unless
+/// `SARTOR_RUNTIME_VNNI=0` (for benchmarking; the results are the same bits either way).
+#[cfg(target_arch = "x86_64")]
+fn has_vnni() -> bool {
+    static VNNI: OnceLock<bool> = OnceLock::new();
+    *VNNI.get_or_init(|| {
+        has_avx512()
+            && is_x86_feature_detected!("avx512vnni")
+            && std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
+    })
+}
+
+/// One cache line of int8 weights.
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct Line([i8; 64]);
+
+/// int8 weights that start on a cache line (64 bytes): the quad panels' 64-byte quads are then
+/// each one aligned load (the VNNI engine read unaligned quads 20–30 % slower from L1).
+#[derive(Clone)]
+pub(crate) struct LineAligned {
+    lines: Vec<Line>,
+    len: usize,
+}
+
+impl From<&[i8]> for LineAligned {
+    fn from(v: &[i8]) -> Self {
+        let mut lines = vec![Line([0; 64]); v.len().div_ceil(64)];
+        for (line, chunk) in lines.iter_mut().zip(v.chunks(64)) {
+            line.0[..chunk.len()].copy_from_slice(chunk);
+        }
+        Self {
+            lines,
+            len: v.len(),
+        }
+    }
+}
+
+impl From<Vec<i8>> for LineAligned {
+    fn from(v: Vec<i8>) -> Self {
+        Self::from(v.as_slice())
+    }
+}
+
+impl std::ops::Deref for LineAligned {
+    type Target = [i8];
+
+    fn deref(&self) -> &[i8] {
+        // SAFETY: `lines` holds at least `len` bytes (`from`), `Line` is 64 `i8` without
+        // padding (`repr(C)`), and the slice borrows `self`.
+        unsafe { std::slice::from_raw_parts(self.lines.as_ptr().cast::<i8>(), self.len) }
+    }
+}
+
+impl PartialEq for LineAligned {
+    fn eq(&self, other: &Self) -> bool {
+        **self == **other
+    }
+}
+
+impl std::fmt::Debug for LineAligned {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "LineAligned({} bytes)", self.len)
+    }
 }
 
 impl Isa {
@@ -1086,13 +1157,14 @@ mod int {
         _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
         _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16,
         _mm256_permute2x128_si256, _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_storeu_si256,
-        _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_extracti64x4_epi64,
-        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi64,
-        _mm512_setzero_si512, _mm512_storeu_si512,
+        _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_dpbusd_epi32,
+        _mm512_extracti64x4_epi64, _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32,
+        _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32,
+        _mm512_storeu_si512, _mm512_sub_epi32,
     };
 
-    use super::super::int8::PortableInt;
-    use super::super::int8::{FarGroups, IntEngine, QUAD_BYTES, QUAD_PANEL, QuadEngine};
+    use super::super::int8::{self, PortableInt};
+    use super::super::int8::{FarGroups, IntEngine, QUAD, QUAD_BYTES, QUAD_PANEL, QuadEngine};
     use super::{STREAM_AHEAD, prefetch};
 
     /// The sum of the eight 32-bit lanes.
@@ -1300,6 +1372,124 @@ mod int {
         halves(lanes)
     }
 
+    /// The quad-panel engine with AVX-512 VNNI: `vpdpbusd` sums four products of unsigned by
+    /// signed bytes into each 32-bit lane, and a quad's 64 bytes are its 16 rows' four weights,
+    /// so one instruction sums a quad for all 16 rows without widening them. The 16-bit inputs
+    /// go in as bytes: `x + 2¹⁵ = 256 h + l` with `h` and `l` in 0…255 ([`QuadEngine::word`]:
+    /// the four `l` in the low half, the four `h` in the high half), so that
+    /// `S = 256 · (Σ q h − 2⁷ · Σ q) + Σ q l` with the row sums `Σ q` that follow the panel's
+    /// quads. `vpdpbusd` does not saturate and vector adds and shifts wrap, so every step is
+    /// exact modulo 2³², and `S` lies within `i32` (the module contract of `int8.rs`): the same
+    /// sums as every engine.
+    pub(super) struct Avx512VnniQuads;
+
+    impl QuadEngine for Avx512VnniQuads {
+        #[inline(always)]
+        fn word(x: &[i16; QUAD]) -> u64 {
+            let (mut lo, mut hi) = (0u64, 0u64);
+            for (c, &v) in x.iter().enumerate() {
+                let u = u64::from((v as u16) ^ 0x8000);
+                lo |= (u & 0xff) << (8 * c);
+                hi |= (u >> 8) << (8 * c);
+            }
+            lo | hi << 32
+        }
+
+        #[inline(always)]
+        fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+            // SAFETY: only used inside `quads_vnni`, called only where `has_vnni` found
+            // avx512vnni besides the AVX-512 features of `has_avx512`.
+            unsafe { panel_vnni(q, words) }
+        }
+    }
+
+    /// Quads summed at once: independent sums for `vpdpbusd`'s latency (5 cycles at one per
+    /// cycle on Sapphire Rapids).
+    const VNNI_QUADS: usize = 4;
+
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vnni,avx2")]
+    fn panel_vnni(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+        let (quads, sums) = q.as_chunks::<QUAD_BYTES>().0.split_at(words.len());
+        let mut hi = [_mm512_setzero_si512(); VNNI_QUADS];
+        let mut lo = [_mm512_setzero_si512(); VNNI_QUADS];
+        let mut quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
+            // SAFETY: the 64 bytes of the quad, read unaligned.
+            let v = unsafe { _mm512_loadu_si512(quad.as_ptr().cast()) };
+            // The word's halves read from memory (a broadcast from a general register costs
+            // a transfer to the vector unit each): `lo` at its first four bytes, `hi` at the next.
+            let halves = std::ptr::from_ref(w).cast::<[u8; 4]>();
+            // SAFETY: the word's two halves, each read as 4 bytes.
+            let (l, h) = unsafe { (halves.read(), halves.add(1).read()) };
+            let (l, h) = (i32::from_le_bytes(l), i32::from_le_bytes(h));
+            hi[k] = _mm512_dpbusd_epi32(hi[k], _mm512_set1_epi32(h), v);
+            lo[k] = _mm512_dpbusd_epi32(lo[k], _mm512_set1_epi32(l), v);
+        };
+        let (whole, rest) = quads.as_chunks::<VNNI_QUADS>();
+        for (qs, ws) in whole.iter().zip(words.as_chunks::<VNNI_QUADS>().0) {
+            for k in 0..VNNI_QUADS {
+                quad(k, &qs[k], &ws[k]);
+            }
+        }
+        for (k, (q, w)) in rest
+            .iter()
+            .zip(&words[whole.len() * VNNI_QUADS..])
+            .enumerate()
+        {
+            quad(k, q, w);
+        }
+        let hi = _mm512_add_epi32(
+            _mm512_add_epi32(hi[0], hi[1]),
+            _mm512_add_epi32(hi[2], hi[3]),
+        );
+        let lo = _mm512_add_epi32(
+            _mm512_add_epi32(lo[0], lo[1]),
+            _mm512_add_epi32(lo[2], lo[3]),
+        );
+        // SAFETY: the row sums' 64 bytes after the quads (`to_quad_panels`), read unaligned.
+        let s = unsafe { _mm512_loadu_si512(sums[0].as_ptr().cast()) };
+        let h = _mm512_sub_epi32(hi, _mm512_slli_epi32::<7>(s));
+        let total = _mm512_add_epi32(_mm512_slli_epi32::<8>(h), lo);
+        let mut out = [0i32; QUAD_PANEL];
+        // SAFETY: the 16 lanes of `out`, written unaligned.
+        unsafe { _mm512_storeu_si512(out.as_mut_ptr().cast(), total) };
+        out
+    }
+
+    /// [`int8::quads_int`] with VNNI.
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c")]
+    pub(super) fn quads_vnni(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        int8::quads_int::<Avx512VnniQuads>(w, cols, xs, batch, scales, bias, ys_t);
+    }
+
+    /// The AVX-512 build of [`int8::quads_int`]: with VNNI where [`super::has_vnni`] allows,
+    /// else with the weights widened to 16 bits ([`Avx512Quads`]).
+    #[inline(always)]
+    pub(super) fn quads_avx512(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        if super::has_vnni() {
+            // SAFETY: `has_vnni` found avx512vnni and the features of `has_avx512` on this CPU.
+            unsafe { quads_vnni(w, cols, xs, batch, scales, bias, ys_t) }
+        } else {
+            int8::quads_int::<Avx512Quads>(w, cols, xs, batch, scales, bias, ys_t);
+        }
+    }
+
     int_kernels!(
         "avx2",
         Avx2Int,
@@ -1351,7 +1541,7 @@ dispatched!(
     i8,
     int8::quads_int::<int8::PortableQuads>,
     int8::quads_int::<int::Avx2Quads>,
-    int8::quads_int::<int::Avx512Quads>
+    int::quads_avx512
 );
 
 /// int8 rows with a per-row scale: the integer kernels of `int8.rs` for rows of more than 16
@@ -1381,6 +1571,80 @@ mod tests {
     use crate::kernels::rows::SPREAD_ROWS;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn every_quad_engine_gives_the_same_bits() {
+        // The AVX-512 build picks one quad engine per CPU (VNNI where present), so the
+        // matrix tests, which go through `Isa`, meet only that one: here the portable, widened
+        // AVX-512 and VNNI engines each run the same products, from aligned and unaligned
+        // panels, with rows of ±127 against inputs at ±L (the contract's extremes: VNNI's
+        // wrapping steps leave `i32` there and must come back), batch 1 and 3.
+        type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
+        #[allow(unused_mut)]
+        let mut kernels: Vec<(&str, Kernel)> =
+            vec![("portable", int8::quads_int::<int8::PortableQuads> as Kernel)];
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma,f16c")]
+            fn widened(
+                w: &[i8],
+                cols: usize,
+                xs: &[f32],
+                batch: usize,
+                scales: Option<&[f32]>,
+                bias: Option<&[f32]>,
+                ys_t: &mut [f32],
+            ) {
+                int8::quads_int::<int::Avx512Quads>(w, cols, xs, batch, scales, bias, ys_t);
+            }
+            if has_avx512() {
+                // SAFETY: `has_avx512` found the wrapper's features on this CPU.
+                kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
+                    widened(w, c, x, b, s, bi, y)
+                }));
+            }
+            if has_avx512() && is_x86_feature_detected!("avx512vnni") {
+                // SAFETY: detection found the wrapper's features on this CPU.
+                kernels.push(("vnni", |w, c, x, b, s, bi, y| unsafe {
+                    int::quads_vnni(w, c, x, b, s, bi, y)
+                }));
+            }
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(41);
+        for (rows, cols) in [(16, 17), (33, 88), (48, 64), (20, 256), (17, 511)] {
+            let mut q: Vec<i8> = (0..rows * cols)
+                .map(|_| rng.random_range(-127..=127))
+                .collect();
+            for (c, v) in q[..2 * cols].iter_mut().enumerate() {
+                // Row 0 all +127, row 1 of alternating sign.
+                *v = if c < cols || c % 2 == 0 { 127 } else { -127 };
+            }
+            let panels = int8::to_quad_panels(&q, rows, cols);
+            let aligned = LineAligned::from(panels.as_slice());
+            let mut shifted = vec![0i8; panels.len() + 16];
+            shifted[16..].copy_from_slice(&panels);
+            let scales: Vec<f32> = (0..rows).map(|_| rng.random_range(0.001..0.01)).collect();
+            let bias: Vec<f32> = (0..rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+            for batch in [1, 3] {
+                let mut xs: Vec<f32> = (0..batch * cols)
+                    .map(|_| rng.random_range(-2.0..2.0))
+                    .collect();
+                for (c, x) in xs[..cols].iter_mut().enumerate() {
+                    *x = if c % 2 == 0 { 2.0 } else { -2.0 };
+                }
+                let mut want = None;
+                for (name, kernel) in &kernels {
+                    for (w, at) in [(&aligned[..], "aligned"), (&shifted[16..], "shifted")] {
+                        let mut ys = vec![f32::NAN; rows * batch];
+                        kernel(w, cols, &xs, batch, Some(&scales), Some(&bias), &mut ys);
+                        let bits: Vec<u32> = ys.iter().map(|v| v.to_bits()).collect();
+                        let want = want.get_or_insert(bits.clone());
+                        assert_eq!(&bits, want, "{rows} × {cols} batch {batch} {name} {at}");
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_lane_masks_agree_with_a_plain_comparison() {

@@ -356,17 +356,30 @@ pub(crate) fn quads_apply(rows: usize, cols: usize) -> bool {
     applies(cols) && cols < STRIDED_FROM && rows >= QUAD_PANEL
 }
 
+/// Bytes a row of `cols` columns takes in quad panels: its quads and its share of the panel's
+/// row sums (one more quad's worth).
+pub(crate) fn quad_row_bytes(cols: usize) -> usize {
+    (cols.div_ceil(QUAD) + 1) * QUAD
+}
+
 /// Row-major int8 `rows × cols` → quad panels: [`QUAD_PANEL`] rows per panel, and within a
 /// panel the column quads `(4j … 4j + 3)` one after another, each holding the quad of every row
 /// of the panel (64 bytes: row 0's four weights, row 1's, …). Element `(i, c)` goes to
-/// `((i / 16 · Q + c / 4) · 16 + i % 16) · 4 + c % 4` with `Q = ⌈cols / 4⌉` quads; the last
-/// panel's missing rows and the last quad's missing columns are zero.
+/// `((i / 16 · (Q + 1) + c / 4) · 16 + i % 16) · 4 + c % 4` with `Q = ⌈cols / 4⌉` quads; the
+/// last panel's missing rows and the last quad's missing columns are zero. After its `Q` quads
+/// each panel holds one more [`QUAD_BYTES`]: its 16 rows' weight sums `Σ_c q_rc` as
+/// little-endian `i32` (the VNNI engine's offset; see `dispatch.rs`).
 pub(crate) fn to_quad_panels(q: &[i8], rows: usize, cols: usize) -> Vec<i8> {
     let quads = cols.div_ceil(QUAD);
-    let mut out = vec![0i8; rows.div_ceil(QUAD_PANEL) * quads * QUAD_BYTES];
+    let mut out = vec![0i8; rows.div_ceil(QUAD_PANEL) * (quads + 1) * QUAD_BYTES];
     for (i, row) in q.chunks_exact(cols.max(1)).take(rows).enumerate() {
         for (c, &v) in row.iter().enumerate() {
             out[quad_index(i, c, quads)] = v;
+        }
+        let sum: i32 = row.iter().map(|&v| i32::from(v)).sum();
+        let at = ((i / QUAD_PANEL * (quads + 1) + quads) * QUAD_PANEL + i % QUAD_PANEL) * QUAD;
+        for (o, b) in out[at..at + QUAD].iter_mut().zip(sum.to_le_bytes()) {
+            *o = b as i8;
         }
     }
     out
@@ -385,13 +398,22 @@ pub(crate) fn from_quad_panels(p: &[i8], rows: usize, cols: usize) -> Vec<i8> {
 }
 
 fn quad_index(i: usize, c: usize, quads: usize) -> usize {
-    (((i / QUAD_PANEL) * quads + c / QUAD) * QUAD_PANEL + i % QUAD_PANEL) * QUAD + c % QUAD
+    (((i / QUAD_PANEL) * (quads + 1) + c / QUAD) * QUAD_PANEL + i % QUAD_PANEL) * QUAD + c % QUAD
 }
 
-/// The sums of one quad panel: `q` its quads ([`QUAD_BYTES`] each), `words[j]` the quantised
-/// inputs `4j … 4j + 3` of quad `j` as 16-bit integers (column `4j` in the low bits); returns
-/// `S_r = Σ_c q_rc · x_q,c` for its 16 rows. Sums are exact, so an engine may add in any order.
+/// The sums of one quad panel: `q` its quads ([`QUAD_BYTES`] each) and then its row sums
+/// ([`to_quad_panels`]), `words[j]` quad `j`'s inputs `4j … 4j + 3` in the engine's form
+/// ([`QuadEngine::word`]); returns `S_r = Σ_c q_rc · x_q,c` for its 16 rows. Sums are exact,
+/// so an engine may add in any order.
 pub(crate) trait QuadEngine {
+    /// The word a quad of quantised inputs is broadcast from: by default the four as 16-bit
+    /// integers, column `4j` in the low bits.
+    #[inline(always)]
+    fn word(x: &[i16; QUAD]) -> u64 {
+        x.iter()
+            .enumerate()
+            .fold(0, |w, (c, &v)| w | u64::from(v as u16) << (16 * c))
+    }
     fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL];
 }
 
@@ -448,10 +470,7 @@ pub(crate) fn quads_int<E: QuadEngine>(
             .iter_mut()
             .zip(buffer[..quads * QUAD].as_chunks::<QUAD>().0)
         {
-            *w = x
-                .iter()
-                .enumerate()
-                .fold(0, |w, (c, &v)| w | u64::from(v as u16) << (16 * c));
+            *w = E::word(x);
         }
         let words = &words[..quads];
         // A whole panel of one finite input: its 16 outputs side by side, the panels, their
@@ -459,7 +478,7 @@ pub(crate) fn quads_int<E: QuadEngine>(
         let whole = match (step, batch) {
             (Some(t), 1) => {
                 let whole = n_rows / QUAD_PANEL;
-                let panels = q.chunks_exact(quads * QUAD_BYTES).take(whole);
+                let panels = q.chunks_exact((quads + 1) * QUAD_BYTES).take(whole);
                 let ys = ys_t[..whole * QUAD_PANEL].as_chunks_mut::<QUAD_PANEL>().0;
                 let s = scales.map(|s| s[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
                 let b = bias.map(|b| b[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
@@ -469,7 +488,7 @@ pub(crate) fn quads_int<E: QuadEngine>(
             _ => 0,
         };
         for (p, panel) in q
-            .chunks_exact(quads * QUAD_BYTES)
+            .chunks_exact((quads + 1) * QUAD_BYTES)
             .take(n_rows.div_ceil(QUAD_PANEL))
             .enumerate()
             .skip(whole)

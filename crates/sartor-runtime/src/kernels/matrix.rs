@@ -33,10 +33,10 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, interleaved_f16, interleaved_f32, panels_f16, panels_f32, panels_i8, quads_i8, rows_f16,
-    rows_f32, rows_i8,
+    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f16, panels_f32, panels_i8,
+    quads_i8, rows_f16, rows_f32, rows_i8,
 };
-use super::int8::{self, QUAD, QUAD_PANEL};
+use super::int8::{self, QUAD_PANEL};
 use super::interleaved::{IL_ROWS, from_interleaved, padded_cols, to_interleaved};
 use super::panels::{PANEL, THIN_COLS, from_panels, to_panels};
 use super::rows::{EIGHT_ROWS_FROM, F16Bits};
@@ -104,7 +104,11 @@ fn rows_per_task(
 enum Storage {
     F32(Vec<f32>),
     F16(Vec<F16Bits>),
-    Int8 { q: Vec<i8>, scales: Vec<f32> },
+    /// int8 weights start on a cache line (the quad panels' loads).
+    Int8 {
+        q: LineAligned,
+        scales: Vec<f32>,
+    },
 }
 
 /// How `Storage` orders the weights.
@@ -209,7 +213,10 @@ impl Matrix {
                         *scale = quantize_row(row, qrow);
                     }
                 }
-                Storage::Int8 { q, scales }
+                Storage::Int8 {
+                    q: q.into(),
+                    scales,
+                }
             }
         };
         let storage = match (layout, storage) {
@@ -217,11 +224,11 @@ impl Matrix {
             (Layout::Panels, Storage::F32(w)) => Storage::F32(to_panels(&w, rows, cols)),
             (Layout::Panels, Storage::F16(w)) => Storage::F16(to_panels(&w, rows, cols)),
             (Layout::Panels, Storage::Int8 { q, scales }) => Storage::Int8 {
-                q: to_panels(&q, rows, cols),
+                q: to_panels(&q[..], rows, cols).into(),
                 scales,
             },
             (Layout::Quads, Storage::Int8 { q, scales }) => Storage::Int8 {
-                q: int8::to_quad_panels(&q, rows, cols),
+                q: int8::to_quad_panels(&q, rows, cols).into(),
                 scales,
             },
             (Layout::Quads, _) => {
@@ -288,7 +295,7 @@ impl Matrix {
             Storage::Int8 { q, scales } => {
                 let q = match self.layout {
                     Layout::Quads => int8::from_quad_panels(q, self.rows, self.cols),
-                    _ => self.row_major(q),
+                    _ => self.row_major(&q[..]),
                 };
                 if self.cols == 0 {
                     return Vec::new();
@@ -426,7 +433,7 @@ impl Matrix {
             };
             if let (Storage::Int8 { q, scales }, true) = (&self.storage, quads) {
                 // Whole quad panels from `r0` (a multiple of QUAD_PANEL) to past `r1`.
-                let per_row = cols.div_ceil(QUAD) * QUAD;
+                let per_row = int8::quad_row_bytes(cols);
                 let span = r0 * per_row..r1.next_multiple_of(QUAD_PANEL) * per_row;
                 let s = Some(&scales[r0..r1]);
                 quads_i8(isa, &q[span], cols, xs, batch, s, b, ys);
