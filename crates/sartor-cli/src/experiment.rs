@@ -345,9 +345,15 @@ pub struct TradeoffArgs {
     /// Evaluate on every training shape (default: the nominal shape only, as the paper did).
     #[arg(long)]
     pub all_shapes: bool,
-    /// Frames timed per point (default: the config's `evaluation.tradeoff_timed_frames`).
+    /// Frames timed per point and round (default: the config's
+    /// `evaluation.tradeoff_timed_frames`).
     #[arg(long)]
     pub timed_frames: Option<usize>,
+    /// Timing rounds: every point is timed once per round, so that a machine whose speed
+    /// drifts over seconds moves every point alike; a point's time is its median over the
+    /// rounds (default: the config's `evaluation.tradeoff_rounds`).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub rounds: Option<u32>,
 }
 
 /// Run `tradeoff`.
@@ -362,6 +368,9 @@ pub fn tradeoff_cmd(args: &TradeoffArgs, env: &Env) -> anyhow::Result<()> {
         timed_frames: args
             .timed_frames
             .unwrap_or(first.evaluation.tradeoff_timed_frames),
+        rounds: args
+            .rounds
+            .map_or(first.evaluation.tradeoff_rounds, |r| r as usize),
     };
     let mut experiments = vec![first];
     for c in &args.extra_config {

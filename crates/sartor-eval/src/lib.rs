@@ -62,5 +62,6 @@ pub use slice::{
 };
 pub use timing::{FrameTiming, mean, median, thread_cpu_ns, time_frames, time_stages};
 pub use tradeoff::{
-    TradeoffOptions, TradeoffPoint, TradeoffReport, mark_pareto, plot_tradeoff, sweep_model,
+    SweptPoint, TradeoffOptions, TradeoffPoint, TradeoffReport, mark_pareto, plot_tradeoff,
+    sweep_model, time_points,
 };

@@ -193,15 +193,35 @@ fn draw_chart<DB: DrawingBackend>(
     }
 }
 
-/// A log axis's range over the finite positive `values`, with a fifth of a decade of room on
-/// each side; `None` when there is none.
+/// A log axis's range over the finite positive `values`: from the power of ten at or below a
+/// fifth of a decade under the smallest (plotters labels a log axis from its first power of
+/// ten on, so a range that starts between two leaves the values there without labels) to a
+/// fifth of a decade over the largest; `None` when there is none.
 pub(crate) fn log_range(values: impl Iterator<Item = f64>) -> Option<std::ops::Range<f64>> {
     let (lo, hi) = values
         .filter(|v| v.is_finite() && *v > 0.0)
         .fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
             (lo.min(v), hi.max(v))
         });
-    lo.is_finite().then(|| lo / 1.6..hi * 1.6)
+    // A hair under the power of ten: `10^-2` in floats may lie above 0.01, and plotters would
+    // then start its labels at 0.1.
+    lo.is_finite()
+        .then(|| 10f64.powf((lo / 1.6).log10().floor()) * (1.0 - 1e-9)..hi * 1.6)
+}
+
+/// An axis label with three significant digits and no trailing zeros (a log axis's key points
+/// are products of floats: `0.30000000000000004` for 0.3).
+fn tick_label(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let decimals = (3 - v.abs().log10().ceil() as i32).clamp(0, 12) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
 }
 
 fn draw_series<'a, DB: DrawingBackend + 'a, X>(
@@ -214,6 +234,17 @@ where
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
+        .x_labels(if chart.log_x { 20 } else { 10 })
+        .x_label_formatter(&|v| {
+            // On a log axis, label 1, 2, 3 and 5 of each decade (all nine crowd at its top).
+            let leading = (v / 10f64.powf(v.log10().floor())).round();
+            if chart.log_x && ![1.0, 2.0, 3.0, 5.0].contains(&leading) {
+                String::new()
+            } else {
+                tick_label(*v)
+            }
+        })
+        .y_label_formatter(&|v| tick_label(*v))
         .label_style(("sans-serif", 13))
         .draw()?;
     for (k, s) in chart.series.iter().enumerate() {
@@ -330,9 +361,24 @@ mod tests {
     }
 
     #[test]
-    fn log_axes_pad_a_fifth_of_a_decade_over_positive_values() {
+    fn tick_labels_keep_three_significant_digits_and_drop_float_noise() {
+        assert_eq!(tick_label(0.30000000000000004), "0.3");
+        assert_eq!(tick_label(0.7000000000000001), "0.7");
+        assert_eq!(tick_label(0.02), "0.02");
+        assert_eq!(tick_label(0.0005), "0.0005");
+        assert_eq!(tick_label(1500.0), "1500");
+        assert_eq!(tick_label(12.5), "12.5");
+        assert_eq!(tick_label(-2.25), "-2.25");
+        assert_eq!(tick_label(0.0), "0");
+    }
+
+    #[test]
+    fn log_axes_start_at_a_power_of_ten_and_pad_a_fifth_of_a_decade_over_positive_values() {
+        // 0.05 / 1.6 = 0.031: the axis starts at 0.01; 0.2 / 1.6 = 0.125: at 0.1.
         let r = log_range([0.05, f64::NAN, -1.0, 0.0, 3.0].into_iter()).expect("two values");
-        assert!((r.start - 0.05 / 1.6).abs() < 1e-15 && (r.end - 3.0 * 1.6).abs() < 1e-12);
+        assert!((r.start - 0.01).abs() < 1e-10 && r.start < 0.01 && (r.end - 4.8).abs() < 1e-12);
+        let r = log_range([0.2, 0.7].into_iter()).expect("two values");
+        assert!((r.start - 0.1).abs() < 1e-9 && r.start < 0.1, "{r:?}");
         assert!(log_range([0.0, f64::INFINITY].into_iter()).is_none());
     }
 }

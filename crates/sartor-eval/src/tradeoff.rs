@@ -13,15 +13,18 @@
 //! Each point's error is the mean vertex error (mm) of `ours` on the experiment's held-out
 //! motions (on the nominal shape unless `--all-shapes`), exactly as `eval` computes it, with the
 //! share of cloth vertex-frames inside the body before and after the post-process (eval's
-//! measure, the body's winding number: [`sartor_core::BodyDistance`]). Its cost is the median wall
-//! time of `GarmentAnimator::frame` on one thread over one held-out clip, measured sequentially
-//! after a warm-up, and the bytes of its weights. A point is in the Pareto set when no other
+//! measure, the body's winding number: [`sartor_core::BodyDistance`]). Its cost is the wall time
+//! of `GarmentAnimator::frame` on one thread over one held-out clip ([`time_points`]: every
+//! point timed once per round, after a warm-up; the median over a round's frames, then the
+//! median over the rounds), and the bytes of its weights. A point is in the Pareto set when no other
 //! point is at least as good in error, collisions and time and better in one. Writes
 //! `runs/<name>/tradeoff/tradeoff.json` and `pareto.{png,svg}` (one chart per garment resolution
 //! on shared axes, log time axis, one marker shape per precision, the Pareto set ringed).
 
 use std::path::Path;
 use std::sync::Arc;
+
+use sartor_core::Pose;
 
 use sartor_runtime::{
     AnimatorOptions, FitMode, GarmentAnimator, GarmentRig, NetworkOptions, OutputKind, Precision,
@@ -41,8 +44,10 @@ use crate::{Progress, Result};
 pub struct TradeoffOptions {
     /// Output ranks swept (those below the model's own output width).
     pub ranks: Vec<usize>,
-    /// Frames timed per point (the first test sequence, looped).
+    /// Frames timed per point and round (the first test sequence, looped).
     pub timed_frames: usize,
+    /// Timing rounds ([`time_points`]).
+    pub rounds: usize,
 }
 
 /// One point of the sweep.
@@ -74,8 +79,10 @@ pub struct TradeoffPoint {
     pub collision_percent_before_pp: f64,
     /// The same network's share after the post-process, %.
     pub collision_percent_after_pp: f64,
-    /// Median ms per frame, one thread.
+    /// ms per frame, one thread: the median over the rounds of each round's median.
     pub ms_per_frame: f64,
+    /// Each round's median ms per frame.
+    pub ms_per_frame_rounds: Vec<f64>,
     /// The weights this point runs (fit MLP, and GRU and output unless fit-only), MB (10⁶ bytes).
     pub model_mb: f64,
     /// No other point is at least as good in error, collisions and time and better in one.
@@ -95,6 +102,10 @@ pub struct TradeoffReport {
     pub frames: usize,
     /// Every point of the sweep.
     pub points: Vec<TradeoffPoint>,
+    /// Frames timed per point and round.
+    pub timed_frames: usize,
+    /// Timing rounds ([`time_points`]).
+    pub rounds: usize,
     /// Wall time, seconds.
     pub wall_time_s: f64,
     /// Where it ran.
@@ -109,25 +120,65 @@ fn precision_name(p: Precision) -> &'static str {
     }
 }
 
-/// Median ms of `GarmentAnimator::frame` over `frames` frames of `seq`'s poses (looped), after
+/// The clip a point is timed on: the first test sequence's shape and poses.
+#[derive(Debug)]
+struct TimedClip {
+    betas: Vec<f64>,
+    previous_pose: Pose,
+    poses: Vec<Pose>,
+}
+
+/// A point of the sweep before its timing ([`sweep_model`]) and what runs it.
+pub struct SweptPoint {
+    /// The point, its `ms_per_frame` not yet measured (NaN).
+    pub point: TradeoffPoint,
+    rig: Arc<GarmentRig>,
+    clip: Arc<TimedClip>,
+}
+
+/// Median ms of `GarmentAnimator::frame` over `frames` frames of `clip`'s poses (looped), after
 /// a warm-up of up to 10 frames.
-fn time_sequence(rig: &Arc<GarmentRig>, seq: &TestSequence, frames: usize) -> Result<f64> {
+fn time_clip(rig: &Arc<GarmentRig>, clip: &TimedClip, frames: usize) -> Result<f64> {
     let n_betas = rig.network().n_betas();
-    let betas: Vec<f32> = seq
-        .truth
-        .betas
-        .iter()
-        .take(n_betas)
-        .map(|&b| b as f32)
-        .collect();
+    let betas: Vec<f32> = clip.betas.iter().take(n_betas).map(|&b| b as f32).collect();
     let mut a = GarmentAnimator::new(rig.clone())?;
     a.set_shape(&betas)?;
-    a.reset_from(&seq.truth.previous_pose)?;
-    let poses = &seq.truth.poses;
-    let warmup = poses.len().min(10);
+    a.reset_from(&clip.previous_pose)?;
+    let warmup = clip.poses.len().min(10);
     Ok(median(
-        &time_frames(&mut a, poses, warmup, frames.max(1))?.wall_ms,
+        &time_frames(&mut a, &clip.poses, warmup, frames.max(1))?.wall_ms,
     ))
+}
+
+/// Time every swept point in `options.rounds` rounds: in each round every point in turn, seconds
+/// apart at most, so that a machine whose speed drifts over seconds (the VMs of the README's
+/// tables do) moves every point of a round alike rather than some points and not others. A
+/// point's `ms_per_frame` is the median over the rounds of its round's median.
+pub fn time_points(
+    swept: Vec<SweptPoint>,
+    options: &TradeoffOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<TradeoffPoint>> {
+    let rounds = options.rounds.max(1);
+    progress.start("timing", (rounds * swept.len()) as u64, "points");
+    let mut times = vec![Vec::with_capacity(rounds); swept.len()];
+    for round in 0..rounds {
+        progress.message(&format!("round {} of {rounds}", round + 1));
+        for (s, t) in swept.iter().zip(&mut times) {
+            t.push(time_clip(&s.rig, &s.clip, options.timed_frames)?);
+            progress.inc(1);
+        }
+    }
+    progress.finish();
+    Ok(swept
+        .into_iter()
+        .zip(times)
+        .map(|(s, t)| TradeoffPoint {
+            ms_per_frame: median(&t),
+            ms_per_frame_rounds: t,
+            ..s.point
+        })
+        .collect())
 }
 
 /// Mark the points no other point dominates over (time, error, collisions): at least as good
@@ -147,14 +198,21 @@ pub fn mark_pareto(points: &mut [TradeoffPoint]) {
 }
 
 /// Sweep one exported model (its assets and its test sequences): every output rank of
-/// `options` below the model's own, f32 / f16 / int8, post-process on and off, and fit-only.
+/// `options` below the model's own, f32 / f16 / int8, post-process on and off, and fit-only;
+/// each point's error and collisions, and what [`time_points`] times it with (on the first
+/// test sequence).
 pub fn sweep_model(
     assets: &Assets,
     seqs: &[TestSequence],
     args: &TradeoffOptions,
     progress: &dyn Progress,
-) -> Result<Vec<TradeoffPoint>> {
+) -> Result<Vec<SweptPoint>> {
     crate::error::ensure!(!seqs.is_empty(), "no test sequences to sweep on");
+    let clip = Arc::new(TimedClip {
+        betas: seqs[0].truth.betas.clone(),
+        previous_pose: seqs[0].truth.previous_pose.clone(),
+        poses: seqs[0].truth.poses.clone(),
+    });
     let full = assets.network(NetworkOptions::default())?;
     let sizes = full.header().sizes;
     let own_width = match sizes.output {
@@ -216,8 +274,7 @@ pub fn sweep_model(
                 let report = evaluate_with(assets, &network, options(true), seqs, &quiet)?;
                 for pp in [true, false] {
                     let rig = assets.rig(&network, options(pp))?;
-                    let ms = time_sequence(&rig, &seqs[0], args.timed_frames)?;
-                    points.push(TradeoffPoint {
+                    let point = TradeoffPoint {
                         label: format!("{label}{}", if pp { " pp" } else { "" }),
                         model: model.clone(),
                         garment_triangles: triangles,
@@ -238,9 +295,15 @@ pub fn sweep_model(
                         },
                         collision_percent_before_pp: report.collision_percent_before_pp,
                         collision_percent_after_pp: report.collision_percent_after_pp,
-                        ms_per_frame: ms,
+                        ms_per_frame: f64::NAN,
+                        ms_per_frame_rounds: Vec::new(),
                         model_mb: bytes as f64 * 1e-6,
                         pareto: false,
+                    };
+                    points.push(SweptPoint {
+                        point,
+                        rig,
+                        clip: clip.clone(),
                     });
                 }
                 progress.inc(1);
@@ -335,6 +398,7 @@ mod tests {
             collision_percent_before_pp: 0.0,
             collision_percent_after_pp: 0.0,
             ms_per_frame: ms,
+            ms_per_frame_rounds: vec![ms],
             model_mb: 0.0,
             pareto: false,
         }

@@ -174,8 +174,10 @@ pub struct EvaluationConfig {
     /// Output ranks the trade-off sweeps (those below a model's own width); default
     /// 4, 8, 16, 32, 64.
     pub tradeoff_ranks: Vec<usize>,
-    /// Frames timed per trade-off point; default 120.
+    /// Frames timed per trade-off point and round; default 120.
     pub tradeoff_timed_frames: usize,
+    /// Timing rounds of the trade-off (every point timed once per round); default 15.
+    pub tradeoff_rounds: usize,
 }
 
 impl Default for EvaluationConfig {
@@ -185,6 +187,7 @@ impl Default for EvaluationConfig {
             render_frames: 4,
             tradeoff_ranks: vec![4, 8, 16, 32, 64],
             tradeoff_timed_frames: 120,
+            tradeoff_rounds: 15,
         }
     }
 }
@@ -424,6 +427,9 @@ impl Experiment {
         }
         if self.evaluation.tradeoff_timed_frames == 0 {
             bail!("evaluation.tradeoff_timed_frames must be at least 1");
+        }
+        if self.evaluation.tradeoff_rounds == 0 {
+            bail!("evaluation.tradeoff_rounds must be at least 1");
         }
         Ok(())
     }

@@ -9,7 +9,7 @@ use std::time::Instant;
 use sartor_dataset::SimFolder;
 use sartor_eval::{
     Assets, Machine, Progress, TestSets, TradeoffOptions, TradeoffReport, load_truth, mark_pareto,
-    plot_tradeoff, sweep_model, test_sets, write_json,
+    plot_tradeoff, sweep_model, test_sets, time_points, write_json,
 };
 
 use crate::Result;
@@ -37,7 +37,7 @@ pub fn run_tradeoff(
 ) -> Result<(TradeoffReport, PathBuf)> {
     let start = Instant::now();
     let first = run.experiments.first().context("no experiment to sweep")?;
-    let mut points = Vec::new();
+    let mut swept = Vec::new();
     let (mut n_sequences, mut n_frames) = (0, 0);
     for (i, e) in run.experiments.iter().enumerate() {
         let mut models = vec![e.export_dir()];
@@ -61,9 +61,11 @@ pub fn run_tradeoff(
             let seqs = load_truth(&plan, &files, &motions)?;
             n_sequences += seqs.len();
             n_frames += seqs.iter().map(|s| s.truth.poses.len()).sum::<usize>();
-            points.extend(sweep_model(&assets, &seqs, &run.options, progress)?);
+            swept.extend(sweep_model(&assets, &seqs, &run.options, progress)?);
         }
     }
+    // Timed after every model is swept: the rounds interleave every point of every model.
+    let mut points = time_points(swept, &run.options, progress)?;
     mark_pareto(&mut points);
 
     let dir = first.run_dir().join("tradeoff");
@@ -79,6 +81,8 @@ pub fn run_tradeoff(
         sequences: n_sequences,
         frames: n_frames,
         points,
+        timed_frames: run.options.timed_frames,
+        rounds: run.options.rounds,
         wall_time_s: start.elapsed().as_secs_f64(),
         machine: Machine::current(),
     };
