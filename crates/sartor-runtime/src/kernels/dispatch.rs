@@ -1137,15 +1137,6 @@ dispatched!(
     panels::<F16Bits>,
     panels::<F16Bits>
 );
-dispatched!(
-    /// int8 panels with a per-row scale.
-    panels_i8,
-    i8,
-    panels::<i8>,
-    panels::<i8>,
-    panels::<i8>
-);
-
 /// Integer kernels of `int8.rs` with explicit intrinsics: int8 weights widened to 16 bits and
 /// multiplied by the quantised input in pairs summed to 32 bits (`vpmaddwd`), 16 columns per
 /// instruction on AVX2, 32 on AVX-512 (with avx512bw). Integer sums are exact, so they equal

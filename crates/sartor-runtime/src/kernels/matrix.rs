@@ -33,8 +33,8 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f16, panels_f32, panels_i8,
-    quads_i8, rows_f16, rows_f32, rows_i8,
+    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f16, panels_f32, quads_i8, rows_f16,
+    rows_f32, rows_i8,
 };
 use super::int8::{self, QUAD_PANEL};
 use super::interleaved::{IL_ROWS, from_interleaved, padded_cols, to_interleaved};
@@ -127,15 +127,16 @@ enum Layout {
 }
 
 impl Layout {
-    /// Panels for matrices of at most `THIN_COLS` columns and at least `PANEL` rows; quad
-    /// panels for int8 matrices `int8::quads_apply` takes; interleaved rows for f32 and f16
-    /// matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows; rows
-    /// otherwise.
+    /// Quad panels for int8 matrices `int8::quads_apply` takes (int8 is never stored in
+    /// panels: its row-major rows multiply integers at every width); panels for f32 and f16
+    /// matrices of at most `THIN_COLS` columns and at least `PANEL` rows; interleaved rows for
+    /// f32 and f16 matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows;
+    /// rows otherwise.
     fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
-        if (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
-            Self::Panels
-        } else if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
+        if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
             Self::Quads
+        } else if precision != Precision::Int8 && (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
+            Self::Panels
         } else if precision != Precision::Int8 && cols >= EIGHT_ROWS_FROM && rows >= IL_ROWS {
             Self::Interleaved
         } else {
@@ -223,10 +224,12 @@ impl Matrix {
             (Layout::RowMajor, s) => s,
             (Layout::Panels, Storage::F32(w)) => Storage::F32(to_panels(&w, rows, cols)),
             (Layout::Panels, Storage::F16(w)) => Storage::F16(to_panels(&w, rows, cols)),
-            (Layout::Panels, Storage::Int8 { q, scales }) => Storage::Int8 {
-                q: to_panels(&q[..], rows, cols).into(),
-                scales,
-            },
+            (Layout::Panels, Storage::Int8 { .. }) => {
+                return Err(Error::invalid(
+                    "matrix",
+                    "panels hold f32 and f16 weights only",
+                ));
+            }
             (Layout::Quads, Storage::Int8 { q, scales }) => Storage::Int8 {
                 q: int8::to_quad_panels(&q, rows, cols).into(),
                 scales,
@@ -454,10 +457,7 @@ impl Matrix {
                     let s = Some(&scales[r0..r1]);
                     rows_i8(isa, &q[span], cols, xs, batch, s, b, ys)
                 }
-                (Storage::Int8 { q, scales }, true) => {
-                    let s = Some(&scales[r0..r1]);
-                    panels_i8(isa, &q[span], cols, xs, batch, s, b, ys)
-                }
+                (Storage::Int8 { .. }, true) => unreachable!("panels hold f32 and f16 only"),
             }
         };
         match self.task_rows(batch, par) {
@@ -874,6 +874,12 @@ mod tests {
         // shipped model's products (GRU input 88 and state 256, PCA 64) and the widest rows
         // stored so.
         let sizes = [
+            (16, 1),
+            (17, 3),
+            (16, 4),
+            (33, 8),
+            (40, 16),
+            (6_504, 16),
             (16, 18),
             (19, 19),
             (16, 17),
@@ -914,7 +920,7 @@ mod tests {
                 }
                 if batch > 1 {
                     // An input that is not finite (every row NaN), and one of zeros.
-                    xs[cols + 5] = f32::NAN;
+                    xs[cols + 5 % cols] = f32::NAN;
                     xs[2 * cols..3 * cols].fill(0.0);
                 }
                 let bias = random(&mut rng, rows, 0.5);
@@ -1040,7 +1046,20 @@ mod tests {
             }
             // One row of nothing but −0.0 (int8: the zero row).
             w[cols..2 * cols].fill(-0.0);
-            for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+            // int8: no panels; rows multiply integers at every width, in quad panels from 16
+            // rows on (`int8_quad_panels_equal_the_row_kernels_bitwise`).
+            let chosen = Matrix::from_f32(rows, cols, w.clone(), Precision::Int8).expect("finite");
+            let want = if int8::quads_apply(rows, cols) {
+                Layout::Quads
+            } else {
+                Layout::RowMajor
+            };
+            assert_eq!(chosen.layout, want, "{rows} × {cols} int8");
+            assert!(
+                Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::Panels)
+                    .is_err()
+            );
+            for precision in [Precision::F32, Precision::F16] {
                 // Panels for every width (the kernel takes any), not only those `from_f32`
                 // stores so.
                 let thin = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::Panels)
@@ -1048,20 +1067,12 @@ mod tests {
                 let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
                     .expect("finite");
                 let chosen = Matrix::from_f32(rows, cols, w.clone(), precision).expect("finite");
-                if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
-                    // int8 rows in quad panels (`int8_quad_panels_equal_the_row_kernels_bitwise`).
-                    assert_eq!(chosen.layout, Layout::Quads, "{rows} × {cols}");
-                    assert_eq!(chosen.to_f32(), plain.to_f32());
-                } else {
-                    let want = if cols <= THIN_COLS { &thin } else { &plain };
-                    assert_eq!(&chosen, want, "{rows} × {cols}: the layout by width");
+                if cols <= THIN_COLS {
+                    assert_eq!(&chosen, &thin, "{rows} × {cols}: the layout by width");
+                } else if cols < EIGHT_ROWS_FROM {
+                    assert_eq!(&chosen, &plain, "{rows} × {cols}: the layout by width");
                 }
                 assert_eq!(thin.to_f32(), plain.to_f32());
-                // int8 rows wider than a panel multiply integers (`int8.rs`), panels of any
-                // width keep the lane rule: they agree only where panels are stored.
-                if precision == Precision::Int8 && cols > THIN_COLS {
-                    continue;
-                }
                 for batch in [1, 2, 5] {
                     let mut xs = random(&mut rng, batch * cols, 2.0);
                     xs[0] = -0.0;
