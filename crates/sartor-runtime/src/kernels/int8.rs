@@ -26,9 +26,8 @@
 //! states the bound its tests assert.
 //!
 //! Used for int8 rows of 1 to [`MAX_COLS`] columns (the quantised input lives on the stack);
-//! wider int8 matrices keep the lane kernels. Until 2026-12-02 int8 matrices of at most
-//! [`super::panels::THIN_COLS`] columns (a PCA basis at a low rank) were stored in the lane
-//! kernels' panels instead, which made a 6,504 × 16 PCA decode take 23 µs against 2.8 for
+//! wider int8 matrices keep the lane kernels. Until 2026-12-02 int8 matrices of at most 16
+//! columns (a PCA basis at a low rank) were stored in the lane kernels' panels instead, which made a 6,504 × 16 PCA decode take 23 µs against 2.8 for
 //! 6,504 × 32 in quad panels.
 
 /// The widest rows the integer kernels take (the quantised input is a stack array).

@@ -146,8 +146,8 @@ impl Layout {
 }
 
 /// A `rows × cols` weight matrix in the storage of its [`Precision`]: row-major, or for a thin
-/// matrix (at most 16 columns, such as a PCA basis at a low rank) in panels of 8 rows stored
-/// column by column (`panels.rs`), for int8 rows of 17 to 511 columns in quad panels
+/// f32 or f16 matrix (at most 8 columns, such as a PCA basis at a low rank) in panels of 8 rows
+/// stored column by column (`panels.rs`), for int8 rows of up to 511 columns in quad panels
 /// (`int8.rs`), for f32 and f16 rows of 512 columns or more in panels of 8 rows stored 32
 /// columns of each at a time (`interleaved.rs`); each the same results bit for bit, faster.
 /// Built only from finite f32 values; immutable after construction.

@@ -10,7 +10,11 @@
 //! --bench kernels -- pca_basis`, one thread of a 2-core Intel Xeon VM). A panel computes only
 //! the lanes that hold a weight, [`PANEL`] rows per vector operation: 6,504 × 4 in 3.3 µs, × 8
 //! in 10.5 (was 98), × 16 in 18 (was 45). From 32 columns the row kernels are faster (a panel's
-//! 32 lane sums no longer fit in registers), so wider matrices stay row-major.
+//! 32 lane sums no longer fit in registers), so wider matrices stay row-major. Since the block
+//! row kernels (2026-12-01) that holds from 9 columns: on the AMD EPYC VM (2026-12-02, same
+//! command) 6,504 × 16 in f32 took 14.5 µs in rows against 31.2 in panels, 13,272 × 16 35
+//! against 61; × 8 14.4 against 16.1 (level within this VM's noise); × 4 16.6 against 4.6, so
+//! panels keep at most 8 columns (they took at most 16 before).
 //!
 //! **Bitwise the same as the lane rule.** Lane `l` of a row sums the products of columns
 //! `l, l + 32, …` in increasing order, and the lanes are combined by the same halving tree
@@ -28,8 +32,9 @@ use super::rows::{F16Bits, LANES, f16_bits_to_f32};
 /// Rows per panel (one 256-bit vector of f32).
 pub(crate) const PANEL: usize = 8;
 
-/// Matrices with at most this many columns (and at least [`PANEL`] rows) are stored in panels.
-pub(crate) const THIN_COLS: usize = 16;
+/// f32 and f16 matrices with at most this many columns (and at least [`PANEL`] rows) are stored
+/// in panels.
+pub(crate) const THIN_COLS: usize = 8;
 
 /// A stored weight that converts exactly to f32.
 pub(crate) trait Elem: Copy + Default + Send + Sync + 'static {
