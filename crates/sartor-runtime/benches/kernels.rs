@@ -139,7 +139,7 @@ fn pca_basis(c: &mut Criterion) {
             let basis = random(&mut rng, rows * rank, 0.05);
             let coefficients = random(&mut rng, rank, 1.0);
             let mut y = vec![0.0f32; rows];
-            for precision in [Precision::F32, Precision::Int8] {
+            for precision in [Precision::F32, Precision::F16, Precision::Int8] {
                 let m = Matrix::from_f32(rows, rank, basis.clone(), precision).expect("finite");
                 let name = format!("{rows}x{rank}/{}", precision.name());
                 group.bench_function(name, |b| {

@@ -14,7 +14,10 @@
 //! row kernels (2026-12-01) that holds from 9 columns: on the AMD EPYC VM (2026-12-02, same
 //! command) 6,504 × 16 in f32 took 14.5 µs in rows against 31.2 in panels, 13,272 × 16 35
 //! against 61; × 8 14.4 against 16.1 (level within this VM's noise); × 4 16.6 against 4.6, so
-//! panels keep at most 8 columns (they took at most 16 before).
+//! panels keep at most 8 columns (they took at most 16 before). f16 panels lost to the f16 row
+//! kernels at every width (6,504 × 4 / 8: 11.1 / 23.7 µs against 9.5 / 15.5 in rows, 13,272 ×
+//! 4 / 8: 29.8 / 40.9 against 23.1 / 22.3), so only f32 matrices are stored in panels; the
+//! kernel still takes f16 (tested bitwise against the row kernels).
 //!
 //! **Bitwise the same as the lane rule.** Lane `l` of a row sums the products of columns
 //! `l, l + 32, …` in increasing order, and the lanes are combined by the same halving tree
@@ -32,8 +35,8 @@ use super::rows::{F16Bits, LANES, f16_bits_to_f32};
 /// Rows per panel (one 256-bit vector of f32).
 pub(crate) const PANEL: usize = 8;
 
-/// f32 and f16 matrices with at most this many columns (and at least [`PANEL`] rows) are stored
-/// in panels.
+/// f32 matrices with at most this many columns (and at least [`PANEL`] rows) are stored in
+/// panels.
 pub(crate) const THIN_COLS: usize = 8;
 
 /// A stored weight that converts exactly to f32.
