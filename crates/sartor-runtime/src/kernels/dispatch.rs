@@ -1129,14 +1129,6 @@ dispatched!(
     panels::<f32>,
     panels::<f32>
 );
-dispatched!(
-    /// f16 panels (bits), converted exactly to f32.
-    panels_f16,
-    F16Bits,
-    panels::<F16Bits>,
-    panels::<F16Bits>,
-    panels::<F16Bits>
-);
 /// Integer kernels of `int8.rs` with explicit intrinsics: int8 weights widened to 16 bits and
 /// multiplied by the quantised input in pairs summed to 32 bits (`vpmaddwd`), 16 columns per
 /// instruction on AVX2, 32 on AVX-512 (with avx512bw). Integer sums are exact, so they equal

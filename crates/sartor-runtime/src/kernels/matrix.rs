@@ -33,8 +33,8 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f16, panels_f32, quads_i8, rows_f16,
-    rows_f32, rows_i8,
+    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f32, quads_i8, rows_f16, rows_f32,
+    rows_i8,
 };
 use super::int8::{self, QUAD_PANEL};
 use super::interleaved::{IL_ROWS, from_interleaved, padded_cols, to_interleaved};
@@ -223,12 +223,8 @@ impl Matrix {
         let storage = match (layout, storage) {
             (Layout::RowMajor, s) => s,
             (Layout::Panels, Storage::F32(w)) => Storage::F32(to_panels(&w, rows, cols)),
-            (Layout::Panels, Storage::F16(w)) => Storage::F16(to_panels(&w, rows, cols)),
-            (Layout::Panels, Storage::Int8 { .. }) => {
-                return Err(Error::invalid(
-                    "matrix",
-                    "panels hold f32 and f16 weights only",
-                ));
+            (Layout::Panels, _) => {
+                return Err(Error::invalid("matrix", "panels hold f32 weights only"));
             }
             (Layout::Quads, Storage::Int8 { q, scales }) => Storage::Int8 {
                 q: int8::to_quad_panels(&q, rows, cols).into(),
@@ -452,12 +448,11 @@ impl Matrix {
                 (Storage::F32(w), false) => rows_f32(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::F32(w), true) => panels_f32(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::F16(w), false) => rows_f16(isa, &w[span], cols, xs, batch, None, b, ys),
-                (Storage::F16(w), true) => panels_f16(isa, &w[span], cols, xs, batch, None, b, ys),
                 (Storage::Int8 { q, scales }, false) => {
                     let s = Some(&scales[r0..r1]);
                     rows_i8(isa, &q[span], cols, xs, batch, s, b, ys)
                 }
-                (Storage::Int8 { .. }, true) => unreachable!("panels hold f32 and f16 only"),
+                (_, true) => unreachable!("panels hold f32 weights only"),
             }
         };
         match self.task_rows(batch, par) {
@@ -1055,11 +1050,18 @@ mod tests {
                 Layout::RowMajor
             };
             assert_eq!(chosen.layout, want, "{rows} × {cols} int8");
-            assert!(
-                Matrix::with_layout(rows, cols, w.clone(), Precision::Int8, Layout::Panels)
-                    .is_err()
-            );
-            for precision in [Precision::F32, Precision::F16] {
+            // f16: no panels either (slower than its rows at every width, `panels.rs`).
+            for precision in [Precision::Int8, Precision::F16] {
+                assert!(
+                    Matrix::with_layout(rows, cols, w.clone(), precision, Layout::Panels).is_err()
+                );
+            }
+            if cols < EIGHT_ROWS_FROM {
+                let f16 = Matrix::from_f32(rows, cols, w.clone(), Precision::F16).expect("finite");
+                assert_eq!(f16.layout, Layout::RowMajor, "{rows} × {cols} f16");
+            }
+            {
+                let precision = Precision::F32;
                 // Panels for every width (the kernel takes any), not only those `from_f32`
                 // stores so.
                 let thin = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::Panels)
@@ -1067,7 +1069,7 @@ mod tests {
                 let plain = Matrix::with_layout(rows, cols, w.clone(), precision, Layout::RowMajor)
                     .expect("finite");
                 let chosen = Matrix::from_f32(rows, cols, w.clone(), precision).expect("finite");
-                if cols <= THIN_COLS && precision == Precision::F32 {
+                if cols <= THIN_COLS {
                     assert_eq!(&chosen, &thin, "{rows} × {cols}: the layout by width");
                 } else if cols < EIGHT_ROWS_FROM {
                     assert_eq!(&chosen, &plain, "{rows} × {cols}: the layout by width");

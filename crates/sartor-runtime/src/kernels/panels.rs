@@ -16,8 +16,7 @@
 //! against 61; × 8 14.4 against 16.1 (level within this VM's noise); × 4 16.6 against 4.6, so
 //! panels keep at most 8 columns (they took at most 16 before). f16 panels lost to the f16 row
 //! kernels at every width (6,504 × 4 / 8: 11.1 / 23.7 µs against 9.5 / 15.5 in rows, 13,272 ×
-//! 4 / 8: 29.8 / 40.9 against 23.1 / 22.3), so only f32 matrices are stored in panels; the
-//! kernel still takes f16 (tested bitwise against the row kernels).
+//! 4 / 8: 29.8 / 40.9 against 23.1 / 22.3), so only f32 matrices are stored in panels.
 //!
 //! **Bitwise the same as the lane rule.** Lane `l` of a row sums the products of columns
 //! `l, l + 32, …` in increasing order, and the lanes are combined by the same halving tree
@@ -26,11 +25,11 @@
 //! tree above `P` are skipped: adding `+0.0` changes nothing but the sign of a zero, and the row
 //! kernels' sums are never `−0.0` (they start from `+0.0`; in round-to-nearest a sum is `−0.0`
 //! only when both terms are), so one final `d + 0.0` gives the same bits. The epilogue (bias)
-//! is the row kernels'. The tests check the bits against the row kernels for f32 and f16, every
+//! is the row kernels'. The tests check the bits against the row kernels for f32, every
 //! instruction set and batch size, with zeros of both signs and underflowing products. int8
 //! matrices are not stored in panels: their rows multiply integers at every width (`int8.rs`).
 
-use super::rows::{F16Bits, LANES, f16_bits_to_f32};
+use super::rows::LANES;
 
 /// Rows per panel (one 256-bit vector of f32).
 pub(crate) const PANEL: usize = 8;
@@ -48,13 +47,6 @@ impl Elem for f32 {
     #[inline(always)]
     fn to_f32(self) -> f32 {
         self
-    }
-}
-
-impl Elem for F16Bits {
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        f16_bits_to_f32(self.0)
     }
 }
 
