@@ -320,6 +320,26 @@ pub(crate) use widest_where_present;
 #[cfg(target_arch = "x86_64")]
 const STREAM_AHEAD: usize = 2048;
 
+/// Whether the CPU is Intel's (the vendor string of `cpuid` leaf 0).
+#[cfg(target_arch = "x86_64")]
+fn genuine_intel() -> bool {
+    let id = std::arch::x86_64::__cpuid(0);
+    [id.ebx, id.edx, id.ecx]
+        .iter()
+        .flat_map(|r| r.to_le_bytes())
+        .eq(*b"GenuineIntel")
+}
+
+/// `default()`, unless the environment variable `var` is `0` or `1` (for benchmarking: the
+/// choices it overrides change no result).
+fn overridable(var: &str, default: impl FnOnce() -> bool) -> bool {
+    match std::env::var(var).as_deref() {
+        Ok("0") => false,
+        Ok("1") => true,
+        _ => default(),
+    }
+}
+
 /// Whether f32 rows that come from memory are prefetched [`STREAM_AHEAD`] bytes ahead, as f16
 /// rows always are: on Intel CPUs, not on others. Measured on the paper-size GRU + dense
 /// f32 step (`cargo bench -p sartor-runtime --bench kernels -- gru1500_out13272/f32/batch1`,
@@ -327,26 +347,34 @@ const STREAM_AHEAD: usize = 2048;
 /// 4.80–5.53 → 4.21–4.74 ms, two 2.53 → 2.13–2.22 (one core of this Xeon keeps too few lines
 /// in flight on its own); on the AMD EPYC (Zen 5) VM every distance and hint tried was 3–10 %
 /// slower (its own prefetch keeps up with eight f32 streams). `SARTOR_RUNTIME_F32_PREFETCH`
-/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result. Since
-/// 2026-12-02 `Matrix` stores f32 rows of that length interleaved (`interleaved.rs`), read as
-/// one stream per panel and always prefetched, so this choice only concerns row-major blocks
-/// passed to the row kernels directly (the tests).
+/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result. On
+/// other CPUs `Matrix` stores f32 rows of that length interleaved ([`interleave_long_rows`]),
+/// read as one stream per panel and always prefetched, so there this choice only concerns
+/// row-major blocks passed to the row kernels directly (the tests).
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn prefetch_f32_rows() -> bool {
     static CHOICE: OnceLock<bool> = OnceLock::new();
-    *CHOICE.get_or_init(
-        || match std::env::var("SARTOR_RUNTIME_F32_PREFETCH").as_deref() {
-            Ok("0") => false,
-            Ok("1") => true,
-            _ => {
-                let id = std::arch::x86_64::__cpuid(0);
-                [id.ebx, id.edx, id.ecx]
-                    .iter()
-                    .flat_map(|r| r.to_le_bytes())
-                    .eq(*b"GenuineIntel")
-            }
-        },
-    )
+    *CHOICE.get_or_init(|| overridable("SARTOR_RUNTIME_F32_PREFETCH", genuine_intel))
+}
+
+/// Whether `Matrix` stores f32 and f16 rows of `EIGHT_ROWS_FROM` columns or more interleaved
+/// (`interleaved.rs`): everywhere but on Intel CPUs, where the row-major rows, eight prefetched
+/// streams, read faster. Measured on the paper-size GRU + dense step (109 MB in f32), a
+/// throwaway harness alternating the two layouts in one process (ten rounds of 50 frames each,
+/// the median per round): on the 2-core AMD EPYC VM interleaved took 0.73–0.77× the row-major
+/// time in f32 on one thread and 0.87–0.97× on two (`interleaved.rs`); on the 2-core Intel
+/// Xeon VM (Sapphire Rapids, 2026-12-02) **0.90–1.72×** on one thread (above 1.0 in 16 of 20
+/// rounds over two runs) and 0.88–1.11× on two (above in 15 of 20), and in f16 0.90–1.03× and
+/// 0.99–1.09×. Prefetching the panels 2, 4 or 16 KiB ahead instead of 8, or into the L2 only,
+/// did not close the gap there. `SARTOR_RUNTIME_INTERLEAVE` (`0` or `1`) overrides the choice,
+/// for benchmarking; either layout gives the same bits.
+pub(crate) fn interleave_long_rows() -> bool {
+    static CHOICE: OnceLock<bool> = OnceLock::new();
+    #[cfg(target_arch = "x86_64")]
+    let default = || !genuine_intel();
+    #[cfg(not(target_arch = "x86_64"))]
+    let default = || true;
+    *CHOICE.get_or_init(|| overridable("SARTOR_RUNTIME_INTERLEAVE", default))
 }
 
 /// A hint to load the cache line at `p` into every level of the cache.

@@ -15,6 +15,10 @@
 //! batch size and thread split). The batched path gathers a row's column block into a buffer
 //! and runs the row-major tile.
 //!
+//! **Not on Intel CPUs**: there the eight prefetched row-major streams read faster
+//! (`dispatch::interleave_long_rows` has the measurements), so `Matrix` keeps such rows
+//! row-major on them.
+//!
 //! Measured on the 2-core AMD EPYC VM (throwaway harnesses, each call or frame timed in turn
 //! with the row-major layout; the VM's speed drifted by a third within minutes):
 //!

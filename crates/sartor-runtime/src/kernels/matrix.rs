@@ -33,8 +33,8 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::dispatch::{
-    Isa, LineAligned, interleaved_f16, interleaved_f32, panels_f32, quads_i8, rows_f16, rows_f32,
-    rows_i8,
+    Isa, LineAligned, interleave_long_rows, interleaved_f16, interleaved_f32, panels_f32, quads_i8,
+    rows_f16, rows_f32, rows_i8,
 };
 use super::int8::{self, QUAD_PANEL};
 use super::interleaved::{IL_ROWS, from_interleaved, padded_cols, to_interleaved};
@@ -130,14 +130,18 @@ impl Layout {
     /// Quad panels for int8 matrices `int8::quads_apply` takes (int8 is never stored in
     /// panels: its row-major rows multiply integers at every width); panels for f32
     /// matrices of at most `THIN_COLS` columns and at least `PANEL` rows; interleaved rows for
-    /// f32 and f16 matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows;
-    /// rows otherwise.
+    /// f32 and f16 matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows
+    /// where `interleave_long_rows` says (not on Intel CPUs); rows otherwise.
     fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
         if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
             Self::Quads
         } else if precision == Precision::F32 && (1..=THIN_COLS).contains(&cols) && rows >= PANEL {
             Self::Panels
-        } else if precision != Precision::Int8 && cols >= EIGHT_ROWS_FROM && rows >= IL_ROWS {
+        } else if precision != Precision::Int8
+            && cols >= EIGHT_ROWS_FROM
+            && rows >= IL_ROWS
+            && interleave_long_rows()
+        {
             Self::Interleaved
         } else {
             Self::RowMajor
@@ -149,7 +153,8 @@ impl Layout {
 /// f32 matrix (at most 8 columns, such as a PCA basis at a low rank) in panels of 8 rows
 /// stored column by column (`panels.rs`), for int8 rows of up to 511 columns in quad panels
 /// (`int8.rs`), for f32 and f16 rows of 512 columns or more in panels of 8 rows stored 32
-/// columns of each at a time (`interleaved.rs`); each the same results bit for bit, faster.
+/// columns of each at a time (`interleaved.rs`; not on Intel CPUs, where row-major rows read
+/// faster); each the same results bit for bit, faster.
 /// Built only from finite f32 values; immutable after construction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Matrix {
@@ -993,12 +998,17 @@ mod tests {
             )
             .is_err()
         );
-        // Rows of 512 columns or more from 8 rows on are stored interleaved in f32 and f16;
-        // narrower rows, fewer rows and int8 are not.
+        // Rows of 512 columns or more from 8 rows on are stored interleaved in f32 and f16
+        // (except on Intel CPUs); narrower rows, fewer rows and int8 are not.
+        let long = if interleave_long_rows() {
+            Layout::Interleaved
+        } else {
+            Layout::RowMajor
+        };
         for (rows, cols, precision, want) in [
-            (13_272, 1_500, Precision::F32, Layout::Interleaved),
-            (4_500, 1_500, Precision::F16, Layout::Interleaved),
-            (8, 512, Precision::F32, Layout::Interleaved),
+            (13_272, 1_500, Precision::F32, long),
+            (4_500, 1_500, Precision::F16, long),
+            (8, 512, Precision::F32, long),
             (7, 4_099, Precision::F32, Layout::RowMajor),
             (13_272, 1_500, Precision::Int8, Layout::RowMajor),
             (40_000, 511, Precision::F32, Layout::RowMajor),
