@@ -10,8 +10,9 @@
 //! picked at run time with `is_x86_feature_detected!`: the widest.
 //!
 //! Within the AVX-512 level the int8 quad panels (`int8.rs`) use VNNI (`vpdpbusd`) where the
-//! CPU has it (`has_vnni`; `SARTOR_RUNTIME_VNNI=0` turns it off for benchmarking), with their
-//! weights on cache lines ([`LineAligned`]): exact integer sums, so the same bits.
+//! CPU has it (`has_vnni`), within the AVX2 level AVX-VNNI, its 256-bit form (`has_avx_vnni`;
+//! `SARTOR_RUNTIME_VNNI=0` turns both off for benchmarking), with their weights on cache lines
+//! ([`LineAligned`]): exact integer sums, so the same bits.
 //!
 //! Unsafe operations, each with its `SAFETY` comment: the unaligned loads and stores of the
 //! intrinsics (from references of exactly the size they touch), the byte view of
@@ -91,6 +92,19 @@ fn has_vnni() -> bool {
     *VNNI.get_or_init(|| {
         has_avx512()
             && is_x86_feature_detected!("avx512vnni")
+            && std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
+    })
+}
+
+/// Whether the AVX2 quad panels use AVX-VNNI (the 256-bit `vpdpbusd` of CPUs without AVX-512,
+/// such as Intel's cores from Alder Lake on): where this CPU has it, unless
+/// `SARTOR_RUNTIME_VNNI=0`, as [`has_vnni`].
+#[cfg(target_arch = "x86_64")]
+fn has_avx_vnni() -> bool {
+    static VNNI: OnceLock<bool> = OnceLock::new();
+    *VNNI.get_or_init(|| {
+        has_avx2()
+            && is_x86_feature_detected!("avxvnni")
             && std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
     })
 }
@@ -1166,8 +1180,9 @@ mod int {
     use std::arch::x86_64::{
         __m128i, __m256i, __m512i, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
         _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
-        _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16,
-        _mm256_permute2x128_si256, _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_storeu_si256,
+        _mm256_dpbusd_avx_epi32, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256,
+        _mm256_madd_epi16, _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi64x,
+        _mm256_setzero_si256, _mm256_slli_epi32, _mm256_storeu_si256, _mm256_sub_epi32,
         _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_dpbusd_epi32,
         _mm512_extracti64x4_epi64, _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32,
         _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32,
@@ -1467,6 +1482,113 @@ mod int {
         out
     }
 
+    /// The quad-panel engine with AVX-VNNI: [`Avx512VnniQuads`]'s sums (the same input bytes
+    /// and row sums) with 256-bit `vpdpbusd`, each quad in two halves of eight rows.
+    pub(super) struct AvxVnniQuads;
+
+    impl QuadEngine for AvxVnniQuads {
+        #[inline(always)]
+        fn word(x: &[i16; QUAD]) -> u64 {
+            Avx512VnniQuads::word(x)
+        }
+
+        #[inline(always)]
+        fn panel(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+            // SAFETY: only used inside `quads_avx_vnni`, called only where `has_avx_vnni`
+            // found avxvnni besides the AVX2 features of `has_avx2`.
+            unsafe { panel_avx_vnni(q, words) }
+        }
+    }
+
+    /// Quads summed at once by the AVX-VNNI engine: with each quad's two halves and two input
+    /// bytes, eight independent sums.
+    const AVX_VNNI_QUADS: usize = 2;
+
+    #[inline]
+    #[target_feature(enable = "avx2,avxvnni")]
+    fn panel_avx_vnni(q: &[i8], words: &[u64]) -> [i32; QUAD_PANEL] {
+        let (quads, sums) = q.as_chunks::<QUAD_BYTES>().0.split_at(words.len());
+        // `[k][half]`: quad `k` of a step, rows 0–7 or 8–15.
+        let mut hi = [[_mm256_setzero_si256(); 2]; AVX_VNNI_QUADS];
+        let mut lo = [[_mm256_setzero_si256(); 2]; AVX_VNNI_QUADS];
+        let mut quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
+            let halves = std::ptr::from_ref(w).cast::<[u8; 4]>();
+            // SAFETY: the word's two halves, each read as 4 bytes.
+            let (l, h) = unsafe { (halves.read(), halves.add(1).read()) };
+            let (l, h) = (
+                _mm256_set1_epi32(i32::from_le_bytes(l)),
+                _mm256_set1_epi32(i32::from_le_bytes(h)),
+            );
+            for half in 0..2 {
+                // SAFETY: bytes `32·half … 32·half + 31` of the 64-byte quad, read unaligned.
+                let v =
+                    unsafe { _mm256_loadu_si256(quad.as_ptr().add(32 * half).cast::<__m256i>()) };
+                hi[k][half] = _mm256_dpbusd_avx_epi32(hi[k][half], h, v);
+                lo[k][half] = _mm256_dpbusd_avx_epi32(lo[k][half], l, v);
+            }
+        };
+        let (whole, rest) = quads.as_chunks::<AVX_VNNI_QUADS>();
+        for (qs, ws) in whole.iter().zip(words.as_chunks::<AVX_VNNI_QUADS>().0) {
+            for k in 0..AVX_VNNI_QUADS {
+                quad(k, &qs[k], &ws[k]);
+            }
+        }
+        for (k, (q, w)) in rest
+            .iter()
+            .zip(&words[whole.len() * AVX_VNNI_QUADS..])
+            .enumerate()
+        {
+            quad(k, q, w);
+        }
+        let mut out = [0i32; QUAD_PANEL];
+        for half in 0..2 {
+            let hi = _mm256_add_epi32(hi[0][half], hi[1][half]);
+            let lo = _mm256_add_epi32(lo[0][half], lo[1][half]);
+            // SAFETY: rows `8·half … 8·half + 7` of the row sums' 64 bytes after the quads
+            // (`to_quad_panels`), read unaligned.
+            let s = unsafe { _mm256_loadu_si256(sums[0].as_ptr().add(32 * half).cast()) };
+            let h = _mm256_sub_epi32(hi, _mm256_slli_epi32::<7>(s));
+            let total = _mm256_add_epi32(_mm256_slli_epi32::<8>(h), lo);
+            // SAFETY: lanes `8·half … 8·half + 7` of `out`, written unaligned.
+            unsafe { _mm256_storeu_si256(out.as_mut_ptr().add(8 * half).cast(), total) };
+        }
+        out
+    }
+
+    /// [`int8::quads_int`] with AVX-VNNI.
+    #[target_feature(enable = "avx2,avxvnni,fma,f16c")]
+    pub(super) fn quads_avx_vnni(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        int8::quads_int::<AvxVnniQuads>(w, cols, xs, batch, scales, bias, ys_t);
+    }
+
+    /// The AVX2 build of [`int8::quads_int`]: with AVX-VNNI where [`super::has_avx_vnni`]
+    /// allows, else with the weights widened to 16 bits ([`Avx2Quads`]).
+    #[inline(always)]
+    pub(super) fn quads_avx2(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        if super::has_avx_vnni() {
+            // SAFETY: `has_avx_vnni` found avxvnni and the features of `has_avx2` on this CPU.
+            unsafe { quads_avx_vnni(w, cols, xs, batch, scales, bias, ys_t) }
+        } else {
+            int8::quads_int::<Avx2Quads>(w, cols, xs, batch, scales, bias, ys_t);
+        }
+    }
+
     /// [`int8::quads_int`] with VNNI.
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c")]
     pub(super) fn quads_vnni(
@@ -1551,7 +1673,7 @@ dispatched!(
     quads_i8,
     i8,
     int8::quads_int::<int8::PortableQuads>,
-    int8::quads_int::<int::Avx2Quads>,
+    int::quads_avx2,
     int::quads_avx512
 );
 
@@ -1585,9 +1707,10 @@ mod tests {
 
     #[test]
     fn every_quad_engine_gives_the_same_bits() {
-        // The AVX-512 build picks one quad engine per CPU (VNNI where present), so the
-        // matrix tests, which go through `Isa`, meet only that one: here the portable, widened
-        // AVX-512 and VNNI engines each run the same products, from aligned and unaligned
+        // The AVX2 and AVX-512 builds each pick one quad engine per CPU (VNNI where present),
+        // so the matrix tests, which go through `Isa`, meet only those: here the portable,
+        // widened AVX2, AVX-VNNI, widened AVX-512 and VNNI engines (those this CPU has) each
+        // run the same products, from aligned and unaligned
         // panels, with rows of ±127 against inputs at ±L (the contract's extremes: VNNI's
         // wrapping steps leave `i32` there and must come back), batch 1 and 3.
         type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
@@ -1612,6 +1735,30 @@ mod tests {
                 // SAFETY: `has_avx512` found the wrapper's features on this CPU.
                 kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
                     widened(w, c, x, b, s, bi, y)
+                }));
+            }
+            #[target_feature(enable = "avx2,fma,f16c")]
+            fn widened2(
+                w: &[i8],
+                cols: usize,
+                xs: &[f32],
+                batch: usize,
+                scales: Option<&[f32]>,
+                bias: Option<&[f32]>,
+                ys_t: &mut [f32],
+            ) {
+                int8::quads_int::<int::Avx2Quads>(w, cols, xs, batch, scales, bias, ys_t);
+            }
+            if has_avx2() {
+                // SAFETY: `has_avx2` found the wrapper's features on this CPU.
+                kernels.push(("avx2", |w, c, x, b, s, bi, y| unsafe {
+                    widened2(w, c, x, b, s, bi, y)
+                }));
+            }
+            if has_avx2() && is_x86_feature_detected!("avxvnni") {
+                // SAFETY: detection found the wrapper's features on this CPU.
+                kernels.push(("avx-vnni", |w, c, x, b, s, bi, y| unsafe {
+                    int::quads_avx_vnni(w, c, x, b, s, bi, y)
                 }));
             }
             if has_avx512() && is_x86_feature_detected!("avx512vnni") {
