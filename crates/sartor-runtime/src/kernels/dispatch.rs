@@ -1429,6 +1429,26 @@ mod int {
         }
     }
 
+    /// `quad(k, quad, word)` for each quad and its input word, `k` counting `0 … N − 1` over
+    /// each whole group of `N` quads and from 0 again over the rest: the VNNI engines keep `N`
+    /// independent sums.
+    #[inline(always)]
+    fn each_quad<const N: usize>(
+        quads: &[[i8; QUAD_BYTES]],
+        words: &[u64],
+        mut quad: impl FnMut(usize, &[i8; QUAD_BYTES], &u64),
+    ) {
+        let (whole, rest) = quads.as_chunks::<N>();
+        for (qs, ws) in whole.iter().zip(words.as_chunks::<N>().0) {
+            for k in 0..N {
+                quad(k, &qs[k], &ws[k]);
+            }
+        }
+        for (k, (q, w)) in rest.iter().zip(&words[whole.len() * N..]).enumerate() {
+            quad(k, q, w);
+        }
+    }
+
     /// Quads summed at once: independent sums for `vpdpbusd`'s latency (5 cycles at one per
     /// cycle on Sapphire Rapids).
     const VNNI_QUADS: usize = 4;
@@ -1439,7 +1459,7 @@ mod int {
         let (quads, sums) = q.as_chunks::<QUAD_BYTES>().0.split_at(words.len());
         let mut hi = [_mm512_setzero_si512(); VNNI_QUADS];
         let mut lo = [_mm512_setzero_si512(); VNNI_QUADS];
-        let mut quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
+        let quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
             // SAFETY: the 64 bytes of the quad, read unaligned.
             let v = unsafe { _mm512_loadu_si512(quad.as_ptr().cast()) };
             // The word's halves read from memory (a broadcast from a general register costs
@@ -1451,19 +1471,7 @@ mod int {
             hi[k] = _mm512_dpbusd_epi32(hi[k], _mm512_set1_epi32(h), v);
             lo[k] = _mm512_dpbusd_epi32(lo[k], _mm512_set1_epi32(l), v);
         };
-        let (whole, rest) = quads.as_chunks::<VNNI_QUADS>();
-        for (qs, ws) in whole.iter().zip(words.as_chunks::<VNNI_QUADS>().0) {
-            for k in 0..VNNI_QUADS {
-                quad(k, &qs[k], &ws[k]);
-            }
-        }
-        for (k, (q, w)) in rest
-            .iter()
-            .zip(&words[whole.len() * VNNI_QUADS..])
-            .enumerate()
-        {
-            quad(k, q, w);
-        }
+        each_quad::<VNNI_QUADS>(quads, words, quad);
         let hi = _mm512_add_epi32(
             _mm512_add_epi32(hi[0], hi[1]),
             _mm512_add_epi32(hi[2], hi[3]),
@@ -1511,7 +1519,7 @@ mod int {
         // `[k][half]`: quad `k` of a step, rows 0–7 or 8–15.
         let mut hi = [[_mm256_setzero_si256(); 2]; AVX_VNNI_QUADS];
         let mut lo = [[_mm256_setzero_si256(); 2]; AVX_VNNI_QUADS];
-        let mut quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
+        let quad = |k: usize, quad: &[i8; QUAD_BYTES], w: &u64| {
             let halves = std::ptr::from_ref(w).cast::<[u8; 4]>();
             // SAFETY: the word's two halves, each read as 4 bytes.
             let (l, h) = unsafe { (halves.read(), halves.add(1).read()) };
@@ -1527,19 +1535,7 @@ mod int {
                 lo[k][half] = _mm256_dpbusd_avx_epi32(lo[k][half], l, v);
             }
         };
-        let (whole, rest) = quads.as_chunks::<AVX_VNNI_QUADS>();
-        for (qs, ws) in whole.iter().zip(words.as_chunks::<AVX_VNNI_QUADS>().0) {
-            for k in 0..AVX_VNNI_QUADS {
-                quad(k, &qs[k], &ws[k]);
-            }
-        }
-        for (k, (q, w)) in rest
-            .iter()
-            .zip(&words[whole.len() * AVX_VNNI_QUADS..])
-            .enumerate()
-        {
-            quad(k, q, w);
-        }
+        each_quad::<AVX_VNNI_QUADS>(quads, words, quad);
         let mut out = [0i32; QUAD_PANEL];
         for half in 0..2 {
             let hi = _mm256_add_epi32(hi[0][half], hi[1][half]);
@@ -1555,73 +1551,67 @@ mod int {
         out
     }
 
-    /// [`int8::quads_int`] with AVX-VNNI.
-    #[target_feature(enable = "avx2,avxvnni,fma,f16c")]
-    pub(super) fn quads_avx_vnni(
-        w: &[i8],
-        cols: usize,
-        xs: &[f32],
-        batch: usize,
-        scales: Option<&[f32]>,
-        bias: Option<&[f32]>,
-        ys_t: &mut [f32],
-    ) {
-        int8::quads_int::<AvxVnniQuads>(w, cols, xs, batch, scales, bias, ys_t);
+    /// A build's two quad-panel functions: `$vnni_fn` runs [`int8::quads_int`] with the VNNI
+    /// engine `$vnni` inside the features `$feat`, and `$name` calls it where `$has` allows,
+    /// else runs the widened engine `$widened`.
+    macro_rules! quads_with_vnni {
+        ($(#[$doc:meta])* $name:ident, $vnni_fn:ident, $feat:literal, $vnni:ty, $widened:ty, $has:path) => {
+            /// [`int8::quads_int`] with this build's VNNI engine.
+            #[target_feature(enable = $feat)]
+            pub(super) fn $vnni_fn(
+                w: &[i8],
+                cols: usize,
+                xs: &[f32],
+                batch: usize,
+                scales: Option<&[f32]>,
+                bias: Option<&[f32]>,
+                ys_t: &mut [f32],
+            ) {
+                int8::quads_int::<$vnni>(w, cols, xs, batch, scales, bias, ys_t);
+            }
+
+            $(#[$doc])*
+            #[inline(always)]
+            pub(super) fn $name(
+                w: &[i8],
+                cols: usize,
+                xs: &[f32],
+                batch: usize,
+                scales: Option<&[f32]>,
+                bias: Option<&[f32]>,
+                ys_t: &mut [f32],
+            ) {
+                if $has() {
+                    // SAFETY: `$has` found `$vnni_fn`'s features on this CPU.
+                    unsafe { $vnni_fn(w, cols, xs, batch, scales, bias, ys_t) }
+                } else {
+                    int8::quads_int::<$widened>(w, cols, xs, batch, scales, bias, ys_t);
+                }
+            }
+        };
     }
 
-    /// The AVX2 build of [`int8::quads_int`]: with AVX-VNNI where [`super::has_avx_vnni`]
-    /// allows, else with the weights widened to 16 bits ([`Avx2Quads`]).
-    #[inline(always)]
-    pub(super) fn quads_avx2(
-        w: &[i8],
-        cols: usize,
-        xs: &[f32],
-        batch: usize,
-        scales: Option<&[f32]>,
-        bias: Option<&[f32]>,
-        ys_t: &mut [f32],
-    ) {
-        if super::has_avx_vnni() {
-            // SAFETY: `has_avx_vnni` found avxvnni and the features of `has_avx2` on this CPU.
-            unsafe { quads_avx_vnni(w, cols, xs, batch, scales, bias, ys_t) }
-        } else {
-            int8::quads_int::<Avx2Quads>(w, cols, xs, batch, scales, bias, ys_t);
-        }
-    }
+    quads_with_vnni!(
+        /// The AVX2 build of [`int8::quads_int`]: with AVX-VNNI where [`super::has_avx_vnni`]
+        /// allows, else with the weights widened to 16 bits ([`Avx2Quads`]).
+        quads_avx2,
+        quads_avx_vnni,
+        "avx2,avxvnni,fma,f16c",
+        AvxVnniQuads,
+        Avx2Quads,
+        super::has_avx_vnni
+    );
 
-    /// [`int8::quads_int`] with VNNI.
-    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c")]
-    pub(super) fn quads_vnni(
-        w: &[i8],
-        cols: usize,
-        xs: &[f32],
-        batch: usize,
-        scales: Option<&[f32]>,
-        bias: Option<&[f32]>,
-        ys_t: &mut [f32],
-    ) {
-        int8::quads_int::<Avx512VnniQuads>(w, cols, xs, batch, scales, bias, ys_t);
-    }
-
-    /// The AVX-512 build of [`int8::quads_int`]: with VNNI where [`super::has_vnni`] allows,
-    /// else with the weights widened to 16 bits ([`Avx512Quads`]).
-    #[inline(always)]
-    pub(super) fn quads_avx512(
-        w: &[i8],
-        cols: usize,
-        xs: &[f32],
-        batch: usize,
-        scales: Option<&[f32]>,
-        bias: Option<&[f32]>,
-        ys_t: &mut [f32],
-    ) {
-        if super::has_vnni() {
-            // SAFETY: `has_vnni` found avx512vnni and the features of `has_avx512` on this CPU.
-            unsafe { quads_vnni(w, cols, xs, batch, scales, bias, ys_t) }
-        } else {
-            int8::quads_int::<Avx512Quads>(w, cols, xs, batch, scales, bias, ys_t);
-        }
-    }
+    quads_with_vnni!(
+        /// The AVX-512 build of [`int8::quads_int`]: with VNNI where [`super::has_vnni`]
+        /// allows, else with the weights widened to 16 bits ([`Avx512Quads`]).
+        quads_avx512,
+        quads_vnni,
+        "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c",
+        Avx512VnniQuads,
+        Avx512Quads,
+        super::has_vnni
+    );
 
     int_kernels!(
         "avx2",
@@ -1719,35 +1709,34 @@ mod tests {
             vec![("portable", int8::quads_int::<int8::PortableQuads> as Kernel)];
         #[cfg(target_arch = "x86_64")]
         {
-            #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma,f16c")]
-            fn widened(
-                w: &[i8],
-                cols: usize,
-                xs: &[f32],
-                batch: usize,
-                scales: Option<&[f32]>,
-                bias: Option<&[f32]>,
-                ys_t: &mut [f32],
-            ) {
-                int8::quads_int::<int::Avx512Quads>(w, cols, xs, batch, scales, bias, ys_t);
+            // The widened engines, each inside its build's features.
+            macro_rules! widened {
+                ($name:ident, $feat:literal, $engine:ty) => {
+                    #[target_feature(enable = $feat)]
+                    fn $name(
+                        w: &[i8],
+                        cols: usize,
+                        xs: &[f32],
+                        batch: usize,
+                        scales: Option<&[f32]>,
+                        bias: Option<&[f32]>,
+                        ys_t: &mut [f32],
+                    ) {
+                        int8::quads_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
+                    }
+                };
             }
+            widened!(
+                widened,
+                "avx512f,avx512bw,avx512vl,avx2,fma,f16c",
+                int::Avx512Quads
+            );
+            widened!(widened2, "avx2,fma,f16c", int::Avx2Quads);
             if has_avx512() {
                 // SAFETY: `has_avx512` found the wrapper's features on this CPU.
                 kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
                     widened(w, c, x, b, s, bi, y)
                 }));
-            }
-            #[target_feature(enable = "avx2,fma,f16c")]
-            fn widened2(
-                w: &[i8],
-                cols: usize,
-                xs: &[f32],
-                batch: usize,
-                scales: Option<&[f32]>,
-                bias: Option<&[f32]>,
-                ys_t: &mut [f32],
-            ) {
-                int8::quads_int::<int::Avx2Quads>(w, cols, xs, batch, scales, bias, ys_t);
             }
             if has_avx2() {
                 // SAFETY: `has_avx2` found the wrapper's features on this CPU.
