@@ -89,11 +89,13 @@ fn has_avx512() -> bool {
 #[cfg(target_arch = "x86_64")]
 fn has_vnni() -> bool {
     static VNNI: OnceLock<bool> = OnceLock::new();
-    *VNNI.get_or_init(|| {
-        has_avx512()
-            && is_x86_feature_detected!("avx512vnni")
-            && std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
-    })
+    *VNNI.get_or_init(|| has_avx512() && is_x86_feature_detected!("avx512vnni") && vnni_allowed())
+}
+
+/// Whether `SARTOR_RUNTIME_VNNI` leaves the VNNI engines on (anything but `0`).
+#[cfg(target_arch = "x86_64")]
+fn vnni_allowed() -> bool {
+    std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
 }
 
 /// Whether the AVX2 quad panels use AVX-VNNI (the 256-bit `vpdpbusd` of CPUs without AVX-512,
@@ -102,11 +104,7 @@ fn has_vnni() -> bool {
 #[cfg(target_arch = "x86_64")]
 fn has_avx_vnni() -> bool {
     static VNNI: OnceLock<bool> = OnceLock::new();
-    *VNNI.get_or_init(|| {
-        has_avx2()
-            && is_x86_feature_detected!("avxvnni")
-            && std::env::var("SARTOR_RUNTIME_VNNI").as_deref() != Ok("0")
-    })
+    *VNNI.get_or_init(|| has_avx2() && is_x86_feature_detected!("avxvnni") && vnni_allowed())
 }
 
 /// One cache line of int8 weights.
@@ -1700,9 +1698,9 @@ mod tests {
         // The AVX2 and AVX-512 builds each pick one quad engine per CPU (VNNI where present),
         // so the matrix tests, which go through `Isa`, meet only those: here the portable,
         // widened AVX2, AVX-VNNI, widened AVX-512 and VNNI engines (those this CPU has) each
-        // run the same products, from aligned and unaligned
-        // panels, with rows of ±127 against inputs at ±L (the contract's extremes: VNNI's
-        // wrapping steps leave `i32` there and must come back), batch 1 and 3.
+        // run the same products, from aligned and unaligned panels, with rows of ±127 against
+        // inputs at ±L (the contract's extremes: VNNI's wrapping steps leave `i32` there and
+        // must come back), batch 1 and 3.
         type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
         #[allow(unused_mut)]
         let mut kernels: Vec<(&str, Kernel)> =
