@@ -655,7 +655,26 @@ impl GarmentAnimator {
     /// Animate one frame; returns the garment's `V` posed vertices (metres). Errors (leaving the
     /// avatar as it was) on a pose that is not finite, not unit, or of another skeleton.
     /// Allocation-free.
+    ///
+    /// Under [`Parallelism::Rayon`] the whole frame runs inside
+    /// [`with_workers_awake`](sartor_core::awake::with_workers_awake), on a worker of the pool
+    /// with the others polling for its parallel steps (the network's products, the skinning,
+    /// the post-process's first pass), so that none finds its helpers asleep: until 2026-12-02
+    /// only the network step did, and on the 2-core Intel Xeon VM two threads ran the shipped
+    /// model's frame with post-process no faster than one (a thread woken for the
+    /// post-process's split first pass joined it some 90 µs late). The same bits either way.
     pub fn frame(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
+        match self.rig.options.parallelism {
+            Parallelism::Sequential => self.frame_now(pose)?,
+            Parallelism::Rayon => {
+                sartor_core::awake::with_workers_awake(|| self.frame_now(pose))?;
+            }
+        }
+        Ok(&self.avatar.vertices)
+    }
+
+    /// [`GarmentAnimator::frame`] on this thread.
+    fn frame_now(&mut self, pose: &Pose) -> Result<()> {
         let rig = &*self.rig;
         let par = rig.options.parallelism;
         pose.validate(rig.body.skeleton().n_joints())?;
@@ -682,8 +701,7 @@ impl GarmentAnimator {
             WrinkleMode::None => None,
         };
         self.avatar.times.network_ms = self.avatar.now() - start;
-        self.avatar.finish(rig, pose, wrinkle, par)?;
-        Ok(&self.avatar.vertices)
+        self.avatar.finish(rig, pose, wrinkle, par)
     }
 
     /// Time the stages of every later frame with `clock`, a monotonic clock in milliseconds

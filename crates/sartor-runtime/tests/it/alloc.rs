@@ -190,3 +190,40 @@ fn a_split_step_on_the_pool_allocates_nothing() {
     assert!(on_the_pool);
     assert_eq!(n, 0, "{n} allocations");
 }
+
+/// A frame under `Parallelism::Rayon` on a two-thread pool (the whole frame inside
+/// `sartor_core::awake::with_workers_awake`, the network's call nested in it) allocates
+/// nothing on the thread that runs it: the other worker's poller goes out by a `rayon::join`.
+#[test]
+fn a_frame_on_the_pool_allocates_nothing() {
+    use sartor_runtime::Parallelism;
+
+    let poses = clip("walk_normal", 8, 2);
+    let m = model(42, OutputKind::Dense, 32);
+    let options = AnimatorOptions {
+        parallelism: Parallelism::Rayon,
+        collision: Some(CollisionOptions {
+            query: CollisionQuery::DEFAULT_CANDIDATES,
+            ..CollisionOptions::default()
+        }),
+        ..AnimatorOptions::default()
+    };
+    let rig = rig(&m, NetworkOptions::default(), options);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("pool");
+    let (n, on_the_pool) = pool.install(|| {
+        let mut avatar = GarmentAnimator::new(rig).expect("avatar");
+        avatar.set_shape(&[0.5; 10]).expect("finite");
+        avatar.frame(&poses[0]).expect("frame");
+        let n = allocations_during(|| {
+            for pose in &poses[1..] {
+                avatar.frame(pose).expect("frame");
+            }
+        });
+        (n, rayon::current_thread_index().is_some())
+    });
+    assert!(on_the_pool);
+    assert_eq!(n, 0, "{n} allocations");
+}
