@@ -84,8 +84,9 @@ pub enum CollisionQuery {
     /// cloth vertices proven to need none by a test on the faces near them; the others get the
     /// exact closest point from those faces, found by a search of a tree of the region's faces
     /// per vertex (see the module docs). Under [`Parallelism::Rayon`] the first pass splits the
-    /// vertices over the threads (the same pushes: each vertex's answer is its own); the posing
-    /// of the region and the later passes stay on one thread. Where body
+    /// vertices over the threads (the same pushes: each vertex's answer is its own), and so do
+    /// the later passes where they move 64 vertices or more; the region's face data and tree
+    /// are built on one thread. Where body
     /// parts interpenetrate it also leaves out the
     /// faces buried inside another part, and takes a vertex that lies inside a part out of it
     /// (see the module docs): there it pushes more than the BVH query.
@@ -719,7 +720,7 @@ impl Collider {
             return if first {
                 self.certified_pass(cloth, par)
             } else {
-                self.certified_later_pass(cloth)
+                self.certified_later_pass(cloth, par)
             };
         }
         let mut states = std::mem::take(&mut self.vertices);
@@ -823,7 +824,7 @@ impl Collider {
 
     /// A later pass of the certified query: the exact answer for each vertex the previous pass
     /// moved (all at once: see `certify.rs`), pushed as the BVH query's later passes push.
-    fn certified_later_pass(&mut self, cloth: &mut [Vector3<f32>]) -> usize {
+    fn certified_later_pass(&mut self, cloth: &mut [Vector3<f32>], par: Parallelism) -> usize {
         let Some(certifier) = self.certifier.as_mut() else {
             return 0;
         };
@@ -851,7 +852,7 @@ impl Collider {
         let mut pushed = 0;
         let states = &mut self.vertices;
         let beyond = margin - REPUSH_SLACK_M;
-        certifier.later_points(&self.proximity, points, warm, beyond, |k, hit| {
+        certifier.later_points(&self.proximity, points, warm, beyond, par, |k, hit| {
             let i = moved[k] as usize;
             let (p, state) = (&mut cloth[i], &mut states[i]);
             let c = match hit {

@@ -68,8 +68,12 @@
 //!
 //! The first pass (every cloth vertex, or every triangle's centroid) is split over rayon's
 //! threads under `Parallelism::Rayon`, in parts of the points with their own search and
-//! scratch; each point's answer is its own, so the split changes no bit. The frame's update and
-//! the later passes (the few points a pass moved) run on one thread. Costs on the shipped model:
+//! scratch; each point's answer is its own, so the split changes no bit. So are the later
+//! passes from [`MIN_SPLIT_LATER`] points (the points a pass moved; one part a thread, the
+//! answers visited in order after): the shipped model's walk moves some 310 vertices a frame,
+//! and on the 2-core Intel Xeon VM its post-process on two threads took 437–465 → 413–435 µs
+//! and the int8 frame 439–483 → 417–457 (`cargo bench --bench postprocess`, alternating
+//! builds, six rounds). The frame's update runs on one thread. Costs on the shipped model:
 //! `cargo bench -p sartor-runtime --bench postprocess`.
 
 mod search;
@@ -332,6 +336,8 @@ pub(crate) struct Certifier {
     /// Per part of a first pass split over threads, its own search, points and scratch
     /// (made on the first split pass).
     parts: Vec<Part>,
+    /// A split later pass's answers, visited in order after it ([`Certifier::later_points`]).
+    later: Vec<Option<Later>>,
 }
 
 /// The state of one part of a first pass split over threads.
@@ -348,6 +354,25 @@ struct Part {
 /// a point (`search.rs`), some 60 µs of work, well above a hand-off between threads (not tuned
 /// further; the garments split here have 2,168 vertices and more).
 const MIN_SPLIT_POINTS: usize = 256;
+
+/// The length of each of `n_parts` parts of `n` points, with one of `parts` for each (made
+/// for `frame`'s region).
+fn split(parts: &mut Vec<Part>, frame: &Frame, n: usize, n_parts: usize) -> usize {
+    let chunk = n.div_ceil(n_parts);
+    if parts.len() < n_parts {
+        parts.resize_with(n_parts, || Part {
+            search: Search::default(),
+            points: Vec::with_capacity(chunk),
+            scratch: Scratch::for_frame(frame),
+            exact: Vec::new(),
+        });
+    }
+    chunk
+}
+
+/// A later pass is split over threads only from this many points (one part a thread: its
+/// points are the few the pass before moved, each near the body).
+const MIN_SPLIT_LATER: usize = 64;
 
 /// Parts per thread of a split first pass (cloth vertices near the body cost more than far
 /// ones, so more parts than threads even the load).
@@ -471,6 +496,7 @@ impl Certifier {
             face_warm: Vec::new(),
             face_outcomes: Outcomes::default(),
             parts: Vec::new(),
+            later: Vec::new(),
         }
     }
 
@@ -1178,16 +1204,12 @@ impl Certifier {
             let out = (warm, &mut outcomes.kind[..], &mut outcomes.exact, 0);
             return frame.certify(state, proximity, points, out, margin_m);
         }
-        let n_parts = PARTS_PER_THREAD * threads;
-        let chunk = points.len().div_ceil(n_parts);
-        if self.parts.len() < n_parts {
-            self.parts.resize_with(n_parts, || Part {
-                search: Search::default(),
-                points: Vec::with_capacity(chunk),
-                scratch: Scratch::for_frame(frame),
-                exact: Vec::new(),
-            });
-        }
+        let chunk = split(
+            &mut self.parts,
+            frame,
+            points.len(),
+            PARTS_PER_THREAD * threads,
+        );
         let stats = points
             .par_chunks(chunk)
             .zip(warm.par_chunks_mut(chunk))
@@ -1231,22 +1253,56 @@ impl Certifier {
     /// For each of `points` (`warm`: a face to start from per point, `u32::MAX` for none),
     /// visited in order: [`Later::Beyond`] where the exact query's signed distance is proven at
     /// least `beyond_m`, its exact answer otherwise; for the later passes, which push only
-    /// points inside `beyond_m`. Allocation-free.
+    /// points inside `beyond_m`. Under [`Parallelism::Rayon`], from [`MIN_SPLIT_LATER`] points,
+    /// split over the threads as the first pass is (each point's answer is its own), the
+    /// answers kept and visited in order after. Allocation-free (once the buffers have grown).
     pub(crate) fn later_points(
         &mut self,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         warm: &[u32],
         beyond_m: f64,
-        visit: impl FnMut(usize, Option<Later>),
+        par: Parallelism,
+        mut visit: impl FnMut(usize, Option<Later>),
     ) {
-        let state = AnswerState {
-            search: &mut self.search,
-            points: &mut self.points,
-            scratch: &mut self.scratch,
+        let threads = match par {
+            Parallelism::Sequential => 1,
+            Parallelism::Rayon => rayon::current_num_threads(),
         };
-        self.frame
-            .answer_points(state, proximity, points, warm, Some(beyond_m), visit);
+        if threads < 2 || points.len() < MIN_SPLIT_LATER {
+            let state = AnswerState {
+                search: &mut self.search,
+                points: &mut self.points,
+                scratch: &mut self.scratch,
+            };
+            self.frame
+                .answer_points(state, proximity, points, warm, Some(beyond_m), visit);
+            return;
+        }
+        let chunk = split(&mut self.parts, &self.frame, points.len(), threads);
+        let mut later = std::mem::take(&mut self.later);
+        later.clear();
+        later.resize(points.len(), None);
+        let frame = &self.frame;
+        points
+            .par_chunks(chunk)
+            .zip(warm.par_chunks(chunk))
+            .zip(later.par_chunks_mut(chunk))
+            .zip(self.parts.par_iter_mut())
+            .for_each(|(((points, warm), out), part)| {
+                let state = AnswerState {
+                    search: &mut part.search,
+                    points: &mut part.points,
+                    scratch: &mut part.scratch,
+                };
+                frame.answer_points(state, proximity, points, warm, Some(beyond_m), |k, hit| {
+                    out[k] = hit;
+                });
+            });
+        for (k, hit) in later.iter().enumerate() {
+            visit(k, *hit);
+        }
+        self.later = later;
     }
 
     /// The exact query's answer for each of `points` from `warm` faces (tests).
@@ -1872,23 +1928,30 @@ mod tests {
         assert!(checked.iter().all(|&n| n > 100), "{checked:?}");
         // A later pass's answers: proven beyond 2 cm only where the exact query says so.
         let (mut beyond, mut exact_beyond) = (0, 0);
-        certifier.later_points(&proximity, &points, &warm, 0.02, |k, hit| {
-            let exact = proximity.closest(&points[k].cast::<f64>());
-            match hit.expect("an answer") {
-                Later::Beyond { face } => {
-                    assert!(exact.signed_distance_m >= 0.02, "{:?}", points[k]);
-                    assert_eq!(face, exact.face);
-                    beyond += 1;
+        certifier.later_points(
+            &proximity,
+            &points,
+            &warm,
+            0.02,
+            Parallelism::Sequential,
+            |k, hit| {
+                let exact = proximity.closest(&points[k].cast::<f64>());
+                match hit.expect("an answer") {
+                    Later::Beyond { face } => {
+                        assert!(exact.signed_distance_m >= 0.02, "{:?}", points[k]);
+                        assert_eq!(face, exact.face);
+                        beyond += 1;
+                    }
+                    Later::Exact(c) => {
+                        assert_eq!(
+                            (c.face, c.signed_distance_m),
+                            (exact.face, exact.signed_distance_m)
+                        );
+                        exact_beyond += usize::from(c.signed_distance_m >= 0.02);
+                    }
                 }
-                Later::Exact(c) => {
-                    assert_eq!(
-                        (c.face, c.signed_distance_m),
-                        (exact.face, exact.signed_distance_m)
-                    );
-                    exact_beyond += usize::from(c.signed_distance_m >= 0.02);
-                }
-            }
-        });
+            },
+        );
         assert!(
             beyond > 100,
             "{beyond} proven beyond, {exact_beyond} answered"
