@@ -333,14 +333,14 @@ pub(crate) struct Certifier {
     /// use.
     face_warm: Vec<u32>,
     face_outcomes: Outcomes,
-    /// Per part of a first pass split over threads, its own search, points and scratch
-    /// (made on the first split pass).
+    /// Per part of a pass split over threads (the first pass, or a later one), its own
+    /// search, points and scratch (made on the first split pass).
     parts: Vec<Part>,
     /// A split later pass's answers, visited in order after it ([`Certifier::later_points`]).
     later: Vec<Option<Later>>,
 }
 
-/// The state of one part of a first pass split over threads.
+/// The state of one part of a pass split over threads.
 #[derive(Clone, Debug)]
 struct Part {
     search: Search,
@@ -354,6 +354,14 @@ struct Part {
 /// a point (`search.rs`), some 60 µs of work, well above a hand-off between threads (not tuned
 /// further; the garments split here have 2,168 vertices and more).
 const MIN_SPLIT_POINTS: usize = 256;
+
+/// The threads a pass may split over under `par`.
+fn threads(par: Parallelism) -> usize {
+    match par {
+        Parallelism::Sequential => 1,
+        Parallelism::Rayon => rayon::current_num_threads(),
+    }
+}
 
 /// The length of each of `n_parts` parts of `n` points, with one of `parts` for each (made
 /// for `frame`'s region).
@@ -1190,10 +1198,7 @@ impl Certifier {
             (&mut self.vertex_warm[..], &mut self.vertex_outcomes)
         };
         outcomes.exact.clear();
-        let threads = match par {
-            Parallelism::Sequential => 1,
-            Parallelism::Rayon => rayon::current_num_threads(),
-        };
+        let threads = threads(par);
         let frame = &self.frame;
         if threads < 2 || points.len() < MIN_SPLIT_POINTS {
             let state = AnswerState {
@@ -1265,10 +1270,7 @@ impl Certifier {
         par: Parallelism,
         mut visit: impl FnMut(usize, Option<Later>),
     ) {
-        let threads = match par {
-            Parallelism::Sequential => 1,
-            Parallelism::Rayon => rayon::current_num_threads(),
-        };
+        let threads = threads(par);
         if threads < 2 || points.len() < MIN_SPLIT_LATER {
             let state = AnswerState {
                 search: &mut self.search,
