@@ -7,7 +7,9 @@
 //! sought every frame). The frames run the network in f32 on one thread, and in int8 on one
 //! thread and on the pool of two (`-int8-2threads`: the network's products and the
 //! post-process's first pass split). Each iteration is the next frame of the clip, so the
-//! temporal caches see real motion.
+//! temporal caches see real motion. `crowd/…` is a `GarmentCrowd` of two or three avatars
+//! (different shapes and phases of the walk), the whole crowd's frame on one thread and on
+//! the pool of two.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
 
@@ -19,7 +21,8 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use sartor_core::{BodyModel, Pose};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
-    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism, Precision,
+    GarmentCrowd, GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
+    Precision,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -33,13 +36,13 @@ fn clock_ms() -> f64 {
     START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
 }
 
-fn animator(
+fn rig(
     query: CollisionQuery,
     interpenetration: Interpenetration,
     faces: bool,
     parallelism: Parallelism,
     precision: Precision,
-) -> GarmentAnimator {
+) -> Arc<GarmentRig> {
     let dir = data("models/default");
     let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
     let options = NetworkOptions {
@@ -58,8 +61,18 @@ fn animator(
         }),
         ..AnimatorOptions::default()
     };
-    let rig = GarmentRig::new(network, binding, body, options).expect("rig");
-    let mut avatar = GarmentAnimator::new(Arc::new(rig)).expect("avatar");
+    Arc::new(GarmentRig::new(network, binding, body, options).expect("rig"))
+}
+
+fn animator(
+    query: CollisionQuery,
+    interpenetration: Interpenetration,
+    faces: bool,
+    parallelism: Parallelism,
+    precision: Precision,
+) -> GarmentAnimator {
+    let rig = rig(query, interpenetration, faces, parallelism, precision);
+    let mut avatar = GarmentAnimator::new(rig).expect("avatar");
     avatar.set_stage_clock(Some(clock_ms));
     avatar
 }
@@ -145,6 +158,52 @@ fn post_process(c: &mut Criterion) {
                     let start = Instant::now();
                     for _ in 0..iters {
                         avatar.frame(&poses[k % poses.len()]).expect("frame");
+                        k += 1;
+                    }
+                    start.elapsed()
+                })
+            })
+        });
+    }
+    // Crowds of two and three avatars in int8 with the default post-process, on one thread
+    // and on the pool of two: shapes β₀ = 0, +1, −1 (within the training shapes), each
+    // avatar at its own phase of the walk; milliseconds per frame of the whole crowd.
+    for (n, parallelism, threads) in [
+        (2, seq, "1thread"),
+        (2, Parallelism::Rayon, "2threads"),
+        (3, seq, "1thread"),
+        (3, Parallelism::Rayon, "2threads"),
+    ] {
+        let rig = rig(
+            CollisionQuery::Certified,
+            within,
+            false,
+            parallelism,
+            Precision::Int8,
+        );
+        let n_betas = rig.network().n_betas();
+        let mut crowd = GarmentCrowd::new(rig, n).expect("crowd");
+        for i in 0..n {
+            let mut betas = vec![0.0; n_betas];
+            betas[0] = [0.0, 1.0, -1.0][i];
+            crowd.set_shape(i, &betas).expect("shape");
+        }
+        // Per frame of the clip, every avatar's pose (made before the timing).
+        let sets: Vec<Vec<Pose>> = (0..poses.len())
+            .map(|k| {
+                (0..n)
+                    .map(|i| poses[(k + 11 * i) % poses.len()].clone())
+                    .collect()
+            })
+            .collect();
+        let mut k = 0;
+        let name = format!("crowd/shipped-4210-certified-int8-{n}avatars-{threads}");
+        c.bench_function(&name, |b| {
+            b.iter_custom(|iters| {
+                pool.install(|| {
+                    let start = Instant::now();
+                    for _ in 0..iters {
+                        crowd.frame(&sets[k % sets.len()]).expect("crowd frame");
                         k += 1;
                     }
                     start.elapsed()

@@ -800,7 +800,8 @@ impl GarmentAnimator {
 /// of them, sharing one pass over the weights (the batched kernels); each avatar's result is
 /// bitwise equal to animating it alone with a [`GarmentAnimator`]. With
 /// [`Parallelism::Rayon`] the per-avatar skinning and post-process run on rayon's pool, one
-/// avatar per task.
+/// avatar per task, each splitting further where a lone animator would
+/// ([`GarmentCrowd::frame`]).
 #[derive(Clone, Debug)]
 pub struct GarmentCrowd {
     rig: Arc<GarmentRig>,
@@ -874,7 +875,22 @@ impl GarmentCrowd {
 
     /// Animate one frame of every avatar, `poses[i]` for avatar `i`. Allocation-free with
     /// [`Parallelism::Sequential`].
+    ///
+    /// Under [`Parallelism::Rayon`] the frame runs inside
+    /// [`with_workers_awake`](sartor_core::awake::with_workers_awake), as
+    /// [`GarmentAnimator::frame`] does, and each avatar's skinning and post-process may split
+    /// over the threads too (rayon's tasks nest): a thread that has finished its avatars takes
+    /// part of another's, so a crowd of fewer avatars than threads, or of a count that does
+    /// not divide among them, still keeps every thread at work. The same bits either way.
     pub fn frame(&mut self, poses: &[Pose]) -> Result<()> {
+        match self.rig.options.parallelism {
+            Parallelism::Sequential => self.frame_now(poses),
+            Parallelism::Rayon => sartor_core::awake::with_workers_awake(|| self.frame_now(poses)),
+        }
+    }
+
+    /// [`GarmentCrowd::frame`] on this thread.
+    fn frame_now(&mut self, poses: &[Pose]) -> Result<()> {
         check_len("crowd poses", poses.len(), self.avatars.len())?;
         let rig = &*self.rig;
         let n = self.avatars.len();
@@ -915,8 +931,9 @@ impl GarmentCrowd {
             }
             WrinkleMode::None => {}
         }
+        let par = rig.options.parallelism;
         let finish = |((a, pose), w): ((&mut Avatar, &Pose), &[f32])| {
-            a.finish(rig, pose, wrinkles.then_some(w), Parallelism::Sequential)
+            a.finish(rig, pose, wrinkles.then_some(w), par)
         };
         match rig.options.parallelism {
             Parallelism::Sequential => self
