@@ -10,9 +10,10 @@
 //! picked at run time with `is_x86_feature_detected!`: the widest.
 //!
 //! Within the AVX-512 level the int8 quad panels (`int8.rs`) use VNNI (`vpdpbusd`) where the
-//! CPU has it (`has_vnni`), within the AVX2 level AVX-VNNI, its 256-bit form (`has_avx_vnni`;
-//! `SARTOR_RUNTIME_VNNI=0` turns both off for benchmarking), with their weights on cache lines
-//! ([`LineAligned`]): exact integer sums, so the same bits.
+//! CPU has it (`has_vnni`), and so do the integer rows (`vpdpwssd`); within the AVX2 level the
+//! quad panels use AVX-VNNI, its 256-bit form (`has_avx_vnni`; `SARTOR_RUNTIME_VNNI=0` turns
+//! them all off for benchmarking), with their weights on cache lines ([`LineAligned`]): exact
+//! integer sums, so the same bits.
 //!
 //! Unsafe operations, each with its `SAFETY` comment: the unaligned loads and stores of the
 //! intrinsics (from references of exactly the size they touch), the byte view of
@@ -84,8 +85,9 @@ fn has_avx512() -> bool {
         && is_x86_feature_detected!("avx512dq")
 }
 
-/// Whether the AVX-512 quad panels use VNNI (`vpdpbusd`): where this CPU has it, unless
-/// `SARTOR_RUNTIME_VNNI=0` (for benchmarking; the results are the same bits either way).
+/// Whether the AVX-512 quad panels and integer rows use VNNI (`vpdpbusd`, `vpdpwssd`): where
+/// this CPU has it, unless `SARTOR_RUNTIME_VNNI=0` (for benchmarking; the results are the same
+/// bits either way).
 #[cfg(target_arch = "x86_64")]
 fn has_vnni() -> bool {
     static VNNI: OnceLock<bool> = OnceLock::new();
@@ -1182,9 +1184,9 @@ mod int {
         _mm256_madd_epi16, _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi64x,
         _mm256_setzero_si256, _mm256_slli_epi32, _mm256_storeu_si256, _mm256_sub_epi32,
         _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_dpbusd_epi32,
-        _mm512_extracti64x4_epi64, _mm512_loadu_si512, _mm512_madd_epi16, _mm512_reduce_add_epi32,
-        _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32,
-        _mm512_storeu_si512, _mm512_sub_epi32,
+        _mm512_dpwssd_epi32, _mm512_extracti64x4_epi64, _mm512_loadu_si512, _mm512_madd_epi16,
+        _mm512_reduce_add_epi32, _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512,
+        _mm512_slli_epi32, _mm512_storeu_si512, _mm512_sub_epi32,
     };
 
     use super::super::int8::{self, PortableInt};
@@ -1232,12 +1234,35 @@ mod int {
         }))
     }
 
+    /// `acc + madd(q, x)`: pairs of 16-bit products summed into 32-bit lanes (AVX2).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn madd_add_avx2(acc: __m256i, q: __m256i, x: __m256i) -> __m256i {
+        _mm256_add_epi32(acc, _mm256_madd_epi16(q, x))
+    }
+
+    /// [`madd_add_avx2`] on AVX-512.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw")]
+    fn madd_add_avx512(acc: __m512i, q: __m512i, x: __m512i) -> __m512i {
+        _mm512_add_epi32(acc, _mm512_madd_epi16(q, x))
+    }
+
+    /// [`madd_add_avx512`] in one instruction, VNNI's `vpdpwssd` (the same wrapping sums:
+    /// the integer contract keeps every partial sum within `i32`, so the same bits).
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+    fn madd_add_vnni(acc: __m512i, q: __m512i, x: __m512i) -> __m512i {
+        _mm512_dpwssd_epi32(acc, q, x)
+    }
+
     /// `$dotn`: `N` rows with one input, `$w` columns per step (`$x`: a vector of `$w` i16,
-    /// `$q`: a load of `$w` i8), the tail by the portable engine; `$engine` is its
-    /// [`IntEngine`], usable only inside wrappers with `$feat`.
+    /// `$q`: a load of `$w` i8, `$acc`: the accumulate of [`madd_add_avx2`]), the tail by the
+    /// portable engine; `$engine` is its [`IntEngine`], usable only inside wrappers with
+    /// `$feat`.
     macro_rules! int_kernels {
         ($feat:literal, $engine:ident, $dotn:ident, $w:literal, $x:ty, $q:ty, $load_x:ident,
-            $load_q:ident, $zero:ident, $widen:ident, $madd:ident, $add:ident, $sum:path,
+            $load_q:ident, $zero:ident, $widen:ident, $acc:ident, $sum:path,
             $sums8:path) => {
             /// The vector partial sums of `N` rows over the whole chunks of the input.
             #[inline]
@@ -1264,7 +1289,7 @@ mod int {
                         // SAFETY: `$w·c + $w ≤ n`, within the row (checked above): `$w`
                         // readable bytes, exactly what the load reads.
                         let q = unsafe { $load_q(row.add($w * c).cast::<$q>()) };
-                        *a = $add(*a, $madd($widen(q), xv));
+                        *a = $acc(*a, $widen(q), xv);
                     }
                 }
                 acc
@@ -1622,8 +1647,7 @@ mod int {
         _mm_loadu_si128,
         _mm256_setzero_si256,
         _mm256_cvtepi8_epi16,
-        _mm256_madd_epi16,
-        _mm256_add_epi32,
+        madd_add_avx2,
         sum8,
         sums8
     );
@@ -1638,11 +1662,60 @@ mod int {
         _mm256_loadu_si256,
         _mm512_setzero_si512,
         _mm512_cvtepi8_epi16,
-        _mm512_madd_epi16,
-        _mm512_add_epi32,
+        madd_add_avx512,
         _mm512_reduce_add_epi32,
         sums8_512
     );
+    int_kernels!(
+        "avx512f,avx512bw,avx512vnni,avx2",
+        Avx512VnniInt,
+        dotn_vnni,
+        32,
+        __m512i,
+        __m256i,
+        _mm512_loadu_si512,
+        _mm256_loadu_si256,
+        _mm512_setzero_si512,
+        _mm512_cvtepi8_epi16,
+        madd_add_vnni,
+        _mm512_reduce_add_epi32,
+        sums8_512
+    );
+
+    /// [`int8::rows_int`] with the VNNI engine.
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c")]
+    fn rows_vnni(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        int8::rows_int::<Avx512VnniInt>(w, cols, xs, batch, scales, bias, ys_t);
+    }
+
+    /// The AVX-512 build of [`int8::rows_int`]: each 16-bit product pair summed by VNNI's
+    /// `vpdpwssd` where [`super::has_vnni`] allows, else by `vpmaddwd` and an add
+    /// ([`Avx512Int`]).
+    #[inline(always)]
+    pub(super) fn rows_avx512(
+        w: &[i8],
+        cols: usize,
+        xs: &[f32],
+        batch: usize,
+        scales: Option<&[f32]>,
+        bias: Option<&[f32]>,
+        ys_t: &mut [f32],
+    ) {
+        if super::has_vnni() {
+            // SAFETY: `has_vnni` found `rows_vnni`'s features on this CPU.
+            unsafe { rows_vnni(w, cols, xs, batch, scales, bias, ys_t) }
+        } else {
+            int8::rows_int::<Avx512Int>(w, cols, xs, batch, scales, bias, ys_t);
+        }
+    }
 }
 
 // The integer kernels (`int8.rs`); reached through `rows_i8` only. Their 512-bit engine needs
@@ -1653,7 +1726,7 @@ dispatched!(
     i8,
     rows_int::<PortableInt>,
     rows_int::<int::Avx2Int>,
-    rows_int::<int::Avx512Int>
+    int::rows_avx512
 );
 
 dispatched!(
@@ -1786,6 +1859,95 @@ mod tests {
                         let want = want.get_or_insert(bits.clone());
                         assert_eq!(&bits, want, "{rows} × {cols} batch {batch} {name} {at}");
                     }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_integer_row_engine_gives_the_same_bits() {
+        // As for the quad engines: `Isa` meets one row engine per build and CPU (VNNI's
+        // `vpdpwssd` where present), so here the portable, AVX2, widened AVX-512 and VNNI
+        // engines (those this CPU has) run the same products: short rows (eight neighbours)
+        // and long ones (eight streams an eighth of the rows apart), batch 1 and 3 (inputs
+        // that share a pass over the weights), with rows of ±127 against inputs at ±L.
+        type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
+        #[allow(unused_mut)]
+        let mut kernels: Vec<(&str, Kernel)> =
+            vec![("portable", int8::rows_int::<int8::PortableInt> as Kernel)];
+        #[cfg(target_arch = "x86_64")]
+        {
+            macro_rules! engine {
+                ($name:ident, $feat:literal, $engine:ty) => {
+                    #[target_feature(enable = $feat)]
+                    fn $name(
+                        w: &[i8],
+                        cols: usize,
+                        xs: &[f32],
+                        batch: usize,
+                        scales: Option<&[f32]>,
+                        bias: Option<&[f32]>,
+                        ys_t: &mut [f32],
+                    ) {
+                        int8::rows_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
+                    }
+                };
+            }
+            engine!(
+                widened,
+                "avx512f,avx512bw,avx512vl,avx2,fma,f16c",
+                int::Avx512Int
+            );
+            engine!(avx2, "avx2,fma,f16c", int::Avx2Int);
+            engine!(
+                vnni,
+                "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c",
+                int::Avx512VnniInt
+            );
+            if has_avx512() {
+                // SAFETY: `has_avx512` found the wrapper's features on this CPU.
+                kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
+                    widened(w, c, x, b, s, bi, y)
+                }));
+            }
+            if has_avx2() {
+                // SAFETY: `has_avx2` found the wrapper's features on this CPU.
+                kernels.push(("avx2", |w, c, x, b, s, bi, y| unsafe {
+                    avx2(w, c, x, b, s, bi, y)
+                }));
+            }
+            if has_avx512() && is_x86_feature_detected!("avx512vnni") {
+                // SAFETY: detection found the wrapper's features on this CPU.
+                kernels.push(("vnni", |w, c, x, b, s, bi, y| unsafe {
+                    vnni(w, c, x, b, s, bi, y)
+                }));
+            }
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(43);
+        for (rows, cols) in [(8 * 5 + 3, 70), (8 * 3 + 5, 600), (19, 1500)] {
+            let mut q: Vec<i8> = (0..rows * cols)
+                .map(|_| rng.random_range(-127..=127))
+                .collect();
+            for (c, v) in q[..2 * cols].iter_mut().enumerate() {
+                // Row 0 all +127, row 1 of alternating sign.
+                *v = if c < cols || c % 2 == 0 { 127 } else { -127 };
+            }
+            let scales: Vec<f32> = (0..rows).map(|_| rng.random_range(0.001..0.01)).collect();
+            let bias: Vec<f32> = (0..rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+            for batch in [1, 3] {
+                let mut xs: Vec<f32> = (0..batch * cols)
+                    .map(|_| rng.random_range(-2.0..2.0))
+                    .collect();
+                for (c, x) in xs[..cols].iter_mut().enumerate() {
+                    *x = if c % 2 == 0 { 2.0 } else { -2.0 };
+                }
+                let mut want = None;
+                for (name, kernel) in &kernels {
+                    let mut ys = vec![f32::NAN; rows * batch];
+                    kernel(&q, cols, &xs, batch, Some(&scales), Some(&bias), &mut ys);
+                    let bits: Vec<u32> = ys.iter().map(|v| v.to_bits()).collect();
+                    let want = want.get_or_insert(bits.clone());
+                    assert_eq!(&bits, want, "{rows} × {cols} batch {batch} {name}");
                 }
             }
         }

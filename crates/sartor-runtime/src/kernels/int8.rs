@@ -7,7 +7,11 @@
 //! input vector is quantised once per product to integers `x_q` with one step `t` (symmetric,
 //! `t = max_j |x_j| / L`, `x_q = round_ties_even(x / t)` clamped to ±`L`), and every row is one
 //! exact integer sum `S_i = Σ_j q_ij · x_q,j`: on x86-64 two instructions per 16 (AVX2) or 32
-//! (AVX-512) weights (`vpmovsxbw`, `vpmaddwd`) and an integer add.
+//! (AVX-512) weights (`vpmovsxbw`, `vpmaddwd`) and an integer add, or with AVX-512 VNNI the
+//! widening and one `vpdpwssd` (multiply, pair and add in one instruction, the same wrapping
+//! sums): a batch of eight inputs on the paper-size 13,272 × 1,500 product, which meets each
+//! row from cache, 8.08 → 6.78 ms on the 2-core Intel Xeon VM (faster in 4 of 4 alternating
+//! rounds; one input, read from memory, 1.16 → 1.12).
 //!
 //! **Arithmetic contract.** `L = min(32,767, ⌊(2³¹ − 1) / (127 · n)⌋)` for rows of `n` columns,
 //! so that no partial sum can leave `i32` (`Σ|q x_q| ≤ 127 · n · L`): 16 bits up to 516
