@@ -1178,15 +1178,16 @@ dispatched!(
 #[cfg(target_arch = "x86_64")]
 mod int {
     use std::arch::x86_64::{
-        __m128i, __m256i, __m512i, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
+        __m128i, __m256i, __m512i, __mmask32, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
         _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
         _mm256_dpbusd_avx_epi32, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256,
-        _mm256_madd_epi16, _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi64x,
-        _mm256_setzero_si256, _mm256_slli_epi32, _mm256_storeu_si256, _mm256_sub_epi32,
-        _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16, _mm512_dpbusd_epi32,
-        _mm512_dpwssd_epi32, _mm512_extracti64x4_epi64, _mm512_loadu_si512, _mm512_madd_epi16,
-        _mm512_reduce_add_epi32, _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512,
-        _mm512_slli_epi32, _mm512_storeu_si512, _mm512_sub_epi32,
+        _mm256_madd_epi16, _mm256_maskz_loadu_epi8, _mm256_permute2x128_si256, _mm256_set1_epi32,
+        _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_storeu_si256,
+        _mm256_sub_epi32, _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16,
+        _mm512_dpbusd_epi32, _mm512_dpwssd_epi32, _mm512_extracti64x4_epi64, _mm512_loadu_si512,
+        _mm512_madd_epi16, _mm512_maskz_loadu_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi32,
+        _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32, _mm512_storeu_si512,
+        _mm512_sub_epi32,
     };
 
     use super::super::int8::{self, PortableInt};
@@ -1256,25 +1257,88 @@ mod int {
         _mm512_dpwssd_epi32(acc, q, x)
     }
 
+    /// No masked tail (AVX2 has no masked load of bytes or halves): the portable engine sums
+    /// the columns past the last whole chunk. Returns the columns summed.
+    #[inline(always)]
+    fn no_tail<A, const N: usize>(_: &mut [A; N], _: [*const i8; N], _: &[i16], n: usize) -> usize {
+        n
+    }
+
+    /// The columns past the last whole chunk of 32 (`x[n..]`, fewer than 32) in one more step,
+    /// read with masked loads that stop at the row's end (zeros beyond: the same exact sums).
+    /// Every row must hold `x.len()` columns. Returns `x.len()`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl")]
+    fn masked_tail<const N: usize>(
+        acc: &mut [__m512i; N],
+        rows: [*const i8; N],
+        x: &[i16],
+        n: usize,
+        step: impl Fn(__m512i, __m512i, __m512i) -> __m512i,
+    ) -> usize {
+        let rest = x.len() - n;
+        if rest > 0 {
+            debug_assert!(rest < 32);
+            let mask: __mmask32 = (1u32 << rest) - 1;
+            // SAFETY: the mask covers `x[n..]` only; masked-off elements are not read.
+            let xv = unsafe { _mm512_maskz_loadu_epi16(mask, x.as_ptr().add(n)) };
+            for (a, row) in acc.iter_mut().zip(rows) {
+                // SAFETY: the caller checked every row holds `x.len()` columns; the mask
+                // covers the `rest` bytes from `n` only.
+                let q = unsafe { _mm256_maskz_loadu_epi8(mask, row.add(n)) };
+                *a = step(*a, _mm512_cvtepi8_epi16(q), xv);
+            }
+        }
+        x.len()
+    }
+
+    /// [`masked_tail`] for the widened AVX-512 engine.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl")]
+    fn masked_tail_avx512<const N: usize>(
+        acc: &mut [__m512i; N],
+        rows: [*const i8; N],
+        x: &[i16],
+        n: usize,
+    ) -> usize {
+        masked_tail(acc, rows, x, n, |a, q, x| madd_add_avx512(a, q, x))
+    }
+
+    /// [`masked_tail`] for the VNNI engine.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn masked_tail_vnni<const N: usize>(
+        acc: &mut [__m512i; N],
+        rows: [*const i8; N],
+        x: &[i16],
+        n: usize,
+    ) -> usize {
+        masked_tail(acc, rows, x, n, |a, q, x| madd_add_vnni(a, q, x))
+    }
+
     /// `$dotn`: `N` rows with one input, `$w` columns per step (`$x`: a vector of `$w` i16,
-    /// `$q`: a load of `$w` i8, `$acc`: the accumulate of [`madd_add_avx2`]), the tail by the
-    /// portable engine; `$engine` is its [`IntEngine`], usable only inside wrappers with
-    /// `$feat`.
+    /// `$q`: a load of `$w` i8, `$acc`: the accumulate of [`madd_add_avx2`]), then `$tail`
+    /// ([`masked_tail`] or [`no_tail`]), the rest by the portable engine; `$engine` is its
+    /// [`IntEngine`], usable only inside wrappers with `$feat`.
     macro_rules! int_kernels {
         ($feat:literal, $engine:ident, $dotn:ident, $w:literal, $x:ty, $q:ty, $load_x:ident,
-            $load_q:ident, $zero:ident, $widen:ident, $acc:ident, $sum:path,
+            $load_q:ident, $zero:ident, $widen:ident, $acc:ident, $tail:ident, $sum:path,
             $sums8:path) => {
-            /// The vector partial sums of `N` rows over the whole chunks of the input.
+            /// The vector partial sums of `N` rows over the input, and the columns they cover
+            /// (the whole chunks, or every column with a masked tail).
             #[inline]
             #[target_feature(enable = $feat)]
-            fn $dotn<const N: usize, const AHEAD: usize>(w: [&[i8]; N], x: &[i16]) -> [$x; N] {
+            fn $dotn<const N: usize, const AHEAD: usize>(
+                w: [&[i8]; N],
+                x: &[i16],
+            ) -> ([$x; N], usize) {
                 let (xc, _) = x.as_chunks::<$w>();
                 let mut acc = [$zero(); N];
                 // The rows' lengths checked once, not per row and step (see `dotn_block` of
                 // `isa_kernels!`).
                 let n = xc.len() * $w;
                 let rows: [*const i8; N] = std::array::from_fn(|k| {
-                    assert!(w[k].len() >= n, "a row shorter than the input");
+                    assert!(w[k].len() >= x.len(), "a row shorter than the input");
                     w[k].as_ptr()
                 });
                 for (c, xv) in xc.iter().enumerate() {
@@ -1292,7 +1356,9 @@ mod int {
                         *a = $acc(*a, $widen(q), xv);
                     }
                 }
-                acc
+                // Every row holds `x.len()` columns (checked above), as `$tail` needs.
+                let done = $tail(&mut acc, rows, x, n);
+                (acc, done)
             }
 
             pub(super) struct $engine;
@@ -1300,10 +1366,9 @@ mod int {
             impl IntEngine for $engine {
                 #[inline(always)]
                 fn dot(w: &[i8], x: &[i16]) -> i32 {
-                    let done = x.len() / $w * $w;
                     // SAFETY: this engine is only used inside the wrapper of `rows_i8` with
                     // `$feat`, called only for an `Isa` made after detection found them.
-                    let acc = unsafe { $dotn::<1, 0>([w], x)[0] };
+                    let ([acc], done) = unsafe { $dotn::<1, 0>([w], x) };
                     // SAFETY: as above.
                     let sum = unsafe { $sum(acc) };
                     sum + PortableInt::dot(&w[done..], &x[done..])
@@ -1311,17 +1376,19 @@ mod int {
 
                 #[inline(always)]
                 fn dot8(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
-                    let done = x.len() / $w * $w;
                     // SAFETY: as for `dot`.
-                    let sums = unsafe { $sums8($dotn::<8, 0>(w, x)) };
+                    let (acc, done) = unsafe { $dotn::<8, 0>(w, x) };
+                    // SAFETY: as for `dot`.
+                    let sums = unsafe { $sums8(acc) };
                     std::array::from_fn(|r| sums[r] + PortableInt::dot(&w[r][done..], &x[done..]))
                 }
 
                 #[inline(always)]
                 fn dot8_far(w: [&[i8]; 8], x: &[i16]) -> [i32; 8] {
-                    let done = x.len() / $w * $w;
                     // SAFETY: as for `dot`.
-                    let sums = unsafe { $sums8($dotn::<8, STREAM_AHEAD>(w, x)) };
+                    let (acc, done) = unsafe { $dotn::<8, STREAM_AHEAD>(w, x) };
+                    // SAFETY: as for `dot`.
+                    let sums = unsafe { $sums8(acc) };
                     std::array::from_fn(|r| sums[r] + PortableInt::dot(&w[r][done..], &x[done..]))
                 }
 
@@ -1331,9 +1398,9 @@ mod int {
                     #[inline]
                     #[target_feature(enable = $feat)]
                     fn block(w: &[i8], x: &[i16], g: FarGroups, sums: &mut [i32]) {
-                        let done = x.len() / $w * $w;
                         for (o, rows) in g.rows(w, x.len()) {
-                            let acc = $sums8($dotn::<8, STREAM_AHEAD>(rows, x));
+                            let (acc, done) = $dotn::<8, STREAM_AHEAD>(rows, x);
+                            let acc = $sums8(acc);
                             for (r, (row, acc)) in rows.iter().zip(acc).enumerate() {
                                 sums[g.at(o, r)] = acc + PortableInt::dot(&row[done..], &x[done..]);
                             }
@@ -1648,11 +1715,12 @@ mod int {
         _mm256_setzero_si256,
         _mm256_cvtepi8_epi16,
         madd_add_avx2,
+        no_tail,
         sum8,
         sums8
     );
     int_kernels!(
-        "avx512f,avx512bw,avx2",
+        "avx512f,avx512bw,avx512vl,avx2",
         Avx512Int,
         dotn_avx512,
         32,
@@ -1663,11 +1731,12 @@ mod int {
         _mm512_setzero_si512,
         _mm512_cvtepi8_epi16,
         madd_add_avx512,
+        masked_tail_avx512,
         _mm512_reduce_add_epi32,
         sums8_512
     );
     int_kernels!(
-        "avx512f,avx512bw,avx512vnni,avx2",
+        "avx512f,avx512bw,avx512vl,avx512vnni,avx2",
         Avx512VnniInt,
         dotn_vnni,
         32,
@@ -1678,6 +1747,7 @@ mod int {
         _mm512_setzero_si512,
         _mm512_cvtepi8_epi16,
         madd_add_vnni,
+        masked_tail_vnni,
         _mm512_reduce_add_epi32,
         sums8_512
     );
