@@ -3,7 +3,9 @@
 //! output) with random weights, animated over a procedural clip on the built-in body: ms per
 //! frame without and with the collision post-process, on one thread and on all, in f32, f16
 //! and int8; model memory; the post-process query measured (BVH against candidate triangles:
-//! time and misses); reduced models. Writes `bench-runtime.json`.
+//! time and misses); reduced models; crowds (`GarmentCrowd`: 1, 4 and 16 avatars sharing one
+//! pass over the weights, at the reference size in f32 and int8, one thread and all). Writes
+//! `bench-runtime.json`.
 //!
 //! The random output layers are smooth over the garment (`W = Φ R`, `Φ` 16 low-frequency
 //! functions of the vertex position, `R` random), so the wrinkles look like wrinkles (about
@@ -26,9 +28,9 @@ use sartor_core::{BodyModel, MODEL_HEADER, Pose, PoseFeatureSpec, RootFeature};
 use sartor_motion::cmu_mb_body_joints as feature_joints;
 use sartor_runtime::{
     AnimatorOptions, AssetId, CollisionOptions, CollisionQuery, DenseWeights, FeatureBlock,
-    GarmentAnimator, GarmentBinding, GarmentModel, GarmentNetwork, GarmentRig, GruWeights,
-    Interpenetration, MeanStd, ModelHeader, ModelSizes, ModelWeights, NetworkOptions, NormStats,
-    OutputKind, Parallelism, PcaWeights, Precision, RotationEncoding, instruction_set,
+    GarmentAnimator, GarmentBinding, GarmentCrowd, GarmentModel, GarmentNetwork, GarmentRig,
+    GruWeights, Interpenetration, MeanStd, ModelHeader, ModelSizes, ModelWeights, NetworkOptions,
+    NormStats, OutputKind, Parallelism, PcaWeights, Precision, RotationEncoding, instruction_set,
 };
 use serde::Serialize;
 
@@ -36,7 +38,7 @@ use crate::bench_anchors::{AnchorModel, AnchorOptions, AnchorsReport, anchors, c
 use crate::bench_sim::{GarmentDirs, garment_of_size};
 use crate::error::Context;
 use crate::report::{Machine, load_average};
-use crate::timing::{mean, median, time_frames, time_stages};
+use crate::timing::{mean, median, time_calls, time_frames, time_stages};
 use crate::{Progress, Result};
 
 /// What `bench runtime` times.
@@ -175,6 +177,36 @@ struct Reduced {
     load_s: f64,
 }
 
+/// A crowd: `avatars` avatars of one rig animated together by [`GarmentCrowd::frame`].
+#[derive(Serialize)]
+struct CrowdRun {
+    triangles: usize,
+    precision: &'static str,
+    avatars: usize,
+    threads: usize,
+    /// Crowd frames timed (each `avatars` avatar frames): the run's frames over the avatars,
+    /// at least [`CROWD_MIN_FRAMES`].
+    frames: usize,
+    /// Median ms per frame of the whole crowd, without and with the default post-process.
+    ms_per_frame: f64,
+    ms_per_frame_pp: f64,
+    /// The same per avatar (`ms_per_frame_pp / avatars`).
+    ms_per_avatar: f64,
+    ms_per_avatar_pp: f64,
+    /// A lone avatar's frame (the crowd of one, same precision and threads) over
+    /// `ms_per_avatar`: what animating them together saves (above 1: cheaper per avatar).
+    gain_per_avatar: f64,
+    gain_per_avatar_pp: f64,
+    /// Avatars whose frames with post-process fit in 16.7 ms (a 60 Hz display's frame) at this
+    /// cost per avatar.
+    avatars_per_60hz_frame_pp: f64,
+}
+
+/// Crowd sizes `bench runtime` times.
+const CROWD_AVATARS: [usize; 3] = [1, 4, 16];
+/// Crowd frames timed at least (and warm-up frames at least a sixth of it).
+const CROWD_MIN_FRAMES: usize = 30;
+
 /// `bench-runtime.json`.
 #[derive(Serialize)]
 pub struct RuntimeBenchReport {
@@ -191,6 +223,8 @@ pub struct RuntimeBenchReport {
     garments: Vec<GarmentResult>,
     post_process: Option<PostProcess>,
     reduced: Vec<Reduced>,
+    /// Crowds at the reference size: avatars animated together, their network step batched.
+    crowd: Vec<CrowdRun>,
     /// The same weights in PyTorch and ONNX Runtime (`--anchors` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     anchors: Option<AnchorsReport>,
@@ -655,6 +689,88 @@ fn post_process(
     })
 }
 
+/// Crowds of [`CROWD_AVATARS`] avatars of one network, on one thread and on all, without and
+/// with the default post-process. Every avatar has the template shape (the random fit does not
+/// follow shape, see [`BETAS`]) and its own phase of the clip, evenly spread, so the
+/// post-process meets different poses. A crowd of `n` times `1/n` of the run's frames (at
+/// least [`CROWD_MIN_FRAMES`]), so each size times about as many avatar frames.
+fn crowd(
+    scene: &Scene,
+    network: &Arc<GarmentNetwork>,
+    poses: &[Pose],
+    args: &RuntimeBenchOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<CrowdRun>> {
+    let threads_all = rayon::current_num_threads();
+    let mut out: Vec<CrowdRun> = Vec::new();
+    for (par, threads) in [
+        (Parallelism::Sequential, 1),
+        (Parallelism::Rayon, threads_all),
+    ] {
+        let mut alone = None;
+        for n in CROWD_AVATARS {
+            let frames = (args.frames / n).max(CROWD_MIN_FRAMES);
+            let warmup = (args.warmup / n).max(CROWD_MIN_FRAMES / 6);
+            // Per frame of the clip, every avatar's pose (made before the timing).
+            let sets: Vec<Vec<Pose>> = (0..poses.len())
+                .map(|t| {
+                    (0..n)
+                        .map(|i| poses[(t + i * poses.len() / n) % poses.len()].clone())
+                        .collect()
+                })
+                .collect();
+            let mut ms = [0.0; 2];
+            for (k, collision) in [None, Some(CollisionOptions::default())]
+                .into_iter()
+                .enumerate()
+            {
+                let rig = GarmentRig::new(
+                    network.clone(),
+                    scene.binding.clone(),
+                    scene.body.clone(),
+                    options(par, collision),
+                )?;
+                let mut crowd = GarmentCrowd::new(Arc::new(rig), n)?;
+                for i in 0..n {
+                    crowd.set_shape(i, &BETAS)?;
+                }
+                let frame = |c: &mut GarmentCrowd, t: usize| Ok(c.frame(&sets[t % sets.len()])?);
+                let timing = time_calls(&mut crowd, warmup, frames, frame, |_| {})?;
+                ms[k] = median(&timing.wall_ms);
+            }
+            let per = [ms[0] / n as f64, ms[1] / n as f64];
+            let one = *alone.get_or_insert(ms);
+            let run = CrowdRun {
+                triangles: scene.binding.faces().len(),
+                precision: network.precision().name(),
+                avatars: n,
+                threads,
+                frames,
+                ms_per_frame: ms[0],
+                ms_per_frame_pp: ms[1],
+                ms_per_avatar: per[0],
+                ms_per_avatar_pp: per[1],
+                gain_per_avatar: one[0] / per[0],
+                gain_per_avatar_pp: one[1] / per[1],
+                avatars_per_60hz_frame_pp: (1e3 / 60.0) / per[1],
+            };
+            progress.println(&format!(
+                "  crowd {:>4} {threads} thread(s) {n:>2} avatars: {:7.3} ms/frame, {:7.3} with \
+                 post-process ({:.3} / {:.3} per avatar, {:.2}× / {:.2}× a lone avatar's)",
+                run.precision,
+                run.ms_per_frame,
+                run.ms_per_frame_pp,
+                run.ms_per_avatar,
+                run.ms_per_avatar_pp,
+                run.gain_per_avatar,
+                run.gain_per_avatar_pp
+            ));
+            out.push(run);
+        }
+    }
+    Ok(out)
+}
+
 /// Reduced models at one garment size, int8, one thread.
 fn reduced(
     scene: &Scene,
@@ -754,6 +870,7 @@ pub fn bench_runtime(
     let mut garments = Vec::new();
     let mut post = None;
     let mut reduced_models = Vec::new();
+    let mut crowds = Vec::new();
     let mut model_sizes = None;
     let mut paper_model = None;
     for &triangles in &args.triangles {
@@ -790,6 +907,9 @@ pub fn bench_runtime(
             runs_all.extend(runs(&scene, &network, &poses, args, paper, progress)?);
             if triangles == args.reference_triangles && precision == Precision::Int8 {
                 post = Some(post_process(&scene, &network, &poses, args, progress)?);
+            }
+            if triangles == args.reference_triangles && precision != Precision::F16 {
+                crowds.extend(crowd(&scene, &network, &poses, args, progress)?);
             }
         }
         if triangles == args.reference_triangles {
@@ -862,6 +982,7 @@ pub fn bench_runtime(
         garments,
         post_process: post,
         reduced: reduced_models,
+        crowd: crowds,
         anchors: anchors_report,
         notes: vec![
             "ms_per_frame is the median over the timed frames of one avatar's whole frame: pose \
@@ -871,6 +992,9 @@ pub fn bench_runtime(
             "Weights are random (timing only). memory is in MB of 10^6 bytes; wrinkle_mb is \
              the GRU plus the output layer (the paper's 'GRU' figure).",
             "The paper's figures are on an NVIDIA Titan X GPU; ours on the CPU listed.",
+            "crowd: GarmentCrowd::frame over every avatar, the network step batched (one pass \
+             over the weights for all), each avatar's skinning and post-process its own; \
+             ms_per_frame is the whole crowd's median.",
         ],
         wall_time_s: start.elapsed().as_secs_f64(),
     };

@@ -95,21 +95,37 @@ fn time_each(
     poses: &[Pose],
     warmup: usize,
     frames: usize,
-    mut timed: impl FnMut(&GarmentAnimator),
+    timed: impl FnMut(&GarmentAnimator),
 ) -> Result<FrameTiming> {
     crate::error::ensure!(!poses.is_empty(), "no poses to time");
+    let frame = |a: &mut GarmentAnimator, t: usize| {
+        std::hint::black_box(a.frame(&poses[t % poses.len()])?);
+        Ok(())
+    };
+    time_calls(avatar, warmup, frames, frame, timed)
+}
+
+/// Time `frames` calls of `frame(subject, t)` after `warmup` untimed ones (`t` counts from 0
+/// over all of them), calling `timed(subject)` after each timed one, outside its wall time
+/// (inside the CPU mean). A frame of anything: one avatar, a crowd.
+pub fn time_calls<S>(
+    subject: &mut S,
+    warmup: usize,
+    frames: usize,
+    mut frame: impl FnMut(&mut S, usize) -> Result<()>,
+    mut timed: impl FnMut(&S),
+) -> Result<FrameTiming> {
     let mut wall_ms = Vec::with_capacity(frames);
     let mut cpu_start = None;
     for t in 0..warmup + frames {
         if t == warmup {
             cpu_start = thread_cpu_ns();
         }
-        let pose = &poses[t % poses.len()];
         let start = Instant::now();
-        std::hint::black_box(avatar.frame(pose)?);
+        frame(subject, t)?;
         if t >= warmup {
             wall_ms.push(start.elapsed().as_secs_f64() * 1e3);
-            timed(avatar);
+            timed(subject);
         }
     }
     let cpu_ms = match (cpu_start, thread_cpu_ns()) {
