@@ -1179,15 +1179,15 @@ dispatched!(
 mod int {
     use std::arch::x86_64::{
         __m128i, __m256i, __m512i, __mmask32, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
-        _mm_shuffle_epi32, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
-        _mm256_dpbusd_avx_epi32, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256,
-        _mm256_madd_epi16, _mm256_maskz_loadu_epi8, _mm256_permute2x128_si256, _mm256_set1_epi32,
-        _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_slli_epi32, _mm256_storeu_si256,
-        _mm256_sub_epi32, _mm512_add_epi32, _mm512_castsi512_si256, _mm512_cvtepi8_epi16,
-        _mm512_dpbusd_epi32, _mm512_dpwssd_epi32, _mm512_extracti64x4_epi64, _mm512_loadu_si512,
-        _mm512_madd_epi16, _mm512_maskz_loadu_epi16, _mm512_reduce_add_epi32, _mm512_set1_epi32,
-        _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32, _mm512_storeu_si512,
-        _mm512_sub_epi32,
+        _mm_shuffle_epi32, _mm256_add_epi32, _mm256_and_si256, _mm256_castsi256_si128,
+        _mm256_cvtepi8_epi16, _mm256_dpbusd_avx_epi32, _mm256_extracti128_si256, _mm256_hadd_epi32,
+        _mm256_loadu_si256, _mm256_madd_epi16, _mm256_maskz_loadu_epi8, _mm256_permute2x128_si256,
+        _mm256_set1_epi32, _mm256_set1_epi64x, _mm256_setzero_si256, _mm256_slli_epi32,
+        _mm256_storeu_si256, _mm256_sub_epi32, _mm512_add_epi32, _mm512_castsi512_si256,
+        _mm512_cvtepi8_epi16, _mm512_dpbusd_epi32, _mm512_dpwssd_epi32, _mm512_extracti64x4_epi64,
+        _mm512_loadu_si512, _mm512_madd_epi16, _mm512_maskz_loadu_epi16, _mm512_reduce_add_epi32,
+        _mm512_set1_epi32, _mm512_set1_epi64, _mm512_setzero_si512, _mm512_slli_epi32,
+        _mm512_storeu_si512, _mm512_sub_epi32,
     };
 
     use super::super::int8::{self, PortableInt};
@@ -1257,11 +1257,50 @@ mod int {
         _mm512_dpwssd_epi32(acc, q, x)
     }
 
-    /// No masked tail (AVX2 has no masked load of bytes or halves): the portable engine sums
-    /// the columns past the last whole chunk. Returns the columns summed.
-    #[inline(always)]
-    fn no_tail<A, const N: usize>(_: &mut [A; N], _: [*const i8; N], _: &[i16], n: usize) -> usize {
-        n
+    /// Lane `j` of a load at `OVERLAP_MASKS[rest..]` is all ones for `j ≥ 16 − rest`.
+    static OVERLAP_MASKS: [i16; 32] = {
+        let mut m = [0i16; 32];
+        let mut j = 16;
+        while j < 32 {
+            m[j] = -1;
+            j += 1;
+        }
+        m
+    };
+
+    /// The columns past the last whole chunk of 16 (`x[n..]`, fewer than 16) on AVX2, which has
+    /// no masked load of bytes or halves: the last 16 columns of the rows and the input loaded
+    /// again, the input's lanes of the columns already summed set to zero (exact sums, so the
+    /// same bits). Every row must hold `x.len()` columns; rows shorter than 16 columns leave
+    /// their columns to the portable engine. Returns the columns summed.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn overlap_tail_avx2<const N: usize>(
+        acc: &mut [__m256i; N],
+        rows: [*const i8; N],
+        x: &[i16],
+        n: usize,
+    ) -> usize {
+        let (len, rest) = (x.len(), x.len() - n);
+        if rest == 0 || len < 16 {
+            return n;
+        }
+        let start = len - 16;
+        // SAFETY: `rest < 16`, so the 16 masks from `rest` lie within the 32; `x[start..]` is
+        // 16 values.
+        let xv = unsafe {
+            let mask = _mm256_loadu_si256(OVERLAP_MASKS.as_ptr().add(rest).cast::<__m256i>());
+            _mm256_and_si256(
+                _mm256_loadu_si256(x.as_ptr().add(start).cast::<__m256i>()),
+                mask,
+            )
+        };
+        for (a, row) in acc.iter_mut().zip(rows) {
+            // SAFETY: the caller checked every row holds `len` columns: 16 bytes from `start`.
+            let q = unsafe { _mm_loadu_si128(row.add(start).cast::<__m128i>()) };
+            *a = madd_add_avx2(*a, _mm256_cvtepi8_epi16(q), xv);
+        }
+        len
     }
 
     /// The columns past the last whole chunk of 32 (`x[n..]`, fewer than 32) in one more step,
@@ -1318,7 +1357,7 @@ mod int {
 
     /// `$dotn`: `N` rows with one input, `$w` columns per step (`$x`: a vector of `$w` i16,
     /// `$q`: a load of `$w` i8, `$acc`: the accumulate of [`madd_add_avx2`]), then `$tail`
-    /// ([`masked_tail`] or [`no_tail`]), the rest by the portable engine; `$engine` is its
+    /// ([`masked_tail`] or [`overlap_tail_avx2`]), any rest by the portable engine; `$engine` is its
     /// [`IntEngine`], usable only inside wrappers with `$feat`.
     macro_rules! int_kernels {
         ($feat:literal, $engine:ident, $dotn:ident, $w:literal, $x:ty, $q:ty, $load_x:ident,
@@ -1715,7 +1754,7 @@ mod int {
         _mm256_setzero_si256,
         _mm256_cvtepi8_epi16,
         madd_add_avx2,
-        no_tail,
+        overlap_tail_avx2,
         sum8,
         sums8
     );
@@ -1994,7 +2033,13 @@ mod tests {
             }
         }
         let mut rng = ChaCha8Rng::seed_from_u64(43);
-        for (rows, cols) in [(8 * 5 + 3, 70), (8 * 3 + 5, 600), (19, 1500)] {
+        for (rows, cols) in [
+            (8 * 5 + 3, 70),
+            (8 * 3 + 5, 600),
+            (19, 1500),
+            (11, 13),
+            (9, 16),
+        ] {
             let mut q: Vec<i8> = (0..rows * cols)
                 .map(|_| rng.random_range(-127..=127))
                 .collect();

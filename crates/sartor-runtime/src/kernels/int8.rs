@@ -12,7 +12,8 @@
 //! sums): a batch of eight inputs on the paper-size 13,272 × 1,500 product, which meets each
 //! row from cache, 8.08 → 6.78 ms on the 2-core Intel Xeon VM (faster in 4 of 4 alternating
 //! rounds; one input, read from memory, 1.16 → 1.12). A row's columns past its last whole
-//! vector are one more, masked, step on AVX-512 (the portable engine sums them on AVX2).
+//! vector are one more step: masked loads on AVX-512, on AVX2 the row's and the input's last
+//! whole vector read again with the input's lanes already summed set to zero.
 //!
 //! **Arithmetic contract.** `L = min(32,767, ⌊(2³¹ − 1) / (127 · n)⌋)` for rows of `n` columns,
 //! so that no partial sum can leave `i32` (`Σ|q x_q| ≤ 127 · n · L`): 16 bits up to 516
