@@ -1875,6 +1875,92 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
+    /// An integer kernel: `(w, cols, xs, batch, scales, bias, ys_t)`.
+    type IntKernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
+
+    /// A wrapper `$name` that runs `int8::$kernel::<$engine>` inside the features `$feat`.
+    #[cfg(target_arch = "x86_64")]
+    macro_rules! engine_wrapper {
+        ($name:ident, $feat:literal, $kernel:ident, $engine:ty) => {
+            #[target_feature(enable = $feat)]
+            fn $name(
+                w: &[i8],
+                cols: usize,
+                xs: &[f32],
+                batch: usize,
+                scales: Option<&[f32]>,
+                bias: Option<&[f32]>,
+                ys_t: &mut [f32],
+            ) {
+                int8::$kernel::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
+            }
+        };
+    }
+
+    /// Push kernel `$name`, calling the `#[target_feature]` function `$f`, where `$has` found
+    /// its features on this CPU.
+    #[cfg(target_arch = "x86_64")]
+    macro_rules! push_where {
+        ($kernels:ident, $has:expr, $name:literal, $f:path) => {
+            if $has {
+                // SAFETY: `$has` found `$f`'s features on this CPU.
+                $kernels.push(($name, |w, c, x, b, s, bi, y| unsafe {
+                    $f(w, c, x, b, s, bi, y)
+                }));
+            }
+        };
+    }
+
+    /// Random `rows × cols` int8 weights with row 0 all +127 and row 1 of alternating sign,
+    /// and a scale and a bias per row: with [`extreme_inputs`], the integer contract's
+    /// extremes.
+    fn extreme_rows(
+        rng: &mut ChaCha8Rng,
+        rows: usize,
+        cols: usize,
+    ) -> (Vec<i8>, Vec<f32>, Vec<f32>) {
+        let mut q: Vec<i8> = (0..rows * cols)
+            .map(|_| rng.random_range(-127..=127))
+            .collect();
+        for (c, v) in q[..2 * cols].iter_mut().enumerate() {
+            *v = if c < cols || c % 2 == 0 { 127 } else { -127 };
+        }
+        let scales = (0..rows).map(|_| rng.random_range(0.001..0.01)).collect();
+        let bias = (0..rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+        (q, scales, bias)
+    }
+
+    /// `batch` random inputs of `cols`, the first alternating ±2 (quantised to ±L).
+    fn extreme_inputs(rng: &mut ChaCha8Rng, batch: usize, cols: usize) -> Vec<f32> {
+        let mut xs: Vec<f32> = (0..batch * cols)
+            .map(|_| rng.random_range(-2.0..2.0))
+            .collect();
+        for (c, x) in xs[..cols].iter_mut().enumerate() {
+            *x = if c % 2 == 0 { 2.0 } else { -2.0 };
+        }
+        xs
+    }
+
+    /// Each kernel's outputs as bits, asserted equal to the first's (`what` names the case).
+    fn same_bits(
+        kernels: &[(&str, IntKernel)],
+        weights: &[(&[i8], &str)],
+        (cols, xs, batch): (usize, &[f32], usize),
+        (scales, bias): (&[f32], &[f32]),
+        what: &str,
+    ) {
+        let mut want = None;
+        for (name, kernel) in kernels {
+            for (w, at) in weights {
+                let mut ys = vec![f32::NAN; scales.len() * batch];
+                kernel(w, cols, xs, batch, Some(scales), Some(bias), &mut ys);
+                let bits: Vec<u32> = ys.iter().map(|v| v.to_bits()).collect();
+                let want = want.get_or_insert(bits.clone());
+                assert_eq!(&bits, want, "{what} batch {batch} {name} {at}");
+            }
+        }
+    }
+
     #[test]
     fn every_quad_engine_gives_the_same_bits() {
         // The AVX2 and AVX-512 builds each pick one quad engine per CPU (VNNI where present),
@@ -1883,92 +1969,53 @@ mod tests {
         // run the same products, from aligned and unaligned panels, with rows of ±127 against
         // inputs at ±L (the contract's extremes: VNNI's wrapping steps leave `i32` there and
         // must come back), batch 1 and 3.
-        type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
         #[allow(unused_mut)]
-        let mut kernels: Vec<(&str, Kernel)> =
-            vec![("portable", int8::quads_int::<int8::PortableQuads> as Kernel)];
+        let mut kernels: Vec<(&str, IntKernel)> = vec![(
+            "portable",
+            int8::quads_int::<int8::PortableQuads> as IntKernel,
+        )];
         #[cfg(target_arch = "x86_64")]
         {
-            // The widened engines, each inside its build's features.
-            macro_rules! widened {
-                ($name:ident, $feat:literal, $engine:ty) => {
-                    #[target_feature(enable = $feat)]
-                    fn $name(
-                        w: &[i8],
-                        cols: usize,
-                        xs: &[f32],
-                        batch: usize,
-                        scales: Option<&[f32]>,
-                        bias: Option<&[f32]>,
-                        ys_t: &mut [f32],
-                    ) {
-                        int8::quads_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
-                    }
-                };
-            }
-            widened!(
+            engine_wrapper!(
                 widened,
                 "avx512f,avx512bw,avx512vl,avx2,fma,f16c",
+                quads_int,
                 int::Avx512Quads
             );
-            widened!(widened2, "avx2,fma,f16c", int::Avx2Quads);
-            if has_avx512() {
-                // SAFETY: `has_avx512` found the wrapper's features on this CPU.
-                kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
-                    widened(w, c, x, b, s, bi, y)
-                }));
-            }
-            if has_avx2() {
-                // SAFETY: `has_avx2` found the wrapper's features on this CPU.
-                kernels.push(("avx2", |w, c, x, b, s, bi, y| unsafe {
-                    widened2(w, c, x, b, s, bi, y)
-                }));
-            }
-            if has_avx2() && is_x86_feature_detected!("avxvnni") {
-                // SAFETY: detection found the wrapper's features on this CPU.
-                kernels.push(("avx-vnni", |w, c, x, b, s, bi, y| unsafe {
-                    int::quads_avx_vnni(w, c, x, b, s, bi, y)
-                }));
-            }
-            if has_avx512() && is_x86_feature_detected!("avx512vnni") {
-                // SAFETY: detection found the wrapper's features on this CPU.
-                kernels.push(("vnni", |w, c, x, b, s, bi, y| unsafe {
-                    int::quads_vnni(w, c, x, b, s, bi, y)
-                }));
-            }
+            engine_wrapper!(widened2, "avx2,fma,f16c", quads_int, int::Avx2Quads);
+            push_where!(kernels, has_avx512(), "avx512", widened);
+            push_where!(kernels, has_avx2(), "avx2", widened2);
+            push_where!(
+                kernels,
+                has_avx2() && is_x86_feature_detected!("avxvnni"),
+                "avx-vnni",
+                int::quads_avx_vnni
+            );
+            push_where!(
+                kernels,
+                has_avx512() && is_x86_feature_detected!("avx512vnni"),
+                "vnni",
+                int::quads_vnni
+            );
         }
         let mut rng = ChaCha8Rng::seed_from_u64(41);
         for (rows, cols) in [(16, 17), (33, 88), (48, 64), (20, 256), (17, 511)] {
-            let mut q: Vec<i8> = (0..rows * cols)
-                .map(|_| rng.random_range(-127..=127))
-                .collect();
-            for (c, v) in q[..2 * cols].iter_mut().enumerate() {
-                // Row 0 all +127, row 1 of alternating sign.
-                *v = if c < cols || c % 2 == 0 { 127 } else { -127 };
-            }
+            let (q, scales, bias) = extreme_rows(&mut rng, rows, cols);
             let panels = int8::to_quad_panels(&q, rows, cols);
             let aligned = LineAligned::from(panels.as_slice());
             let mut shifted = vec![0i8; panels.len() + 16];
             shifted[16..].copy_from_slice(&panels);
-            let scales: Vec<f32> = (0..rows).map(|_| rng.random_range(0.001..0.01)).collect();
-            let bias: Vec<f32> = (0..rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let weights = [(&aligned[..], "aligned"), (&shifted[16..], "shifted")];
             for batch in [1, 3] {
-                let mut xs: Vec<f32> = (0..batch * cols)
-                    .map(|_| rng.random_range(-2.0..2.0))
-                    .collect();
-                for (c, x) in xs[..cols].iter_mut().enumerate() {
-                    *x = if c % 2 == 0 { 2.0 } else { -2.0 };
-                }
-                let mut want = None;
-                for (name, kernel) in &kernels {
-                    for (w, at) in [(&aligned[..], "aligned"), (&shifted[16..], "shifted")] {
-                        let mut ys = vec![f32::NAN; rows * batch];
-                        kernel(w, cols, &xs, batch, Some(&scales), Some(&bias), &mut ys);
-                        let bits: Vec<u32> = ys.iter().map(|v| v.to_bits()).collect();
-                        let want = want.get_or_insert(bits.clone());
-                        assert_eq!(&bits, want, "{rows} × {cols} batch {batch} {name} {at}");
-                    }
-                }
+                let xs = extreme_inputs(&mut rng, batch, cols);
+                let what = format!("{rows} × {cols}");
+                same_bits(
+                    &kernels,
+                    &weights,
+                    (cols, &xs, batch),
+                    (&scales, &bias),
+                    &what,
+                );
             }
         }
     }
@@ -1978,59 +2025,35 @@ mod tests {
         // As for the quad engines: `Isa` meets one row engine per build and CPU (VNNI's
         // `vpdpwssd` where present), so here the portable, AVX2, widened AVX-512 and VNNI
         // engines (those this CPU has) run the same products: short rows (eight neighbours)
-        // and long ones (eight streams an eighth of the rows apart), batch 1 and 3 (inputs
-        // that share a pass over the weights), with rows of ±127 against inputs at ±L.
-        type Kernel = fn(&[i8], usize, &[f32], usize, Option<&[f32]>, Option<&[f32]>, &mut [f32]);
+        // and long ones (eight streams an eighth of the rows apart), rows shorter than a
+        // vector, batch 1 and 3 (inputs that share a pass over the weights), with rows of
+        // ±127 against inputs at ±L.
         #[allow(unused_mut)]
-        let mut kernels: Vec<(&str, Kernel)> =
-            vec![("portable", int8::rows_int::<int8::PortableInt> as Kernel)];
+        let mut kernels: Vec<(&str, IntKernel)> =
+            vec![("portable", int8::rows_int::<int8::PortableInt> as IntKernel)];
         #[cfg(target_arch = "x86_64")]
         {
-            macro_rules! engine {
-                ($name:ident, $feat:literal, $engine:ty) => {
-                    #[target_feature(enable = $feat)]
-                    fn $name(
-                        w: &[i8],
-                        cols: usize,
-                        xs: &[f32],
-                        batch: usize,
-                        scales: Option<&[f32]>,
-                        bias: Option<&[f32]>,
-                        ys_t: &mut [f32],
-                    ) {
-                        int8::rows_int::<$engine>(w, cols, xs, batch, scales, bias, ys_t);
-                    }
-                };
-            }
-            engine!(
+            engine_wrapper!(
                 widened,
                 "avx512f,avx512bw,avx512vl,avx2,fma,f16c",
+                rows_int,
                 int::Avx512Int
             );
-            engine!(avx2, "avx2,fma,f16c", int::Avx2Int);
-            engine!(
+            engine_wrapper!(avx2, "avx2,fma,f16c", rows_int, int::Avx2Int);
+            engine_wrapper!(
                 vnni,
                 "avx512f,avx512bw,avx512vl,avx512vnni,avx2,fma,f16c",
+                rows_int,
                 int::Avx512VnniInt
             );
-            if has_avx512() {
-                // SAFETY: `has_avx512` found the wrapper's features on this CPU.
-                kernels.push(("avx512", |w, c, x, b, s, bi, y| unsafe {
-                    widened(w, c, x, b, s, bi, y)
-                }));
-            }
-            if has_avx2() {
-                // SAFETY: `has_avx2` found the wrapper's features on this CPU.
-                kernels.push(("avx2", |w, c, x, b, s, bi, y| unsafe {
-                    avx2(w, c, x, b, s, bi, y)
-                }));
-            }
-            if has_avx512() && is_x86_feature_detected!("avx512vnni") {
-                // SAFETY: detection found the wrapper's features on this CPU.
-                kernels.push(("vnni", |w, c, x, b, s, bi, y| unsafe {
-                    vnni(w, c, x, b, s, bi, y)
-                }));
-            }
+            push_where!(kernels, has_avx512(), "avx512", widened);
+            push_where!(kernels, has_avx2(), "avx2", avx2);
+            push_where!(
+                kernels,
+                has_avx512() && is_x86_feature_detected!("avx512vnni"),
+                "vnni",
+                vnni
+            );
         }
         let mut rng = ChaCha8Rng::seed_from_u64(43);
         for (rows, cols) in [
@@ -2040,30 +2063,17 @@ mod tests {
             (11, 13),
             (9, 16),
         ] {
-            let mut q: Vec<i8> = (0..rows * cols)
-                .map(|_| rng.random_range(-127..=127))
-                .collect();
-            for (c, v) in q[..2 * cols].iter_mut().enumerate() {
-                // Row 0 all +127, row 1 of alternating sign.
-                *v = if c < cols || c % 2 == 0 { 127 } else { -127 };
-            }
-            let scales: Vec<f32> = (0..rows).map(|_| rng.random_range(0.001..0.01)).collect();
-            let bias: Vec<f32> = (0..rows).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let (q, scales, bias) = extreme_rows(&mut rng, rows, cols);
             for batch in [1, 3] {
-                let mut xs: Vec<f32> = (0..batch * cols)
-                    .map(|_| rng.random_range(-2.0..2.0))
-                    .collect();
-                for (c, x) in xs[..cols].iter_mut().enumerate() {
-                    *x = if c % 2 == 0 { 2.0 } else { -2.0 };
-                }
-                let mut want = None;
-                for (name, kernel) in &kernels {
-                    let mut ys = vec![f32::NAN; rows * batch];
-                    kernel(&q, cols, &xs, batch, Some(&scales), Some(&bias), &mut ys);
-                    let bits: Vec<u32> = ys.iter().map(|v| v.to_bits()).collect();
-                    let want = want.get_or_insert(bits.clone());
-                    assert_eq!(&bits, want, "{rows} × {cols} batch {batch} {name}");
-                }
+                let xs = extreme_inputs(&mut rng, batch, cols);
+                let what = format!("{rows} × {cols}");
+                same_bits(
+                    &kernels,
+                    &[(&q, "rows")],
+                    (cols, &xs, batch),
+                    (&scales, &bias),
+                    &what,
+                );
             }
         }
     }
