@@ -1280,6 +1280,7 @@ mod int {
         rows: [*const i8; N],
         x: &[i16],
         n: usize,
+        step: impl Fn(__m256i, __m256i, __m256i) -> __m256i,
     ) -> usize {
         let (len, rest) = (x.len(), x.len() - n);
         if rest == 0 || len < 16 {
@@ -1298,7 +1299,7 @@ mod int {
         for (a, row) in acc.iter_mut().zip(rows) {
             // SAFETY: the caller checked every row holds `len` columns: 16 bytes from `start`.
             let q = unsafe { _mm_loadu_si128(row.add(start).cast::<__m128i>()) };
-            *a = madd_add_avx2(*a, _mm256_cvtepi8_epi16(q), xv);
+            *a = step(*a, _mm256_cvtepi8_epi16(q), xv);
         }
         len
     }
@@ -1329,30 +1330,6 @@ mod int {
             }
         }
         x.len()
-    }
-
-    /// [`masked_tail`] for the widened AVX-512 engine.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512bw,avx512vl")]
-    fn masked_tail_avx512<const N: usize>(
-        acc: &mut [__m512i; N],
-        rows: [*const i8; N],
-        x: &[i16],
-        n: usize,
-    ) -> usize {
-        masked_tail(acc, rows, x, n, |a, q, x| madd_add_avx512(a, q, x))
-    }
-
-    /// [`masked_tail`] for the VNNI engine.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vnni")]
-    fn masked_tail_vnni<const N: usize>(
-        acc: &mut [__m512i; N],
-        rows: [*const i8; N],
-        x: &[i16],
-        n: usize,
-    ) -> usize {
-        masked_tail(acc, rows, x, n, |a, q, x| madd_add_vnni(a, q, x))
     }
 
     /// `$dotn`: `N` rows with one input, `$w` columns per step (`$x`: a vector of `$w` i16,
@@ -1396,7 +1373,7 @@ mod int {
                     }
                 }
                 // Every row holds `x.len()` columns (checked above), as `$tail` needs.
-                let done = $tail(&mut acc, rows, x, n);
+                let done = $tail(&mut acc, rows, x, n, |a, q, x| $acc(a, q, x));
                 (acc, done)
             }
 
@@ -1770,7 +1747,7 @@ mod int {
         _mm512_setzero_si512,
         _mm512_cvtepi8_epi16,
         madd_add_avx512,
-        masked_tail_avx512,
+        masked_tail,
         _mm512_reduce_add_epi32,
         sums8_512
     );
@@ -1786,7 +1763,7 @@ mod int {
         _mm512_setzero_si512,
         _mm512_cvtepi8_epi16,
         madd_add_vnni,
-        masked_tail_vnni,
+        masked_tail,
         _mm512_reduce_add_epi32,
         sums8_512
     );
