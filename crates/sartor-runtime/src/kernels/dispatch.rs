@@ -642,6 +642,7 @@ macro_rules! isa_kernels {
         #[target_feature(enable = $feat)]
         pub(super) fn $madd2(
             w: &[$t],
+            ahead: &[$t],
             x0: &[f32],
             x1: &[f32],
             s0: &mut [f32; LANES],
@@ -665,7 +666,15 @@ macro_rules! isa_kernels {
             let (wc, wt) = w.as_chunks::<LANES>();
             let (x0c, x0t) = x0.as_chunks::<LANES>();
             let (x1c, x1t) = x1.as_chunks::<LANES>();
-            for ((a, b0), b1) in wc.iter().zip(x0c).zip(x1c) {
+            // Chunk `i` of `ahead` asked for beside chunk `i` of `w`.
+            let asked = ahead.len().div_ceil(LANES);
+            for (i, ((a, b0), b1)) in wc.iter().zip(x0c).zip(x1c).enumerate() {
+                if i < asked {
+                    let at = ahead.as_ptr().wrapping_add(i * LANES).cast::<i8>();
+                    for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
+                        prefetch(at.wrapping_add(64 * line));
+                    }
+                }
                 step([&mut acc0, &mut acc1], a, [b0, b1]);
             }
             if !wt.is_empty() {
@@ -1043,13 +1052,14 @@ mod engines {
                 #[inline(always)]
                 fn madd2(
                     w: &[$t],
+                    ahead: &[$t],
                     x0: &[f32],
                     x1: &[f32],
                     s0: &mut [f32; LANES],
                     s1: &mut [f32; LANES],
                 ) {
                     // SAFETY: as for `dot`.
-                    unsafe { $m::$madd2(w, x0, x1, s0, s1) }
+                    unsafe { $m::$madd2(w, ahead, x0, x1, s0, s1) }
                 }
             }
         };
