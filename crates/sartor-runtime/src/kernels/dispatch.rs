@@ -460,12 +460,12 @@ macro_rules! isa_kernels {
         // f32 rows are prefetched where `prefetch_f32_rows` says (on the AMD EPYC VM, with
         // `STREAM_AHEAD`, 1,024 or 512 bytes ahead, or into L2 only, the paper-size f32 step
         // was 3–10 % slower; prefetching one of each chunk's two lines, 50 % slower).
-        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, dotn_block_f32, madd1_f32, madd2_f32);
-        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, dotn_block_i8, madd1_i8, madd2_i8);
-        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, dotn_block_f16, madd1_f16, madd2_f16);
+        isa_kernels!(@one $feat, prefetch_f32_rows(), f32, load_f32, load_f32_tail, dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, dotn_block_f32, madd1_f32, madd2_f32, madd2_tile_f32);
+        isa_kernels!(@one $feat, false, i8, load_i8, load_i8_tail, dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, dotn_block_i8, madd1_i8, madd2_i8, madd2_tile_i8);
+        isa_kernels!(@one $feat, true, F16Bits, load_f16, load_f16_tail, dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, dotn_block_f16, madd1_f16, madd2_f16, madd2_tile_f16);
     };
     (@one $feat:literal, $prefetch:expr, $t:ty, $load:ident, $load_tail:ident,
-        $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $dotn_block:ident, $madd1:ident, $madd2:ident) => {
+        $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $dotn_block:ident, $madd1:ident, $madd2:ident, $madd2_tile:ident) => {
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $dot(w: &[$t], x: &[f32]) -> f32 {
@@ -638,6 +638,66 @@ macro_rules! isa_kernels {
             store_acc(acc, s);
         }
 
+        /// `Engine::madd2_tile`: each input vector loaded once for the tile's rows.
+        #[inline]
+        #[target_feature(enable = $feat)]
+        pub(super) fn $madd2_tile(
+            w: [&[$t]; ROW_BLOCK],
+            ahead: [&[$t]; ROW_BLOCK],
+            x0: &[f32],
+            x1: &[f32],
+            s: [&mut [[f32; LANES]; 2]; ROW_BLOCK],
+        ) {
+            assert!(
+                x1.len() == x0.len() && w.iter().all(|w| w.len() == x0.len()),
+                "rows and inputs of one length"
+            );
+            let (x0c, x0t) = x0.as_chunks::<LANES>();
+            let (x1c, x1t) = x1.as_chunks::<LANES>();
+            let full = x0c.len() * LANES;
+            let mut acc: [[[V; R]; 2]; ROW_BLOCK] =
+                std::array::from_fn(|m| [load_acc(&s[m][0]), load_acc(&s[m][1])]);
+            // Chunk `i` of each row's `ahead` asked for beside chunk `i` of the rows.
+            let asked: [usize; ROW_BLOCK] = std::array::from_fn(|m| ahead[m].len().div_ceil(LANES));
+            for i in 0..x0c.len() {
+                for m in 0..ROW_BLOCK {
+                    if i < asked[m] {
+                        let at = ahead[m].as_ptr().wrapping_add(i * LANES).cast::<i8>();
+                        for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
+                            prefetch(at.wrapping_add(64 * line));
+                        }
+                    }
+                }
+                let (x0w, _) = x0c[i].as_chunks::<W>();
+                let (x1w, _) = x1c[i].as_chunks::<W>();
+                for r in 0..R {
+                    let (a, b) = (load_f32(&x0w[r]), load_f32(&x1w[r]));
+                    for m in 0..ROW_BLOCK {
+                        // SAFETY: every row is as long as the inputs (asserted above), so the W
+                        // values from `i·LANES + r·W` lie within its chunk `i`.
+                        let ww = unsafe { &*w[m].as_ptr().add(i * LANES + r * W).cast::<[$t; W]>() };
+                        let wv = $load(ww);
+                        acc[m][0][r] = add(acc[m][0][r], mul(wv, a));
+                        acc[m][1][r] = add(acc[m][1][r], mul(wv, b));
+                    }
+                }
+            }
+            if !x0t.is_empty() {
+                let (a, b) = (x_tail(x0t), x_tail(x1t));
+                for r in 0..R {
+                    for m in 0..ROW_BLOCK {
+                        let wv = $load_tail(&w[m][full..], r);
+                        acc[m][0][r] = add(acc[m][0][r], mul(wv, a[r]));
+                        acc[m][1][r] = add(acc[m][1][r], mul(wv, b[r]));
+                    }
+                }
+            }
+            for (acc, s) in acc.into_iter().zip(s) {
+                store_acc(acc[0], &mut s[0]);
+                store_acc(acc[1], &mut s[1]);
+            }
+        }
+
         #[inline]
         #[target_feature(enable = $feat)]
         pub(super) fn $madd2(
@@ -704,7 +764,7 @@ mod avx2 {
         _mm256_setzero_ps, _mm256_storeu_ps,
     };
 
-    use super::super::rows::{F16Bits, LANES};
+    use super::super::rows::{F16Bits, LANES, ROW_BLOCK};
     use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m256;
@@ -821,7 +881,7 @@ mod avx512 {
         _mm512_setzero_ps, _mm512_shuffle_f32x4, _mm512_shuffle_ps, _mm512_storeu_ps,
     };
 
-    use super::super::rows::{F16Bits, LANES};
+    use super::super::rows::{F16Bits, LANES, ROW_BLOCK};
     use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
 
     type V = __m512;
@@ -1001,17 +1061,17 @@ mod avx512 {
 /// with their module's target features.
 #[cfg(target_arch = "x86_64")]
 mod engines {
-    use super::super::rows::{Engine, F16Bits, LANES};
+    use super::super::rows::{Engine, F16Bits, LANES, ROW_BLOCK};
     use super::{avx2, avx512};
 
     macro_rules! engine {
-        ($t:ty: $($name:ident $m:ident),+; $kernels:tt) => {
-            $(engine!(@one $name, $m, $t, $kernels);)+
+        ($t:ty: $($name:ident $m:ident $tile:literal),+; $kernels:tt) => {
+            $(engine!(@one $name, $m, $tile, $t, $kernels);)+
         };
-        (@one $name:ident, $m:ident, $t:ty, ($($kernel:ident),+)) => {
-            engine!($name, $m, $t, $($kernel),+);
+        (@one $name:ident, $m:ident, $tile:literal, $t:ty, ($($kernel:ident),+)) => {
+            engine!($name, $m, $tile, $t, $($kernel),+);
         };
-        ($name:ident, $m:ident, $t:ty, $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $madd1:ident, $madd2:ident) => {
+        ($name:ident, $m:ident, $tile:literal, $t:ty, $dot:ident, $dot8_block:ident, $dot4_block:ident, $dot8_il:ident, $madd1:ident, $madd2:ident, $madd2_tile:ident) => {
             pub(super) struct $name;
 
             impl Engine for $name {
@@ -1061,18 +1121,36 @@ mod engines {
                     // SAFETY: as for `dot`.
                     unsafe { $m::$madd2(w, ahead, x0, x1, s0, s1) }
                 }
+
+                #[inline(always)]
+                fn madd2_tile(
+                    w: [&[$t]; ROW_BLOCK],
+                    ahead: [&[$t]; ROW_BLOCK],
+                    x0: &[f32],
+                    x1: &[f32],
+                    s: [&mut [[f32; LANES]; 2]; ROW_BLOCK],
+                ) {
+                    if $tile {
+                        // SAFETY: as for `dot`.
+                        unsafe { $m::$madd2_tile(w, ahead, x0, x1, s) }
+                    } else {
+                        for ((w, ahead), [s0, s1]) in w.into_iter().zip(ahead).zip(s) {
+                            Self::madd2(w, ahead, x0, x1, s0, s1);
+                        }
+                    }
+                }
             }
         };
     }
 
     // One engine per instruction set and storage type: the same kernels' names in `avx2` and
     // `avx512`.
-    engine!(f32: Avx2F32 avx2, Avx512F32 avx512;
-        (dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, madd1_f32, madd2_f32));
-    engine!(i8: Avx2I8 avx2, Avx512I8 avx512;
-        (dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, madd1_i8, madd2_i8));
-    engine!(F16Bits: Avx2F16 avx2, Avx512F16 avx512;
-        (dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, madd1_f16, madd2_f16));
+    engine!(f32: Avx2F32 avx2 false, Avx512F32 avx512 true;
+        (dot_f32, dot8_block_f32, dot4_block_f32, dot8_interleaved_f32, madd1_f32, madd2_f32, madd2_tile_f32));
+    engine!(i8: Avx2I8 avx2 false, Avx512I8 avx512 true;
+        (dot_i8, dot8_block_i8, dot4_block_i8, dot8_interleaved_i8, madd1_i8, madd2_i8, madd2_tile_i8));
+    engine!(F16Bits: Avx2F16 avx2 false, Avx512F16 avx512 true;
+        (dot_f16, dot8_block_f16, dot4_block_f16, dot8_interleaved_f16, madd1_f16, madd2_f16, madd2_tile_f16));
 }
 
 /// A kernel `$name(isa, w, cols, xs, batch, scales, bias, ys_t)` that calls `$portable` or,
