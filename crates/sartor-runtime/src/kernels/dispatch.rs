@@ -401,6 +401,19 @@ fn prefetch(p: *const i8) {
     unsafe { _mm_prefetch::<_MM_HINT_T0>(p) }
 }
 
+/// Ask the cache for chunk `i` (`LANES` values) of `ahead`, if it has one.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn ask_chunk<T>(ahead: &[T], i: usize) {
+    use super::rows::LANES;
+    if i < ahead.len().div_ceil(LANES) {
+        let at = ahead.as_ptr().wrapping_add(i * LANES).cast::<i8>();
+        for line in 0..size_of::<[T; LANES]>().div_ceil(64) {
+            prefetch(at.wrapping_add(64 * line));
+        }
+    }
+}
+
 /// The kernels of one instruction set, written once for its vector type: each ISA module
 /// defines `V` (a vector of `W` f32 lanes), `R = LANES / W` vectors per lane sum, `add`, `mul`,
 /// `load_f32`, `load_i8`, `load_f16` (exact conversions) and `store`, all with the module's
@@ -657,16 +670,10 @@ macro_rules! isa_kernels {
             let full = x0c.len() * LANES;
             let mut acc: [[[V; R]; 2]; ROW_BLOCK] =
                 std::array::from_fn(|m| [load_acc(&s[m][0]), load_acc(&s[m][1])]);
-            // Chunk `i` of each row's `ahead` asked for beside chunk `i` of the rows.
-            let asked: [usize; ROW_BLOCK] = std::array::from_fn(|m| ahead[m].len().div_ceil(LANES));
             for i in 0..x0c.len() {
-                for m in 0..ROW_BLOCK {
-                    if i < asked[m] {
-                        let at = ahead[m].as_ptr().wrapping_add(i * LANES).cast::<i8>();
-                        for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
-                            prefetch(at.wrapping_add(64 * line));
-                        }
-                    }
+                // Chunk `i` of each row's `ahead` asked for beside chunk `i` of the rows.
+                for ahead in ahead {
+                    ask_chunk(ahead, i);
                 }
                 let (x0w, _) = x0c[i].as_chunks::<W>();
                 let (x1w, _) = x1c[i].as_chunks::<W>();
@@ -726,15 +733,9 @@ macro_rules! isa_kernels {
             let (wc, wt) = w.as_chunks::<LANES>();
             let (x0c, x0t) = x0.as_chunks::<LANES>();
             let (x1c, x1t) = x1.as_chunks::<LANES>();
-            // Chunk `i` of `ahead` asked for beside chunk `i` of `w`.
-            let asked = ahead.len().div_ceil(LANES);
             for (i, ((a, b0), b1)) in wc.iter().zip(x0c).zip(x1c).enumerate() {
-                if i < asked {
-                    let at = ahead.as_ptr().wrapping_add(i * LANES).cast::<i8>();
-                    for line in 0..size_of::<[$t; LANES]>().div_ceil(64) {
-                        prefetch(at.wrapping_add(64 * line));
-                    }
-                }
+                // Chunk `i` of `ahead` asked for beside chunk `i` of `w`.
+                ask_chunk(ahead, i);
                 step([&mut acc0, &mut acc1], a, [b0, b1]);
             }
             if !wt.is_empty() {
@@ -765,7 +766,7 @@ mod avx2 {
     };
 
     use super::super::rows::{F16Bits, LANES, ROW_BLOCK};
-    use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
+    use super::{IL_AHEAD, STREAM_AHEAD, ask_chunk, prefetch, prefetch_f32_rows};
 
     type V = __m256;
     const W: usize = 8;
@@ -882,7 +883,7 @@ mod avx512 {
     };
 
     use super::super::rows::{F16Bits, LANES, ROW_BLOCK};
-    use super::{IL_AHEAD, STREAM_AHEAD, prefetch, prefetch_f32_rows};
+    use super::{IL_AHEAD, STREAM_AHEAD, ask_chunk, prefetch, prefetch_f32_rows};
 
     type V = __m512;
     const W: usize = 16;
@@ -1061,7 +1062,7 @@ mod avx512 {
 /// with their module's target features.
 #[cfg(target_arch = "x86_64")]
 mod engines {
-    use super::super::rows::{Engine, F16Bits, LANES, ROW_BLOCK};
+    use super::super::rows::{Engine, F16Bits, LANES, ROW_BLOCK, madd2_rows};
     use super::{avx2, avx512};
 
     macro_rules! engine {
@@ -1134,9 +1135,7 @@ mod engines {
                         // SAFETY: as for `dot`.
                         unsafe { $m::$madd2_tile(w, ahead, x0, x1, s) }
                     } else {
-                        for ((w, ahead), [s0, s1]) in w.into_iter().zip(ahead).zip(s) {
-                            Self::madd2(w, ahead, x0, x1, s0, s1);
-                        }
+                        madd2_rows::<Self>(w, ahead, x0, x1, s)
                     }
                 }
             }

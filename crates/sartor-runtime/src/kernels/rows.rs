@@ -312,9 +312,22 @@ pub(crate) trait Engine {
         x1: &[f32],
         s: [&mut [[f32; LANES]; 2]; ROW_BLOCK],
     ) {
-        for ((w, ahead), [s0, s1]) in w.into_iter().zip(ahead).zip(s) {
-            Self::madd2(w, ahead, x0, x1, s0, s1);
-        }
+        madd2_rows::<Self>(w, ahead, x0, x1, s)
+    }
+}
+
+/// [`Engine::madd2_tile`] as one [`Engine::madd2`] per row (the engines that do not take a
+/// tile at once).
+#[inline(always)]
+pub(crate) fn madd2_rows<E: Engine + ?Sized>(
+    w: [&[E::Stored]; ROW_BLOCK],
+    ahead: [&[E::Stored]; ROW_BLOCK],
+    x0: &[f32],
+    x1: &[f32],
+    s: [&mut [[f32; LANES]; 2]; ROW_BLOCK],
+) {
+    for ((w, ahead), [s0, s1]) in w.into_iter().zip(ahead).zip(s) {
+        E::madd2(w, ahead, x0, x1, s0, s1);
     }
 }
 
