@@ -349,6 +349,8 @@ fn group<E: IntEngine>(
 
 /// Rows per quad panel (one 512-bit vector of 32-bit sums).
 pub(crate) const QUAD_PANEL: usize = 16;
+/// Whole quad panels of one input of a batch computed into a buffer at a time ([`quads_int`]).
+const BATCH_PANELS: usize = 32;
 /// Columns per quad: four 16-bit inputs fill one 64-bit word, which broadcast against a row's
 /// four weights widened to 16 bits gives the row two half sums (`vpmaddwd`).
 pub(crate) const QUAD: usize = 4;
@@ -481,20 +483,45 @@ pub(crate) fn quads_int<E: QuadEngine>(
         let words = &words[..quads];
         // A whole panel of one finite input: its 16 outputs side by side, the panels, their
         // outputs, scales and biases zipped (no bounds check or look at the options per panel).
-        let whole = match (step, batch) {
-            (Some(t), 1) => {
+        let panel_bytes = (quads + 1) * QUAD_BYTES;
+        let whole = match step {
+            Some(t) if batch == 1 => {
                 let whole = n_rows / QUAD_PANEL;
-                let panels = q.chunks_exact((quads + 1) * QUAD_BYTES).take(whole);
+                let panels = q.chunks_exact(panel_bytes).take(whole);
                 let ys = ys_t[..whole * QUAD_PANEL].as_chunks_mut::<QUAD_PANEL>().0;
                 let s = scales.map(|s| s[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
                 let b = bias.map(|b| b[..whole * QUAD_PANEL].as_chunks::<QUAD_PANEL>().0);
                 whole_panels::<E>(panels, words, t, ys, s, b);
                 whole
             }
-            _ => 0,
+            Some(t) => {
+                // In a batch, input `k`'s outputs lie `batch` apart: runs of whole panels into
+                // a buffer, then each output to its place (the way one input takes, the same
+                // bits). Each output on its own, through the options, made a batch of eight on
+                // the shipped model 2.5–3 times as slow as eight inputs alone, this about
+                // twice (`cargo bench --bench kernels -- 'shipped/int8/(batch|alone)8'` before
+                // the network stepped so small a model's avatars alone; three alternating
+                // rounds, 618 → 374 µs for the batch on the 2-core Intel Xeon VM). Writing a
+                // group of inputs' runs row by row instead measured no faster.
+                let whole = n_rows / QUAD_PANEL;
+                let mut buf = [[0.0f32; QUAD_PANEL]; BATCH_PANELS];
+                for p0 in (0..whole).step_by(BATCH_PANELS) {
+                    let n = BATCH_PANELS.min(whole - p0);
+                    let rows = p0 * QUAD_PANEL..(p0 + n) * QUAD_PANEL;
+                    let panels = q[p0 * panel_bytes..].chunks_exact(panel_bytes).take(n);
+                    let s = scales.map(|s| s[rows.clone()].as_chunks::<QUAD_PANEL>().0);
+                    let b = bias.map(|b| b[rows.clone()].as_chunks::<QUAD_PANEL>().0);
+                    whole_panels::<E>(panels, words, t, &mut buf[..n], s, b);
+                    for (i, &y) in rows.zip(buf[..n].as_flattened()) {
+                        ys_t[i * batch + k] = y;
+                    }
+                }
+                whole
+            }
+            None => 0,
         };
         for (p, panel) in q
-            .chunks_exact((quads + 1) * QUAD_BYTES)
+            .chunks_exact(panel_bytes)
             .take(n_rows.div_ceil(QUAD_PANEL))
             .enumerate()
             .skip(whole)
