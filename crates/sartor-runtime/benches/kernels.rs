@@ -161,7 +161,10 @@ fn pca_basis(c: &mut Criterion) {
 
 /// One wrinkle step of the shipped model (normalisation, GRU, PCA output, checks), batch 1,
 /// on one thread and (`/rayon`) on rayon's pool, over a loop of 64 made-up inputs so that the
-/// state keeps moving.
+/// state keeps moving; and the step of a crowd of eight on one thread: as a crowd takes it
+/// (`/batch8`), through one pass over the weights shared by all (`/shared8`: the batched
+/// kernels, with weights that stay in cache), and the reference, each avatar stepped alone
+/// (`/alone8`).
 fn shipped(c: &mut Criterion) {
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/models/default");
@@ -197,6 +200,57 @@ fn shipped(c: &mut Criterion) {
                 })
             });
         }
+        const CROWD: usize = 8;
+        let mut shared = net.clone();
+        shared.set_shared_pass_from(0);
+        let mut ws = net.workspace(CROWD);
+        let mut states: Vec<f32> = (0..CROWD).flat_map(|_| net.initial_state()).collect();
+        let mut outs = vec![0.0f32; CROWD * net.output_size()];
+        // Each avatar at its own place in the loop of inputs.
+        let batches: Vec<Vec<f32>> = (0..xs.len())
+            .map(|f| {
+                (0..CROWD)
+                    .flat_map(|a| xs[(f + 5 * a) % xs.len()].clone())
+                    .collect()
+            })
+            .collect();
+        // As a crowd steps them (each alone, for so small a model), and through one shared
+        // pass over the weights (the batched kernels).
+        for (name, net) in [("batch", &net), ("shared", &shared)] {
+            group.bench_function(format!("{}/{name}{CROWD}", precision.name()), |b| {
+                b.iter(|| {
+                    f = (f + 1) % batches.len();
+                    net.wrinkle_step_batch(
+                        black_box(&batches[f]),
+                        CROWD,
+                        &mut states,
+                        &mut outs,
+                        &mut ws,
+                        Parallelism::Sequential,
+                    )
+                    .expect("finite");
+                    black_box(&outs);
+                })
+            });
+        }
+        // The reference: the same eight stepped one at a time.
+        let (n_in, n_state, n_out) = (net.input_size(), net.state_size(), net.output_size());
+        group.bench_function(format!("{}/alone{CROWD}", precision.name()), |b| {
+            b.iter(|| {
+                f = (f + 1) % batches.len();
+                for a in 0..CROWD {
+                    net.wrinkle_step(
+                        black_box(&batches[f][a * n_in..(a + 1) * n_in]),
+                        &mut states[a * n_state..(a + 1) * n_state],
+                        &mut outs[a * n_out..(a + 1) * n_out],
+                        &mut ws,
+                        Parallelism::Sequential,
+                    )
+                    .expect("finite");
+                }
+                black_box(&outs);
+            })
+        });
     }
     group.finish();
 }

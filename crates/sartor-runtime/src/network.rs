@@ -61,6 +61,15 @@ crate::kernels::widest_where_present! {
     }
 }
 
+/// By default a batch of avatars shares one pass over the wrinkle weights
+/// ([`GarmentNetwork::wrinkle_step_batch`]) from this many bytes of them; below, each avatar is
+/// stepped alone. The shipped model's (GRU 256, PCA 64: 2.8 MB in f32, 1.4 in f16, 0.7 in int8)
+/// stay in cache, and its step for eight on one thread took, shared against alone, 1.0–1.2
+/// against 1.1–1.2 ms in f32, 1.2–1.5 against 0.6–0.8 in f16 and 0.4–0.6 against 0.16–0.19 in
+/// int8 (`cargo bench -p sartor-runtime --bench kernels -- 'shipped/.*8'`, 2-core Intel Xeon VM);
+/// the paper's size (108 MB in f32) streams from memory, where the shared pass pays.
+const SHARED_PASS_FROM_BYTES: usize = 8 << 20;
+
 /// Work buffers for one [`GarmentNetwork`], sized for batches of up to `capacity` avatars.
 /// Make one per thread that evaluates the network; after that, no call allocates.
 #[derive(Clone, Debug)]
@@ -120,6 +129,8 @@ pub struct GarmentNetwork {
     fit_out: MeanStd,
     wrinkle_in: MeanStd,
     wrinkle_out: MeanStd,
+    /// [`GarmentNetwork::set_shared_pass_from`].
+    shared_pass_from: usize,
 }
 
 impl GarmentNetwork {
@@ -215,7 +226,15 @@ impl GarmentNetwork {
             fit_out: w.norm.fit_out,
             wrinkle_in: w.norm.wrinkle_in,
             wrinkle_out: w.norm.wrinkle_out,
+            shared_pass_from: SHARED_PASS_FROM_BYTES,
         })
+    }
+
+    /// From how many bytes of wrinkle weights a batch shares one pass over them
+    /// ([`GarmentNetwork::wrinkle_step_batch`]; 8 MiB unless set): below, each avatar is
+    /// stepped alone. The same bits either way; 0 always shares the pass.
+    pub fn set_shared_pass_from(&mut self, bytes: usize) {
+        self.shared_pass_from = bytes;
     }
 
     /// [`GarmentModel::load`] then [`GarmentNetwork::new`]; errors name the file.
@@ -401,8 +420,10 @@ impl GarmentNetwork {
         self.wrinkle_step_batch(x_t, 1, state, out, ws, par)
     }
 
-    /// [`GarmentNetwork::wrinkle_step`] for `batch` avatars sharing one pass over the weights;
-    /// each avatar's state and output are bitwise equal to stepping it alone.
+    /// [`GarmentNetwork::wrinkle_step`] for `batch` avatars sharing one pass over the weights
+    /// (from [`GarmentNetwork::set_shared_pass_from`] bytes of them; a smaller model's avatars
+    /// are stepped one at a time); each avatar's state and output are bitwise equal to stepping
+    /// it alone.
     ///
     /// # Shapes
     /// - `xs`: `[batch, I]`, `states`: `[batch, H]`, `out`: `[batch, 3V]`.
@@ -416,6 +437,25 @@ impl GarmentNetwork {
         par: Parallelism,
     ) -> Result<()> {
         self.check_batch(batch, ws)?;
+        if batch > 1 && self.wrinkle_weight_bytes() < self.shared_pass_from {
+            // Weights that stay in cache gain nothing from one pass for all: each avatar alone
+            // (the same bits), after every input and state is checked, so that an error
+            // changes no state.
+            let (n_in, n_h, n_out) = (self.input_size(), self.state_size(), self.output_size());
+            check_len("wrinkle input", xs.len(), batch * n_in)?;
+            check_len("wrinkle state", states.len(), batch * n_h)?;
+            check_len("wrinkle output", out.len(), batch * n_out)?;
+            check_finite("wrinkle input", xs)?;
+            check_finite("wrinkle state", states)?;
+            let avatars = xs
+                .chunks_exact(n_in)
+                .zip(states.chunks_exact_mut(n_h))
+                .zip(out.chunks_exact_mut(n_out));
+            for ((x, state), out) in avatars {
+                self.wrinkle_step_batch(x, 1, state, out, ws, par)?;
+            }
+            return Ok(());
+        }
         // Before the other checks, which then run once, on the pool.
         let splits = self.gru.splits(batch, par) || self.output.splits(batch, par);
         if runs_awake(splits, par) {
