@@ -64,10 +64,11 @@ crate::kernels::widest_where_present! {
 /// By default a batch of avatars shares one pass over the wrinkle weights
 /// ([`GarmentNetwork::wrinkle_step_batch`]) from this many bytes of them; below, each avatar is
 /// stepped alone. The shipped model's (GRU 256, PCA 64: 2.8 MB in f32, 1.4 in f16, 0.7 in int8)
-/// stay in cache, and its step for eight on one thread took, shared against alone, 1.0–1.2
-/// against 1.1–1.2 ms in f32, 1.2–1.5 against 0.6–0.8 in f16 and 0.4–0.6 against 0.16–0.19 in
-/// int8 (`cargo bench -p sartor-runtime --bench kernels -- 'shipped/.*8'`, 2-core Intel Xeon VM);
-/// the paper's size (108 MB in f32) streams from memory, where the shared pass pays.
+/// stay in cache, and its step for eight on one thread took, shared against alone, 0.91–1.07
+/// against 0.52–0.70 ms in f16 and 0.21–0.25 against 0.14–0.16 in int8, f32 level (0.82–1.58
+/// against 0.92–1.01; `cargo bench -p sartor-runtime --bench kernels -- 'shipped/.*8'`, three
+/// rounds, 2-core Intel Xeon VM); the paper's size (108 MB in f32) streams from memory, where
+/// the shared pass pays.
 const SHARED_PASS_FROM_BYTES: usize = 8 << 20;
 
 /// Work buffers for one [`GarmentNetwork`], sized for batches of up to `capacity` avatars.
