@@ -67,8 +67,10 @@ crate::kernels::widest_where_present! {
 /// stay in cache, and its step for eight on one thread took, shared against alone, 0.91–1.07
 /// against 0.52–0.70 ms in f16 and 0.21–0.25 against 0.14–0.16 in int8, f32 level (0.82–1.58
 /// against 0.92–1.01; `cargo bench -p sartor-runtime --bench kernels -- 'shipped/.*8'`, three
-/// rounds, 2-core Intel Xeon VM); the paper's size (108 MB in f32) streams from memory, where
-/// the shared pass pays.
+/// rounds, 2-core Intel Xeon VM); the paper's size (27 MB in int8, 108 in f32) streams from
+/// memory, where the shared pass pays in every precision (for eight, int8 on two threads
+/// 3.1–4.2 ms shared against 5.8–6.5 alone). Where between the two the line should lie is not
+/// measured.
 const SHARED_PASS_FROM_BYTES: usize = 8 << 20;
 
 /// Work buffers for one [`GarmentNetwork`], sized for batches of up to `capacity` avatars.
