@@ -35,30 +35,34 @@ fn random(rng: &mut ChaCha8Rng, n: usize, amp: f32) -> Vec<f32> {
     (0..n).map(|_| rng.random_range(-amp..amp)).collect()
 }
 
-fn weights() -> Weights {
+/// Random weights of a GRU of `hidden` units on `input` values with a dense output of
+/// `outputs` values.
+fn weights(input: usize, hidden: usize, outputs: usize) -> Weights {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let a = 1.0 / (HIDDEN as f32).sqrt();
+    let a = 1.0 / (hidden as f32).sqrt();
     Weights {
-        w_ih: random(&mut rng, 3 * HIDDEN * INPUT, a),
-        w_hh: random(&mut rng, 3 * HIDDEN * HIDDEN, a),
-        b_ih: random(&mut rng, 3 * HIDDEN, a),
-        b_hh: random(&mut rng, 3 * HIDDEN, a),
-        w_out: random(&mut rng, OUTPUTS * HIDDEN, a),
-        b_out: random(&mut rng, OUTPUTS, a),
+        w_ih: random(&mut rng, 3 * hidden * input, a),
+        w_hh: random(&mut rng, 3 * hidden * hidden, a),
+        b_ih: random(&mut rng, 3 * hidden, a),
+        b_hh: random(&mut rng, 3 * hidden, a),
+        w_out: random(&mut rng, outputs * hidden, a),
+        b_out: random(&mut rng, outputs, a),
     }
 }
 
 fn build(w: &Weights, p: Precision) -> (GruCell, OutputLayer) {
+    let (hidden, outputs) = (w.b_ih.len() / 3, w.b_out.len());
+    let input = w.w_ih.len() / (3 * hidden);
     let gru = GruCell::new(
-        Matrix::from_f32(3 * HIDDEN, INPUT, w.w_ih.clone(), p).expect("finite"),
-        Matrix::from_f32(3 * HIDDEN, HIDDEN, w.w_hh.clone(), p).expect("finite"),
+        Matrix::from_f32(3 * hidden, input, w.w_ih.clone(), p).expect("finite"),
+        Matrix::from_f32(3 * hidden, hidden, w.w_hh.clone(), p).expect("finite"),
         w.b_ih.clone(),
         w.b_hh.clone(),
     )
     .expect("shapes");
     let out = OutputLayer::Dense(
         Linear::new(
-            Matrix::from_f32(OUTPUTS, HIDDEN, w.w_out.clone(), p).expect("finite"),
+            Matrix::from_f32(outputs, hidden, w.w_out.clone(), p).expect("finite"),
             w.b_out.clone(),
         )
         .expect("shapes"),
@@ -66,8 +70,72 @@ fn build(w: &Weights, p: Precision) -> (GruCell, OutputLayer) {
     (gru, out)
 }
 
+/// Where a crowd's shared pass over the weights starts to pay (`GarmentNetwork`'s
+/// `set_shared_pass_from`): a GRU on the shipped model's 98 wrinkle inputs with a dense output
+/// of its 6,504 values, at 256, 512 and 1,024 units, per precision, one thread: eight inputs
+/// through one shared pass (`/shared8`) and one at a time (`/alone8`).
+fn shared_line(c: &mut Criterion) {
+    const CROWD: usize = 8;
+    let (input, outputs) = (98, 6504);
+    for hidden in [256, 512, 1024] {
+        let w = weights(input, hidden, outputs);
+        let mut group = c.benchmark_group(format!("shared_line/gru{hidden}_out{outputs}"));
+        for precision in [Precision::F32, Precision::F16, Precision::Int8] {
+            let (gru, out) = build(&w, precision);
+            let mut rng = ChaCha8Rng::seed_from_u64(8);
+            let xs = random(&mut rng, CROWD * input, 1.0);
+            let mut hs = random(&mut rng, CROWD * hidden, 0.5);
+            let (mut gs, mut os) = (gru.scratch(CROWD), out.scratch(CROWD));
+            let mut ys = vec![0.0f32; CROWD * outputs];
+            let bytes = gru.weight_bytes() + out.weight_bytes();
+            let name = |way: &str| {
+                format!(
+                    "{}/{way}{CROWD}/{:.1}MB",
+                    precision.name(),
+                    bytes as f64 / 1e6
+                )
+            };
+            let seq = Parallelism::Sequential;
+            group.bench_function(name("shared"), |b| {
+                b.iter(|| {
+                    gru.step_batch(black_box(&xs), CROWD, &mut hs, &mut gs, seq)
+                        .expect("sizes");
+                    out.forward_batch_t(&hs, CROWD, &mut ys, &mut os, seq)
+                        .expect("sizes");
+                    black_box(&ys);
+                })
+            });
+            group.bench_function(name("alone"), |b| {
+                b.iter(|| {
+                    for a in 0..CROWD {
+                        let h = &mut hs[a * hidden..(a + 1) * hidden];
+                        gru.step_batch(
+                            black_box(&xs[a * input..(a + 1) * input]),
+                            1,
+                            h,
+                            &mut gs,
+                            seq,
+                        )
+                        .expect("sizes");
+                        out.forward_batch_t(
+                            h,
+                            1,
+                            &mut ys[a * outputs..(a + 1) * outputs],
+                            &mut os,
+                            seq,
+                        )
+                        .expect("sizes");
+                    }
+                    black_box(&ys);
+                })
+            });
+        }
+        group.finish();
+    }
+}
+
 fn bench(c: &mut Criterion) {
-    let w = weights();
+    let w = weights(INPUT, HIDDEN, OUTPUTS);
     eprintln!(
         "kernels: {} , rayon threads: {}",
         instruction_set(),
@@ -255,5 +323,5 @@ fn shipped(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench, pca_basis, shipped);
+criterion_group!(benches, bench, pca_basis, shipped, shared_line);
 criterion_main!(benches);

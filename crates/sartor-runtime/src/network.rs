@@ -63,15 +63,16 @@ crate::kernels::widest_where_present! {
 
 /// By default a batch of avatars shares one pass over the wrinkle weights
 /// ([`GarmentNetwork::wrinkle_step_batch`]) from this many bytes of them; below, each avatar is
-/// stepped alone. The shipped model's (GRU 256, PCA 64: 2.8 MB in f32, 1.4 in f16, 0.7 in int8)
-/// stay in cache, and its step for eight on one thread took, shared against alone, 0.91–1.07
-/// against 0.52–0.70 ms in f16 and 0.21–0.25 against 0.14–0.16 in int8, f32 level (0.82–1.58
-/// against 0.92–1.01; `cargo bench -p sartor-runtime --bench kernels -- 'shipped/.*8'`, three
-/// rounds, 2-core Intel Xeon VM); the paper's size (27 MB in int8, 108 in f32) streams from
-/// memory, where the shared pass pays in every precision (for eight, int8 on two threads
-/// 3.1–4.2 ms shared against 5.8–6.5 alone). Where between the two the line should lie is not
-/// measured.
-const SHARED_PASS_FROM_BYTES: usize = 8 << 20;
+/// stepped alone. For eight on one thread, shared against alone (`cargo bench -p
+/// sartor-runtime --bench kernels -- 'shipped/.*8|shared_line'`, 2-core Intel Xeon VM, whose
+/// cores have 2 MB of L2): the shipped model (GRU 256, PCA 64) 0.91–1.07 against 0.52–0.70 ms
+/// in f16 (1.4 MB), 0.21–0.25 against 0.14–0.16 in int8 (0.7 MB), level in f32 (2.8 MB); a
+/// GRU 256 with a dense 6,504 output 0.54–0.67 against 0.45–0.50 in int8 (2.0 MB), but
+/// 1.35–1.46 against 1.68–2.00 in f16 (3.9 MB) and 1.28–1.61 against 3.25–3.49 in f32 (7.7
+/// MB); a GRU 512's int8 (4.3 MB) 1.00–1.18 against 1.82–2.04; the paper's size in every
+/// precision. Not measured on a CPU with less L2 (the AMD EPYC VM's 1 MB), where the line may
+/// lie lower.
+const SHARED_PASS_FROM_BYTES: usize = 3 << 20;
 
 /// Work buffers for one [`GarmentNetwork`], sized for batches of up to `capacity` avatars.
 /// Make one per thread that evaluates the network; after that, no call allocates.
@@ -234,7 +235,7 @@ impl GarmentNetwork {
     }
 
     /// From how many bytes of wrinkle weights a batch shares one pass over them
-    /// ([`GarmentNetwork::wrinkle_step_batch`]; 8 MiB unless set): below, each avatar is
+    /// ([`GarmentNetwork::wrinkle_step_batch`]; 3 MiB unless set): below, each avatar is
     /// stepped alone. The same bits either way; 0 always shares the pass.
     pub fn set_shared_pass_from(&mut self, bytes: usize) {
         self.shared_pass_from = bytes;
