@@ -445,12 +445,8 @@ impl GarmentNetwork {
             // Weights that stay in cache gain nothing from one pass for all: each avatar alone
             // (the same bits), after every input and state is checked, so that an error
             // changes no state.
+            self.check_step(xs, batch, states, out)?;
             let (n_in, n_h, n_out) = (self.input_size(), self.state_size(), self.output_size());
-            check_len("wrinkle input", xs.len(), batch * n_in)?;
-            check_len("wrinkle state", states.len(), batch * n_h)?;
-            check_len("wrinkle output", out.len(), batch * n_out)?;
-            check_finite("wrinkle input", xs)?;
-            check_finite("wrinkle state", states)?;
             let avatars = xs
                 .chunks_exact(n_in)
                 .zip(states.chunks_exact_mut(n_h))
@@ -467,12 +463,8 @@ impl GarmentNetwork {
                 self.wrinkle_step_batch(xs, batch, states, out, ws, par)
             });
         }
+        self.check_step(xs, batch, states, out)?;
         let n_in = self.input_size();
-        check_len("wrinkle input", xs.len(), batch * n_in)?;
-        check_len("wrinkle state", states.len(), batch * self.state_size())?;
-        check_len("wrinkle output", out.len(), batch * self.output_size())?;
-        check_finite("wrinkle input", xs)?;
-        check_finite("wrinkle state", states)?;
         let x = &mut ws.wrinkle_x[..batch * n_in];
         normalise(xs, &self.wrinkle_in, x);
         self.gru.step_batch(x, batch, states, &mut ws.gru, par)?;
@@ -487,6 +479,16 @@ impl GarmentNetwork {
             denormalise_t(y_t, batch, &self.wrinkle_out, out);
         }
         check_finite("wrinkle output", out)
+    }
+
+    /// The lengths of a wrinkle step's input, state and output for `batch` avatars, and that
+    /// the input and state are finite.
+    fn check_step(&self, xs: &[f32], batch: usize, states: &[f32], out: &[f32]) -> Result<()> {
+        check_len("wrinkle input", xs.len(), batch * self.input_size())?;
+        check_len("wrinkle state", states.len(), batch * self.state_size())?;
+        check_len("wrinkle output", out.len(), batch * self.output_size())?;
+        check_finite("wrinkle input", xs)?;
+        check_finite("wrinkle state", states)
     }
 
     /// Whether the model carries the linear baseline.

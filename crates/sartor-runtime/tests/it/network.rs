@@ -68,8 +68,16 @@ fn batched_and_parallel_equal_single_sequential_bitwise() {
         .expect("pool");
     for output in [OutputKind::Dense, OutputKind::Pca(6)] {
         let model = random_model(22, sizes(output, false));
-        for precision in [Precision::F32, Precision::F16, Precision::Int8] {
-            let net = GarmentNetwork::new(model.clone(), precision).expect("valid");
+        // So small a model steps a batch's avatars alone by default; from zero bytes the
+        // batch shares one pass over the weights (the batched kernels).
+        let modes = [Precision::F32, Precision::F16, Precision::Int8]
+            .into_iter()
+            .flat_map(|p| [(p, false), (p, true)]);
+        for (precision, shared) in modes {
+            let mut net = GarmentNetwork::new(model.clone(), precision).expect("valid");
+            if shared {
+                net.set_shared_pass_from(0);
+            }
             let (n_in, hid, o3, nb) = (
                 net.input_size(),
                 net.state_size(),
@@ -133,7 +141,11 @@ fn batched_and_parallel_equal_single_sequential_bitwise() {
                     .expect("finite");
                     assert_eq!(bits(&out_one), bits(&out_batch[b * o3..(b + 1) * o3]));
                 }
-                assert_eq!(bits(&singles), bits(&states), "{output:?} {precision:?}");
+                assert_eq!(
+                    bits(&singles),
+                    bits(&states),
+                    "{output:?} {precision:?} shared {shared}"
+                );
             }
         }
     }
@@ -174,6 +186,24 @@ fn non_finite_inputs_are_errors_not_nan_outputs() {
         net.wrinkle_step(&x[1..], &mut state, &mut out, &mut ws, seq)
             .is_err()
     );
+    // A batch with one non-finite input changes no avatar's state, stepped alone or through
+    // a shared pass.
+    for shared_from in [usize::MAX, 0] {
+        let mut net = net.clone();
+        net.set_shared_pass_from(shared_from);
+        let mut xs = vec![0.1; 2 * net.input_size()];
+        xs[net.input_size() + 3] = f32::NAN;
+        let mut states = vec![0.25; 2 * net.state_size()];
+        let mut outs = vec![0.0; 2 * net.output_size()];
+        let err = net
+            .wrinkle_step_batch(&xs, 2, &mut states, &mut outs, &mut ws, seq)
+            .expect_err("NaN in the second avatar's input");
+        assert!(matches!(err, Error::NonFinite { .. }), "{err}");
+        assert!(
+            states.iter().all(|&h| h == 0.25),
+            "states untouched on error"
+        );
+    }
     let mut big = vec![0.0; 3 * net.output_size()];
     let xs = vec![0.0; 3 * net.input_size()];
     let mut states = vec![0.0; 3 * net.state_size()];
