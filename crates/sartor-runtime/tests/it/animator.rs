@@ -151,7 +151,8 @@ fn a_crowd_equals_its_avatars_alone_bitwise() {
 
 /// The shipped model on real motion capture (CMU 02_02, a walk, and 09_05, a run, as imported
 /// into `datasets/motions/cmu`), in every precision: a crowd of five avatars, each at its own
-/// shape and phase, equals each avatar alone, bitwise. The shipped matrices (GRU 256, a PCA
+/// shape and phase, equals each avatar alone, bitwise; both as a crowd steps so small a model
+/// (each avatar alone) and through one shared pass, where the shipped matrices (GRU 256, a PCA
 /// basis of 64 columns) go through the batched row kernels' whole tiles and their pairs and
 /// odd input.
 #[test]
