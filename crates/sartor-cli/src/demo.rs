@@ -7,7 +7,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use sartor_core::{BodyModel, PhenotypeRequest, PhenotypeSpace};
 use sartor_eval::{Machine, write_json};
-use sartor_motion::{UpAxis, load_motion};
+use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
 use sartor_pipeline::{DataDir, Format, animate, model_betas, write_animation};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions,
@@ -64,6 +64,22 @@ pub struct DemoArgs {
     /// 0.1 mm / 1 mm of f32 per vertex on the runtime's test scene).
     #[arg(long, value_enum, default_value = "f32")]
     pub precision: DemoPrecision,
+    /// Leave the motion's arms as they come. By default each body's arms are first held out of
+    /// its torso as the shipped model's training data held them ([`shipped_arm_clearance`]):
+    /// motion capture retargeted onto a body wider than its performer sinks the forearms into
+    /// the hips and the upper arms into the torso's sides, with the shirt caught between.
+    #[arg(long)]
+    pub no_arm_clearance: bool,
+}
+
+/// How the shipped model's training motions held the arms out of the torso: the
+/// `simulation.arm_clearance` of `configs/default.json` (forearms and hands 25 mm out, upper
+/// arms beyond the armpit 5 mm).
+pub fn shipped_arm_clearance() -> ClearanceOptions {
+    ClearanceOptions {
+        upper_arm_clearance_m: Some(0.005),
+        ..ClearanceOptions::default()
+    }
 }
 
 /// `--precision` of `demo`.
@@ -92,6 +108,12 @@ struct DemoEntry {
     frames: usize,
     ms_per_frame: f64,
     frames_per_second: f64,
+    /// Frames whose arms were turned out of the torso (none without the clearance).
+    arm_clearance_frames_changed: usize,
+    /// The largest such turn, degrees.
+    arm_clearance_max_angle_deg: f64,
+    /// The deepest held arm vertex inside the torso as the motion came, mm.
+    arm_depth_before_mm: Option<f64>,
     files: Vec<String>,
 }
 
@@ -186,6 +208,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} clips {msg}")
             .expect("static template"),
     );
+    let clearance = (!args.no_arm_clearance).then(shipped_arm_clearance);
     let mut runs = Vec::new();
     for (b, (label, betas)) in bodies.iter().enumerate() {
         let (betas, dropped) = model_betas(&rig, betas);
@@ -198,7 +221,14 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         }
         for (spec, motion) in specs.iter().zip(&motions) {
             bar.set_message(format!("{label} / {spec}"));
-            let anim = animate(&rig, &body, &betas, motion, Some(args.frames))?;
+            let anim = animate(
+                &rig,
+                &body,
+                &betas,
+                motion,
+                Some(args.frames),
+                clearance.as_ref(),
+            )?;
             let clip: String = spec
                 .rsplit('/')
                 .next()
@@ -217,8 +247,15 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 &args.formats,
             )?;
             let ms = anim.ms_per_frame();
+            let arms = anim.arm_clearance.as_ref().map_or_else(String::new, |r| {
+                format!(
+                    "  arms held out of the torso in {} frames (up to {:.0}°)",
+                    r.frames_changed,
+                    r.max_angle_rad.to_degrees()
+                )
+            });
             bar.println(format!(
-                "{label:<24} {spec:<16} {:>4} frames  {ms:>7.3} ms/frame  {:>8.0} frames/s",
+                "{label:<24} {spec:<16} {:>4} frames  {ms:>7.3} ms/frame  {:>8.0} frames/s{arms}",
                 anim.garment.len(),
                 1e3 / ms
             ));
@@ -229,6 +266,18 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 frames: anim.garment.len(),
                 ms_per_frame: ms,
                 frames_per_second: 1e3 / ms,
+                arm_clearance_frames_changed: anim
+                    .arm_clearance
+                    .as_ref()
+                    .map_or(0, |r| r.frames_changed),
+                arm_clearance_max_angle_deg: anim
+                    .arm_clearance
+                    .as_ref()
+                    .map_or(0.0, |r| r.max_angle_rad.to_degrees()),
+                arm_depth_before_mm: anim
+                    .arm_clearance
+                    .as_ref()
+                    .map(|r| r.max_depth_before_m * 1e3),
                 files: files.iter().map(|p| p.display().to_string()).collect(),
             });
             bar.inc(1);
@@ -241,7 +290,8 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         garment_vertices: rig.n_vertices(),
         machine: Machine::current(),
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
-               one thread; posing the full body for the files is not counted",
+               one thread; posing the full body for the files and holding the arms out of the \
+               torso (before the clip, per body) are not counted",
         runs,
     };
     let path = args.out.join("demo.json");
@@ -258,4 +308,20 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_demo_holds_the_arms_as_the_shipped_models_experiment_did() {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/default.json");
+        let config: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).expect("config")).expect("JSON");
+        let theirs: ClearanceOptions =
+            serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+                .expect("the shipped experiment holds the arms out");
+        assert_eq!(shipped_arm_clearance(), theirs);
+    }
 }

@@ -158,7 +158,16 @@ pub fn export_run(run: &Path, folders: &DataDir, args: &ExportOptions) -> Result
         let motion = load_motion(&args.preview_motion, &options)
             .with_context(|| format!("preview motion {:?}", args.preview_motion))?;
         let betas = vec![0.0; rig.network().n_betas()];
-        let anim = animate(&rig, &body, &betas, &motion, Some(args.preview_frames))?;
+        // The arms held as the training data held them.
+        let clearance = e.simulation.arm_clearance.as_ref();
+        let anim = animate(
+            &rig,
+            &body,
+            &betas,
+            &motion,
+            Some(args.preview_frames),
+            clearance,
+        )?;
         write_animation(
             &tmp.join("preview"),
             &args.preview_motion,
