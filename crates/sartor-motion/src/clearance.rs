@@ -212,10 +212,13 @@ impl<'a> Posing<'a> {
             if reach <= 0.0 {
                 continue;
             }
-            let Some(closest) = d
+            // (Unbounded, as `BodyDistance::query_hinted`: the whole search if the hinted one
+            // finds nothing.)
+            let found = d
                 .proximity()
                 .closest_within_hinted(&p, reach, &mut self.hints[v])
-            else {
+                .or_else(|| inside.then(|| d.proximity().closest(&p)));
+            let Some(closest) = found else {
                 continue;
             };
             let to_surface = closest.point - p;
