@@ -247,7 +247,8 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 &args.formats,
             )?;
             let ms = anim.ms_per_frame();
-            let arms = anim.arm_clearance.as_ref().map_or_else(String::new, |r| {
+            let held = anim.arm_clearance.as_ref();
+            let arms = held.map_or_else(String::new, |r| {
                 format!(
                     "  arms held out of the torso in {} frames (up to {:.0}°)",
                     r.frames_changed,
@@ -266,18 +267,9 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 frames: anim.garment.len(),
                 ms_per_frame: ms,
                 frames_per_second: 1e3 / ms,
-                arm_clearance_frames_changed: anim
-                    .arm_clearance
-                    .as_ref()
-                    .map_or(0, |r| r.frames_changed),
-                arm_clearance_max_angle_deg: anim
-                    .arm_clearance
-                    .as_ref()
-                    .map_or(0.0, |r| r.max_angle_rad.to_degrees()),
-                arm_depth_before_mm: anim
-                    .arm_clearance
-                    .as_ref()
-                    .map(|r| r.max_depth_before_m * 1e3),
+                arm_clearance_frames_changed: held.map_or(0, |r| r.frames_changed),
+                arm_clearance_max_angle_deg: held.map_or(0.0, |r| r.max_angle_rad.to_degrees()),
+                arm_depth_before_mm: held.map(|r| r.max_depth_before_m * 1e3),
                 files: files.iter().map(|p| p.display().to_string()).collect(),
             });
             bar.inc(1);

@@ -364,8 +364,8 @@ mod tests {
     fn holding_the_arms_as_the_training_data_did_keeps_the_shirt_out_of_the_body_on_real_motion() {
         // CMU 02_02, a walk, retargeted onto the built-in body at the nominal shape: the hands
         // brush the hips and the hanging upper arms sink into the torso's sides, with the shirt
-        // caught between (2026-12-03: 3.3 % of the shipped model's vertex-frames inside the
-        // body over 60 frames, post-process on; none with the clearance).
+        // caught between (2026-12-03, these 24 frames: 2.49 % of the shipped model's
+        // vertex-frames inside the body, post-process on; none with the clearance).
         let data = workspace().join("datasets");
         let body = Arc::new(BodyModel::load(&data.join("body/makehuman")).expect("body"));
         let dir = data.join("models/default");
