@@ -66,7 +66,7 @@ pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding}
 pub use mesh::{
     Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, face_normals, vertex_normals,
 };
-pub use model::{BodyModel, BodyPoser, MODEL_HEADER, MODEL_TENSORS, Provenance};
+pub use model::{BodyModel, BodyPoser, MODEL_HEADER, MODEL_TENSORS, PoseBuffers, Provenance};
 pub use norm::{MeanStd, NormStats};
 pub use obj::{ObjData, obj_text, read_obj, write_obj};
 pub use phenotype::{

@@ -408,24 +408,15 @@ impl BodyModel {
 /// Poses the body into caller buffers, re-shaping only when β changes.
 pub struct BodyPoser<'a> {
     body: &'a BodyModel,
-    betas: Option<Vec<f64>>,
-    shaped: Vec<Vector3<f64>>,
-    joints: Vec<Vector3<f64>>,
-    posed_joints: Vec<Vector3<f64>>,
-    transforms: Vec<BoneTransform<f64>>,
+    buffers: PoseBuffers,
 }
 
 impl<'a> BodyPoser<'a> {
     /// A poser of `body`; nothing is shaped until the first pose.
     pub fn new(body: &'a BodyModel) -> Self {
-        let j = body.skeleton().n_joints();
         Self {
             body,
-            betas: None,
-            shaped: vec![Vector3::zeros(); body.n_vertices()],
-            joints: vec![Vector3::zeros(); j],
-            posed_joints: vec![Vector3::zeros(); j],
-            transforms: vec![BoneTransform::identity(); j],
+            buffers: PoseBuffers::default(),
         }
     }
 
@@ -436,25 +427,7 @@ impl<'a> BodyPoser<'a> {
         pose: &Pose,
         out: &mut [Vector3<f64>],
     ) -> Result<()> {
-        if self.betas.as_deref() != Some(betas) {
-            self.body.shaped_vertices_into(betas, &mut self.shaped)?;
-            self.joints = self.body.shaped_joints(betas)?;
-            self.betas = Some(betas.to_vec());
-        }
-        self.body.skeleton().forward_kinematics_into(
-            &self.joints,
-            pose,
-            &mut self.posed_joints,
-            &mut self.transforms,
-        )?;
-        skin_points(
-            &self.shaped,
-            self.body.skin_weights(),
-            &self.transforms,
-            out,
-            Parallelism::Sequential,
-        )?;
-        Ok(())
+        self.buffers.pose_into(self.body, betas, pose, out)
     }
 
     /// The body it poses.
@@ -464,15 +437,87 @@ impl<'a> BodyPoser<'a> {
 
     /// The shaped rest body `T_b(β)` of the last [`BodyPoser::pose_into`].
     pub fn shaped(&self) -> &[Vector3<f64>] {
-        &self.shaped
+        self.buffers.shaped()
     }
 
     /// The posed joint positions of the last [`BodyPoser::pose_into`].
     pub fn posed_joints(&self) -> &[Vector3<f64>] {
-        &self.posed_joints
+        self.buffers.posed_joints()
     }
 
     /// The skinning transforms of the last [`BodyPoser::pose_into`].
+    pub fn transforms(&self) -> &[BoneTransform<f64>] {
+        self.buffers.transforms()
+    }
+}
+
+/// A [`BodyPoser`] that does not hold its body: each pose is given it. For a poser kept
+/// beside its body rather than borrowing it (an `Arc` in the same struct). The shaped body is
+/// kept for the β and the body (by address) of the last pose: give one body for as long as it
+/// lives.
+#[derive(Clone, Debug, Default)]
+pub struct PoseBuffers {
+    /// The body's address and the β of `shaped` and `joints`.
+    shaped_for: Option<(usize, Vec<f64>)>,
+    shaped: Vec<Vector3<f64>>,
+    joints: Vec<Vector3<f64>>,
+    posed_joints: Vec<Vector3<f64>>,
+    transforms: Vec<BoneTransform<f64>>,
+}
+
+impl PoseBuffers {
+    /// `M_b(β, θ)` of `body` into `out`; afterwards [`PoseBuffers::transforms`] are this
+    /// pose's.
+    pub fn pose_into(
+        &mut self,
+        body: &BodyModel,
+        betas: &[f64],
+        pose: &Pose,
+        out: &mut [Vector3<f64>],
+    ) -> Result<()> {
+        let address = body as *const BodyModel as usize;
+        let shaped = self
+            .shaped_for
+            .as_ref()
+            .is_some_and(|(a, b)| *a == address && b == betas);
+        if !shaped {
+            // Unset first: a failed shaping must not leave the last body's key.
+            self.shaped_for = None;
+            let j = body.skeleton().n_joints();
+            self.shaped.resize(body.n_vertices(), Vector3::zeros());
+            self.posed_joints.resize(j, Vector3::zeros());
+            self.transforms.resize(j, BoneTransform::identity());
+            body.shaped_vertices_into(betas, &mut self.shaped)?;
+            self.joints = body.shaped_joints(betas)?;
+            self.shaped_for = Some((address, betas.to_vec()));
+        }
+        body.skeleton().forward_kinematics_into(
+            &self.joints,
+            pose,
+            &mut self.posed_joints,
+            &mut self.transforms,
+        )?;
+        skin_points(
+            &self.shaped,
+            body.skin_weights(),
+            &self.transforms,
+            out,
+            Parallelism::Sequential,
+        )?;
+        Ok(())
+    }
+
+    /// The shaped rest body `T_b(β)` of the last [`PoseBuffers::pose_into`].
+    pub fn shaped(&self) -> &[Vector3<f64>] {
+        &self.shaped
+    }
+
+    /// The posed joint positions of the last [`PoseBuffers::pose_into`].
+    pub fn posed_joints(&self) -> &[Vector3<f64>] {
+        &self.posed_joints
+    }
+
+    /// The skinning transforms of the last [`PoseBuffers::pose_into`].
     pub fn transforms(&self) -> &[BoneTransform<f64>] {
         &self.transforms
     }

@@ -10,6 +10,7 @@
 //! [`ClearanceOptions::clearance_m`] outside the torso; the rotations are then eased in and out
 //! over neighbouring frames so that the arm does not jump. Frames that need nothing in reach of
 //! a frame that does keep their pose bit for bit.
+//! [`ClearanceOnDemand`] gives the same poses one frame at a time, as a player asks for them.
 //!
 //! With [`ClearanceOptions::upper_arm_clearance_m`] the upper arm is held out of the torso too.
 //! Skinning sinks a hanging upper arm into the side of a heavy torso (by up to 40 mm on the CMU
@@ -24,8 +25,12 @@
 //! winding number of that open surface ([`BodyDistance`]).
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
-use sartor_core::{BodyDistance, BodyModel, BodyPoser, Error, Pose, Result};
+use sartor_core::{BodyDistance, BodyModel, Error, Pose, PoseBuffers, Result};
 use serde::{Deserialize, Serialize};
+
+mod on_demand;
+
+pub use on_demand::ClearanceOnDemand;
 
 /// Options of [`ArmClearance::apply`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -149,9 +154,11 @@ fn upper_arm(name: &str) -> bool {
     name.ends_with("Arm") && !name.ends_with("ForeArm")
 }
 
-/// A body of one shape posed once per frame, with the torso's distance field.
-struct Posing<'a> {
-    poser: BodyPoser<'a>,
+/// A body of one shape posed once per frame, with the torso's distance field. It does not hold
+/// the body: each pose is given it, the same every time (see [`PoseBuffers`]).
+#[derive(Clone, Debug)]
+struct Posing {
+    poser: PoseBuffers,
     betas: Vec<f64>,
     posed: Vec<Vector3<f64>>,
     distance: Option<BodyDistance>,
@@ -160,11 +167,11 @@ struct Posing<'a> {
     hints: Vec<u32>,
 }
 
-impl<'a> Posing<'a> {
-    fn new(body: &'a BodyModel, betas: &[f64]) -> Result<Self> {
+impl Posing {
+    fn new(body: &BodyModel, betas: &[f64]) -> Result<Self> {
         body.check_betas(betas)?;
         Ok(Self {
-            poser: BodyPoser::new(body),
+            poser: PoseBuffers::default(),
             betas: betas.to_vec(),
             posed: vec![Vector3::zeros(); body.n_vertices()],
             distance: None,
@@ -173,8 +180,9 @@ impl<'a> Posing<'a> {
     }
 
     /// Pose the body and the torso's distance field.
-    fn pose(&mut self, pose: &Pose, torso_faces: &[[u32; 3]]) -> Result<()> {
-        self.poser.pose_into(&self.betas, pose, &mut self.posed)?;
+    fn pose(&mut self, body: &BodyModel, pose: &Pose, torso_faces: &[[u32; 3]]) -> Result<()> {
+        self.poser
+            .pose_into(body, &self.betas, pose, &mut self.posed)?;
         match &mut self.distance {
             Some(d) => d.update_positions(&self.posed)?,
             None => self.distance = Some(BodyDistance::new(&self.posed, torso_faces)?),
@@ -322,11 +330,11 @@ impl ArmClearance {
         options: &ClearanceOptions,
     ) -> Result<Vec<f64>> {
         let mut posing = Posing::new(body, betas)?;
-        let targets = self.targets(&mut posing, options)?;
+        let targets = self.targets(body, &mut posing, options)?;
         poses
             .iter()
             .map(|pose| {
-                posing.pose(pose, &self.torso_faces)?;
+                posing.pose(body, pose, &self.torso_faces)?;
                 Ok(targets
                     .iter()
                     .map(|t| posing.worst(t, f64::INFINITY).1)
@@ -339,7 +347,12 @@ impl ArmClearance {
     /// every forearm and hand vertex at `clearance_m`; with `upper_arm_clearance_m`, the upper
     /// arm's vertices at least [`UPPER_ARM_MIN_LEVER`] of its length from the shoulder and
     /// clear of the torso in the rest pose by that clearance and [`UPPER_ARM_REST_SLACK_M`].
-    fn targets(&self, posing: &mut Posing<'_>, options: &ClearanceOptions) -> Result<Targets> {
+    fn targets(
+        &self,
+        body: &BodyModel,
+        posing: &mut Posing,
+        options: &ClearanceOptions,
+    ) -> Result<Targets> {
         let mut targets: Targets = self
             .arms
             .iter()
@@ -353,9 +366,9 @@ impl ArmClearance {
         let Some(upper) = options.upper_arm_clearance_m else {
             return Ok(targets);
         };
-        let skeleton = posing.poser.body().skeleton();
-        let parents = skeleton.parents().to_vec();
-        posing.pose(&Pose::rest(skeleton.n_joints()), &self.torso_faces)?;
+        let skeleton = body.skeleton();
+        let parents = skeleton.parents();
+        posing.pose(body, &Pose::rest(skeleton.n_joints()), &self.torso_faces)?;
         let joints = posing.poser.posed_joints();
         let distance = posing.distance.as_ref().expect("posed");
         for (arm, targets) in self.arms.iter().zip(&mut targets) {
@@ -391,7 +404,7 @@ impl ArmClearance {
     ) -> Result<(Vec<Pose>, ClearanceReport)> {
         options.validate()?;
         let mut posing = Posing::new(body, betas)?;
-        let targets = self.targets(&mut posing, options)?;
+        let targets = self.targets(body, &mut posing, options)?;
         let mut out = poses.to_vec();
         // Per arm and frame, the total correction: a rotation vector in the frame of the upper
         // arm's parent, applied before the upper arm's own local rotation.
@@ -405,7 +418,7 @@ impl ArmClearance {
             let mut any = false;
             let mut depth = 0.0f64;
             for (t, pose) in out.iter().enumerate() {
-                let fixes = self.frame_fixes(&mut posing, pose, &targets, options)?;
+                let fixes = self.frame_fixes(body, &mut posing, pose, &targets, options)?;
                 for (a, (fix, depth_before)) in fixes.into_iter().enumerate() {
                     depth = depth.max(depth_before);
                     if let Some(r) = fix {
@@ -447,15 +460,21 @@ impl ArmClearance {
     /// without one are the input's.
     fn corrected(&self, poses: &[Pose], total: &[Vec<Vector3<f64>>]) -> Vec<Pose> {
         let mut out = poses.to_vec();
-        for (arm, total) in self.arms.iter().zip(total) {
-            for (pose, r) in out.iter_mut().zip(total) {
-                if *r != Vector3::zeros() {
-                    let q = &mut pose.local_rotations[arm.shoulder];
-                    *q = UnitQuaternion::from_scaled_axis(*r) * *q;
-                }
-            }
+        for (t, pose) in out.iter_mut().enumerate() {
+            self.correct(pose, total.iter().map(|arm| &arm[t]));
         }
         out
+    }
+
+    /// `pose` with each arm's correction (in the order of `self.arms`) put before its upper
+    /// arm's local rotation.
+    fn correct<'r>(&self, pose: &mut Pose, per_arm: impl IntoIterator<Item = &'r Vector3<f64>>) {
+        for (arm, r) in self.arms.iter().zip(per_arm) {
+            if *r != Vector3::zeros() {
+                let q = &mut pose.local_rotations[arm.shoulder];
+                *q = UnitQuaternion::from_scaled_axis(*r) * *q;
+            }
+        }
     }
 
     /// Per arm, [`ArmClearance::frame_fix`] at `pose`: the body posed once for every arm's
@@ -465,12 +484,13 @@ impl ArmClearance {
     /// 2.7 ms a frame, clips that need turning 28 → 24 ms (same bits).
     fn frame_fixes(
         &self,
-        posing: &mut Posing<'_>,
+        body: &BodyModel,
+        posing: &mut Posing,
         pose: &Pose,
         targets: &Targets,
         options: &ClearanceOptions,
     ) -> Result<Vec<(Option<Vector3<f64>>, f64)>> {
-        posing.pose(pose, &self.torso_faces)?;
+        posing.pose(body, pose, &self.torso_faces)?;
         let firsts: Vec<_> = targets.iter().map(|t| posing.worst(t, SLACK_M)).collect();
         let mut at_pose = true;
         let mut fixes = Vec::with_capacity(self.arms.len());
@@ -480,9 +500,10 @@ impl ArmClearance {
                 continue;
             };
             if !at_pose {
-                posing.pose(pose, &self.torso_faces)?;
+                posing.pose(body, pose, &self.torso_faces)?;
             }
-            let (fix, posed_again) = self.frame_fix(posing, pose, arm, targets, worst, options)?;
+            let (fix, posed_again) =
+                self.frame_fix(body, posing, pose, arm, targets, worst, options)?;
             at_pose &= !posed_again;
             fixes.push((fix, depth));
         }
@@ -495,7 +516,8 @@ impl ArmClearance {
     /// turn; and whether it posed the body otherwise.
     fn frame_fix(
         &self,
-        posing: &mut Posing<'_>,
+        body: &BodyModel,
+        posing: &mut Posing,
         pose: &Pose,
         arm: &Arm,
         targets: &[(usize, f64)],
@@ -503,7 +525,7 @@ impl ArmClearance {
         options: &ClearanceOptions,
     ) -> Result<(Option<Vector3<f64>>, bool)> {
         let j = arm.shoulder;
-        let parent = posing.poser.body().skeleton().parents()[j];
+        let parent = body.skeleton().parents()[j];
         let mut trial = pose.clone();
         let mut world = UnitQuaternion::identity();
         let mut local = UnitQuaternion::identity();
@@ -511,7 +533,7 @@ impl ArmClearance {
         let mut posed_again = false;
         for iteration in 0..options.max_iterations.max(1) {
             if iteration > 0 {
-                posing.pose(&trial, &self.torso_faces)?;
+                posing.pose(body, &trial, &self.torso_faces)?;
                 posed_again = true;
                 worst = posing.worst(targets, SLACK_M).0;
             }
@@ -555,7 +577,7 @@ impl ArmClearance {
 }
 
 /// The world rotation of joint `parent` (the root orientation for none) in the last posing.
-fn parent_rotation(posing: &Posing<'_>, pose: &Pose, parent: Option<usize>) -> UnitQuaternion<f64> {
+fn parent_rotation(posing: &Posing, pose: &Pose, parent: Option<usize>) -> UnitQuaternion<f64> {
     parent.map_or(pose.root_orientation, |p| {
         UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
             posing.poser.transforms()[p].linear,
@@ -582,28 +604,47 @@ fn compose(a: &Vector3<f64>, b: &Vector3<f64>) -> Vector3<f64> {
 /// [`ArmClearance::apply`]'s next pass adds what is missing. Frames farther than
 /// `ramp + ramp / 2` from every corrected frame get none.
 fn ease(needed: &[Vector3<f64>], ramp: usize) -> Vec<Vector3<f64>> {
-    let window = |t: usize, half: usize| t.saturating_sub(half)..(t + half + 1).min(needed.len());
     let dilated: Vec<Vector3<f64>> = (0..needed.len())
-        .map(|t| {
-            window(t, ramp)
-                .map(|s| needed[s] * (1.0 - t.abs_diff(s) as f64 / (ramp + 1) as f64))
-                .max_by(|a, b| a.norm().total_cmp(&b.norm()))
-                .unwrap_or_else(Vector3::zeros)
-        })
+        .map(|t| dilated_at(|s| needed[s], needed.len(), t, ramp))
         .collect();
-    let half = ramp / 2;
     (0..needed.len())
-        .map(|t| {
-            let w = window(t, half);
-            let n = w.len() as f64;
-            let sum: Vector3<f64> = w.map(|s| dilated[s]).sum();
-            if sum == Vector3::zeros() {
-                sum
-            } else {
-                sum / n
-            }
-        })
+        .map(|t| eased_at(|s| dilated[s], needed.len(), t, ramp))
         .collect()
+}
+
+/// Frames `t − half ..= t + half` of `0..len`.
+fn window(len: usize, t: usize, half: usize) -> std::ops::Range<usize> {
+    t.saturating_sub(half)..(t + half + 1).min(len)
+}
+
+/// [`ease`]'s dilation at frame `t` of `len` frames, from each frame's correction `needed`.
+fn dilated_at(
+    needed: impl Fn(usize) -> Vector3<f64>,
+    len: usize,
+    t: usize,
+    ramp: usize,
+) -> Vector3<f64> {
+    window(len, t, ramp)
+        .map(|s| needed(s) * (1.0 - t.abs_diff(s) as f64 / (ramp + 1) as f64))
+        .max_by(|a, b| a.norm().total_cmp(&b.norm()))
+        .unwrap_or_else(Vector3::zeros)
+}
+
+/// [`ease`]'s moving average at frame `t` of `len` frames, from each frame's dilation.
+fn eased_at(
+    dilated: impl Fn(usize) -> Vector3<f64>,
+    len: usize,
+    t: usize,
+    ramp: usize,
+) -> Vector3<f64> {
+    let w = window(len, t, ramp / 2);
+    let n = w.len() as f64;
+    let sum: Vector3<f64> = w.map(dilated).sum();
+    if sum == Vector3::zeros() {
+        sum
+    } else {
+        sum / n
+    }
 }
 
 #[cfg(test)]

@@ -52,7 +52,9 @@ pub use bvh_tpose::{
     LIMB_BONES, TPOSE_ARM_TOLERANCE_DEG, TPOSE_LEG_TOLERANCE_DEG, TPOSE_MIN_JUMP_DEG, TposeFrame,
     detect_tpose_frame, first_performance_frame, max_limb_step_deg,
 };
-pub use clearance::{ArmClearance, ClearanceOptions, ClearanceReport, UPPER_ARM_MIN_LEVER};
+pub use clearance::{
+    ArmClearance, ClearanceOnDemand, ClearanceOptions, ClearanceReport, UPPER_ARM_MIN_LEVER,
+};
 pub use motion::Motion;
 pub use motion_library::{
     CMU_ACKNOWLEDGEMENT, MotionWindow, STORED_CLIP_FORMAT, StoredClip, StoredClipHeader,

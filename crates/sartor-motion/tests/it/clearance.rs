@@ -3,7 +3,9 @@
 
 use nalgebra::Vector3;
 use sartor_core::{BodyDistance, BodyModel, BodyPoser, Pose, vertex_normals};
-use sartor_motion::{ArmClearance, ClearanceOptions, UPPER_ARM_MIN_LEVER, load_motion};
+use sartor_motion::{
+    ArmClearance, ClearanceOnDemand, ClearanceOptions, UPPER_ARM_MIN_LEVER, load_motion,
+};
 
 use crate::motion_library::library_options;
 use crate::motion_sources::builtin_model_dir;
@@ -186,4 +188,65 @@ fn held_out_upper_arms_leave_no_pocket_between_arm_and_torso() {
     let before = pockets(poses);
     assert!(before > 0, "the clip's upper arms were inside the torso");
     assert_eq!(pockets(&corrected), 0, "{before} pocket points before");
+}
+
+#[test]
+fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
+    // As the try-on page asks: a jump into the middle, playing on to the end, then from the
+    // start again; on the shapes and options the shipped model was trained with.
+    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
+    let clearance = ArmClearance::new(&body).expect("arms and torso");
+    let options = ClearanceOptions {
+        upper_arm_clearance_m: Some(0.005),
+        ..ClearanceOptions::default()
+    };
+    let bits = |pose: &Pose| -> Vec<u64> {
+        std::iter::once(&pose.root_orientation)
+            .chain(&pose.local_rotations)
+            .flat_map(|q| q.coords.iter().map(|c| c.to_bits()).collect::<Vec<_>>())
+            .chain(pose.root_translation_m.iter().map(|c| c.to_bits()))
+            .collect()
+    };
+    let mut turned = 0;
+    for (clip, betas) in [
+        ("cmu/02_02@8+60", [0.0, 2.0]),
+        ("cmu/05_06@0+40", [0.0, 0.0]),
+    ] {
+        let motion = load_motion(clip, &library_options()).expect("clip");
+        let poses = motion.frames();
+        let (whole, report) = clearance
+            .apply(&body, &betas, poses, &options)
+            .expect("apply");
+        let mut on_demand =
+            ClearanceOnDemand::new(&clearance, &body, &betas, poses.to_vec(), &options)
+                .expect("on demand");
+        let n = poses.len();
+        let order = (n / 2..n).chain(0..n / 2);
+        for t in order {
+            let pose = on_demand.pose(&body, t).expect("pose");
+            assert_eq!(bits(&pose), bits(&whole[t]), "{clip} frame {t}");
+            let angle = on_demand.angle_rad(&body, t).expect("angle");
+            assert!(angle <= options.max_angle_rad, "{angle}");
+            assert_eq!(
+                angle > 0.0,
+                bits(&pose) != bits(&poses[t]),
+                "{clip} frame {t}"
+            );
+            turned += usize::from(angle > 0.0);
+        }
+        // Every frame looked at once at least, each pass's look only where a pass before
+        // turned the frame.
+        let looks = on_demand.looks();
+        assert!(looks >= n, "{clip}: {looks} looks");
+        assert!(looks <= n * options.max_passes, "{clip}: {looks} looks");
+        if report.frames_changed == 0 {
+            assert_eq!(
+                looks, n,
+                "{clip}: nothing turned, every frame looked at once"
+            );
+        }
+        let e = on_demand.pose(&body, n).expect_err("past the end");
+        assert!(e.to_string().contains("frame"), "{e}");
+    }
+    assert!(turned > 0, "neither clip was turned: nothing compared");
 }
