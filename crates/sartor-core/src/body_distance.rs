@@ -207,6 +207,16 @@ impl BodyDistance {
         Ok(())
     }
 
+    /// Move the body's vertices and refit both trees, but leave the closest-point
+    /// pseudo-normals to be computed with each answer ([`MeshProximity::update_positions_refit`]:
+    /// the same answers, bitwise), for callers that ask for few closest points per move. No
+    /// allocation.
+    pub fn update_positions_refit(&mut self, positions: &[Vector3<f64>]) -> Result<()> {
+        self.proximity.update_positions_refit(positions)?;
+        self.refit();
+        Ok(())
+    }
+
     /// The body's vertex positions.
     pub fn positions(&self) -> &[Vector3<f64>] {
         self.proximity.positions()
@@ -596,5 +606,37 @@ mod tests {
         assert!(body.update_positions(&moved[..3]).is_err());
         assert!(BodyDistance::new(&p, &[]).is_err());
         assert!(BodyDistance::new(&p, &[[0, 1, 9999]]).is_err());
+    }
+
+    #[test]
+    fn a_refit_without_normals_answers_bit_for_bit_as_a_full_update() {
+        // An open, squashed, moved sphere: closest points on faces, edges and vertices, inside
+        // and outside, near the cut and far.
+        let (p, f) = sphere(Vector3::zeros(), 0.3, 16);
+        let open: Vec<[u32; 3]> = f
+            .iter()
+            .filter(|t| t.iter().all(|&v| p[v as usize].y < 0.2))
+            .copied()
+            .collect();
+        let moved: Vec<Vector3<f64>> = p
+            .iter()
+            .map(|v| Vector3::new(v.x * 1.3 + 0.05, v.y * 0.8, v.z + 0.02 * v.x))
+            .collect();
+        let mut full = BodyDistance::new(&p, &open).expect("valid");
+        let mut refit = full.clone();
+        full.update_positions(&moved).expect("same size");
+        refit.update_positions_refit(&moved).expect("same size");
+        for i in 0..9 {
+            for j in 0..9 {
+                for k in 0..9 {
+                    let q = Vector3::new(i as f64, j as f64, k as f64) * 0.1 - Vector3::repeat(0.4)
+                        + Vector3::new(0.013, 0.007, 0.003);
+                    let (a, b) = (full.query(&q), refit.query(&q));
+                    assert_eq!(format!("{a:?}"), format!("{b:?}"), "at {q:?}");
+                    assert!(b.closest.normal.norm() > 0.99, "{b:?}");
+                }
+            }
+        }
+        assert!(refit.update_positions_refit(&moved[..3]).is_err());
     }
 }
