@@ -128,20 +128,20 @@ function motionChanged() {
 }
 
 function recordTimes(draw) {
-  const [network, skinning, post, body] = state.tryOn.times();
-  state.times.push([network, skinning, post, body, draw]);
+  const [network, skinning, post, body, arms] = state.tryOn.times();
+  state.times.push([network, skinning, post, body, draw, arms]);
   if (state.times.length > WINDOW) state.times.shift();
 }
 
 function meanTimes() {
   const n = state.times.length;
-  const sum = [0, 0, 0, 0, 0];
-  for (const t of state.times) for (let i = 0; i < 5; i++) sum[i] += t[i];
+  const sum = [0, 0, 0, 0, 0, 0];
+  for (const t of state.times) for (let i = 0; i < 6; i++) sum[i] += t[i];
   return sum.map((s) => (n ? s / n : NaN));
 }
 
 function showTimes() {
-  const [network, skinning, post, body, draw] = meanTimes();
+  const [network, skinning, post, body, draw, arms] = meanTimes();
   const ms = (v) => (Number.isFinite(v) ? `${v.toFixed(2)} ms` : "–");
   $("t-network").textContent = ms(network);
   $("t-skinning").textContent = ms(skinning);
@@ -150,6 +150,7 @@ function showTimes() {
   $("t-total").textContent = Number.isFinite(total) ? `${total.toFixed(2)} ms (${(1000 / total).toFixed(0)} frames/s)` : "–";
   $("t-body").textContent = ms(body);
   $("t-draw").textContent = ms(draw);
+  $("t-arms").textContent = ms(arms);
 }
 
 /// Upload the frame shown and draw it.
@@ -163,7 +164,9 @@ function redraw() {
   state.viewer.draw();
   const draw = performance.now() - start;
   $("scrub").value = String(t.frame);
-  $("frame-out").textContent = `${t.frame + 1} / ${t.nFrames}`;
+  const turn = t.armTurnDeg;
+  $("frame-out").textContent =
+    `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (arms turned ${turn.toFixed(0)}°)` : "");
   return draw;
 }
 
@@ -238,6 +241,7 @@ function bench(frames = 120) {
     skinning: median(1),
     postProcess: median(2),
     body: median(3),
+    arms: median(4),
     garmentFrame: totals[Math.floor(totals.length / 2)],
   };
 }
@@ -254,7 +258,9 @@ async function main() {
   const assets = new AssetFiles();
   MODEL_FILES.forEach((f, i) => assets.add(`model/${f}`, files[i]));
   BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, files[MODEL_FILES.length + i]));
-  const t = TryOn.load(assets, "f32", true);
+  // The arms held out of the torso as the model's training motions held them.
+  const armClearance = manifest.arm_clearance ? JSON.stringify(manifest.arm_clearance) : undefined;
+  const t = TryOn.load(assets, "f32", true, armClearance);
   state.tryOn = t;
   state.viewer.setMesh("body", t.bodyFaces(), t.bodyVertices().length / 3, [0.86, 0.72, 0.62]);
   state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, [0.16, 0.36, 0.7]);

@@ -26,6 +26,9 @@ pub const PAGE_CLIPS: [(&str, &str); 4] = [
 /// The procedural clips the page offers (computed in the page, nothing downloaded).
 pub const PAGE_PROCEDURAL: [&str; 3] = ["dance_disco", "jumping_jacks", "walk_normal"];
 
+/// The experiment whose export the page shows (`datasets/models/default`).
+const SHIPPED_CONFIG: &str = "configs/default.json";
+
 /// Arguments of `web`.
 #[derive(clap::Args, Debug)]
 pub struct WebArgs {
@@ -45,6 +48,9 @@ struct Manifest {
     procedural: Vec<String>,
     clips: Vec<ManifestClip>,
     model: ModelInfo,
+    /// The shipped model's experiment's `simulation.arm_clearance`: the page holds the arms out
+    /// of the torso as the training motions did (`null`: it did not).
+    arm_clearance: Option<sartor_motion::ClearanceOptions>,
 }
 
 #[derive(Serialize)]
@@ -269,6 +275,13 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
         )?;
     }
     let size = |p: &Path| std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+    let config_path = root.join(SHIPPED_CONFIG);
+    let config: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&config_path).with_context(|| config_path.display().to_string())?,
+    )
+    .with_context(|| config_path.display().to_string())?;
+    let arm_clearance = serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+        .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
     let manifest = Manifest {
         procedural: PAGE_PROCEDURAL.iter().map(|s| s.to_string()).collect(),
         clips: PAGE_CLIPS
@@ -285,6 +298,7 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
             f32_bytes: size(&model_dir.join("model.safetensors")),
             page_bytes: size(&dist.join("model/model.safetensors")),
         },
+        arm_clearance,
     };
     let json = serde_json::to_string_pretty(&manifest)?;
     std::fs::write(dist.join("manifest.json"), json)?;

@@ -4,7 +4,7 @@
 //! ```js
 //! const files = new AssetFiles();
 //! files.add("model/model.json", bytes); // … every name of MODEL_FILES and BODY_FILES
-//! const tryOn = TryOn.load(files, "f32", true);
+//! const tryOn = TryOn.load(files, "f32", true, JSON.stringify(manifest.arm_clearance));
 //! tryOn.setPhenotype(0.0, 1.70, 0.75, 0.5, 25); // female, 1.70 m, heavy
 //! tryOn.playProcedural("dance_disco");
 //! tryOn.step();
@@ -50,11 +50,14 @@ pub struct WebTryOn {
 
 #[wasm_bindgen(js_class = TryOn)]
 impl WebTryOn {
-    /// Load the model and the body; `precision` is `f32`, `f16` or `int8` (weights in memory).
+    /// Load the model and the body; `precision` is `f32`, `f16` or `int8` (weights in memory);
+    /// `arm_clearance` the JSON of the arm clearance options the model was trained with
+    /// (`manifest.json`'s `arm_clearance`), or none: motions played as they come.
     pub fn load(
         files: AssetFiles,
         precision: &str,
         post_process: bool,
+        arm_clearance: Option<String>,
     ) -> Result<WebTryOn, JsError> {
         let precision = match precision {
             "f32" => Precision::F32,
@@ -66,10 +69,17 @@ impl WebTryOn {
                 )));
             }
         };
+        let arm_clearance = arm_clearance
+            .map(|json| {
+                serde_json::from_str(&json)
+                    .map_err(|e| JsError::new(&format!("arm clearance options {json:?}: {e}")))
+            })
+            .transpose()?;
         let options = TryOnOptions {
             precision,
             post_process,
             clock: Some(crate::clock::now_ms),
+            arm_clearance,
         };
         Ok(Self {
             inner: TryOn::load(files.inner, options).map_err(js)?,
@@ -208,7 +218,8 @@ impl WebTryOn {
         self.inner.pushed()
     }
 
-    /// Milliseconds of the frame shown: network, skinning, post-process, body posing.
+    /// Milliseconds of the frame shown: network, skinning, post-process, body posing, arm
+    /// clearance.
     pub fn times(&self) -> Vec<f64> {
         let t = self.inner.times();
         vec![
@@ -216,7 +227,14 @@ impl WebTryOn {
             t.garment.skinning_ms,
             t.garment.post_process_ms,
             t.body_ms,
+            t.arms_ms,
         ]
+    }
+
+    /// The largest shoulder rotation the arm clearance added to the frame shown, degrees.
+    #[wasm_bindgen(getter, js_name = armTurnDeg)]
+    pub fn arm_turn_deg(&self) -> f64 {
+        self.inner.arm_turn_deg()
     }
 }
 

@@ -16,8 +16,8 @@ use sartor_core::{
     PhenotypeSpace, Pose, skin_points,
 };
 use sartor_motion::{
-    BvhRetargetOptions, Motion, RetargetBody, TPOSE_FILE, procedural, retarget_bvh,
-    stored_clip_from_bytes,
+    ArmClearance, BvhRetargetOptions, ClearanceOnDemand, ClearanceOptions, Motion, RetargetBody,
+    TPOSE_FILE, procedural, retarget_bvh, stored_clip_from_bytes,
 };
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentAnimator, GarmentBinding, GarmentModel,
@@ -33,7 +33,7 @@ use crate::files::FileSet;
 pub const WARMUP_FRAMES: usize = 15;
 
 /// What [`TryOn::load`] sets up besides the files.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct TryOnOptions {
     /// Precision of the weights in memory (the page's files are f16 on the wire; `F32` computes
     /// with exactly those values).
@@ -43,6 +43,13 @@ pub struct TryOnOptions {
     pub post_process: bool,
     /// A monotonic clock in milliseconds that times each stage (`None`: no timing).
     pub clock: Option<fn() -> f64>,
+    /// The arms held out of the torso of the body's shape, as the model's training motions
+    /// held them (its experiment's `simulation.arm_clearance`; the page reads it from
+    /// `manifest.json`), or `None` (the default): motions played as they come. Mocap retargeted
+    /// onto a wider body sinks hands and upper arms into the torso, and the shirt between ends
+    /// inside the body (see the README). Computed frame by frame as frames are shown
+    /// ([`ClearanceOnDemand`]), anew for each motion and shape.
+    pub arm_clearance: Option<ClearanceOptions>,
 }
 
 impl Default for TryOnOptions {
@@ -51,6 +58,7 @@ impl Default for TryOnOptions {
             precision: Precision::F32,
             post_process: true,
             clock: None,
+            arm_clearance: None,
         }
     }
 }
@@ -62,6 +70,9 @@ pub struct FrameTimes {
     pub garment: StageTimes,
     /// Posing the whole body for display (not part of the garment model's cost).
     pub body_ms: f64,
+    /// Holding the arms out of the torso ([`TryOnOptions::arm_clearance`]): the poses of the
+    /// frame shown and of the frames run before it after a jump, as far as not computed before.
+    pub arms_ms: f64,
 }
 
 /// The slider values of the page's phenotype panel: the command line's phenotype rule
@@ -173,9 +184,17 @@ pub struct TryOn {
     betas: Vec<f64>,
     posed_body: PosedBody,
     motion: Motion,
+    /// The body's arms and torso and the options, with [`TryOnOptions::arm_clearance`].
+    arms: Option<(ArmClearance, ClearanceOptions)>,
+    /// The motion's poses with the arms held out for the shape in use, as far as computed.
+    cleared: Option<ClearanceOnDemand>,
     frame: usize,
     clock: Option<fn() -> f64>,
     times: FrameTimes,
+    /// Milliseconds spent on the arms since the last frame shown.
+    arms_ms: f64,
+    /// The arm clearance's largest shoulder rotation in the frame shown, radians.
+    arm_turn_rad: f64,
 }
 
 /// Flatten points into `x, y, z, x, y, z, …`.
@@ -250,6 +269,13 @@ impl TryOn {
             body.skeleton().names().to_vec(),
             vec![Pose::rest(body.skeleton().n_joints())],
         )?;
+        let arms = match options.arm_clearance {
+            Some(clearance) => {
+                clearance.validate()?;
+                Some((ArmClearance::new(&body)?, clearance))
+            }
+            None => None,
+        };
         let mut try_on = Self {
             body,
             space,
@@ -258,10 +284,15 @@ impl TryOn {
             betas,
             posed_body,
             motion: still,
+            arms,
+            cleared: None,
             frame: 0,
             clock: options.clock,
             times: FrameTimes::default(),
+            arms_ms: 0.0,
+            arm_turn_rad: 0.0,
         };
+        try_on.cleared = try_on.clearance_for(&try_on.motion, &try_on.betas)?;
         try_on.seek(0)?;
         Ok(try_on)
     }
@@ -273,6 +304,33 @@ impl TryOn {
         full
     }
 
+    /// `motion`'s poses with the arms held out for the model's β `betas`, none computed yet
+    /// (`None` without [`TryOnOptions::arm_clearance`]).
+    fn clearance_for(&self, motion: &Motion, betas: &[f64]) -> Result<Option<ClearanceOnDemand>> {
+        let Some((arms, options)) = &self.arms else {
+            return Ok(None);
+        };
+        let body_betas = Self::body_betas(&self.body, betas);
+        Ok(Some(ClearanceOnDemand::new(
+            arms,
+            &self.body,
+            &body_betas,
+            motion.frames().to_vec(),
+            options,
+        )?))
+    }
+
+    /// Frame `t` of the motion as played: with the arms held out, if they are.
+    fn pose_at(&mut self, t: usize) -> Result<Pose> {
+        let Some(cleared) = &mut self.cleared else {
+            return Ok(self.motion.frames()[t].clone());
+        };
+        let start = now(self.clock);
+        let pose = cleared.pose(&self.body, t)?;
+        self.arms_ms += now(self.clock) - start;
+        Ok(pose)
+    }
+
     /// Set the body shape β (at most the body's component count, finite; components beyond the
     /// model's are dropped for body and garment alike, as the command line does). Recomputes
     /// the frame shown. Returns the β in use.
@@ -281,9 +339,12 @@ impl TryOn {
         let n = self.betas.len();
         let mut model_betas: Vec<f64> = betas.iter().copied().take(n).collect();
         model_betas.resize(n, 0.0);
+        let cleared = self.clearance_for(&self.motion, &model_betas)?;
+        let posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
         let b32: Vec<f32> = model_betas.iter().map(|&b| b as f32).collect();
         self.animator.set_shape(&b32)?;
-        self.posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
+        self.posed_body = posed_body;
+        self.cleared = cleared;
         self.betas = model_betas;
         self.seek(self.frame)?;
         Ok(self.betas.clone())
@@ -329,10 +390,14 @@ impl TryOn {
         } else {
             motion
         };
-        let previous = std::mem::replace(&mut self.motion, motion);
+        let cleared = self.clearance_for(&motion, &self.betas)?;
+        let previous = (
+            std::mem::replace(&mut self.motion, motion),
+            std::mem::replace(&mut self.cleared, cleared),
+        );
         if let Err(e) = self.seek(0) {
             // Back to the motion that played, at its frame.
-            self.motion = previous;
+            (self.motion, self.cleared) = previous;
             self.seek(self.frame)?;
             return Err(e);
         }
@@ -383,13 +448,17 @@ impl TryOn {
     pub fn seek(&mut self, frame: usize) -> Result<()> {
         let frame = frame.min(self.motion.n_frames() - 1);
         let start = frame.saturating_sub(WARMUP_FRAMES);
-        let poses = self.motion.frames();
+        self.arms_ms = 0.0;
         match start.checked_sub(1) {
-            Some(before) => self.animator.reset_from(&poses[before])?,
+            Some(before) => {
+                let pose = self.pose_at(before)?;
+                self.animator.reset_from(&pose)?;
+            }
             None => self.animator.reset(),
         }
-        for pose in &poses[start..frame] {
-            self.animator.frame(pose)?;
+        for t in start..frame {
+            let pose = self.pose_at(t)?;
+            self.animator.frame(&pose)?;
         }
         self.show(frame)
     }
@@ -400,6 +469,7 @@ impl TryOn {
         if self.frame + 1 >= self.motion.n_frames() {
             self.seek(0)?;
         } else {
+            self.arms_ms = 0.0;
             self.show(self.frame + 1)?;
         }
         Ok(self.frame)
@@ -407,20 +477,28 @@ impl TryOn {
 
     /// Compute frame `frame` (the animator is at the frame before it) and pose the body.
     fn show(&mut self, frame: usize) -> Result<()> {
-        let pose = &self.motion.frames()[frame];
-        self.animator.frame(pose)?;
-        let start = self.now();
-        self.posed_body.pose(&self.body, pose)?;
+        let pose = self.pose_at(frame)?;
+        self.arm_turn_rad = match &mut self.cleared {
+            // Kept from computing the pose.
+            Some(cleared) => cleared.angle_rad(&self.body, frame)?,
+            None => 0.0,
+        };
+        self.animator.frame(&pose)?;
+        let start = now(self.clock);
+        self.posed_body.pose(&self.body, &pose)?;
         self.times = FrameTimes {
             garment: self.animator.stage_times().unwrap_or_default(),
-            body_ms: self.now() - start,
+            body_ms: now(self.clock) - start,
+            arms_ms: std::mem::take(&mut self.arms_ms),
         };
         self.frame = frame;
         Ok(())
     }
 
-    fn now(&self) -> f64 {
-        self.clock.map_or(0.0, |clock| clock())
+    /// The largest shoulder rotation the arm clearance added to the frame shown, degrees (0:
+    /// the motion's own pose, or no arm clearance).
+    pub fn arm_turn_deg(&self) -> f64 {
+        self.arm_turn_rad.to_degrees()
     }
 
     /// The frame shown.
@@ -479,6 +557,11 @@ impl TryOn {
     pub fn times(&self) -> FrameTimes {
         self.times
     }
+}
+
+/// `clock`'s time, ms (0 without one).
+fn now(clock: Option<fn() -> f64>) -> f64 {
+    clock.map_or(0.0, |clock| clock())
 }
 
 /// The procedural clips the page offers (all of sartor-motion's library).

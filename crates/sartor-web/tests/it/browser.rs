@@ -260,8 +260,9 @@ impl Drop for Browser {
     }
 }
 
-/// The frame the browser test asks the page for, computed natively from the page's files.
-fn native_frame(dist: &Path) -> Vec<f32> {
+/// The frame the browser test asks the page for, computed natively from the page's files
+/// and options (`manifest.json`'s arm clearance): the garment, and the arms' turn in degrees.
+fn native_frame(dist: &Path) -> (Vec<f32>, f64) {
     let mut files = sartor_web::FileSet::new();
     for name in sartor_web::MODEL_FILES
         .iter()
@@ -269,7 +270,21 @@ fn native_frame(dist: &Path) -> Vec<f32> {
     {
         files.insert(name, std::fs::read(dist.join(name)).expect("page file"));
     }
-    let mut t = sartor_web::TryOn::load(files, sartor_web::TryOnOptions::default()).expect("load");
+    let manifest: Value =
+        serde_json::from_slice(&std::fs::read(dist.join("manifest.json")).expect("manifest"))
+            .expect("JSON");
+    let arm_clearance: Option<sartor_motion::ClearanceOptions> =
+        serde_json::from_value(manifest["arm_clearance"].clone())
+            .expect("the manifest's arm clearance");
+    assert!(
+        arm_clearance.is_some(),
+        "the shipped model was trained with held arms"
+    );
+    let options = sartor_web::TryOnOptions {
+        arm_clearance,
+        ..sartor_web::TryOnOptions::default()
+    };
+    let mut t = sartor_web::TryOn::load(files, options).expect("load");
     t.set_phenotype(&sartor_web::PhenotypeSliders {
         gender: 0.2,
         height_m: 1.65,
@@ -281,7 +296,7 @@ fn native_frame(dist: &Path) -> Vec<f32> {
     t.set_motion(sartor_web::TryOn::motion_procedural("jumping_jacks").expect("clip"))
         .expect("motion");
     t.seek(30).expect("seek");
-    t.garment_vertices()
+    (t.garment_vertices(), t.arm_turn_deg())
 }
 
 /// The instruction set of the native kernels compared with the page's.
@@ -345,14 +360,21 @@ fn the_page_works_in_headless_chromium() {
     // The page computes what the native wrapper computes from the same files (the runtime's
     // kernels are bitwise the same on every instruction set; tanh and exp come from different
     // maths libraries, hence a tolerance).
-    let page = floats(&browser.eval(
+    let shown = browser.eval(
         "const t = window.sartor.state.tryOn; window.sartor.setPlaying(false); \
          t.setPhenotype(0.2, 1.65, 0.7, 0.4, 40); t.playProcedural('jumping_jacks'); t.seek(30); \
-         const v = Array.from(t.garmentVertices()); \
+         const v = Array.from(t.garmentVertices()); const turn = t.armTurnDeg; \
          document.getElementById('motion').dispatchEvent(new Event('change')); \
-         window.sartor.setPlaying(true); return v;",
-    ));
-    let native = native_frame(&dist);
+         window.sartor.setPlaying(true); return {v, turn};",
+    );
+    let page = floats(&shown["v"]);
+    let (native, native_turn) = native_frame(&dist);
+    // The arms were held as natively (the page read the manifest's options).
+    let page_turn = shown["turn"].as_f64().expect("a number");
+    assert!(
+        (page_turn - native_turn).abs() < 1e-6,
+        "arms turned {page_turn}° in the page, {native_turn}° natively"
+    );
     let page_vs_native = page
         .iter()
         .zip(&native)

@@ -1,10 +1,12 @@
 //! The try-on's logic on the shipped model: shapes, motions as the command line loads them,
 //! playing, seeking, timing.
 
-use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
-use sartor_web::{PhenotypeSliders, TryOn};
+use nalgebra::Vector3;
+use sartor_core::BodyDistance;
+use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
+use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
 
-use crate::common::{load, repo};
+use crate::common::{load, repo, shipped_files};
 
 use crate::reference::max_abs_diff;
 
@@ -137,4 +139,104 @@ fn seeking_replays_the_same_frame() {
     t.set_betas(&[1.0, -1.0]).expect("betas");
     assert_eq!(t.frame(), 40);
     assert_eq!(t.betas()[..3], [1.0, -1.0, 0.0]);
+}
+
+/// Per cent of the garment's vertices inside the body (the whole posed body's winding number,
+/// eval's collision measure) over `frames` frames played from `start`.
+fn inside_percent(t: &mut TryOn, start: usize, frames: usize) -> f64 {
+    let faces: Vec<[u32; 3]> = t
+        .body_faces()
+        .chunks(3)
+        .map(|f| [f[0], f[1], f[2]])
+        .collect();
+    let points = |flat: Vec<f32>| -> Vec<Vector3<f64>> {
+        flat.chunks(3)
+            .map(|p| Vector3::new(p[0].into(), p[1].into(), p[2].into()))
+            .collect()
+    };
+    t.seek(start).expect("seek");
+    let (mut inside, mut total) = (0, 0);
+    for k in 0..frames {
+        if k > 0 {
+            t.step().expect("step");
+        }
+        let distance = BodyDistance::new(&points(t.body_vertices()), &faces).expect("body");
+        let garment = points(t.garment_vertices());
+        inside += garment
+            .iter()
+            .filter(|p| distance.query(p).inside())
+            .count();
+        total += garment.len();
+    }
+    100.0 * inside as f64 / total as f64
+}
+
+#[test]
+fn real_mocap_plays_with_the_arms_held_as_the_model_was_trained() {
+    // CMU 02_02, a walk: on the MakeHuman body its hands brush the hips and the hanging upper
+    // arms sink into the torso's sides, with the shirt caught between. The page holds the arms
+    // out as the shipped model's experiment held them in its training motions.
+    let config: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(repo().join("configs/default.json")).expect("config"),
+    )
+    .expect("JSON");
+    let clearance: ClearanceOptions =
+        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+            .expect("the shipped experiment holds the arms out");
+    let dir = repo().join("datasets/motions/cmu");
+    let play = |arm_clearance: Option<ClearanceOptions>| {
+        let mut t = TryOn::load(
+            shipped_files(),
+            TryOnOptions {
+                clock: Some(sartor_web::now_ms),
+                arm_clearance,
+                ..TryOnOptions::default()
+            },
+        )
+        .expect("load");
+        let clip = t
+            .motion_stored(
+                "cmu/02_02",
+                &std::fs::read(dir.join("02_02.json")).expect("json"),
+                std::fs::read(dir.join("02_02.safetensors")).expect("tensors"),
+            )
+            .expect("stored clip");
+        t.set_motion(clip).expect("play");
+        t
+    };
+    let (mut raw, mut held) = (play(None), play(Some(clearance)));
+    let frames = 24;
+    let before = inside_percent(&mut raw, 8, frames);
+    let after = inside_percent(&mut held, 8, frames);
+    eprintln!("02_02, nominal: {before:.3} % inside as it comes, {after:.3} % held");
+    assert!(
+        before > 1.0,
+        "the clip no longer shows the fault: {before:.3} %"
+    );
+    assert!(after <= 0.1, "{after:.3} % inside with the arms held out");
+    assert_eq!(raw.arm_turn_deg(), 0.0);
+    assert_eq!(raw.times().arms_ms, 0.0);
+    assert!(held.times().arms_ms > 0.0, "{:?}", held.times());
+
+    // A wider body: the arms held out anew for it, farther.
+    let turn = |t: &mut TryOn| {
+        (8..8 + frames)
+            .map(|f| {
+                t.seek(f).expect("seek");
+                t.arm_turn_deg()
+            })
+            .fold(0.0, f64::max)
+    };
+    let nominal_turn = turn(&mut held);
+    held.set_betas(&[0.0, 2.0]).expect("shape");
+    raw.set_betas(&[0.0, 2.0]).expect("shape");
+    let wide_turn = turn(&mut held);
+    assert!(
+        wide_turn > nominal_turn && wide_turn < 57.3,
+        "{nominal_turn:.1}° → {wide_turn:.1}°"
+    );
+    let before = inside_percent(&mut raw, 8, frames);
+    let after = inside_percent(&mut held, 8, frames);
+    eprintln!("02_02, β₁ = 2: {before:.3} % inside as it comes, {after:.3} % held");
+    assert!(after <= 0.1 && after < before, "{before:.3} → {after:.3} %");
 }
