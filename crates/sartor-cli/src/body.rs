@@ -8,9 +8,10 @@ use sartor_core::{
     BodyModel, Parallelism, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj,
 };
 use sartor_import::load_smpl_npz;
-use sartor_motion::{UpAxis, load_motion};
+use sartor_motion::{ArmClearance, UpAxis, load_motion};
 use sartor_pipeline::DataDir;
 
+use crate::demo::shipped_arm_clearance;
 use crate::motion_options;
 
 /// Arguments of `body`.
@@ -36,9 +37,15 @@ pub struct BodyArgs {
     /// Write at most this many frames.
     #[arg(long)]
     frames: Option<usize>,
-    /// An SMPL-family `.npz` model to use instead of the built-in body.
+    /// An SMPL-family `.npz` model to use instead of the built-in body (its arms are left as
+    /// the motion puts them).
     #[arg(long)]
     smpl: Option<PathBuf>,
+    /// Leave the motion's arms as they come. By default the built-in body's arms are held out
+    /// of its torso as `demo`, the try-on page and the shipped model's training data hold them
+    /// (`shipped_arm_clearance`), so that the body written is the one they show.
+    #[arg(long)]
+    no_arm_clearance: bool,
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
@@ -98,6 +105,26 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
         None => vec![sartor_core::Pose::rest(model.skeleton().n_joints())],
     };
     let n = args.frames.map_or(poses.len(), |f| f.min(poses.len()));
+    let poses = if motion.is_some() && args.smpl.is_none() && !args.no_arm_clearance {
+        let mut full_betas = betas.clone();
+        full_betas.resize(model.n_betas(), 0.0);
+        let (held, report) = ArmClearance::new(&model)?.apply(
+            &model,
+            &full_betas,
+            &poses[..n],
+            &shipped_arm_clearance(),
+        )?;
+        println!(
+            "arms held out of the torso in {} of {n} frames (turned up to {:.1}°; {:.1} mm deep \
+             before; --no-arm-clearance leaves them)",
+            report.frames_changed,
+            report.max_angle_rad.to_degrees(),
+            report.max_depth_before_m * 1e3
+        );
+        held
+    } else {
+        poses
+    };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let bar = indicatif::ProgressBar::new(n as u64).with_style(
@@ -129,4 +156,68 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sartor_core::read_obj;
+
+    #[test]
+    fn the_body_written_holds_the_arms_as_the_demo_does_unless_asked_not_to() {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let data = DataDir::new(&root).expect("data folder");
+        let dir = tempfile::tempdir().expect("temp");
+        // CMU 02_02 on a heavy body: the hands brush the hips.
+        let (clip, betas, frames) = ("cmu/02_02@8+6", vec![0.0, 2.0], 6);
+        let written = |no_arm_clearance: bool, name: &str| -> Vec<Vec<nalgebra::Vector3<f64>>> {
+            let out = dir.path().join(name);
+            let args = BodyArgs {
+                beta: betas.clone(),
+                phenotype: None,
+                motion: clip.into(),
+                up_axis: UpAxis::Y,
+                frames: None,
+                smpl: None,
+                no_arm_clearance,
+                out: out.clone(),
+            };
+            body(&args, &data).expect("body");
+            (0..frames)
+                .map(|i| {
+                    let mesh = read_obj(&out.join(format!("frame_{i:04}.obj"))).expect("OBJ");
+                    mesh.positions().to_vec()
+                })
+                .collect()
+        };
+        let (held, raw) = (written(false, "held"), written(true, "raw"));
+
+        // The same bodies posed here from the motion and from ArmClearance's poses of it.
+        let model = BodyModel::load(&data.body_dir()).expect("body");
+        let motion =
+            load_motion(clip, &motion_options(&data, UpAxis::Y).expect("options")).expect("clip");
+        let mut full = betas.clone();
+        full.resize(model.n_betas(), 0.0);
+        let (poses, report) = ArmClearance::new(&model)
+            .expect("arms")
+            .apply(&model, &full, motion.frames(), &shipped_arm_clearance())
+            .expect("apply");
+        assert!(report.frames_changed > 0, "{report:?}");
+        let gap = |a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]| {
+            a.iter()
+                .zip(b)
+                .map(|(p, q)| (p - q).norm())
+                .fold(0.0, f64::max)
+        };
+        for t in 0..frames {
+            let expect_held = model.posed_vertices(&full, &poses[t]).expect("pose");
+            let expect_raw = model
+                .posed_vertices(&full, &motion.frames()[t])
+                .expect("pose");
+            assert!(gap(&held[t], &expect_held) < 1e-5, "frame {t}");
+            assert!(gap(&raw[t], &expect_raw) < 1e-5, "frame {t}");
+            let turned = poses[t] != motion.frames()[t];
+            assert_eq!(gap(&held[t], &raw[t]) > 1e-3, turned, "frame {t}");
+        }
+    }
 }
