@@ -110,3 +110,21 @@ fn broken_motions_are_named() {
     assert_eq!(t.motion_name(), "rest");
     t.step().expect("still plays");
 }
+
+#[test]
+fn bad_arm_clearance_options_are_refused_naming_them() {
+    for (clearance_m, max_angle_rad) in [(f64::NAN, 1.0), (-0.01, 1.0), (0.025, 0.0)] {
+        let options = TryOnOptions {
+            arm_clearance: Some(sartor_motion::ClearanceOptions {
+                clearance_m,
+                max_angle_rad,
+                ..sartor_motion::ClearanceOptions::default()
+            }),
+            ..TryOnOptions::default()
+        };
+        let msg = TryOn::load(shipped_files(), options)
+            .expect_err("bad options")
+            .to_string();
+        assert!(msg.contains("arm clearance"), "{msg}");
+    }
+}
