@@ -320,15 +320,16 @@ impl TryOn {
         )?))
     }
 
-    /// Frame `t` of the motion as played: with the arms held out, if they are.
-    fn pose_at(&mut self, t: usize) -> Result<Pose> {
+    /// Frame `t` of the motion with the arms held out, or `None` without arm clearance (the
+    /// motion's own frame is played; not copied).
+    fn held_pose(&mut self, t: usize) -> Result<Option<Pose>> {
         let Some(cleared) = &mut self.cleared else {
-            return Ok(self.motion.frames()[t].clone());
+            return Ok(None);
         };
         let start = now(self.clock);
         let pose = cleared.pose(&self.body, t)?;
         self.arms_ms += now(self.clock) - start;
-        Ok(pose)
+        Ok(Some(pose))
     }
 
     /// Set the body shape β (at most the body's component count, finite; components beyond the
@@ -451,14 +452,16 @@ impl TryOn {
         self.arms_ms = 0.0;
         match start.checked_sub(1) {
             Some(before) => {
-                let pose = self.pose_at(before)?;
-                self.animator.reset_from(&pose)?;
+                let held = self.held_pose(before)?;
+                let pose = held.as_ref().unwrap_or(&self.motion.frames()[before]);
+                self.animator.reset_from(pose)?;
             }
             None => self.animator.reset(),
         }
         for t in start..frame {
-            let pose = self.pose_at(t)?;
-            self.animator.frame(&pose)?;
+            let held = self.held_pose(t)?;
+            let pose = held.as_ref().unwrap_or(&self.motion.frames()[t]);
+            self.animator.frame(pose)?;
         }
         self.show(frame)
     }
@@ -477,15 +480,16 @@ impl TryOn {
 
     /// Compute frame `frame` (the animator is at the frame before it) and pose the body.
     fn show(&mut self, frame: usize) -> Result<()> {
-        let pose = self.pose_at(frame)?;
+        let held = self.held_pose(frame)?;
         self.arm_turn_rad = match &mut self.cleared {
             // Kept from computing the pose.
             Some(cleared) => cleared.angle_rad(&self.body, frame)?,
             None => 0.0,
         };
-        self.animator.frame(&pose)?;
+        let pose = held.as_ref().unwrap_or(&self.motion.frames()[frame]);
+        self.animator.frame(pose)?;
         let start = now(self.clock);
-        self.posed_body.pose(&self.body, &pose)?;
+        self.posed_body.pose(&self.body, pose)?;
         self.times = FrameTimes {
             garment: self.animator.stage_times().unwrap_or_default(),
             body_ms: now(self.clock) - start,
