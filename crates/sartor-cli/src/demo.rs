@@ -55,9 +55,14 @@ pub struct DemoArgs {
     /// Output folder.
     #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
-    /// Push the garment's triangles out of the body too, not only its vertices (where the body
-    /// is curved more tightly than the garment is fine, skin otherwise shows between vertices;
-    /// the post-process then takes about 2.5× as long).
+    /// Push only the garment's vertices out of the body, not its triangles too. By default
+    /// (as on the try-on page) the triangles are pushed as well: where the body is curved more
+    /// tightly than the garment is fine (raised arms' shoulders), skin otherwise shows between
+    /// cloth vertices that are all outside. Faster; `demo.json` records which.
+    #[arg(long, conflicts_with = "push_triangles")]
+    pub vertices_only: bool,
+    /// Push the garment's triangles out of the body too: the default (kept for scripts that
+    /// pass it).
     #[arg(long)]
     pub push_triangles: bool,
     /// Storage of the network's weights: f32, or f16 / int8 (smaller and faster, within
@@ -122,6 +127,9 @@ struct DemoReport {
     model: String,
     precision: &'static str,
     garment_vertices: usize,
+    /// Whether the post-process pushed the garment's triangles out of the body as well as its
+    /// vertices (`CollisionOptions::faces`; `--vertices-only` turns it off).
+    push_triangles: bool,
     machine: Machine,
     note: &'static str,
     runs: Vec<DemoEntry>,
@@ -157,7 +165,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         body.clone(),
         AnimatorOptions {
             collision: Some(CollisionOptions {
-                faces: args.push_triangles,
+                faces: !args.vertices_only,
                 ..CollisionOptions::default()
             }),
             ..AnimatorOptions::default()
@@ -280,6 +288,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         model: model_dir.display().to_string(),
         precision: Precision::from(args.precision).name(),
         garment_vertices: rig.n_vertices(),
+        push_triangles: !args.vertices_only,
         machine: Machine::current(),
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
                one thread; posing the full body for the files and holding the arms out of the \

@@ -108,7 +108,7 @@ fn a_relocated_binary_finds_its_data_beside_it_by_flag_or_by_environment() {
     let by_env = tmp.path().join("by-env");
     let out = demo(&exe, &elsewhere, &by_env)
         .env("SARTOR_DATA_DIR", &data)
-        .args(["--precision", "int8"])
+        .args(["--precision", "int8", "--vertices-only"])
         .output()
         .expect("runs");
     assert_ok(&out, "demo with SARTOR_DATA_DIR");
@@ -117,6 +117,9 @@ fn a_relocated_binary_finds_its_data_beside_it_by_flag_or_by_environment() {
             .expect("json")
     };
     assert_eq!(report(&by_env)["precision"], "int8");
+    // Triangles are pushed out of the body unless asked not to.
+    assert_eq!(report(&by_flag)["push_triangles"], true);
+    assert_eq!(report(&by_env)["push_triangles"], false);
 
     // Installed beside the binary: <prefix>/share/sartor.
     copy_data(&prefix.join("share/sartor"));
