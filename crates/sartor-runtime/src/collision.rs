@@ -1,7 +1,8 @@
 //! The collision post-process of Santesteban et al. 2019: a cloth vertex inside the body, or
 //! closer to it than a margin (2 mm in the paper), is pushed along the normal of the closest
-//! body primitive until it lies at the margin: `p ← p + (margin − d) n`, with `d` the signed
-//! distance and `n` the angle-weighted pseudo-normal of the closest face, edge or vertex
+//! body primitive until it lies at the margin (20 µm beyond it: `PUSH_BEYOND_M`):
+//! `p ← p + (margin + 20 µm − d) n`, with `d` the signed distance and `n` the angle-weighted
+//! pseudo-normal of the closest face, edge or vertex
 //! ([`sartor_core::MeshProximity`], the one closest-point query of the workspace).
 //!
 //! Only the body region the garment can touch is used ([`BodyRegion`]): its vertices are the
@@ -69,6 +70,16 @@ pub const DEFAULT_MARGIN_M: f64 = 0.002;
 /// typically on the shipped model's walk); without the slack about half the pushed vertices were
 /// pushed again in every later pass, by that much, each for an exact query.
 const REPUSH_SLACK_M: f64 = 1e-6;
+
+/// A push takes a vertex this far beyond the margin, metres: twice the certified query's f32
+/// guard, so that a later pass's sweep proves a pushed vertex beyond the margin from the face it
+/// was pushed off, as the first pass proves most vertices. A vertex left exactly at the margin
+/// had to be searched with a list in every later pass (no f32 bound proves a point at the margin
+/// beyond it). On the shipped model's walk and the held-out clips at both garment resolutions
+/// the later passes now sweep 91–97 % of their vertices instead of none; the post-process
+/// measured 8–10 % faster (`cargo bench --bench postprocess`, eight alternating rounds, 8 of 8
+/// faster). 20 µm is 1 % of the paper's 2 mm margin.
+const PUSH_BEYOND_M: f64 = 2e-5;
 
 /// [`CollisionOptions::faces`] leaves a triangle whose centroid is deeper than this inside the
 /// body as the vertex passes left it, metres. Skin between cloth vertices sits shallow (the
@@ -765,7 +776,7 @@ impl Collider {
                 if let Some(c) = hit
                     && c.signed_distance_m < limit
                 {
-                    let b = c.normal.dot(&q) + this.margin_m - c.signed_distance_m;
+                    let b = c.normal.dot(&q) + this.margin_m + PUSH_BEYOND_M - c.signed_distance_m;
                     *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
                     state.plane = Some((c.normal, b));
                     state.moved = true;
@@ -811,7 +822,7 @@ impl Collider {
             state.last_face = c.face;
             if c.signed_distance_m < margin {
                 let q = p.cast::<f64>();
-                let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                let b = c.normal.dot(&q) + margin + PUSH_BEYOND_M - c.signed_distance_m;
                 *p = push(&q, &c.normal, b, None).cast::<f32>();
                 state.plane = Some((c.normal, b));
                 state.moved = true;
@@ -867,7 +878,7 @@ impl Collider {
             state.last_face = c.face;
             if c.signed_distance_m < margin - REPUSH_SLACK_M {
                 let q = p.cast::<f64>();
-                let b = c.normal.dot(&q) + margin - c.signed_distance_m;
+                let b = c.normal.dot(&q) + margin + PUSH_BEYOND_M - c.signed_distance_m;
                 *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
                 state.plane = Some((c.normal, b));
                 state.moved = true;
