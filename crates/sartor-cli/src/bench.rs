@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use anyhow::Context;
 use clap::{Args, Subcommand};
 use sartor_cloth::{
     FrictionModel, IMPLICIT_FRICTION_STEP_PER_EDGE_S_PER_M, IMPLICIT_FRICTION_SUBSTEPS_PER_FRAME,
@@ -12,7 +13,7 @@ use sartor_eval::{
     AnchorOptions, GarmentDirs, RuntimeBenchOptions, SimBenchOptions, Solver, bench_runtime,
     bench_sim, write_json,
 };
-use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
+use sartor_motion::{ArmClearance, ClearanceOptions, UpAxis, load_motion};
 
 use crate::Env;
 use crate::progress::Bar;
@@ -170,7 +171,30 @@ pub struct RuntimeBenchArgs {
     /// within a round (a machine whose speed drifts over minutes then tilts them less).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
     pub anchors_rounds: u64,
+    /// Trained exported models whose post-process is timed on their own garment, on the clip
+    /// and on `--trained-motion`s (`trained` in the report) [default: the data folder's shipped
+    /// model]: its cost follows how much cloth lies within the margin, which random weights do
+    /// not reproduce.
+    #[arg(long = "trained-model")]
+    pub trained_models: Vec<PathBuf>,
+    /// Motions the trained models are timed on besides the clip (stored motion capture is
+    /// retargeted onto the body and its arms held out of the torso as the reference configs
+    /// do) [default: the default experiment's four held-out CMU clips].
+    #[arg(long = "trained-motion")]
+    pub trained_motions: Vec<String>,
+    /// Skip the trained models.
+    #[arg(long, conflicts_with_all = ["trained_models", "trained_motions"])]
+    pub no_trained: bool,
 }
+
+/// The default experiment's held-out CMU clips (`configs/default.json`), which
+/// `bench runtime` times the trained models on.
+const HELD_OUT_MOTIONS: [&str; 4] = [
+    "cmu/02_02@8+60",
+    "cmu/05_10@72+60",
+    "cmu/06_06@20+60",
+    "cmu/09_05",
+];
 
 /// Environment variable naming the anchors' Python (`--anchors-python` overrides it).
 pub const PYTHON_ENV: &str = "SARTOR_PYTHON";
@@ -204,6 +228,52 @@ fn garment_dirs(env: &Env, cache: &Path) -> GarmentDirs {
         recipes: env.data.recipes_dir(),
         cache: env.data.resolve(cache),
     }
+}
+
+/// Motions by name.
+type NamedMotions = Vec<(String, Vec<sartor_core::Pose>)>;
+
+/// The trained models (`--trained-model`, else the shipped model) and the motions
+/// (`--trained-motion`, else [`HELD_OUT_MOTIONS`]) of `bench runtime`'s `trained` section, each
+/// motion retargeted onto the built-in body and its arms held out of the torso (5 mm, at the
+/// nominal shape) as the reference configs hold them.
+fn trained_inputs(a: &RuntimeBenchArgs, env: &Env) -> anyhow::Result<(Vec<PathBuf>, NamedMotions)> {
+    let models = if a.trained_models.is_empty() {
+        vec![env.data.default_model_dir()]
+    } else {
+        a.trained_models
+            .iter()
+            .map(|m| crate::in_data(&env.data, m))
+            .collect()
+    };
+    let specs: Vec<String> = if a.trained_motions.is_empty() {
+        HELD_OUT_MOTIONS.iter().map(|m| m.to_string()).collect()
+    } else {
+        a.trained_motions.clone()
+    };
+    // A folder that is no exported model fails here, before minutes of timing.
+    for m in &models {
+        sartor_eval::Assets::load(&env.data.body_dir(), m)?;
+        sartor_runtime::GarmentModel::load(m)
+            .with_context(|| format!("loading the trained model {}", m.display()))?;
+    }
+    let body = BodyModel::load(&env.data.body_dir())?;
+    let clearance = ArmClearance::new(&body)?;
+    let held = ClearanceOptions {
+        upper_arm_clearance_m: Some(0.005),
+        ..ClearanceOptions::default()
+    };
+    let options = crate::motion_options(&env.data, UpAxis::default())?;
+    let mut motions = Vec::new();
+    for spec in specs {
+        let motion = load_motion(&spec, &options)?;
+        let betas = vec![0.0; body.n_betas()];
+        let (poses, _) = clearance
+            .apply(&body, &betas, motion.frames(), &held)
+            .map_err(|e| anyhow::anyhow!("{spec}: holding the arms out: {e}"))?;
+        motions.push((spec, poses));
+    }
+    Ok((models, motions))
 }
 
 /// Run a benchmark.
@@ -253,7 +323,14 @@ pub fn bench_cmd(args: &BenchArgs, env: &Env) -> anyhow::Result<()> {
             (a.out.clone(), serde_json::to_value(&report)?)
         }
         BenchTarget::Runtime(a) => {
+            let (trained_models, trained_motions) = if a.no_trained {
+                (Vec::new(), Vec::new())
+            } else {
+                trained_inputs(a, env)?
+            };
             let options = RuntimeBenchOptions {
+                trained_models,
+                trained_motions,
                 triangles: a.triangles.clone(),
                 clip: a.clip.clone(),
                 warmup: a.warmup,

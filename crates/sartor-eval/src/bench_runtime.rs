@@ -7,6 +7,13 @@
 //! pass over the weights, at the reference size in f32 and int8, one thread and all). Writes
 //! `bench-runtime.json`.
 //!
+//! The post-process's cost follows how much cloth lies within the margin of the body, which
+//! random weights do not reproduce: with [`RuntimeBenchOptions::trained_models`] the report's
+//! `trained` section times the default post-process of each trained export on its own garment
+//! (int8, one thread, the nominal shape), on the clip and on
+//! [`RuntimeBenchOptions::trained_motions`], with what the certified query did per frame and its
+//! garment against the exact BVH query's.
+//!
 //! The random output layers are smooth over the garment (`W = Φ R`, `Φ` 16 low-frequency
 //! functions of the vertex position, `R` random), so the wrinkles look like wrinkles (about
 //! 5 mm, smooth) rather than per-vertex noise: that matters for the post-process, not for the
@@ -16,7 +23,7 @@
 //! paper-size model at 8,710 triangles in PyTorch and ONNX Runtime, against a memory-bandwidth
 //! floor (the `anchors` section; see `bench_anchors.rs`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -61,6 +68,13 @@ pub struct RuntimeBenchOptions {
     /// PyTorch and ONNX Runtime, against a memory-bandwidth floor (`None`: no anchors, the
     /// report as before).
     pub anchors: Option<AnchorOptions>,
+    /// Trained exported models whose post-process is timed on their own garment (`trained` in
+    /// the report): its cost follows how much cloth lies within the margin of the body, which
+    /// the random weights do not reproduce.
+    pub trained_models: Vec<PathBuf>,
+    /// Motions the trained models are timed on besides the procedural `clip`: a name and its
+    /// poses on the built-in body (e.g. retargeted CMU clips).
+    pub trained_motions: Vec<(String, Vec<Pose>)>,
 }
 
 /// Garment size (triangles) of the paper-size model the anchors time: the paper's 8,710.
@@ -161,6 +175,46 @@ struct PostProcess {
     default_query: String,
 }
 
+/// The default post-process of a trained model on one motion: int8 network, one thread, the
+/// nominal shape.
+#[derive(Serialize)]
+struct TrainedPostProcess {
+    /// The exported model folder.
+    model: String,
+    triangles: usize,
+    vertices: usize,
+    gru_hidden: usize,
+    output: String,
+    motion: String,
+    /// Frames of the motion the counts are over (at most the run's timed frames); the timing
+    /// cycles through them.
+    frames: usize,
+    /// Median ms per frame (wall, one thread), without and with the post-process.
+    ms_per_frame: f64,
+    ms_per_frame_pp: f64,
+    /// The post-process stage's own CPU time per frame (thread clock at its ends, mean), with
+    /// the default (certified) query and with the exact BVH query.
+    cpu_ms_post_process_stage: Option<f64>,
+    cpu_ms_post_process_stage_bvh: Option<f64>,
+    /// Per frame, mean: cloth vertices the certified query proved to need no push (of them
+    /// swept from their last face), those answered exactly (within the margin or inside), and
+    /// pushes over all passes.
+    certified_per_frame: f64,
+    swept_per_frame: f64,
+    exact_per_frame: f64,
+    pushed_per_frame: f64,
+    /// Over the frames: cloth vertices inside the body and closer than the margin − 0.01 mm
+    /// before the post-process, after it with the certified query and with the exact BVH.
+    inside_before: usize,
+    within_margin_before: usize,
+    inside_after: usize,
+    within_margin_after: usize,
+    inside_after_bvh: usize,
+    within_margin_after_bvh: usize,
+    /// Vertex-frames whose position differs from the BVH query's by more than 1 µm.
+    differing_from_bvh: usize,
+}
+
 #[derive(Serialize)]
 struct Reduced {
     name: String,
@@ -225,6 +279,8 @@ pub struct RuntimeBenchReport {
     reduced: Vec<Reduced>,
     /// Crowds at the reference size: avatars animated together, their network step batched.
     crowd: Vec<CrowdRun>,
+    /// The post-process of trained models on their own garment.
+    trained: Vec<TrainedPostProcess>,
     /// The same weights in PyTorch and ONNX Runtime (`--anchors` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     anchors: Option<AnchorsReport>,
@@ -616,15 +672,8 @@ fn post_process(
             )),
         ),
     )?;
-    let (mut inside_before, mut near_before) = (0, 0);
-    let mut reference = Vec::new();
-    for pose in poses.iter().take(args.frames) {
-        detect.frame(pose)?;
-        let c = detect.collision_count(1e-5).context("post-process on")?;
-        inside_before += c.inside;
-        near_before += c.within_margin;
-        reference.push(bvh.frame(pose)?.to_vec());
-    }
+    let (inside_before, near_before, _) = collisions(&mut detect, poses, args.frames, None)?;
+    let reference = frames_of(&mut bvh, poses, args.frames)?;
     let mut results = Vec::new();
     for (k, (name, query, variant)) in queries.enumerate() {
         let passes = if k == 0 { 0 } else { passes_on };
@@ -648,18 +697,7 @@ fn post_process(
             network,
             options(par, Some(collision(query, passes, variant))),
         )?;
-        let (mut inside, mut near, mut differing) = (0, 0, 0);
-        for (pose, want) in poses.iter().take(args.frames).zip(&reference) {
-            let got = a.frame(pose)?;
-            differing += got
-                .iter()
-                .zip(want)
-                .filter(|(p, q)| (*p - *q).norm() > 1e-6)
-                .count();
-            let c = a.collision_count(1e-5).context("post-process on")?;
-            inside += c.inside;
-            near += c.within_margin;
-        }
+        let (inside, near, differing) = collisions(&mut a, poses, args.frames, Some(&reference))?;
         progress.println(&format!(
             "  post-process {name}: {ms:.3} ms/frame ({:.3} ms pp, {:.3} ms the stage), inside \
              after {inside}, within margin {near}, differing from the BVH {differing}",
@@ -687,6 +725,157 @@ fn post_process(
         queries: results,
         default_query: format!("{:?}", CollisionOptions::default().query),
     })
+}
+
+/// The garment of each of the first `frames` frames of `poses`.
+fn frames_of(
+    a: &mut GarmentAnimator,
+    poses: &[Pose],
+    frames: usize,
+) -> Result<Vec<Vec<Vector3<f32>>>> {
+    poses
+        .iter()
+        .take(frames)
+        .map(|pose| Ok(a.frame(pose)?.to_vec()))
+        .collect()
+}
+
+/// Over the first `frames` frames of `poses`: the vertex-frames inside the body and within the
+/// margin (less 0.01 mm) after `a`'s post-process (before it, for one of 0 passes), and those
+/// more than 1 µm from `reference`'s garment of the same frame (0 without one).
+fn collisions(
+    a: &mut GarmentAnimator,
+    poses: &[Pose],
+    frames: usize,
+    reference: Option<&[Vec<Vector3<f32>>]>,
+) -> Result<(usize, usize, usize)> {
+    let (mut inside, mut near, mut differing) = (0, 0, 0);
+    for (t, pose) in poses.iter().take(frames).enumerate() {
+        let got = a.frame(pose)?;
+        if let Some(want) = reference.and_then(|r| r.get(t)) {
+            differing += got
+                .iter()
+                .zip(want)
+                .filter(|(p, q)| (*p - *q).norm() > 1e-6)
+                .count();
+        }
+        let c = a.collision_count(1e-5).context("post-process on")?;
+        inside += c.inside;
+        near += c.within_margin;
+    }
+    Ok((inside, near, differing))
+}
+
+/// The default post-process of the trained model in `model_dir` on its own garment, on each of
+/// `motions` ([`TrainedPostProcess`]): int8, one thread, the nominal shape.
+fn trained_post_process(
+    model_dir: &Path,
+    body_dir: &Path,
+    motions: &[(String, Vec<Pose>)],
+    args: &RuntimeBenchOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<TrainedPostProcess>> {
+    let assets = crate::eval::Assets::load(body_dir, model_dir)?;
+    let network = assets.network(NetworkOptions {
+        precision: Precision::Int8,
+        output_rank: None,
+    })?;
+    let sizes = network.header().sizes;
+    let betas = vec![0.0f32; network.n_betas()];
+    let par = Parallelism::Sequential;
+    let with = |collision| -> Result<GarmentAnimator> {
+        let mut a = GarmentAnimator::new(assets.rig(&network, options(par, collision))?)?;
+        a.set_shape(&betas)?;
+        Ok(a)
+    };
+    let exact = CollisionOptions {
+        query: CollisionQuery::EXACT_BVH,
+        ..CollisionOptions::default()
+    };
+    let detect_only = CollisionOptions { passes: 0, ..exact };
+    let mut out = Vec::new();
+    for (motion, poses) in motions {
+        let frames = poses.len().min(args.frames);
+        let plain = time_frames(&mut with(None)?, poses, args.warmup, args.frames)?;
+        let pp = time_frames(
+            &mut with(Some(CollisionOptions::default()))?,
+            poses,
+            args.warmup,
+            args.frames,
+        )?;
+        let stage = |collision| -> Result<Option<f64>> {
+            let (_, t) = time_stages(&mut with(Some(collision))?, poses, args.warmup, args.frames)?;
+            Ok(t.map(|t| t.post_process_ms))
+        };
+        let (stage_ms, stage_bvh_ms) = (stage(CollisionOptions::default())?, stage(exact)?);
+        // What the certified query did, frame by frame, from the motion's start.
+        let mut a = with(Some(CollisionOptions::default()))?;
+        let (mut certified, mut swept, mut answered, mut pushed) = (0, 0, 0, 0);
+        for pose in poses.iter().take(frames) {
+            a.frame(pose)?;
+            let c = a.certify_stats().unwrap_or_default();
+            (certified, swept, answered) =
+                (certified + c.certified, swept + c.swept, answered + c.exact);
+            pushed += a.last_frame_pushed();
+        }
+        let (inside_before, near_before, _) =
+            collisions(&mut with(Some(detect_only))?, poses, frames, None)?;
+        let reference = frames_of(&mut with(Some(exact))?, poses, frames)?;
+        let (inside_bvh, near_bvh, _) = collisions(&mut with(Some(exact))?, poses, frames, None)?;
+        let (inside, near, differing) = collisions(
+            &mut with(Some(CollisionOptions::default()))?,
+            poses,
+            frames,
+            Some(&reference),
+        )?;
+        let per_frame = |n: usize| n as f64 / frames.max(1) as f64;
+        let result = TrainedPostProcess {
+            model: model_dir.display().to_string(),
+            triangles: assets.binding.faces().len(),
+            vertices: assets.binding.n_vertices(),
+            gru_hidden: sizes.gru_hidden,
+            output: match sizes.output {
+                OutputKind::Dense => "dense".into(),
+                OutputKind::Pca(k) => format!("pca {k}"),
+            },
+            motion: motion.clone(),
+            frames,
+            ms_per_frame: median(&plain.wall_ms),
+            ms_per_frame_pp: median(&pp.wall_ms),
+            cpu_ms_post_process_stage: stage_ms,
+            cpu_ms_post_process_stage_bvh: stage_bvh_ms,
+            certified_per_frame: per_frame(certified),
+            swept_per_frame: per_frame(swept),
+            exact_per_frame: per_frame(answered),
+            pushed_per_frame: per_frame(pushed),
+            inside_before,
+            within_margin_before: near_before,
+            inside_after: inside,
+            within_margin_after: near,
+            inside_after_bvh: inside_bvh,
+            within_margin_after_bvh: near_bvh,
+            differing_from_bvh: differing,
+        };
+        progress.println(&format!(
+            "  trained {} ({} triangles) on {motion}: {:.3} / {:.3} ms/frame, post-process \
+             stage {:.3} ms (BVH {:.3}), {:.0} vertices answered exactly and {:.0} pushes per \
+             frame, inside {} → {} (BVH {}), differing from the BVH {}",
+            result.model,
+            result.triangles,
+            result.ms_per_frame,
+            result.ms_per_frame_pp,
+            stage_ms.unwrap_or(f64::NAN),
+            stage_bvh_ms.unwrap_or(f64::NAN),
+            result.exact_per_frame,
+            result.pushed_per_frame,
+            inside_before,
+            inside,
+            inside_bvh,
+            differing
+        ));
+        out.push(result);
+    }
+    Ok(out)
 }
 
 /// Crowds of [`CROWD_AVATARS`] avatars of one network, on one thread and on all, without and
@@ -931,6 +1120,16 @@ pub fn bench_runtime(
             runs: runs_all,
         });
     }
+    let mut trained = Vec::new();
+    if !args.trained_models.is_empty() {
+        let mut motions = vec![(args.clip.clone(), poses.clone())];
+        motions.extend(args.trained_motions.iter().cloned());
+        for model_dir in &args.trained_models {
+            trained.extend(trained_post_process(
+                model_dir, body_dir, &motions, args, progress,
+            )?);
+        }
+    }
     let anchors_report = match (&args.anchors, anchor_versions) {
         (Some(options), Some(versions)) => {
             let paper = match paper_model {
@@ -983,6 +1182,7 @@ pub fn bench_runtime(
         post_process: post,
         reduced: reduced_models,
         crowd: crowds,
+        trained,
         anchors: anchors_report,
         notes: vec![
             "ms_per_frame is the median over the timed frames of one avatar's whole frame: pose \
