@@ -217,6 +217,15 @@ impl BodyDistance {
         Ok(())
     }
 
+    /// The axis-aligned box of the body's faces as last posed (`lo`, `hi`). A point outside it
+    /// is outside the body whatever the mesh: a plane of the box separates it from every
+    /// triangle, so the surface subtends at most a hemisphere from it and its (generalized)
+    /// winding number is at most ½ in magnitude, never the `> ½` of inside.
+    pub fn bounds(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let root = &self.clusters[0];
+        (root.lo, root.hi)
+    }
+
     /// The body's vertex positions.
     pub fn positions(&self) -> &[Vector3<f64>] {
         self.proximity.positions()
@@ -588,6 +597,52 @@ mod tests {
         assert!(body.query(&Vector3::new(0.0, -0.1, 0.0)).inside());
         assert!(!body.query(&Vector3::new(0.0, -0.5, 0.0)).inside());
         assert!(!body.query(&Vector3::new(0.25, -0.25, 0.0)).inside());
+    }
+
+    #[test]
+    fn outside_its_bounds_no_point_is_inside() {
+        let (p, f) = sphere(Vector3::zeros(), 0.3, 24);
+        // A bowl: the sphere's lower half, open at the top. Just above the middle of its
+        // opening, outside its box, it fills almost half the view: a winding number just
+        // below ½, never above.
+        let bowl: Vec<[u32; 3]> = f
+            .iter()
+            .filter(|t| t.iter().all(|&v| p[v as usize].y <= 1e-9))
+            .copied()
+            .collect();
+        for faces in [&f, &bowl] {
+            let mut body = BodyDistance::new(&p, faces).expect("valid");
+            let (lo, hi) = body.bounds();
+            if faces.len() == bowl.len() {
+                assert!(hi.y.abs() < 1e-9 && (lo.y + 0.3).abs() < 1e-9, "{lo} {hi}");
+                let w = body.winding_number_exact(&Vector3::new(0.0, 1e-3, 0.0));
+                assert!(w > 0.45 && w <= 0.5, "{w}");
+            }
+            // Just outside each side of the box, on a grid over it: never inside.
+            for k in 0..3 {
+                for (side, out) in [(lo[k], -1e-6), (hi[k], 1e-6)] {
+                    for i in 0..=6 {
+                        for j in 0..=6 {
+                            let (a, b) = ((k + 1) % 3, (k + 2) % 3);
+                            let mut q = Vector3::zeros();
+                            q[k] = side + out;
+                            q[a] = lo[a] + (hi[a] - lo[a]) * i as f64 / 6.0;
+                            q[b] = lo[b] + (hi[b] - lo[b]) * j as f64 / 6.0;
+                            let w = body.winding_number_exact(&q);
+                            assert!(w <= 0.5, "{q}: {w}");
+                            assert!(!body.query(&q).inside(), "{q}");
+                        }
+                    }
+                }
+            }
+            // The box follows the body.
+            let moved: Vec<Vector3<f64>> =
+                p.iter().map(|v| v + Vector3::new(1.0, 0.0, 0.0)).collect();
+            body.update_positions_refit(&moved).expect("same size");
+            let (lo2, hi2) = body.bounds();
+            assert!((lo2 - lo - Vector3::x()).norm() < 1e-12, "{lo2}");
+            assert!((hi2 - hi - Vector3::x()).norm() < 1e-12, "{hi2}");
+        }
     }
 
     #[test]

@@ -209,9 +209,14 @@ impl Posing {
         let d = self.distance.as_ref().expect("posed before");
         let mut worst: Option<Shortfall> = None;
         let mut depth = 0.0f64;
+        // Outside the torso's box a vertex is outside the torso (`BodyDistance::bounds`): 95 %
+        // of the held vertices of five CMU clips, whose winding numbers were 59 % of the
+        // clearance's time.
+        let (lo, hi) = d.bounds();
         for &(v, clearance) in targets {
             let p = self.posed[v];
-            let inside = d.winding_number_fast(&p) > 0.5;
+            let in_box = (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]);
+            let inside = in_box && d.winding_number_fast(&p) > 0.5;
             let floor = worst.as_ref().map_or(slack, |w| w.short);
             // An outside vertex farther than this is no more short than `floor`.
             let reach = if inside {

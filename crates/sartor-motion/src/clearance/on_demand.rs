@@ -13,7 +13,8 @@ type PerFrame = Vec<Option<Box<[Vector3<f64>]>>>;
 /// A motion's poses with the arms held out of the torso of one body shape, each frame computed
 /// when first asked for: the poses of [`ArmClearance::apply`], bit for bit, for a player that
 /// shows a motion as it goes and changes the shape between frames (the try-on page), where
-/// the whole clip at once would keep it waiting (apply takes 3 to 24 ms a frame).
+/// the whole clip at once would keep it waiting (apply takes 2 to 6 ms a frame on the AMD EPYC
+/// VM).
 ///
 /// `apply` is a few passes, each looking at every frame and easing the turns it found over the
 /// frames around; a frame's final pose depends on the motion within `max_passes × (ramp_frames
