@@ -264,10 +264,10 @@ fn trained_inputs(a: &RuntimeBenchArgs, env: &Env) -> anyhow::Result<(Vec<PathBu
         ..ClearanceOptions::default()
     };
     let options = crate::motion_options(&env.data, UpAxis::default())?;
+    let betas = vec![0.0; body.n_betas()];
     let mut motions = Vec::new();
     for spec in specs {
         let motion = load_motion(&spec, &options)?;
-        let betas = vec![0.0; body.n_betas()];
         let (poses, _) = clearance
             .apply(&body, &betas, motion.frames(), &held)
             .map_err(|e| anyhow::anyhow!("{spec}: holding the arms out: {e}"))?;

@@ -672,8 +672,9 @@ fn post_process(
             )),
         ),
     )?;
-    let (inside_before, near_before, _) = collisions(&mut detect, poses, args.frames, None)?;
-    let reference = frames_of(&mut bvh, poses, args.frames)?;
+    let before = collisions(&mut detect, poses, args.frames, None, false)?;
+    let (inside_before, near_before) = (before.inside, before.near);
+    let reference = collisions(&mut bvh, poses, args.frames, None, true)?.garments;
     let mut results = Vec::new();
     for (k, (name, query, variant)) in queries.enumerate() {
         let passes = if k == 0 { 0 } else { passes_on };
@@ -697,7 +698,12 @@ fn post_process(
             network,
             options(par, Some(collision(query, passes, variant))),
         )?;
-        let (inside, near, differing) = collisions(&mut a, poses, args.frames, Some(&reference))?;
+        let Collisions {
+            inside,
+            near,
+            differing,
+            ..
+        } = collisions(&mut a, poses, args.frames, Some(&reference), false)?;
         progress.println(&format!(
             "  post-process {name}: {ms:.3} ms/frame ({:.3} ms pp, {:.3} ms the stage), inside \
              after {inside}, within margin {near}, differing from the BVH {differing}",
@@ -727,43 +733,50 @@ fn post_process(
     })
 }
 
-/// The garment of each of the first `frames` frames of `poses`.
-fn frames_of(
-    a: &mut GarmentAnimator,
-    poses: &[Pose],
-    frames: usize,
-) -> Result<Vec<Vec<Vector3<f32>>>> {
-    poses
-        .iter()
-        .take(frames)
-        .map(|pose| Ok(a.frame(pose)?.to_vec()))
-        .collect()
+/// What [`collisions`] counts over a run of frames.
+struct Collisions {
+    /// Vertex-frames inside the body, and within the margin less 0.01 mm.
+    inside: usize,
+    near: usize,
+    /// Vertex-frames more than 1 µm from the reference's garment of the same frame.
+    differing: usize,
+    /// The garment of each frame (when kept).
+    garments: Vec<Vec<Vector3<f32>>>,
 }
 
 /// Over the first `frames` frames of `poses`: the vertex-frames inside the body and within the
-/// margin (less 0.01 mm) after `a`'s post-process (before it, for one of 0 passes), and those
-/// more than 1 µm from `reference`'s garment of the same frame (0 without one).
+/// margin after `a`'s post-process (before it, for one of 0 passes), those more than 1 µm from
+/// `reference`'s garment of the same frame (0 without one), and (`keep`) each frame's garment.
 fn collisions(
     a: &mut GarmentAnimator,
     poses: &[Pose],
     frames: usize,
     reference: Option<&[Vec<Vector3<f32>>]>,
-) -> Result<(usize, usize, usize)> {
-    let (mut inside, mut near, mut differing) = (0, 0, 0);
+    keep: bool,
+) -> Result<Collisions> {
+    let mut out = Collisions {
+        inside: 0,
+        near: 0,
+        differing: 0,
+        garments: Vec::new(),
+    };
     for (t, pose) in poses.iter().take(frames).enumerate() {
         let got = a.frame(pose)?;
         if let Some(want) = reference.and_then(|r| r.get(t)) {
-            differing += got
+            out.differing += got
                 .iter()
                 .zip(want)
                 .filter(|(p, q)| (*p - *q).norm() > 1e-6)
                 .count();
         }
+        if keep {
+            out.garments.push(got.to_vec());
+        }
         let c = a.collision_count(1e-5).context("post-process on")?;
-        inside += c.inside;
-        near += c.within_margin;
+        out.inside += c.inside;
+        out.near += c.within_margin;
     }
-    Ok((inside, near, differing))
+    Ok(out)
 }
 
 /// The default post-process of the trained model in `model_dir` on its own garment, on each of
@@ -818,15 +831,14 @@ fn trained_post_process(
                 (certified + c.certified, swept + c.swept, answered + c.exact);
             pushed += a.last_frame_pushed();
         }
-        let (inside_before, near_before, _) =
-            collisions(&mut with(Some(detect_only))?, poses, frames, None)?;
-        let reference = frames_of(&mut with(Some(exact))?, poses, frames)?;
-        let (inside_bvh, near_bvh, _) = collisions(&mut with(Some(exact))?, poses, frames, None)?;
-        let (inside, near, differing) = collisions(
+        let before = collisions(&mut with(Some(detect_only))?, poses, frames, None, false)?;
+        let bvh = collisions(&mut with(Some(exact))?, poses, frames, None, true)?;
+        let after = collisions(
             &mut with(Some(CollisionOptions::default()))?,
             poses,
             frames,
-            Some(&reference),
+            Some(&bvh.garments),
+            false,
         )?;
         let per_frame = |n: usize| n as f64 / frames.max(1) as f64;
         let result = TrainedPostProcess {
@@ -848,13 +860,13 @@ fn trained_post_process(
             swept_per_frame: per_frame(swept),
             exact_per_frame: per_frame(answered),
             pushed_per_frame: per_frame(pushed),
-            inside_before,
-            within_margin_before: near_before,
-            inside_after: inside,
-            within_margin_after: near,
-            inside_after_bvh: inside_bvh,
-            within_margin_after_bvh: near_bvh,
-            differing_from_bvh: differing,
+            inside_before: before.inside,
+            within_margin_before: before.near,
+            inside_after: after.inside,
+            within_margin_after: after.near,
+            inside_after_bvh: bvh.inside,
+            within_margin_after_bvh: bvh.near,
+            differing_from_bvh: after.differing,
         };
         progress.println(&format!(
             "  trained {} ({} triangles) on {motion}: {:.3} / {:.3} ms/frame, post-process \
@@ -868,10 +880,10 @@ fn trained_post_process(
             stage_bvh_ms.unwrap_or(f64::NAN),
             result.exact_per_frame,
             result.pushed_per_frame,
-            inside_before,
-            inside,
-            inside_bvh,
-            differing
+            result.inside_before,
+            result.inside_after,
+            result.inside_after_bvh,
+            result.differing_from_bvh
         ));
         out.push(result);
     }

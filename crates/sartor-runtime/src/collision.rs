@@ -66,9 +66,11 @@ use certify::{Certifier, Later, Outcome};
 pub const DEFAULT_MARGIN_M: f64 = 0.002;
 
 /// A later pass pushes a vertex again only when it lies more than this inside the margin,
-/// metres. Storing a pushed position in f32 leaves it a little short of the margin (3 nm
-/// typically on the shipped model's walk); without the slack about half the pushed vertices were
-/// pushed again in every later pass, by that much, each for an exact query.
+/// metres. When a push took a vertex exactly to the margin, storing it in f32 left it a little
+/// short (3 nm typically on the shipped model's walk), and without the slack about half the
+/// pushed vertices were pushed again in every later pass, by that much. A push now lands
+/// [`PUSH_BEYOND_M`] beyond the margin; the slack still keeps a vertex that another face's push
+/// leaves a rounding short from a push of nanometres.
 const REPUSH_SLACK_M: f64 = 1e-6;
 
 /// A push takes a vertex this far beyond the margin, metres: twice the certified query's f32
@@ -474,6 +476,19 @@ fn push(
     q + n * ((rn - cos * rm) / det) + m * ((rm - cos * rn) / det)
 }
 
+/// Where a push takes `q`, whose closest body point is `c`: [`PUSH_BEYOND_M`] beyond the margin
+/// along `c`'s normal ([`push`], keeping the plane `earlier` of this frame's earlier push), and
+/// the plane it lands on. Every pass and query pushes through here.
+fn push_out(
+    q: &Vector3<f64>,
+    c: &sartor_core::ClosestPoint,
+    margin_m: f64,
+    earlier: Option<(Vector3<f64>, f64)>,
+) -> (Vector3<f32>, (Vector3<f64>, f64)) {
+    let b = c.normal.dot(q) + margin_m + PUSH_BEYOND_M - c.signed_distance_m;
+    (push(q, &c.normal, b, earlier).cast::<f32>(), (c.normal, b))
+}
+
 /// Cloth vertices per parallel task.
 const CHUNK: usize = 256;
 
@@ -776,9 +791,8 @@ impl Collider {
                 if let Some(c) = hit
                     && c.signed_distance_m < limit
                 {
-                    let b = c.normal.dot(&q) + this.margin_m + PUSH_BEYOND_M - c.signed_distance_m;
-                    *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
-                    state.plane = Some((c.normal, b));
+                    let (to, plane) = push_out(&q, &c, this.margin_m, state.plane);
+                    (*p, state.plane) = (to, Some(plane));
                     state.moved = true;
                     pushed += 1;
                 }
@@ -822,9 +836,8 @@ impl Collider {
             state.last_face = c.face;
             if c.signed_distance_m < margin {
                 let q = p.cast::<f64>();
-                let b = c.normal.dot(&q) + margin + PUSH_BEYOND_M - c.signed_distance_m;
-                *p = push(&q, &c.normal, b, None).cast::<f32>();
-                state.plane = Some((c.normal, b));
+                let (to, plane) = push_out(&q, c, margin, None);
+                (*p, state.plane) = (to, Some(plane));
                 state.moved = true;
                 dirty.push(i as u32);
                 pushed += 1;
@@ -878,9 +891,8 @@ impl Collider {
             state.last_face = c.face;
             if c.signed_distance_m < margin - REPUSH_SLACK_M {
                 let q = p.cast::<f64>();
-                let b = c.normal.dot(&q) + margin + PUSH_BEYOND_M - c.signed_distance_m;
-                *p = push(&q, &c.normal, b, state.plane).cast::<f32>();
-                state.plane = Some((c.normal, b));
+                let (to, plane) = push_out(&q, &c, margin, state.plane);
+                (*p, state.plane) = (to, Some(plane));
                 state.moved = true;
                 pushed += 1;
             }
