@@ -8,7 +8,7 @@ use anyhow::Context;
 use sartor_core::{BodyModel, PhenotypeRequest, PhenotypeSpace};
 use sartor_eval::{Machine, write_json};
 use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
-use sartor_pipeline::{DataDir, Format, animate, model_betas, write_animation};
+use sartor_pipeline::{ClothCheck, DataDir, Format, animate, model_betas, write_animation};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions,
     Precision,
@@ -119,6 +119,9 @@ struct DemoEntry {
     arm_clearance_max_angle_deg: f64,
     /// The deepest held arm vertex inside the torso as the motion came, mm.
     arm_depth_before_mm: Option<f64>,
+    /// How the garment sits on the body over the clip: inside it, and stretched.
+    #[serde(flatten)]
+    check: ClothCheck,
     files: Vec<String>,
 }
 
@@ -255,6 +258,11 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 &args.formats,
             )?;
             let ms = anim.ms_per_frame();
+            let check = anim.check(
+                body.faces(),
+                rig.binding().faces(),
+                rig.binding().template(),
+            )?;
             let held = anim.arm_clearance.as_ref();
             let arms = held.map_or_else(String::new, |r| {
                 format!(
@@ -263,10 +271,23 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                     r.max_angle_rad.to_degrees()
                 )
             });
+            let worst = check.worst_frame.map_or_else(String::new, |t| {
+                format!(
+                    " (most at frame {t}: {})",
+                    check.worst_frame_triangles_inside
+                )
+            });
             bar.println(format!(
-                "{label:<24} {spec:<16} {:>4} frames  {ms:>7.3} ms/frame  {:>8.0} frames/s{arms}",
+                "{label:<24} {spec:<16} {:>4} frames  {ms:>7.3} ms/frame  {:>8.0} frames/s{arms}\n\
+                 {:<41} inside the body: {:.3} % of cloth vertices, {:.3} % of triangles{worst}; \
+                 edges up to {:.1}× their rest length (p99 {:.2}×)",
                 anim.garment.len(),
-                1e3 / ms
+                1e3 / ms,
+                "",
+                check.cloth_vertices_inside_percent,
+                check.cloth_triangles_inside_percent,
+                check.edge_stretch_max,
+                check.edge_stretch_p99,
             ));
             runs.push(DemoEntry {
                 body: label.clone(),
@@ -278,6 +299,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 arm_clearance_frames_changed: held.map_or(0, |r| r.frames_changed),
                 arm_clearance_max_angle_deg: held.map_or(0.0, |r| r.max_angle_rad.to_degrees()),
                 arm_depth_before_mm: held.map(|r| r.max_depth_before_m * 1e3),
+                check,
                 files: files.iter().map(|p| p.display().to_string()).collect(),
             });
             bar.inc(1);
@@ -292,7 +314,10 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         machine: Machine::current(),
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
                one thread; posing the full body for the files and holding the arms out of the \
-               torso (before the clip, per body) are not counted",
+               torso (before the clip, per body) are not counted; cloth_*_inside_percent: garment \
+               vertex-frames and triangle-frames (by centroid) inside the whole posed body, by \
+               its winding number (eval's measure); edge_stretch_*: garment edge length over its \
+               length in the rest template",
         runs,
     };
     let path = args.out.join("demo.json");

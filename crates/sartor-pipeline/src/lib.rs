@@ -40,7 +40,8 @@ pub use pipeline::{
     pipeline_report_path, run_pipeline, summary,
 };
 pub use preview::{
-    Animation, BODY_COLOR, Format, GARMENT_COLOR, animate, model_betas, write_animation, write_png,
+    Animation, BODY_COLOR, ClothCheck, Format, GARMENT_COLOR, animate, model_betas,
+    write_animation, write_png,
 };
 pub use ship::{ShipSummary, ship_model};
 pub use simulate::{
