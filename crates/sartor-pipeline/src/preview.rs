@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{BodyDistance, BodyModel};
+use sartor_core::{BodyDistance, BodyModel, MeshTopology};
 use sartor_mcap::{McapWriter, SceneMesh};
 use sartor_motion::{ArmClearance, ClearanceOptions, ClearanceReport, Motion};
 use sartor_runtime::{
@@ -113,23 +113,20 @@ impl Animation {
         garment_faces: &[[u32; 3]],
         template: &[Vector3<f32>],
     ) -> Result<ClothCheck> {
-        let mut edges: Vec<(u32, u32)> = garment_faces
-            .iter()
-            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
-            .map(|(a, b)| (a.min(b), a.max(b)))
-            .collect();
-        edges.sort_unstable();
-        edges.dedup();
         let n = template.len();
         ensure!(
-            edges.iter().all(|&(_, b)| (b as usize) < n)
+            garment_faces.iter().flatten().all(|&v| (v as usize) < n)
                 && self.garment.iter().all(|g| g.len() == n)
                 && self.body.len() == self.garment.len(),
             "the garment's faces, template ({n} vertices) and frames do not match"
         );
+        if self.garment.is_empty() {
+            return Ok(ClothCheck::default());
+        }
+        let edges = MeshTopology::new(n, garment_faces).edges;
         let rest: Vec<f32> = edges
             .iter()
-            .map(|&(a, b)| (template[a as usize] - template[b as usize]).norm())
+            .map(|&[a, b]| (template[a as usize] - template[b as usize]).norm())
             .collect();
         ensure!(
             rest.iter().all(|&l| l > 0.0),
@@ -137,16 +134,14 @@ impl Animation {
         );
         // One body, refitted frame to frame (building it costs some 40 ms, refitting it and
         // asking its winding number at every vertex and centroid a few).
-        let posed =
-            |t: usize| -> Vec<Vector3<f64>> { self.body[t].iter().map(|p| p.cast()).collect() };
-        if self.garment.is_empty() {
-            return Ok(ClothCheck::default());
-        }
-        let mut distance = BodyDistance::new(&posed(0), body_faces)?;
+        let mut posed: Vec<Vector3<f64>> = self.body[0].iter().map(|p| p.cast()).collect();
+        let mut distance = BodyDistance::new(&posed, body_faces)?;
         let mut frames: Vec<(usize, usize, Vec<f32>)> = Vec::with_capacity(self.garment.len());
-        for (t, garment) in self.garment.iter().enumerate() {
+        for (t, (garment, body)) in self.garment.iter().zip(&self.body).enumerate() {
             if t > 0 {
-                distance.update_positions_refit(&posed(t))?;
+                posed.clear();
+                posed.extend(body.iter().map(|p| p.cast::<f64>()));
+                distance.update_positions_refit(&posed)?;
             }
             let distance = &distance;
             let inside = |p: Vector3<f64>| distance.winding_number_fast(&p) > 0.5;
@@ -165,7 +160,7 @@ impl Animation {
             let stretch = edges
                 .iter()
                 .zip(&rest)
-                .map(|(&(a, b), l)| (garment[a as usize] - garment[b as usize]).norm() / l)
+                .map(|(&[a, b], l)| (garment[a as usize] - garment[b as usize]).norm() / l)
                 .collect();
             frames.push((vertices, triangles, stretch));
         }
