@@ -539,6 +539,12 @@ impl Avatar {
         let done = self.now();
         self.times.skinning_ms = skinned - start;
         self.times.post_process_ms = done - skinned;
+        self.remember(pose);
+        Ok(())
+    }
+
+    /// Keep `pose` as the pose before the next frame (validated against the skeleton).
+    fn remember(&mut self, pose: &Pose) {
         // Field by field: the derived `Pose::clone_from` would allocate a new rotation vector
         // (the lengths agree: the pose was validated against the skeleton).
         self.previous.root_translation_m = pose.root_translation_m;
@@ -547,7 +553,6 @@ impl Avatar {
             .local_rotations
             .copy_from_slice(&pose.local_rotations);
         self.has_previous = true;
-        Ok(())
     }
 
     fn collision_count(
@@ -673,11 +678,44 @@ impl GarmentAnimator {
         Ok(&self.avatar.vertices)
     }
 
+    /// Step the sequence by `pose` without making its garment: the wrinkle network's state and
+    /// the previous pose advance as in [`GarmentAnimator::frame`], but nothing is skinned or
+    /// post-processed ([`GarmentAnimator::vertices`] keep the last frame's). For the frames
+    /// before a jump's first shown one (the try-on page runs 15 after each seek), whose
+    /// garments nobody sees: a later `frame` gives the same bits as after `frame` on those
+    /// poses with the certified and exact queries (the default; their state across frames
+    /// only warm-starts the search), while the band query refreshes its candidates on its
+    /// own count of post-processed frames. Errors (leaving the avatar as it was) as `frame`.
+    /// Allocation-free.
+    pub fn advance(&mut self, pose: &Pose) -> Result<()> {
+        let step = |s: &mut Self| -> Result<()> {
+            pose.validate(s.rig.body.skeleton().n_joints())?;
+            s.network_step(pose)?;
+            s.avatar.times.skinning_ms = 0.0;
+            s.avatar.times.post_process_ms = 0.0;
+            s.avatar.remember(pose);
+            Ok(())
+        };
+        match self.rig.options.parallelism {
+            Parallelism::Sequential => step(self),
+            Parallelism::Rayon => sartor_core::awake::with_workers_awake(|| step(self)),
+        }
+    }
+
     /// [`GarmentAnimator::frame`] on this thread.
     fn frame_now(&mut self, pose: &Pose) -> Result<()> {
+        pose.validate(self.rig.body.skeleton().n_joints())?;
+        let wrinkle = self.network_step(pose)?;
         let rig = &*self.rig;
-        let par = rig.options.parallelism;
-        pose.validate(rig.body.skeleton().n_joints())?;
+        let wrinkle = wrinkle.then_some(&self.wrinkle[..]);
+        self.avatar
+            .finish(rig, pose, wrinkle, rig.options.parallelism)
+    }
+
+    /// The wrinkle network's step for `pose` (validated) into `self.wrinkle`, timed; whether
+    /// the rig has wrinkles (`Δ_L`) at all.
+    fn network_step(&mut self, pose: &Pose) -> Result<bool> {
+        let rig = &*self.rig;
         let par_net = rig.options.parallelism;
         let start = self.avatar.now();
         let wrinkle = match rig.options.wrinkles {
@@ -690,18 +728,18 @@ impl GarmentAnimator {
                     &mut self.ws,
                     par_net,
                 )?;
-                Some(&self.wrinkle[..])
+                true
             }
             WrinkleMode::Linear => {
                 self.avatar.features(rig, pose, &mut self.x)?;
                 rig.network
                     .linear_baseline(&self.x, &mut self.wrinkle, &mut self.ws, par_net)?;
-                Some(&self.wrinkle[..])
+                true
             }
-            WrinkleMode::None => None,
+            WrinkleMode::None => false,
         };
         self.avatar.times.network_ms = self.avatar.now() - start;
-        self.avatar.finish(rig, pose, wrinkle, par)
+        Ok(wrinkle)
     }
 
     /// Time the stages of every later frame with `clock`, a monotonic clock in milliseconds

@@ -445,7 +445,8 @@ impl TryOn {
     }
 
     /// Show frame `frame` (clamped to the motion): the GRU restarts [`WARMUP_FRAMES`] before
-    /// it (from the pose before, as a training sequence starts) and runs up to it.
+    /// it (from the pose before, as a training sequence starts) and runs up to it, the network
+    /// alone ([`GarmentAnimator::advance`]) until the frame shown.
     pub fn seek(&mut self, frame: usize) -> Result<()> {
         let frame = frame.min(self.motion.n_frames() - 1);
         let start = frame.saturating_sub(WARMUP_FRAMES);
@@ -458,10 +459,11 @@ impl TryOn {
             }
             None => self.animator.reset(),
         }
+        // Only the network steps: the garments of these frames are never shown.
         for t in start..frame {
             let held = self.held_pose(t)?;
             let pose = held.as_ref().unwrap_or(&self.motion.frames()[t]);
-            self.animator.frame(pose)?;
+            self.animator.advance(pose)?;
         }
         self.show(frame)
     }

@@ -142,3 +142,59 @@ fn the_certified_query_split_over_threads_makes_the_same_garment() {
     }
     assert!(pushed > 0, "the clip collides");
 }
+
+#[test]
+fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
+    let (body, network, binding) = shipped();
+    // As the try-on page runs it: the triangles pushed too, buried faces sought beyond the
+    // training shapes.
+    let options = AnimatorOptions {
+        collision: Some(CollisionOptions {
+            faces: true,
+            ..CollisionOptions::default()
+        }),
+        ..AnimatorOptions::default()
+    };
+    let rig = Arc::new(GarmentRig::new(network.clone(), binding, body, options).expect("rig"));
+    let cmu = load_motion("cmu/02_04@60+20", &motion_options()).expect("stored CMU clip");
+    let poses = cmu.frames();
+    // The nominal shape, and a heavy one beyond the training shapes (the grid path with the
+    // buried faces, whose search state the advanced frames leave where the last frame put it).
+    let mut heavy = vec![0.0f32; network.header().sizes.n_betas];
+    heavy[0] = 3.0;
+    heavy[1] = -3.0;
+    let mut pushed = 0;
+    for betas in [vec![0.0f32; heavy.len()], heavy] {
+        let mut every = GarmentAnimator::new(rig.clone()).expect("avatar");
+        every.set_shape(&betas).expect("shape");
+        let full: Vec<Vec<_>> = poses
+            .iter()
+            .map(|p| every.frame(p).expect("frame").to_vec())
+            .collect();
+        for shown in [1, 7, poses.len() - 1] {
+            let mut skip = GarmentAnimator::new(rig.clone()).expect("avatar");
+            skip.set_shape(&betas).expect("shape");
+            // A frame made before the jump, a new sequence, then the network alone up to the
+            // frame shown.
+            let before = skip.frame(&poses[shown]).expect("frame").to_vec();
+            skip.reset();
+            for pose in &poses[..shown] {
+                skip.advance(pose).expect("advance");
+                assert_eq!(skip.vertices(), &before[..], "advance makes no garment");
+            }
+            let garment = skip.frame(&poses[shown]).expect("frame");
+            assert!(
+                garment == &full[shown][..],
+                "β {betas:?}, frame {shown}: not the garment of every frame made"
+            );
+            pushed += skip.last_frame_pushed();
+        }
+        // A pose of another skeleton: an error, and the avatar as it was.
+        let state = every.state().to_vec();
+        let mut wrong = poses[0].clone();
+        wrong.local_rotations.pop();
+        assert!(every.advance(&wrong).is_err());
+        assert_eq!(every.state(), &state[..]);
+    }
+    assert!(pushed > 0, "the clip collides");
+}

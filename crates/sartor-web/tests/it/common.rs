@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use sartor_motion::{ClearanceOptions, Motion};
 use sartor_web::{BODY_FILES, FileSet, MODEL_FILES, TryOn, TryOnOptions};
 
 pub fn repo() -> PathBuf {
@@ -33,4 +34,27 @@ pub fn load() -> TryOn {
         },
     )
     .expect("the shipped assets load")
+}
+
+/// The arms held out as the shipped model's experiment held them in its training motions
+/// (`configs/default.json`; the page reads the same from `manifest.json`).
+pub fn shipped_arm_clearance() -> ClearanceOptions {
+    let config: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(repo().join("configs/default.json")).expect("config"),
+    )
+    .expect("JSON");
+    serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+        .expect("the shipped experiment holds the arms out")
+}
+
+/// The stored CMU clip `id` (`02_02`) as the page fetches and loads it, retargeted onto `t`'s
+/// body.
+pub fn stored_clip(t: &TryOn, id: &str) -> Motion {
+    let dir = repo().join("datasets/motions/cmu");
+    t.motion_stored(
+        &format!("cmu/{id}"),
+        &std::fs::read(dir.join(format!("{id}.json"))).expect("json"),
+        std::fs::read(dir.join(format!("{id}.safetensors"))).expect("tensors"),
+    )
+    .expect("stored clip")
 }

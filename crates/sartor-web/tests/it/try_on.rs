@@ -6,7 +6,7 @@ use sartor_core::BodyDistance;
 use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
 use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
 
-use crate::common::{load, repo, shipped_files};
+use crate::common::{load, repo, shipped_arm_clearance, shipped_files, stored_clip};
 
 use crate::reference::max_abs_diff;
 
@@ -73,14 +73,7 @@ fn motions_are_the_command_lines_and_frames_advance() {
         walk.frames(),
         load_motion("walk", &options).expect("cli").frames()
     );
-    let dir = repo().join("datasets/motions/cmu");
-    let stored = t
-        .motion_stored(
-            "cmu/07_01",
-            &std::fs::read(dir.join("07_01.json")).expect("json"),
-            std::fs::read(dir.join("07_01.safetensors")).expect("tensors"),
-        )
-        .expect("stored clip");
+    let stored = stored_clip(&t, "07_01");
     assert_eq!(
         stored.frames(),
         load_motion("cmu/07_01", &options).expect("cli").frames()
@@ -176,14 +169,7 @@ fn real_mocap_plays_with_the_arms_held_as_the_model_was_trained() {
     // CMU 02_02, a walk: on the MakeHuman body its hands brush the hips and the hanging upper
     // arms sink into the torso's sides, with the shirt caught between. The page holds the arms
     // out as the shipped model's experiment held them in its training motions.
-    let config: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(repo().join("configs/default.json")).expect("config"),
-    )
-    .expect("JSON");
-    let clearance: ClearanceOptions =
-        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
-            .expect("the shipped experiment holds the arms out");
-    let dir = repo().join("datasets/motions/cmu");
+    let clearance = shipped_arm_clearance();
     let play = |arm_clearance: Option<ClearanceOptions>| {
         let mut t = TryOn::load(
             shipped_files(),
@@ -194,13 +180,7 @@ fn real_mocap_plays_with_the_arms_held_as_the_model_was_trained() {
             },
         )
         .expect("load");
-        let clip = t
-            .motion_stored(
-                "cmu/02_02",
-                &std::fs::read(dir.join("02_02.json")).expect("json"),
-                std::fs::read(dir.join("02_02.safetensors")).expect("tensors"),
-            )
-            .expect("stored clip");
+        let clip = stored_clip(&t, "02_02");
         t.set_motion(clip).expect("play");
         t
     };

@@ -1,0 +1,56 @@
+//! The try-on page's jump, natively: `TryOn::seek` to a frame of a real clip (CMU 02_02, a
+//! walk whose every frame needs the arms held out) with the shipped model as the page loads
+//! it (the post-process with the triangles, the arms held as the model's experiment held
+//! them), on the nominal body and on a heavy 1.90 m one beyond the training shapes (where the
+//! post-process also seeks the faces buried inside another body part). The seeks alternate
+//! between two frames, so each runs the GRU's warm-up frames and the frame shown anew; the
+//! arms' poses are kept from the first seek to each frame (as the page keeps them while the
+//! shape and the clip stay), so this is the garment's part of a jump, not the arms' (see the
+//! README's "The same arms on the try-on page").
+//!
+//! `cargo bench -p sartor-web --bench seek -- --warm-up-time 1 --measurement-time 3`
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use sartor_web::{TryOn, TryOnOptions};
+
+// The integration tests' loaders of the shipped files (the bench uses some of them).
+#[allow(dead_code)]
+#[path = "../tests/it/common.rs"]
+mod common;
+
+use common::{shipped_arm_clearance, shipped_files, stored_clip};
+
+fn seek(c: &mut Criterion) {
+    for (name, phenotype) in [
+        ("seek/02_02-nominal", None),
+        ("seek/02_02-male-1.90m-heavy", Some("male, 1.90 m, heavy")),
+    ] {
+        let mut t = TryOn::load(
+            shipped_files(),
+            TryOnOptions {
+                arm_clearance: Some(shipped_arm_clearance()),
+                ..TryOnOptions::default()
+            },
+        )
+        .expect("the shipped assets load");
+        if let Some(text) = phenotype {
+            t.set_phenotype_text(text).expect("phenotype");
+        }
+        let clip = stored_clip(&t, "02_02");
+        t.set_motion(clip).expect("play");
+        let targets = [30, 50];
+        for &frame in &targets {
+            t.seek(frame).expect("seek");
+        }
+        let mut k = 0;
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                t.seek(targets[k % 2]).expect("seek");
+                k += 1;
+            })
+        });
+    }
+}
+
+criterion_group!(benches, seek);
+criterion_main!(benches);
