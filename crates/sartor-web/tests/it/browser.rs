@@ -525,8 +525,10 @@ fn the_page_works_in_headless_chromium() {
         pixels[1] > 0.01 * pixels[0] && pixels[2] > 0.005 * pixels[0],
         "body and garment are drawn: {pixels:?}"
     );
-    let garment_ms = bench["garmentFrame"].as_f64().expect("ms");
-    assert!(garment_ms.is_finite() && garment_ms > 0.0, "{bench}");
+    for key in ["garmentFrame", "jump"] {
+        let ms = bench[key].as_f64().expect("ms");
+        assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
+    }
     let errors: Vec<&Value> = console
         .iter()
         .filter(|e| e["level"] == json!("SEVERE"))
