@@ -475,6 +475,53 @@ impl PoseBuffers {
         pose: &Pose,
         out: &mut [Vector3<f64>],
     ) -> Result<()> {
+        self.prepare(body, betas, pose)?;
+        skin_points(
+            &self.shaped,
+            body.skin_weights(),
+            &self.transforms,
+            out,
+            Parallelism::Sequential,
+        )?;
+        Ok(())
+    }
+
+    /// [`PoseBuffers::pose_into`] for the body vertices `vertices` only: `out` (every body
+    /// vertex) gets the same bits there and is left as it was elsewhere. For a caller that
+    /// reads a few parts of the body per pose.
+    pub fn pose_vertices_into(
+        &mut self,
+        body: &BodyModel,
+        betas: &[f64],
+        pose: &Pose,
+        vertices: &[u32],
+        out: &mut [Vector3<f64>],
+    ) -> Result<()> {
+        let n = body.n_vertices();
+        if out.len() != n {
+            return Err(Error::invalid(
+                "posed body",
+                format!("{} outputs for a body of {n} vertices", out.len()),
+            ));
+        }
+        if let Some(&v) = vertices.iter().find(|&&v| v as usize >= n) {
+            return Err(Error::invalid(
+                "posed body",
+                format!("vertex {v} asked of a body of {n} vertices"),
+            ));
+        }
+        self.prepare(body, betas, pose)?;
+        let weights = body.skin_weights();
+        for &v in vertices {
+            let v = v as usize;
+            out[v] = weights.blend(v, &self.transforms).apply(&self.shaped[v]);
+        }
+        Ok(())
+    }
+
+    /// The shaped body for `betas` (kept while the body and β stay) and the forward kinematics
+    /// of `pose`.
+    fn prepare(&mut self, body: &BodyModel, betas: &[f64], pose: &Pose) -> Result<()> {
         let address = body as *const BodyModel as usize;
         let shaped = self
             .shaped_for
@@ -496,15 +543,7 @@ impl PoseBuffers {
             pose,
             &mut self.posed_joints,
             &mut self.transforms,
-        )?;
-        skin_points(
-            &self.shaped,
-            body.skin_weights(),
-            &self.transforms,
-            out,
-            Parallelism::Sequential,
-        )?;
-        Ok(())
+        )
     }
 
     /// The shaped rest body `T_b(β)` of the last [`PoseBuffers::pose_into`].

@@ -117,6 +117,11 @@ struct Arm {
     shoulder: usize,
     vertices: Vec<usize>,
     upper: Vec<usize>,
+    /// The body vertices read per pose ([`ArmClearance`]'s `needed`) that turning the shoulder
+    /// can move (a joint of its subtree among their weights), ascending, and whether a torso
+    /// face's vertex is among them: the poses of a fix differ only in the shoulder's rotation.
+    moved: Vec<u32>,
+    moves_torso: bool,
 }
 
 /// An upper-arm vertex is held out of the torso only this share of the upper arm's length
@@ -140,6 +145,9 @@ type Targets = Vec<Vec<(usize, f64)>>;
 pub struct ArmClearance {
     arms: Vec<Arm>,
     torso_faces: Vec<[u32; 3]>,
+    /// The body vertices a pose is read at (the torso faces' and the arms'), ascending: the
+    /// rest of the body is not skinned.
+    needed: Vec<u32>,
 }
 
 /// Whether a joint name is of a forearm or a hand.
@@ -179,15 +187,40 @@ impl Posing {
         })
     }
 
-    /// Pose the body and the torso's distance field.
-    fn pose(&mut self, body: &BodyModel, pose: &Pose, torso_faces: &[[u32; 3]]) -> Result<()> {
+    /// Pose the body at the vertices `needed` (the torso faces' and the arms') and the torso's
+    /// distance field.
+    fn pose(
+        &mut self,
+        body: &BodyModel,
+        pose: &Pose,
+        torso_faces: &[[u32; 3]],
+        needed: &[u32],
+    ) -> Result<()> {
+        // Only the vertices read: the torso faces' (its distance field) and the arms' (the
+        // held vertices); the legs, head and the rest are some two thirds of the body.
         self.poser
-            .pose_into(body, &self.betas, pose, &mut self.posed)?;
+            .pose_vertices_into(body, &self.betas, pose, needed, &mut self.posed)?;
         match &mut self.distance {
             // The few closest points asked per pose compute their normals themselves: the
             // torso's normals for every pose were a quarter of `apply`'s time.
             Some(d) => d.update_positions_refit(&self.posed)?,
             None => self.distance = Some(BodyDistance::new(&self.posed, torso_faces)?),
+        }
+        Ok(())
+    }
+
+    /// Pose the body at `pose`, which differs from the last pose only in the rotation of
+    /// `arm`'s shoulder: only the vertices that turn moves are skinned again, and the torso's
+    /// distance field is refitted only if a torso vertex is among them (the same bits as
+    /// [`Posing::pose`]).
+    fn pose_turned(&mut self, body: &BodyModel, pose: &Pose, arm: &Arm) -> Result<()> {
+        self.poser
+            .pose_vertices_into(body, &self.betas, pose, &arm.moved, &mut self.posed)?;
+        if arm.moves_torso {
+            self.distance
+                .as_mut()
+                .expect("posed before")
+                .update_positions_refit(&self.posed)?;
         }
         Ok(())
     }
@@ -293,6 +326,8 @@ impl ArmClearance {
                         shoulder,
                         vertices: Vec::new(),
                         upper: Vec::new(),
+                        moved: Vec::new(),
+                        moves_torso: false,
                     });
                     arms.last_mut().expect("pushed")
                 }
@@ -323,7 +358,44 @@ impl ArmClearance {
                 "the body has no forearm and hand vertices under an upper arm, or no torso",
             ));
         }
-        Ok(Self { arms, torso_faces })
+        let mut needed: Vec<u32> = torso_faces.iter().flatten().copied().collect();
+        for arm in &arms {
+            needed.extend(arm.vertices.iter().chain(&arm.upper).map(|&v| v as u32));
+        }
+        needed.sort_unstable();
+        needed.dedup();
+        let mut in_torso = vec![false; body.n_vertices()];
+        for &v in torso_faces.iter().flatten() {
+            in_torso[v as usize] = true;
+        }
+        for arm in &mut arms {
+            // The shoulder's subtree: joints whose chain of parents reaches it.
+            let below = |mut j: usize| loop {
+                if j == arm.shoulder {
+                    return true;
+                }
+                match skeleton.parents()[j] {
+                    Some(p) => j = p,
+                    None => return false,
+                }
+            };
+            let subtree: Vec<bool> = (0..skeleton.n_joints()).map(below).collect();
+            arm.moved = needed
+                .iter()
+                .copied()
+                .filter(|&v| {
+                    body.skin_weights()
+                        .point(v as usize)
+                        .any(|(j, _)| subtree[j])
+                })
+                .collect();
+            arm.moves_torso = arm.moved.iter().any(|&v| in_torso[v as usize]);
+        }
+        Ok(Self {
+            arms,
+            torso_faces,
+            needed,
+        })
     }
 
     /// Per pose, the depth of the deepest vertex that `options` holds out (forearms and hands,
@@ -341,7 +413,7 @@ impl ArmClearance {
         poses
             .iter()
             .map(|pose| {
-                posing.pose(body, pose, &self.torso_faces)?;
+                posing.pose(body, pose, &self.torso_faces, &self.needed)?;
                 Ok(targets
                     .iter()
                     .map(|t| posing.worst(t, f64::INFINITY).1)
@@ -375,7 +447,12 @@ impl ArmClearance {
         };
         let skeleton = body.skeleton();
         let parents = skeleton.parents();
-        posing.pose(body, &Pose::rest(skeleton.n_joints()), &self.torso_faces)?;
+        posing.pose(
+            body,
+            &Pose::rest(skeleton.n_joints()),
+            &self.torso_faces,
+            &self.needed,
+        )?;
         let joints = posing.poser.posed_joints();
         let distance = posing.distance.as_ref().expect("posed");
         for (arm, targets) in self.arms.iter().zip(&mut targets) {
@@ -497,7 +574,7 @@ impl ArmClearance {
         targets: &Targets,
         options: &ClearanceOptions,
     ) -> Result<Vec<(Option<Vector3<f64>>, f64)>> {
-        posing.pose(body, pose, &self.torso_faces)?;
+        posing.pose(body, pose, &self.torso_faces, &self.needed)?;
         let firsts: Vec<_> = targets.iter().map(|t| posing.worst(t, SLACK_M)).collect();
         let mut at_pose = true;
         let mut fixes = Vec::with_capacity(self.arms.len());
@@ -507,7 +584,7 @@ impl ArmClearance {
                 continue;
             };
             if !at_pose {
-                posing.pose(body, pose, &self.torso_faces)?;
+                posing.pose(body, pose, &self.torso_faces, &self.needed)?;
             }
             let (fix, posed_again) =
                 self.frame_fix(body, posing, pose, arm, targets, worst, options)?;
@@ -540,7 +617,7 @@ impl ArmClearance {
         let mut posed_again = false;
         for iteration in 0..options.max_iterations.max(1) {
             if iteration > 0 {
-                posing.pose(body, &trial, &self.torso_faces)?;
+                posing.pose_turned(body, &trial, arm)?;
                 posed_again = true;
                 worst = posing.worst(targets, SLACK_M).0;
             }

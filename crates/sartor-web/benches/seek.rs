@@ -6,7 +6,8 @@
 //! between two frames, so each runs the GRU's warm-up frames and the frame shown anew; the
 //! arms' poses are kept from the first seek to each frame (as the page keeps them while the
 //! shape and the clip stay), so this is the garment's part of a jump, not the arms' (see the
-//! README's "The same arms on the try-on page").
+//! README's "The same arms on the try-on page"). `shape/…` is a whole change of shape, arms
+//! included.
 //!
 //! `cargo bench -p sartor-web --bench seek -- --warm-up-time 1 --measurement-time 3`
 
@@ -52,5 +53,30 @@ fn seek(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, seek);
+/// A new shape while a clip plays, as a slider's move gives it: the body, the garment's shape
+/// caches, the arms' poses anew (every frame a jump depends on) and the jump; two phenotypes
+/// in turn at frame 50 of CMU 02_02.
+fn new_shape(c: &mut Criterion) {
+    let mut t = TryOn::load(
+        shipped_files(),
+        TryOnOptions {
+            arm_clearance: Some(shipped_arm_clearance()),
+            ..TryOnOptions::default()
+        },
+    )
+    .expect("the shipped assets load");
+    let clip = stored_clip(&t, "02_02");
+    t.set_motion(clip).expect("play");
+    t.seek(50).expect("seek");
+    let shapes = ["male, 1.90 m, heavy", "female, 1.60 m, light"];
+    let mut k = 0;
+    c.bench_function("shape/02_02-two-phenotypes", |b| {
+        b.iter(|| {
+            t.set_phenotype_text(shapes[k % 2]).expect("phenotype");
+            k += 1;
+        })
+    });
+}
+
+criterion_group!(benches, seek, new_shape);
 criterion_main!(benches);

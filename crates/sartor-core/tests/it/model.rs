@@ -2,7 +2,7 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
-use sartor_core::{BodyModel, Parallelism, Pose, skin_points, unskin_points};
+use sartor_core::{BodyModel, Parallelism, Pose, PoseBuffers, skin_points, unskin_points};
 
 use crate::common::{model, random_pose, random_weights, rng};
 
@@ -108,6 +108,54 @@ fn parallel_and_sequential_skinning_agree_bitwise() {
     .expect("sizes");
     skin_points(&rest, &weights, &transforms, &mut b, Parallelism::Rayon).expect("sizes");
     assert_eq!(a, b);
+}
+
+#[test]
+fn posing_some_vertices_gives_their_bits_and_leaves_the_rest() {
+    let body = BodyModel::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
+    )
+    .expect("built-in body");
+    let n = body.n_vertices();
+    let mut r = rng(9);
+    let betas: Vec<f64> = (0..body.n_betas())
+        .map(|_| r.random_range(-2.0..2.0))
+        .collect();
+    let pose = random_pose(&mut r, body.skeleton().n_joints(), 0.8);
+    let mut all = vec![Vector3::zeros(); n];
+    PoseBuffers::default()
+        .pose_into(&body, &betas, &pose, &mut all)
+        .expect("pose");
+    // Every seventh vertex, into a buffer of sentinels.
+    let some: Vec<u32> = (0..n as u32).step_by(7).collect();
+    let sentinel = Vector3::repeat(-7.0);
+    let mut part = vec![sentinel; n];
+    let mut buffers = PoseBuffers::default();
+    buffers
+        .pose_vertices_into(&body, &betas, &pose, &some, &mut part)
+        .expect("pose");
+    for (v, (a, b)) in all.iter().zip(&part).enumerate() {
+        if v % 7 == 0 {
+            assert_eq!(a, b, "vertex {v}");
+        } else {
+            assert_eq!(*b, sentinel, "vertex {v} was not asked for");
+        }
+    }
+    // The joints and transforms are the whole pose's.
+    let mut whole = PoseBuffers::default();
+    whole
+        .pose_into(&body, &betas, &pose, &mut all)
+        .expect("pose");
+    assert_eq!(buffers.posed_joints(), whole.posed_joints());
+    // A vertex past the body, or a buffer of another size: errors naming the fault.
+    let past = buffers.pose_vertices_into(&body, &betas, &pose, &[n as u32], &mut part);
+    assert!(
+        past.expect_err("past the body")
+            .to_string()
+            .contains("vertex")
+    );
+    let short = buffers.pose_vertices_into(&body, &betas, &pose, &some, &mut part[1..]);
+    assert!(short.expect_err("short").to_string().contains("outputs"));
 }
 
 #[test]
