@@ -21,24 +21,31 @@ mod common;
 
 use common::{shipped_arm_clearance, shipped_files, stored_clip};
 
+/// The page's session with the arms held, on the body of `phenotype` (`None`: nominal),
+/// playing CMU 02_02.
+fn playing(phenotype: Option<&str>) -> TryOn {
+    let mut t = TryOn::load(
+        shipped_files(),
+        TryOnOptions {
+            arm_clearance: Some(shipped_arm_clearance()),
+            ..TryOnOptions::default()
+        },
+    )
+    .expect("the shipped assets load");
+    if let Some(text) = phenotype {
+        t.set_phenotype_text(text).expect("phenotype");
+    }
+    let clip = stored_clip(&t, "02_02");
+    t.set_motion(clip).expect("play");
+    t
+}
+
 fn seek(c: &mut Criterion) {
     for (name, phenotype) in [
         ("seek/02_02-nominal", None),
         ("seek/02_02-male-1.90m-heavy", Some("male, 1.90 m, heavy")),
     ] {
-        let mut t = TryOn::load(
-            shipped_files(),
-            TryOnOptions {
-                arm_clearance: Some(shipped_arm_clearance()),
-                ..TryOnOptions::default()
-            },
-        )
-        .expect("the shipped assets load");
-        if let Some(text) = phenotype {
-            t.set_phenotype_text(text).expect("phenotype");
-        }
-        let clip = stored_clip(&t, "02_02");
-        t.set_motion(clip).expect("play");
+        let mut t = playing(phenotype);
         let targets = [30, 50];
         for &frame in &targets {
             t.seek(frame).expect("seek");
@@ -57,16 +64,7 @@ fn seek(c: &mut Criterion) {
 /// caches, the arms' poses anew (every frame a jump depends on) and the jump; two phenotypes
 /// in turn at frame 50 of CMU 02_02.
 fn new_shape(c: &mut Criterion) {
-    let mut t = TryOn::load(
-        shipped_files(),
-        TryOnOptions {
-            arm_clearance: Some(shipped_arm_clearance()),
-            ..TryOnOptions::default()
-        },
-    )
-    .expect("the shipped assets load");
-    let clip = stored_clip(&t, "02_02");
-    t.set_motion(clip).expect("play");
+    let mut t = playing(None);
     t.seek(50).expect("seek");
     let shapes = ["male, 1.90 m, heavy", "female, 1.60 m, light"];
     let mut k = 0;
