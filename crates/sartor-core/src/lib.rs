@@ -11,8 +11,8 @@
 //! - [`BodyModel`]: template, shape basis, joint shape basis, skeleton, [`SkinWeights`]; saved
 //!   as safetensors + JSON. [`PhenotypeSpace`] maps MakeHuman's sliders or a text request such
 //!   as `"female, 1.70 m, heavy"` to the shape vector β.
-//! - [`skin_points`] / [`unskin_points`]: linear blend skinning and its inverse, the one
-//!   implementation every sartor crate uses.
+//! - [`skin_points`] (and [`skin_points_at`], a few points) / [`unskin_points`]: linear blend
+//!   skinning and its inverse, the one implementation every sartor crate uses.
 //! - [`MeshProximity`]: the one closest-point query (refittable BVH, signed distance).
 //! - [`PoseFeatures`]: the per-frame network inputs, computed by the same code in the dataset
 //!   and the runtime.
@@ -78,5 +78,6 @@ pub use skeleton::{
     FPS, Pose, PosedSkeleton, Skeleton, canonical, interpolate_pose, split_heading,
 };
 pub use skinning::{
-    BoneTransform, Parallelism, SkinWeights, skin_points, unskin_points, unskin_points_damped,
+    BoneTransform, Parallelism, SkinWeights, skin_points, skin_points_at, unskin_points,
+    unskin_points_damped,
 };

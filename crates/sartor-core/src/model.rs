@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::asset::AssetFiles;
 use crate::io::{OwnedTensor, serialize_tensors, sha256_hex};
 use crate::skeleton::{Pose, Skeleton};
-use crate::skinning::{BoneTransform, Parallelism, SkinWeights, skin_points};
+use crate::skinning::{BoneTransform, Parallelism, SkinWeights, skin_points, skin_points_at};
 use crate::{Error, Result, TriMesh};
 
 /// File name of the tensors of a saved model inside its folder.
@@ -497,26 +497,14 @@ impl PoseBuffers {
         vertices: &[u32],
         out: &mut [Vector3<f64>],
     ) -> Result<()> {
-        let n = body.n_vertices();
-        if out.len() != n {
-            return Err(Error::invalid(
-                "posed body",
-                format!("{} outputs for a body of {n} vertices", out.len()),
-            ));
-        }
-        if let Some(&v) = vertices.iter().find(|&&v| v as usize >= n) {
-            return Err(Error::invalid(
-                "posed body",
-                format!("vertex {v} asked of a body of {n} vertices"),
-            ));
-        }
         self.prepare(body, betas, pose)?;
-        let weights = body.skin_weights();
-        for &v in vertices {
-            let v = v as usize;
-            out[v] = weights.blend(v, &self.transforms).apply(&self.shaped[v]);
-        }
-        Ok(())
+        skin_points_at(
+            &self.shaped,
+            body.skin_weights(),
+            &self.transforms,
+            vertices,
+            out,
+        )
     }
 
     /// The shaped body for `betas` (kept while the body and β stay) and the forward kinematics

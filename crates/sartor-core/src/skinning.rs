@@ -323,8 +323,7 @@ pub fn skin_points<T: RealField + Copy>(
     weights.check_sizes(rest.len(), out.len(), transforms)?;
     let kernel = |start: usize, out: &mut [Vector3<T>]| {
         for (k, o) in out.iter_mut().enumerate() {
-            let i = start + k;
-            *o = weights.blend(i, transforms).apply(&rest[i]);
+            *o = skin_point(rest, weights, transforms, start + k);
         }
     };
     match par {
@@ -335,6 +334,40 @@ pub fn skin_points<T: RealField + Copy>(
             .for_each(|(c, o)| kernel(c * CHUNK, o)),
     }
     Ok(())
+}
+
+/// [`skin_points`] at the points `indices` only: `out[i]` gets the same bits there and is left
+/// as it was elsewhere (`rest` and `out` hold every point). For a caller that reads a few parts
+/// of a mesh per pose. Allocation-free.
+pub fn skin_points_at<T: RealField + Copy>(
+    rest: &[Vector3<T>],
+    weights: &SkinWeights,
+    transforms: &[BoneTransform<T>],
+    indices: &[u32],
+    out: &mut [Vector3<T>],
+) -> Result<()> {
+    weights.check_sizes(rest.len(), out.len(), transforms)?;
+    if let Some(&i) = indices.iter().find(|&&i| i as usize >= rest.len()) {
+        return Err(Error::invalid(
+            "skinning",
+            format!("vertex {i} asked of {} weighted points", rest.len()),
+        ));
+    }
+    for &i in indices {
+        out[i as usize] = skin_point(rest, weights, transforms, i as usize);
+    }
+    Ok(())
+}
+
+/// Point `i` of `rest` skinned: the one kernel of [`skin_points`] and [`skin_points_at`].
+#[inline(always)]
+fn skin_point<T: RealField + Copy>(
+    rest: &[Vector3<T>],
+    weights: &SkinWeights,
+    transforms: &[BoneTransform<T>],
+    i: usize,
+) -> Vector3<T> {
+    weights.blend(i, transforms).apply(&rest[i])
 }
 
 /// Inverse linear blend skinning: `out[i] = (Σ_j w_ij A_j)⁻¹ · posed[i]`, un-posing points
