@@ -578,6 +578,21 @@ impl MeshProximity {
         found
     }
 
+    /// Visit every triangle whose axis-aligned box the half-line `p + t d` (`t ≥ 0`) may meet
+    /// (a superset: the boxes are padded by their f32 rounding), in no set order; `visit`
+    /// returning `None` stops the walk, which then returns `None`. No allocation.
+    pub(crate) fn for_each_face_on_ray(
+        &self,
+        p: &Vector3<f64>,
+        d: &Vector3<f64>,
+        visit: impl FnMut(u32) -> Option<()>,
+    ) -> Option<()> {
+        if !self.tree_current {
+            return (0..self.faces.len() as u32).try_for_each(visit);
+        }
+        self.wide.ray(p, d, self.tree.order(), visit)
+    }
+
     /// Visit every triangle whose axis-aligned box lies within `radius_m` of `p` (a superset of
     /// the triangles within `radius_m`: the box is a lower bound of the distance), nearer parts
     /// of the tree first. No allocation. For callers that gather the few triangles near a group of points

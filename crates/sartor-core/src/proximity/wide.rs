@@ -368,6 +368,13 @@ impl WideTree {
         let slack = REL * (q.amax() + self.extent) + 1e-12;
         let reach = |d2: f64| -> f32 { up((d2.sqrt() * (1.0 + REL) + slack).powi(2)) };
         let mut reach2 = reach(*best_d2);
+        // Nothing within reach of the root's lanes (most of a bounded search's far points):
+        // done before the stack is set up.
+        let root = &self.nodes[0];
+        let lb2 = lane_distance2(&root.lo, &root.hi, &x);
+        if (0..W).all(|l| root.used & (1 << l) == 0 || lb2[l] > reach2) {
+            return;
+        }
         let mut stack = [(0u32, 0.0f32); STACK];
         let mut top = 1usize;
         while top > 0 {
@@ -431,6 +438,101 @@ impl WideTree {
             }
         }
     }
+}
+
+impl WideTree {
+    /// Offer `visit` every triangle (by index into `order`'s leaves) whose box the half-line
+    /// `p + t d`, `t ≥ 0`, may meet; `visit` returning `None` stops the walk, which then returns
+    /// `None`. Each box is padded by a bound on the f32 rounding ([`ray_lanes`]), so every
+    /// triangle the half-line meets, or passes within that bound of, is offered.
+    #[inline]
+    pub(super) fn ray(
+        &self,
+        p: &Vector3<f64>,
+        d: &Vector3<f64>,
+        order: &[u32],
+        mut visit: impl FnMut(u32) -> Option<()>,
+    ) -> Option<()> {
+        if self.nodes.is_empty() {
+            return Some(());
+        }
+        let q = p - self.origin;
+        let ray = Ray {
+            x: [q.x as f32, q.y as f32, q.z as f32],
+            inv: [d.x as f32, d.y as f32, d.z as f32].map(|c| 1.0 / c),
+            // As in `search`: a few roundings of numbers as large as the point's and the
+            // boxes' coordinates, with room (see `ray_lanes`).
+            pad: up(REL * (q.amax() + self.extent) + 1e-12),
+        };
+        let mut stack = [0u32; STACK];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            let mut hits = ray_lanes(&node.lo, &node.hi, &ray) & node.used;
+            while hits != 0 {
+                let l = hits.trailing_zeros() as usize;
+                hits &= hits - 1;
+                if node.leaf & (1 << l) == 0 {
+                    stack[top] = node.child[l];
+                    top += 1;
+                    continue;
+                }
+                let leaf = &self.leaves[node.child[l] as usize];
+                let start = leaf.start as usize;
+                let mut faces = ray_lanes(&leaf.lo, &leaf.hi, &ray) & ((1 << leaf.count) - 1);
+                while faces != 0 {
+                    let j = faces.trailing_zeros() as usize;
+                    faces &= faces - 1;
+                    visit(order[start + j])?;
+                }
+            }
+        }
+        Some(())
+    }
+}
+
+/// A half-line in a tree's f32 frame: its start, the inverse of its direction per axis
+/// (infinite along an axis it does not move on) and the boxes' padding.
+struct Ray {
+    x: [f32; 3],
+    inv: [f32; 3],
+    pad: f32,
+}
+
+/// Per box of `N` stored lane by lane, as a bit: whether `ray` meets the box grown by its
+/// padding (a lane at infinity, unused, never). The slab test in f32 errs by a few roundings
+/// of the coordinates per axis, each at most `2⁻²⁴ (|x| + extent) / |d_k|` in `t`; growing the
+/// box by `pad`, some eight times that relative to the coordinates, widens every slab's
+/// interval by `pad / |d_k|` on both sides, so a half-line that meets the box itself is never
+/// read as missing the grown one.
+#[inline(always)]
+fn ray_lanes<const N: usize>(lo: &[[f32; N]; 3], hi: &[[f32; N]; 3], ray: &Ray) -> u32 {
+    let (mut t0, mut t1) = ([0.0f32; N], [f32::INFINITY; N]);
+    let mut outside = [false; N];
+    for k in 0..3 {
+        let (x, inv, pad) = (ray.x[k], ray.inv[k], ray.pad);
+        if inv.is_infinite() {
+            // Parallel to the slab: inside it for every `t`, or for none.
+            for l in 0..N {
+                outside[l] |= !((lo[k][l] - pad <= x) & (x <= hi[k][l] + pad));
+            }
+            continue;
+        }
+        for l in 0..N {
+            let a = (lo[k][l] - pad - x) * inv;
+            let b = (hi[k][l] + pad - x) * inv;
+            t0[l] = fmax(t0[l], fmin(a, b));
+            t1[l] = fmin(t1[l], fmax(a, b));
+        }
+    }
+    let mut hits = 0u32;
+    for l in 0..N {
+        // A lane at infinity: `a` and `b` infinite of one sign, or NaN; `t0 <= t1` fails for
+        // both (`t0` infinite, or a NaN compare).
+        hits |= u32::from((t0[l] <= t1[l]) & !outside[l] & (lo[0][l] != f32::INFINITY)) << l;
+    }
+    hits
 }
 
 /// Squared distance from `x` to each of `N` boxes stored lane by lane (∞ for a lane at
