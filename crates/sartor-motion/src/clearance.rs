@@ -144,10 +144,33 @@ type Targets = Vec<Vec<(usize, f64)>>;
 #[derive(Clone, Debug)]
 pub struct ArmClearance {
     arms: Vec<Arm>,
-    torso_faces: Vec<[u32; 3]>,
+    torso: Torso,
     /// The body vertices a pose is read at (the torso faces' and the arms'), ascending: the
     /// rest of the body is not skinned.
     needed: Vec<u32>,
+}
+
+/// The torso's faces over its own vertices: its distance field is built and refitted over
+/// them alone, not over the whole body's vertex array (a refit copies, checks and rounds every
+/// vertex it is given: 4.5 times as many).
+#[derive(Clone, Debug)]
+struct Torso {
+    /// Its body vertices, ascending.
+    vertices: Vec<u32>,
+    /// Its faces, indexing `vertices`.
+    faces: Vec<[u32; 3]>,
+}
+
+impl Torso {
+    /// The torso of the body faces `faces`.
+    fn new(faces: &[[u32; 3]]) -> Self {
+        let mut vertices: Vec<u32> = faces.iter().flatten().copied().collect();
+        vertices.sort_unstable();
+        vertices.dedup();
+        let local = |v: u32| vertices.binary_search(&v).expect("a vertex of the faces") as u32;
+        let faces = faces.iter().map(|f| f.map(local)).collect();
+        Self { vertices, faces }
+    }
 }
 
 /// Whether a joint name is of a forearm or a hand.
@@ -169,6 +192,9 @@ struct Posing {
     poser: PoseBuffers,
     betas: Vec<f64>,
     posed: Vec<Vector3<f64>>,
+    /// The torso's vertices as posed ([`Torso::vertices`]).
+    torso_posed: Vec<Vector3<f64>>,
+    /// Over the torso's own vertices.
     distance: Option<BodyDistance>,
     /// Per body vertex, the torso face it was closest to when last asked (a hint that gives
     /// [`BodyDistance::query_hinted`] the same answer for less work).
@@ -182,6 +208,7 @@ impl Posing {
             poser: PoseBuffers::default(),
             betas: betas.to_vec(),
             posed: vec![Vector3::zeros(); body.n_vertices()],
+            torso_posed: Vec::new(),
             distance: None,
             hints: vec![u32::MAX; body.n_vertices()],
         })
@@ -189,22 +216,19 @@ impl Posing {
 
     /// Pose the body at the vertices `needed` (the torso faces' and the arms') and the torso's
     /// distance field.
-    fn pose(
-        &mut self,
-        body: &BodyModel,
-        pose: &Pose,
-        torso_faces: &[[u32; 3]],
-        needed: &[u32],
-    ) -> Result<()> {
+    fn pose(&mut self, body: &BodyModel, pose: &Pose, torso: &Torso, needed: &[u32]) -> Result<()> {
         // Only the vertices read: the torso faces' (its distance field) and the arms' (the
         // held vertices); the legs, head and the rest are some two thirds of the body.
         self.poser
             .pose_vertices_into(body, &self.betas, pose, needed, &mut self.posed)?;
+        self.torso_posed.clear();
+        self.torso_posed
+            .extend(torso.vertices.iter().map(|&v| self.posed[v as usize]));
         match &mut self.distance {
             // The few closest points asked per pose compute their normals themselves: the
             // torso's normals for every pose were a quarter of `apply`'s time.
-            Some(d) => d.update_positions_refit(&self.posed)?,
-            None => self.distance = Some(BodyDistance::new(&self.posed, torso_faces)?),
+            Some(d) => d.update_positions_refit(&self.torso_posed)?,
+            None => self.distance = Some(BodyDistance::new(&self.torso_posed, &torso.faces)?),
         }
         Ok(())
     }
@@ -213,14 +237,23 @@ impl Posing {
     /// `arm`'s shoulder: only the vertices that turn moves are skinned again, and the torso's
     /// distance field is refitted only if a torso vertex is among them (the same bits as
     /// [`Posing::pose`]).
-    fn pose_turned(&mut self, body: &BodyModel, pose: &Pose, arm: &Arm) -> Result<()> {
+    fn pose_turned(
+        &mut self,
+        body: &BodyModel,
+        pose: &Pose,
+        arm: &Arm,
+        torso: &Torso,
+    ) -> Result<()> {
         self.poser
             .pose_vertices_into(body, &self.betas, pose, &arm.moved, &mut self.posed)?;
         if arm.moves_torso {
+            for (p, &v) in self.torso_posed.iter_mut().zip(&torso.vertices) {
+                *p = self.posed[v as usize];
+            }
             self.distance
                 .as_mut()
                 .expect("posed before")
-                .update_positions_refit(&self.posed)?;
+                .update_positions_refit(&self.torso_posed)?;
         }
         Ok(())
     }
@@ -364,6 +397,7 @@ impl ArmClearance {
         }
         needed.sort_unstable();
         needed.dedup();
+        let torso = Torso::new(&torso_faces);
         let mut in_torso = vec![false; body.n_vertices()];
         for &v in torso_faces.iter().flatten() {
             in_torso[v as usize] = true;
@@ -393,7 +427,7 @@ impl ArmClearance {
         }
         Ok(Self {
             arms,
-            torso_faces,
+            torso,
             needed,
         })
     }
@@ -413,7 +447,7 @@ impl ArmClearance {
         poses
             .iter()
             .map(|pose| {
-                posing.pose(body, pose, &self.torso_faces, &self.needed)?;
+                posing.pose(body, pose, &self.torso, &self.needed)?;
                 Ok(targets
                     .iter()
                     .map(|t| posing.worst(t, f64::INFINITY).1)
@@ -450,7 +484,7 @@ impl ArmClearance {
         posing.pose(
             body,
             &Pose::rest(skeleton.n_joints()),
-            &self.torso_faces,
+            &self.torso,
             &self.needed,
         )?;
         let joints = posing.poser.posed_joints();
@@ -574,7 +608,7 @@ impl ArmClearance {
         targets: &Targets,
         options: &ClearanceOptions,
     ) -> Result<Vec<(Option<Vector3<f64>>, f64)>> {
-        posing.pose(body, pose, &self.torso_faces, &self.needed)?;
+        posing.pose(body, pose, &self.torso, &self.needed)?;
         let firsts: Vec<_> = targets.iter().map(|t| posing.worst(t, SLACK_M)).collect();
         let mut at_pose = true;
         let mut fixes = Vec::with_capacity(self.arms.len());
@@ -584,7 +618,7 @@ impl ArmClearance {
                 continue;
             };
             if !at_pose {
-                posing.pose(body, pose, &self.torso_faces, &self.needed)?;
+                posing.pose(body, pose, &self.torso, &self.needed)?;
             }
             let (fix, posed_again) =
                 self.frame_fix(body, posing, pose, arm, targets, worst, options)?;
@@ -617,7 +651,7 @@ impl ArmClearance {
         let mut posed_again = false;
         for iteration in 0..options.max_iterations.max(1) {
             if iteration > 0 {
-                posing.pose_turned(body, &trial, arm)?;
+                posing.pose_turned(body, &trial, arm, &self.torso)?;
                 posed_again = true;
                 worst = posing.worst(targets, SLACK_M).0;
             }
