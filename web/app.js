@@ -218,8 +218,8 @@ function transferred() {
 }
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
-/// milliseconds of each stage (what the page can sustain, independent of the display rate) and
-/// of a jump's garment (`jump`).
+/// milliseconds of each stage (what the page can sustain, independent of the display rate), of
+/// a jump's garment (`jump`) and of a whole change of shape (`shape`).
 function bench(frames = 120) {
   const t = state.tryOn;
   const was = state.playing;
@@ -242,6 +242,18 @@ function bench(frames = 120) {
     jumps.push(performance.now() - start);
   }
   jumps.sort((a, b) => a - b);
+  // A change of shape, as a slider's release gives it: the body, the garment's shape caches,
+  // the arms' poses anew for the frames the one shown depends on, and its jump. β₁ up by 0.5
+  // and back, twice; the shape in use is restored.
+  const betas = t.betas();
+  const other = Float64Array.from(betas, (b, i) => (i === 0 ? b + 0.5 : b));
+  const shapes = [];
+  for (let i = 0; i < 4; i++) {
+    const start = performance.now();
+    t.setBetas(i % 2 === 0 ? other : betas);
+    shapes.push(performance.now() - start);
+  }
+  shapes.sort((a, b) => a - b);
   setPlaying(was);
   const median = (k) => {
     const v = rows.map((r) => r[k]).sort((a, b) => a - b);
@@ -257,6 +269,7 @@ function bench(frames = 120) {
     arms: median(4),
     garmentFrame: totals[Math.floor(totals.length / 2)],
     jump: jumps[Math.floor(jumps.length / 2)],
+    shape: shapes[Math.floor(shapes.length / 2)],
   };
 }
 

@@ -525,7 +525,7 @@ fn the_page_works_in_headless_chromium() {
         pixels[1] > 0.01 * pixels[0] && pixels[2] > 0.005 * pixels[0],
         "body and garment are drawn: {pixels:?}"
     );
-    for key in ["garmentFrame", "jump"] {
+    for key in ["garmentFrame", "jump", "shape"] {
         let ms = bench[key].as_f64().expect("ms");
         assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
     }
