@@ -152,7 +152,7 @@ pub struct ArmClearance {
 
 /// The torso's faces over its own vertices: its distance field is built and refitted over
 /// them alone, not over the whole body's vertex array (a refit copies, checks and rounds every
-/// vertex it is given: 4.5 times as many).
+/// vertex it is given: eight times as many, 13,380 for 1,669 on the built-in body).
 #[derive(Clone, Debug)]
 struct Torso {
     /// Its body vertices, ascending.
