@@ -656,18 +656,14 @@ mod tests {
         let positions = b
             .posed_vertices(&vec![0.0; b.n_betas()], &pose)
             .expect("posed");
+        // The band: faces whose centroid lies between the hips and the neck joints.
         let joints = b.shaped_joints(&vec![0.0; b.n_betas()]).expect("joints");
         let y_of = |name: &str| joints[b.skeleton().index_of(name).expect("joint")].y;
-        let (y_lo, y_hi) = (y_of("Hips"), y_of("Neck"));
-        let band: Vec<[u32; 3]> = b
-            .faces()
-            .iter()
-            .filter(|t| {
-                t.iter()
-                    .all(|&v| (y_lo..y_hi).contains(&positions[v as usize].y))
-            })
-            .copied()
-            .collect();
+        let heights = y_of("Hips")..y_of("Neck");
+        let mut band = b.faces().to_vec();
+        band.retain(|t| {
+            heights.contains(&(t.iter().map(|&v| positions[v as usize].y).sum::<f64>() / 3.0))
+        });
         let normals = crate::vertex_normals(&positions, b.faces());
         let mut directions: Vec<Vector3<f64>> = RAY_DIRECTIONS.to_vec();
         directions.extend([Vector3::x(), -Vector3::y(), Vector3::z()]);
