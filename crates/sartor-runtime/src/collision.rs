@@ -493,6 +493,23 @@ fn push_out(
 const CHUNK: usize = 256;
 
 impl Collider {
+    /// Start from `old`'s warm faces (the closest region face of each cloth vertex, and the
+    /// certified query's per vertex and triangle): `old` is the collider of another body shape
+    /// of the same region and cloth. They only start the searches (the answers are those of a
+    /// cold start), so the first frame on a new shape does not search every vertex from
+    /// nothing.
+    pub(crate) fn warm_from(&mut self, old: &Collider) {
+        if old.vertices.len() != self.vertices.len() {
+            return;
+        }
+        for (state, was) in self.vertices.iter_mut().zip(&old.vertices) {
+            state.last_face = was.last_face;
+        }
+        if let (Some(new), Some(old)) = (&mut self.certifier, &old.certifier) {
+            new.warm_from(old);
+        }
+    }
+
     /// Set up for a body of shape `shaped_body` (`T_b(β)`, every body vertex) and a garment whose
     /// unposed rest shape is `cloth_rest` (`T̄_c + Δ_G`); `beyond_training` says whether the
     /// shape lies outside the model's training shapes ([`Interpenetration`]).

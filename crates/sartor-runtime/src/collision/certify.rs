@@ -508,6 +508,16 @@ impl Certifier {
         }
     }
 
+    /// Start from `old`'s warm faces, per cloth vertex and triangle (a certifier of the same
+    /// region and cloth, for another body shape): they only start the searches, so the answers
+    /// are those of a cold start.
+    pub(crate) fn warm_from(&mut self, old: &Certifier) {
+        if old.vertex_warm.len() == self.vertex_warm.len() {
+            self.vertex_warm.copy_from_slice(&old.vertex_warm);
+            self.face_warm.clone_from(&old.face_warm);
+        }
+    }
+
     /// Rebuild the face data and the grid from the posed region. Allocation-free.
     pub(crate) fn update(&mut self, posed: &[Vector3<f64>]) {
         let mut cell = CELL_M;

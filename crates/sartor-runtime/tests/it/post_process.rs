@@ -143,11 +143,10 @@ fn the_certified_query_split_over_threads_makes_the_same_garment() {
     assert!(pushed > 0, "the clip collides");
 }
 
-#[test]
-fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
+/// The shipped model as the try-on page runs it: the triangles pushed too, buried faces sought
+/// beyond the training shapes; and its β count.
+fn page_rig() -> (Arc<GarmentRig>, usize) {
     let (body, network, binding) = shipped();
-    // As the try-on page runs it: the triangles pushed too, buried faces sought beyond the
-    // training shapes.
     let options = AnimatorOptions {
         collision: Some(CollisionOptions {
             faces: true,
@@ -155,12 +154,19 @@ fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
         }),
         ..AnimatorOptions::default()
     };
-    let rig = Arc::new(GarmentRig::new(network.clone(), binding, body, options).expect("rig"));
+    let n_betas = network.header().sizes.n_betas;
+    let rig = GarmentRig::new(network, binding, body, options).expect("rig");
+    (Arc::new(rig), n_betas)
+}
+
+#[test]
+fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
+    let (rig, n_betas) = page_rig();
     let cmu = load_motion("cmu/02_04@60+20", &motion_options()).expect("stored CMU clip");
     let poses = cmu.frames();
     // The nominal shape, and a heavy one beyond the training shapes (the grid path with the
     // buried faces, whose search state the advanced frames leave where the last frame put it).
-    let mut heavy = vec![0.0f32; network.header().sizes.n_betas];
+    let mut heavy = vec![0.0f32; n_betas];
     heavy[0] = 3.0;
     heavy[1] = -3.0;
     let mut pushed = 0;
@@ -195,6 +201,45 @@ fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
         wrong.local_rotations.pop();
         assert!(every.advance(&wrong).is_err());
         assert_eq!(every.state(), &state[..]);
+    }
+    assert!(pushed > 0, "the clip collides");
+}
+
+#[test]
+fn a_new_shape_starts_from_the_last_shapes_faces_and_gives_a_fresh_avatars_garment() {
+    let (rig, n) = page_rig();
+    let cmu = load_motion("cmu/02_04@60+12", &motion_options()).expect("stored CMU clip");
+    let poses = cmu.frames();
+    let shape = |b0: f32, b1: f32| {
+        let mut b = vec![0.0f32; n];
+        (b[0], b[1]) = (b0, b1);
+        b
+    };
+    // Within the training shapes and beyond them (buried faces sought), in both orders.
+    let (nominal, heavy, light) = (shape(0.0, 0.0), shape(3.0, -3.0), shape(-2.0, 2.5));
+    let mut pushed = 0;
+    for (before, after) in [(&nominal, &heavy), (&heavy, &nominal), (&heavy, &light)] {
+        let mut fresh = GarmentAnimator::new(rig.clone()).expect("avatar");
+        fresh.set_shape(after).expect("shape");
+        let expected: Vec<Vec<_>> = poses
+            .iter()
+            .map(|p| fresh.frame(p).expect("frame").to_vec())
+            .collect();
+        let mut changed = GarmentAnimator::new(rig.clone()).expect("avatar");
+        changed.set_shape(before).expect("shape");
+        for pose in poses.iter().rev() {
+            changed.frame(pose).expect("frame");
+        }
+        changed.set_shape(after).expect("shape");
+        changed.reset();
+        for (t, pose) in poses.iter().enumerate() {
+            let garment = changed.frame(pose).expect("frame");
+            assert!(
+                garment == &expected[t][..],
+                "β {before:?} -> {after:?}, frame {t}: not a fresh avatar's garment"
+            );
+            pushed += changed.last_frame_pushed();
+        }
     }
     assert!(pushed > 0, "the clip collides");
 }
