@@ -60,7 +60,7 @@ use rayon::prelude::*;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
     BodyDistance, BodyModel, BodyPoser, MeshProximity, Parallelism, Pose, SurfaceAnchors,
-    faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
+    compact_faces, faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
 };
 use sartor_motion::{ArmClearance, ClearanceOptions, Motion};
 use serde::{Deserialize, Serialize};
@@ -531,7 +531,7 @@ pub(crate) struct FrameChecks {
 /// retries. Shared by [`simulate_sequence`] and [`crate::relax_on_body`].
 pub(crate) struct FrameStepper {
     pub(crate) sim: Simulator,
-    /// The kept body triangles over their own vertices ([`compact`]).
+    /// The kept body triangles over their own vertices ([`compact_faces`]).
     collider: MeshCollider,
     /// Body vertex of each collider vertex.
     region_vertices: Vec<u32>,
@@ -593,7 +593,8 @@ impl FrameStepper {
         cloth_start: &[Vector3<f64>],
         fps: f64,
     ) -> Result<Self> {
-        let (region_vertices, region_faces) = compact(&region.faces(body, true), body.n_vertices());
+        let (region_vertices, region_faces) =
+            compact_faces(&region.faces(body, true), body.n_vertices());
         let region_start: Vec<Vector3<f64>> = region_vertices
             .iter()
             .map(|&v| body_start[v as usize])
@@ -1142,7 +1143,8 @@ fn run(
 
     // The preview's body: the kept triangles over their own vertices.
     let every = config.preview.every_n_frames;
-    let (preview_vertices, preview_faces) = compact(&region.faces(body, true), body.n_vertices());
+    let (preview_vertices, preview_faces) =
+        compact_faces(&region.faces(body, true), body.n_vertices());
     let mut preview_frames = Vec::new();
 
     let mut next = prev.clone();
@@ -1233,19 +1235,6 @@ fn run(
         }),
         timing: Some(stepper.timing),
     })
-}
-
-/// The vertices `faces` use (ascending) and the faces re-indexed into that list.
-fn compact(faces: &[[u32; 3]], n_vertices: usize) -> (Vec<u32>, Vec<[u32; 3]>) {
-    let mut index = vec![u32::MAX; n_vertices];
-    let mut used: Vec<u32> = faces.iter().flatten().copied().collect();
-    used.sort_unstable();
-    used.dedup();
-    for (k, &v) in used.iter().enumerate() {
-        index[v as usize] = k as u32;
-    }
-    let faces = faces.iter().map(|t| t.map(|v| index[v as usize])).collect();
-    (used, faces)
 }
 
 #[cfg(test)]
@@ -1388,12 +1377,5 @@ mod tests {
         assert_eq!(keys[3].betas, vec![2.0], "the blend ends at β");
         assert!(keys[0].betas[0] > 0.0 && keys[0].betas[0] < keys[1].betas[0]);
         assert!(keys[4..].iter().all(|k| k.phase == Phase::Rest));
-    }
-
-    #[test]
-    fn compact_reindexes() {
-        let (used, faces) = compact(&[[5, 2, 9], [9, 2, 7]], 10);
-        assert_eq!(used, vec![2, 5, 7, 9]);
-        assert_eq!(faces, vec![[1, 0, 3], [3, 0, 2]]);
     }
 }

@@ -64,7 +64,8 @@ pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
 pub use mesh::{
-    Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, face_normals, vertex_normals,
+    Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, compact_faces, face_normals,
+    vertex_normals,
 };
 pub use model::{BodyModel, BodyPoser, MODEL_HEADER, MODEL_TENSORS, PoseBuffers, Provenance};
 pub use norm::{MeanStd, NormStats};

@@ -175,6 +175,20 @@ fn validate_faces(n_vertices: usize, faces: &[[u32; 3]]) -> Result<()> {
     Ok(())
 }
 
+/// The vertices `faces` use (ascending, out of `n_vertices`) and the faces re-indexed into
+/// that list: a part of a mesh over its own vertices.
+pub fn compact_faces(faces: &[[u32; 3]], n_vertices: usize) -> (Vec<u32>, Vec<[u32; 3]>) {
+    let mut index = vec![u32::MAX; n_vertices];
+    let mut used: Vec<u32> = faces.iter().flatten().copied().collect();
+    used.sort_unstable();
+    used.dedup();
+    for (k, &v) in used.iter().enumerate() {
+        index[v as usize] = k as u32;
+    }
+    let faces = faces.iter().map(|t| t.map(|v| index[v as usize])).collect();
+    (used, faces)
+}
+
 /// Axis-aligned bounds of a point set.
 pub fn bounding_box(points: &[Vector3<f64>]) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let first = *points.first()?;
@@ -521,6 +535,13 @@ impl MeshTopology {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn compact_faces_reindexes() {
+        let (used, faces) = compact_faces(&[[5, 2, 9], [9, 2, 7]], 10);
+        assert_eq!(used, vec![2, 5, 7, 9]);
+        assert_eq!(faces, vec![[1, 0, 3], [3, 0, 2]]);
+    }
 
     fn square() -> TriMesh {
         let p = vec![

@@ -25,7 +25,7 @@
 //! winding number of that open surface ([`BodyDistance`]).
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
-use sartor_core::{BodyDistance, BodyModel, Error, Pose, PoseBuffers, Result};
+use sartor_core::{BodyDistance, BodyModel, Error, Pose, PoseBuffers, Result, compact_faces};
 use serde::{Deserialize, Serialize};
 
 mod on_demand;
@@ -162,13 +162,9 @@ struct Torso {
 }
 
 impl Torso {
-    /// The torso of the body faces `faces`.
-    fn new(faces: &[[u32; 3]]) -> Self {
-        let mut vertices: Vec<u32> = faces.iter().flatten().copied().collect();
-        vertices.sort_unstable();
-        vertices.dedup();
-        let local = |v: u32| vertices.binary_search(&v).expect("a vertex of the faces") as u32;
-        let faces = faces.iter().map(|f| f.map(local)).collect();
+    /// The torso of the body faces `faces` (of a body of `n_vertices`).
+    fn new(faces: &[[u32; 3]], n_vertices: usize) -> Self {
+        let (vertices, faces) = compact_faces(faces, n_vertices);
         Self { vertices, faces }
     }
 }
@@ -397,7 +393,7 @@ impl ArmClearance {
         }
         needed.sort_unstable();
         needed.dedup();
-        let torso = Torso::new(&torso_faces);
+        let torso = Torso::new(&torso_faces, body.n_vertices());
         let mut in_torso = vec![false; body.n_vertices()];
         for &v in torso_faces.iter().flatten() {
             in_torso[v as usize] = true;

@@ -389,23 +389,8 @@ fn clip(
 
 /// Drop unused vertices (keeping order).
 fn compact(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
-    let mut index = vec![u32::MAX; positions.len()];
-    let mut out = Vec::new();
-    for t in faces {
-        for &v in t {
-            if index[v as usize] == u32::MAX {
-                index[v as usize] = 0;
-            }
-        }
-    }
-    for (v, slot) in index.iter_mut().enumerate() {
-        if *slot == 0 {
-            *slot = out.len() as u32;
-            out.push(positions[v]);
-        }
-    }
-    let faces = faces.iter().map(|t| t.map(|v| index[v as usize])).collect();
-    (out, faces)
+    let (used, faces) = sartor_core::compact_faces(faces, positions.len());
+    (used.iter().map(|&v| positions[v as usize]).collect(), faces)
 }
 
 /// Keep the largest connected piece and trim ears until the piece is a clean manifold.
