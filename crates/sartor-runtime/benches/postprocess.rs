@@ -9,7 +9,8 @@
 //! post-process's first pass split). Each iteration is the next frame of the clip, so the
 //! temporal caches see real motion. `crowd/…` is a `GarmentCrowd` of two or three avatars
 //! (different shapes and phases of the walk), the whole crowd's frame on one thread and on
-//! the pool of two.
+//! the pool of two. `certified-heavy-cmu` is the default query at the try-on page's "male,
+//! 1.90 m, heavy" body (beyond the training shapes) dancing CMU 05_06.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
 
@@ -77,6 +78,28 @@ fn animator(
     avatar
 }
 
+/// The betas of "male, 1.90 m, heavy" (the phenotype space of the built-in body), and CMU 05_06
+/// retargeted to the built-in body.
+fn heavy_on_cmu() -> (Vec<f32>, Vec<Pose>) {
+    use sartor_core::{PhenotypeRequest, PhenotypeSpace};
+    use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
+    let dir = data("body/makehuman");
+    let body = BodyModel::load(&dir).expect("built-in body");
+    let space = PhenotypeSpace::load(&dir).expect("phenotype space");
+    let request: PhenotypeRequest = "male, 1.90 m, heavy".parse().expect("valid request");
+    let (_, betas) = space
+        .betas_for(&body, &request)
+        .expect("reachable phenotype");
+    let options = MotionSourceOptions {
+        motions_dir: data("motions"),
+        body: Some(RetargetBody::load(&dir).expect("built-in body")),
+        ..MotionSourceOptions::default()
+    };
+    let clip = load_motion("cmu/05_06", &options).expect("stored CMU clip");
+    let betas = betas.iter().map(|&b| b as f32).collect();
+    (betas, clip.frames().to_vec())
+}
+
 fn post_process(c: &mut Criterion) {
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     let poses: Vec<Pose> = walk.frames().to_vec();
@@ -131,6 +154,29 @@ fn post_process(c: &mut Criterion) {
             })
         });
     }
+    // A shopper's body beyond the training shapes on real motion capture: the try-on page's
+    // "male, 1.90 m, heavy" dancing CMU 05_06 (arms raised, a cartwheel), the whole clip.
+    let (betas, dance) = heavy_on_cmu();
+    let mut avatar = animator(
+        CollisionQuery::Certified,
+        within,
+        false,
+        seq,
+        Precision::F32,
+    );
+    avatar.set_shape(&betas).expect("finite shape");
+    let mut k = 0;
+    group.bench_function("certified-heavy-cmu", |b| {
+        b.iter_custom(|iters| {
+            let mut total = 0.0;
+            for _ in 0..iters {
+                avatar.frame(&dance[k % dance.len()]).expect("frame");
+                k += 1;
+                total += avatar.stage_times().expect("clock").post_process_ms;
+            }
+            Duration::from_secs_f64(total * 1e-3)
+        })
+    });
     group.finish();
     // The whole frame: f32 on one thread, and int8 on one thread and on a pool of two.
     for (name, precision, parallelism) in [

@@ -87,8 +87,15 @@ use search::Search;
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
-/// Grid cell edge, metres (about a body triangle and the typical cloth–body distance).
-const CELL_M: f32 = 0.02;
+/// Grid cell edge, metres (a body triangle and a half, about the typical cloth–body
+/// distance). 2 cm until 2026-12-04; 3 cm walks fewer cells a ray for a few more entries a
+/// cell: at two bodies beyond the training shapes (the try-on page's heavy 1.90 m and a light
+/// one) on CMU 05_06, 02_02 and 06_06 the post-process took 2.52–2.59 → 2.39–2.41 ms a frame
+/// (4 cm: 2.37–2.43; AMD EPYC VM, four runs each), the same bits ([`ORIGIN_PAD_M`]).
+const CELL_M: f32 = 0.03;
+/// The region's relative coordinates start this far below its box, metres: the f32 rounding of
+/// every plane, box and ray is that of this corner, whatever the cell.
+const ORIGIN_PAD_M: f32 = 0.02;
 /// At most this many grid cells (the cell grows for a very large region or pose).
 const MAX_CELLS: usize = 1 << 18;
 /// Face–cell entries allowed per face on average before the cell grows.
@@ -309,7 +316,7 @@ pub(crate) struct Frame {
     loop_offsets: Vec<u32>,
     loop_vertices: Vec<u32>,
     /// Per boundary loop, the mean of its vertices and the box of its caps (relative, this
-    /// frame).
+    /// frame; grown by [`CAP_BOX_PAD_M`] as the caps' own).
     loop_centre: Vec<[f32; 3]>,
     loop_box: Vec<([f32; 3], [f32; 3])>,
     /// Per boundary loop, its range of `caps` (`caps` is sorted by loop).
@@ -556,7 +563,7 @@ impl Frame {
         let grid = &mut self.grid;
         grid.cell_m = cell;
         grid.dims = [dims.x, dims.y, dims.z];
-        grid.origin = lo - Vector3::repeat(f64::from(cell));
+        grid.origin = lo - Vector3::repeat(f64::from(ORIGIN_PAD_M));
         for (r, p) in self.rel.iter_mut().zip(posed) {
             let d = p - grid.origin;
             *r = [d.x as f32, d.y as f32, d.z as f32];
@@ -585,9 +592,10 @@ impl Frame {
                 hi = [0, 1, 2].map(|k| hi[k].max(r[k]));
             }
             *centre = sum.map(|x| x / vs.len().max(1) as f32);
+            // Grown as its caps' boxes are, so that it holds them.
             *bounds = (
-                [0, 1, 2].map(|k| lo[k].min(centre[k])),
-                [0, 1, 2].map(|k| hi[k].max(centre[k])),
+                [0, 1, 2].map(|k| lo[k].min(centre[k]) - CAP_BOX_PAD_M),
+                [0, 1, 2].map(|k| hi[k].max(centre[k]) + CAP_BOX_PAD_M),
             );
             let caps = self.loop_caps[l] as usize..self.loop_caps[l + 1] as usize;
             for (&[a, b, _], cap_box) in self.caps[caps.clone()].iter().zip(&mut self.cap_box[caps])
@@ -652,24 +660,35 @@ impl Frame {
             grid.plane[k].clear();
             grid.plane[k].resize(total + LANES, 0.0);
         }
-        for f in 0..self.faces.len() {
-            let (a, b) = grid.ranges[f];
+        // The arrays borrowed apart as slices once: each store then needs no reload of a
+        // vector's pointer (those reloads were a quarter of the update's samples in `perf`).
+        let Grid {
+            start,
+            entries,
+            lo: [lo_x, lo_y, lo_z],
+            hi: [hi_x, hi_y, hi_z],
+            plane: [p_x, p_y, p_z, p_o],
+            ranges,
+            ..
+        } = grid;
+        let (start, entries) = (start.as_mut_slice(), entries.as_mut_slice());
+        let [lo_x, lo_y, lo_z, hi_x, hi_y, hi_z] =
+            [lo_x, lo_y, lo_z, hi_x, hi_y, hi_z].map(|v| v.as_mut_slice());
+        let [p_x, p_y, p_z, p_o] = [p_x, p_y, p_z, p_o].map(|v| v.as_mut_slice());
+        for (f, &(a, b)) in ranges.iter().enumerate() {
             let (lo, hi, plane) = (data.lo[f], data.hi[f], data.plane[f]);
             for z in a[2]..=b[2] {
                 for y in a[1]..=b[1] {
                     let row = (z as usize * ny + y as usize) * nx;
-                    for c in row + a[0] as usize..=row + b[0] as usize {
+                    for cursor in &mut start[row + a[0] as usize..=row + b[0] as usize] {
                         // `start[c]` is the fill cursor here, shifted back below.
-                        let slot = grid.start[c] as usize;
-                        grid.start[c] += 1;
-                        grid.entries[slot] = f as u32;
-                        for k in 0..3 {
-                            grid.lo[k][slot] = lo[k];
-                            grid.hi[k][slot] = hi[k];
-                        }
-                        for k in 0..4 {
-                            grid.plane[k][slot] = plane[k];
-                        }
+                        let slot = *cursor as usize;
+                        *cursor += 1;
+                        entries[slot] = f as u32;
+                        (lo_x[slot], lo_y[slot], lo_z[slot]) = (lo[0], lo[1], lo[2]);
+                        (hi_x[slot], hi_y[slot], hi_z[slot]) = (hi[0], hi[1], hi[2]);
+                        (p_x[slot], p_y[slot], p_z[slot], p_o[slot]) =
+                            (plane[0], plane[1], plane[2], plane[3]);
                     }
                 }
             }
@@ -749,13 +768,20 @@ impl Frame {
     /// normal, starts inside another part (a winding number above zero).
     #[inline(always)]
     fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
-        let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
-        let n = cross(sub(b, a), sub(c, a));
-        let len = dot(n, n).sqrt();
-        if len.is_nan() || len <= 0.0 {
-            return false;
-        }
-        let d = n.map(|x| x / len);
+        let [nx, ny, nz, o] = self.data.plane[f];
+        let d = if o.is_finite() {
+            // The unit normal of the face's plane (the exact query's edges, rounded once).
+            [nx, ny, nz]
+        } else {
+            // A sliver: its plane is unset; the normal of its corners here.
+            let [a, b, c] = self.faces[f].map(|v| self.rel[v as usize]);
+            let n = cross(sub(b, a), sub(c, a));
+            let len = dot(n, n).sqrt();
+            if len.is_nan() || len <= 0.0 {
+                return false;
+            }
+            n.map(|x| x / len)
+        };
         let centroid = self.data.centroid[f];
         let o = [0, 1, 2].map(|k| centroid[k] + d[k] * BURIED_START_M);
         // Along the axis nearest the normal, on its side (at most 55° from the normal): the
@@ -879,7 +905,8 @@ impl Frame {
 
     /// Tell `cross` of each crossing of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) through
     /// the caps that close the region's cuts, and whether it leaves through it; `meets`: whether
-    /// the ray meets a cap's box (a cap whose box it misses is not tested).
+    /// the ray meets a cap's box or a loop's (a cap whose box it misses is not tested; a loop's
+    /// box holds its caps' boxes).
     #[inline(always)]
     fn cross_caps(
         &self,
@@ -888,9 +915,8 @@ impl Frame {
         meets: impl Fn(&([f32; 3], [f32; 3])) -> bool,
         cross: &mut impl FnMut(bool),
     ) {
-        let inv = d.map(|x| 1.0 / x);
-        for (l, (lo, hi)) in self.loop_box.iter().enumerate() {
-            if !ray_meets_box(&o, &inv, lo, hi) {
+        for (l, loop_box) in self.loop_box.iter().enumerate() {
+            if !meets(loop_box) {
                 continue;
             }
             let centre = self.loop_centre[l];
@@ -1058,16 +1084,19 @@ impl Frame {
     /// Whether `x` (relative) lies inside the region by a vote of three rays (along the
     /// horizontal axis nearest `d` on its side, up and down; axis rays, which stop past their
     /// row's last face: [`Frame::axis_winding`]): one ray grazing an edge can miss a crossing.
-    /// Until 2026-11-30 the first ray ran along `d` itself, to the grid's edge.
+    /// Until 2026-11-30 the first ray ran along `d` itself, to the grid's edge. The third ray
+    /// is cast only when the first two disagree (the vote is the same).
     fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3], s: &mut Scratch) -> bool {
         let k = if d[0].abs() >= d[1].abs() { 0 } else { 1 };
-        let mut votes = 0;
-        for (k, positive) in [(k, d[k] > 0.0), (2, true), (2, false)] {
+        let mut inside = |(k, positive): (usize, bool)| {
             let mark = s.next();
-            let winding = self.axis_winding(x, k, positive, u32::MAX, &mut s.face_stamp, mark);
-            votes += usize::from(winding > 0);
+            self.axis_winding(x, k, positive, u32::MAX, &mut s.face_stamp, mark) > 0
+        };
+        let first = inside((k, d[k] > 0.0));
+        if first == inside((2, true)) {
+            return first;
         }
-        votes >= 2
+        inside((2, false))
     }
 
     /// The answer `c` for `q`, unless `c`'s face is a crease face (exposed, next to a buried
@@ -1672,7 +1701,8 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 }
 
 /// Whether the segment `o + t d`, `0 ≤ t ≤` [`BURIED_RAY_M`], meets the box `[lo, hi]` (`inv`:
-/// `1 / d` per axis, infinite along an axis `d` does not move on).
+/// `1 / d` per axis, infinite along an axis `d` does not move on); the tests' general walk.
+#[cfg(test)]
 #[inline(always)]
 fn ray_meets_box(o: &[f32; 3], inv: &[f32; 3], lo: &[f32; 3], hi: &[f32; 3]) -> bool {
     let (mut t0, mut t1) = (0.0f32, BURIED_RAY_M);
@@ -1686,6 +1716,7 @@ fn ray_meets_box(o: &[f32; 3], inv: &[f32; 3], lo: &[f32; 3], hi: &[f32; 3]) -> 
 
 /// The interval of `t` where the ray `o + t d` (`inv` = 1 / d, per axis) lies within the slab
 /// `lo ..= hi`: an axis the ray is parallel to (`inv` infinite) allows every `t` or none.
+#[cfg(test)]
 #[inline(always)]
 fn slab(o: f32, inv: f32, lo: f32, hi: f32) -> (f32, f32) {
     if inv.is_infinite() {
