@@ -647,51 +647,37 @@ impl Frame {
         for c in 0..n_cells {
             grid.start[c + 1] += grid.start[c];
         }
-        // `LANES` padding entries at the end: far away, never a hit.
+        // The faces into their cells' entries (`LANES` padding entries at the end: far away,
+        // never a hit), then each entry's box and plane gathered in entry order: each array
+        // written in sequence, not scattered (the scatter of all eleven arrays was most of the
+        // update's time in `perf`).
         grid.entries.clear();
         grid.entries.resize(total + LANES, 0);
-        for k in 0..3 {
-            grid.lo[k].clear();
-            grid.lo[k].resize(total + LANES, f32::INFINITY);
-            grid.hi[k].clear();
-            grid.hi[k].resize(total + LANES, f32::INFINITY);
-        }
-        for k in 0..4 {
-            grid.plane[k].clear();
-            grid.plane[k].resize(total + LANES, 0.0);
-        }
-        // The arrays borrowed apart as slices once: each store then needs no reload of a
-        // vector's pointer (those reloads were a quarter of the update's samples in `perf`).
-        let Grid {
-            start,
-            entries,
-            lo: [lo_x, lo_y, lo_z],
-            hi: [hi_x, hi_y, hi_z],
-            plane: [p_x, p_y, p_z, p_o],
-            ranges,
-            ..
-        } = grid;
-        let (start, entries) = (start.as_mut_slice(), entries.as_mut_slice());
-        let [lo_x, lo_y, lo_z, hi_x, hi_y, hi_z] =
-            [lo_x, lo_y, lo_z, hi_x, hi_y, hi_z].map(|v| v.as_mut_slice());
-        let [p_x, p_y, p_z, p_o] = [p_x, p_y, p_z, p_o].map(|v| v.as_mut_slice());
-        for (f, &(a, b)) in ranges.iter().enumerate() {
-            let (lo, hi, plane) = (data.lo[f], data.hi[f], data.plane[f]);
+        let start = grid.start.as_mut_slice();
+        for (f, &(a, b)) in grid.ranges.iter().enumerate() {
             for z in a[2]..=b[2] {
                 for y in a[1]..=b[1] {
                     let row = (z as usize * ny + y as usize) * nx;
                     for cursor in &mut start[row + a[0] as usize..=row + b[0] as usize] {
                         // `start[c]` is the fill cursor here, shifted back below.
-                        let slot = *cursor as usize;
+                        grid.entries[*cursor as usize] = f as u32;
                         *cursor += 1;
-                        entries[slot] = f as u32;
-                        (lo_x[slot], lo_y[slot], lo_z[slot]) = (lo[0], lo[1], lo[2]);
-                        (hi_x[slot], hi_y[slot], hi_z[slot]) = (hi[0], hi[1], hi[2]);
-                        (p_x[slot], p_y[slot], p_z[slot], p_o[slot]) =
-                            (plane[0], plane[1], plane[2], plane[3]);
                     }
                 }
             }
+        }
+        fn gather(out: &mut Vec<f32>, faces: &[u32], value: impl Fn(usize) -> f32, pad: f32) {
+            out.clear();
+            out.extend(faces.iter().map(|&f| value(f as usize)));
+            out.extend([pad; LANES]);
+        }
+        let faces = &grid.entries[..total];
+        for k in 0..3 {
+            gather(&mut grid.lo[k], faces, |f| data.lo[f][k], f32::INFINITY);
+            gather(&mut grid.hi[k], faces, |f| data.hi[f][k], f32::INFINITY);
+        }
+        for k in 0..4 {
+            gather(&mut grid.plane[k], faces, |f| data.plane[f][k], 0.0);
         }
         for c in (1..=n_cells).rev() {
             grid.start[c] = grid.start[c - 1];
