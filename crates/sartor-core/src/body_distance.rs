@@ -102,6 +102,10 @@ pub struct BodyDistance {
     bounds: (Vector3<f64>, Vector3<f64>),
     /// The hierarchy over the faces, and each node's cluster (indexed like its nodes).
     tree: MedianTree,
+    /// Per node, the vertices of a leaf's faces, each once (CSR over the nodes; none for an
+    /// inner node): a leaf's radius and box read each vertex once, not once per face.
+    leaf_vertex_offsets: Vec<u32>,
+    leaf_vertices: Vec<u32>,
     /// Fitted to the current positions when the hierarchical winding number first needs them
     /// after a move ([`BodyDistance::clusters`]): the rays answer most points without them, and
     /// their refit was some 16 % of the arm clearance's time.
@@ -118,6 +122,8 @@ impl Clone for BodyDistance {
             vertices: self.vertices.clone(),
             bounds: self.bounds,
             tree: self.tree.clone(),
+            leaf_vertex_offsets: self.leaf_vertex_offsets.clone(),
+            leaf_vertices: self.leaf_vertices.clone(),
             clusters: self.clusters.clone(),
             spare: Mutex::default(),
         }
@@ -142,6 +148,26 @@ impl BodyDistance {
             .iter()
             .all(|f| f.len() >= 2);
         let tree = MedianTree::new(&centroids, LEAF_SIZE);
+        let mut leaf_vertex_offsets = vec![0u32];
+        let mut leaf_vertices = Vec::new();
+        for node in tree.nodes() {
+            if node.is_leaf() {
+                let start = leaf_vertices.len();
+                for &f in tree.leaf_items(node) {
+                    leaf_vertices.extend_from_slice(&faces[f as usize]);
+                }
+                leaf_vertices[start..].sort_unstable();
+                let mut unique = start;
+                for k in start..leaf_vertices.len() {
+                    if k == start || leaf_vertices[k] != leaf_vertices[unique - 1] {
+                        leaf_vertices[unique] = leaf_vertices[k];
+                        unique += 1;
+                    }
+                }
+                leaf_vertices.truncate(unique);
+            }
+            leaf_vertex_offsets.push(leaf_vertices.len() as u32);
+        }
         let mut vertices: Vec<u32> = faces.iter().flatten().copied().collect();
         vertices.sort_unstable();
         vertices.dedup();
@@ -151,6 +177,8 @@ impl BodyDistance {
             vertices,
             bounds: (Vector3::zeros(), Vector3::zeros()),
             tree,
+            leaf_vertex_offsets,
+            leaf_vertices,
             clusters: OnceLock::new(),
             spare: Mutex::default(),
         };
@@ -221,22 +249,23 @@ impl BodyDistance {
                     let v = faces[tris[0] as usize][0];
                     positions[v as usize]
                 };
-                // One root of the largest square (the root is monotone: the same bits as the
-                // largest root).
-                let radius = tris
-                    .iter()
-                    .flat_map(|&f| faces[f as usize])
-                    .map(|v| (positions[v as usize] - center).norm_squared())
-                    .fold(0.0, f64::max)
-                    .sqrt();
+                // Over the leaf's vertices each once (a maximum and a box do not depend on
+                // repeats or order). One root of the largest square (the root is monotone:
+                // the same bits as the largest root).
+                let range = self.leaf_vertex_offsets[id] as usize
+                    ..self.leaf_vertex_offsets[id + 1] as usize;
                 let (mut lo, mut hi) = (
                     Vector3::repeat(f64::INFINITY),
                     Vector3::repeat(f64::NEG_INFINITY),
                 );
-                for v in tris.iter().flat_map(|&f| faces[f as usize]) {
-                    lo = lo.inf(&positions[v as usize]);
-                    hi = hi.sup(&positions[v as usize]);
+                let mut largest = 0.0f64;
+                for &v in &self.leaf_vertices[range] {
+                    let p = positions[v as usize];
+                    largest = largest.max((p - center).norm_squared());
+                    lo = lo.inf(&p);
+                    hi = hi.sup(&p);
                 }
+                let radius = largest.sqrt();
                 (dipole, center, area, radius, lo, hi)
             } else {
                 let (l, r) = (clusters[node.left as usize], clusters[node.right as usize]);
