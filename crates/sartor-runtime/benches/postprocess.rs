@@ -101,6 +101,23 @@ fn heavy_on_cmu() -> (Vec<f32>, Vec<Pose>) {
     (betas, clip.frames().to_vec())
 }
 
+/// The post-process's own time (the avatar's stage clock) over the next `iters` frames of
+/// `poses`, from frame `*k` on, cycling.
+fn post_process_time(
+    avatar: &mut GarmentAnimator,
+    poses: &[Pose],
+    k: &mut usize,
+    iters: u64,
+) -> Duration {
+    let mut total = 0.0;
+    for _ in 0..iters {
+        avatar.frame(&poses[*k % poses.len()]).expect("frame");
+        *k += 1;
+        total += avatar.stage_times().expect("clock").post_process_ms;
+    }
+    Duration::from_secs_f64(total * 1e-3)
+}
+
 fn post_process(c: &mut Criterion) {
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     let poses: Vec<Pose> = walk.frames().to_vec();
@@ -143,15 +160,7 @@ fn post_process(c: &mut Criterion) {
         let mut k = 0;
         group.bench_function(name, |b| {
             b.iter_custom(|iters| {
-                pool.install(|| {
-                    let mut total = 0.0;
-                    for _ in 0..iters {
-                        avatar.frame(&poses[k % poses.len()]).expect("frame");
-                        k += 1;
-                        total += avatar.stage_times().expect("clock").post_process_ms;
-                    }
-                    Duration::from_secs_f64(total * 1e-3)
-                })
+                pool.install(|| post_process_time(&mut avatar, &poses, &mut k, iters))
             })
         });
     }
@@ -173,15 +182,7 @@ fn post_process(c: &mut Criterion) {
         avatar.set_shape(&betas).expect("finite shape");
         let mut k = 0;
         group.bench_function(name, |b| {
-            b.iter_custom(|iters| {
-                let mut total = 0.0;
-                for _ in 0..iters {
-                    avatar.frame(&dance[k % dance.len()]).expect("frame");
-                    k += 1;
-                    total += avatar.stage_times().expect("clock").post_process_ms;
-                }
-                Duration::from_secs_f64(total * 1e-3)
-            })
+            b.iter_custom(|iters| post_process_time(&mut avatar, &dance, &mut k, iters))
         });
     }
     group.finish();
