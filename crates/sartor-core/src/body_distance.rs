@@ -152,19 +152,14 @@ impl BodyDistance {
         let mut leaf_vertices = Vec::new();
         for node in tree.nodes() {
             if node.is_leaf() {
-                let start = leaf_vertices.len();
-                for &f in tree.leaf_items(node) {
-                    leaf_vertices.extend_from_slice(&faces[f as usize]);
-                }
-                leaf_vertices[start..].sort_unstable();
-                let mut unique = start;
-                for k in start..leaf_vertices.len() {
-                    if k == start || leaf_vertices[k] != leaf_vertices[unique - 1] {
-                        leaf_vertices[unique] = leaf_vertices[k];
-                        unique += 1;
-                    }
-                }
-                leaf_vertices.truncate(unique);
+                let mut leaf: Vec<u32> = tree
+                    .leaf_items(node)
+                    .iter()
+                    .flat_map(|&f| faces[f as usize])
+                    .collect();
+                leaf.sort_unstable();
+                leaf.dedup();
+                leaf_vertices.extend(leaf);
             }
             leaf_vertex_offsets.push(leaf_vertices.len() as u32);
         }
