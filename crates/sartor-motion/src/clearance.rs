@@ -210,6 +210,13 @@ impl Posing {
         })
     }
 
+    /// The torso's vertices of the posed body into [`Posing::torso_posed`].
+    fn gather_torso(&mut self, torso: &Torso) {
+        self.torso_posed.clear();
+        self.torso_posed
+            .extend(torso.vertices.iter().map(|&v| self.posed[v as usize]));
+    }
+
     /// Pose the body at the vertices `needed` (the torso faces' and the arms') and the torso's
     /// distance field.
     fn pose(&mut self, body: &BodyModel, pose: &Pose, torso: &Torso, needed: &[u32]) -> Result<()> {
@@ -217,9 +224,7 @@ impl Posing {
         // held vertices); the legs, head and the rest are some two thirds of the body.
         self.poser
             .pose_vertices_into(body, &self.betas, pose, needed, &mut self.posed)?;
-        self.torso_posed.clear();
-        self.torso_posed
-            .extend(torso.vertices.iter().map(|&v| self.posed[v as usize]));
+        self.gather_torso(torso);
         match &mut self.distance {
             // The few closest points asked per pose compute their normals themselves: the
             // torso's normals for every pose were a quarter of `apply`'s time.
@@ -243,9 +248,7 @@ impl Posing {
         self.poser
             .pose_vertices_into(body, &self.betas, pose, &arm.moved, &mut self.posed)?;
         if arm.moves_torso {
-            for (p, &v) in self.torso_posed.iter_mut().zip(&torso.vertices) {
-                *p = self.posed[v as usize];
-            }
+            self.gather_torso(torso);
             self.distance
                 .as_mut()
                 .expect("posed before")
@@ -395,7 +398,7 @@ impl ArmClearance {
         needed.dedup();
         let torso = Torso::new(&torso_faces, body.n_vertices());
         let mut in_torso = vec![false; body.n_vertices()];
-        for &v in torso_faces.iter().flatten() {
+        for &v in &torso.vertices {
             in_torso[v as usize] = true;
         }
         for arm in &mut arms {
