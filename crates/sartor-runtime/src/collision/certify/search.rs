@@ -778,6 +778,9 @@ impl Search {
         self.range.clear();
         self.range.resize(n, (0, 0));
         self.lists.clear();
+        // A point whose warm face lies within `front2` fails the sweep on that face (its bound
+        // is at most its distance), so it is not swept: it goes straight to its search.
+        let sweepable = |best: Best, front2: f32| best.face != u32::MAX && best.best2 >= front2;
         self.sort_by_warm_cluster(frame);
         let order = std::mem::take(&mut self.order);
         let (mut start, n_warm) = (0, self.n_warm);
@@ -794,7 +797,7 @@ impl Search {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
                     if let Some(front2) = sweep
-                        && best.face != u32::MAX
+                        && sweepable(best, front2)
                         && frame.tree.sweep_among(
                             &self.packet_clusters,
                             &self.packet_boxes,
@@ -818,7 +821,7 @@ impl Search {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
                     if let Some(front2) = sweep
-                        && best.face != u32::MAX
+                        && sweepable(best, front2)
                         && frame.tree.sweep(x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
