@@ -708,15 +708,16 @@ impl Search {
     /// distance plus the slack, read back with [`Search::faces_into`] and [`Search::best`]; `warm`:
     /// per point, a face to start from (`u32::MAX`: none).
     ///
-    /// With `sweep` (`(margin + guard)²`), a point whose warm face lies within `reach` is
-    /// first *swept*: when every face whose bound ([`FaceBlock::distance2`]) lies within the
-    /// reach has the point in front of its plane by more than the guard and a bound of at
-    /// least `sweep`, the point is proven beyond the margin ([`Search::swept`]) without a list.
-    /// The proof is the parent module's, over more faces than it needs: every face within the
-    /// nearest distance plus the slack lies within the reach (the warm face's distance plus the
-    /// slack bounds the nearest one), so each face holding the closest point is in front, and
-    /// the nearest face's bound is beyond the margin; and no crease face may be in reach (where
-    /// buried faces are sought), as the list's certificate asks.
+    /// With `sweep` (`(margin + guard)²`), a point whose warm face lies within `reach` (and not
+    /// within `sweep`, where that face alone fails the test below) is first *swept*: when every
+    /// face whose bound ([`FaceBlock::distance2`]) lies within the reach has the point in front
+    /// of its plane by more than the guard and a bound of at least `sweep`, the point is proven
+    /// beyond the margin ([`Search::swept`]) without a list. The proof is the parent module's,
+    /// over more faces than it needs: every face within the nearest distance plus the slack
+    /// lies within the reach (the warm face's distance plus the slack bounds the nearest one),
+    /// so each face holding the closest point is in front, and the nearest face's bound is
+    /// beyond the margin; and no crease face may be in reach (where buried faces are sought),
+    /// as the list's certificate asks.
     pub(crate) fn run(
         &mut self,
         frame: &Frame,
