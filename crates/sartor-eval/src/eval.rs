@@ -28,8 +28,13 @@
 //!   wrong behind its cut edges and where parts press together), over all frames.
 //! - `ground_truth_collision_percent` and `ground_truth_signed_distance`: the same measure on
 //!   the simulated cloth (share inside; percentiles, share below 0 and −1 mm).
+//! - `edge_stretch` ([`StretchSummary`]): each garment edge's length over its length in the
+//!   template, after the post-process, over edges × frames (quantiles, maximum, shares beyond
+//!   1.5× and 2×); `edge_stretch_before_pp` without it; `ground_truth_edge_stretch`: the same
+//!   of the simulated cloth, per test set and sequence, so that a model's stretch can be told
+//!   from the physics'.
 //! - per sequence: the per-frame error curve (after the post-process), β and its distance to
-//!   the nearest training shape.
+//!   the nearest training shape, the edge stretch's 99th percentile and maximum.
 //!
 //! The frames are the motion frames of the simulation; each sequence starts from a zero GRU
 //! state with the pose before its first frame as the previous pose, exactly as the dataset
@@ -56,6 +61,7 @@ use crate::error::{Context, ensure};
 use crate::gt_distance::{DistanceHistogram, DistanceSummary, PosedBody};
 use crate::plot::{Chart, Marker, Series, write_charts};
 use crate::report::{Machine, write_json};
+use crate::stretch::{GarmentEdges, StretchHistogram, StretchSummary};
 use crate::timing::mean;
 use crate::{Progress, Result};
 
@@ -179,6 +185,10 @@ pub struct SequenceMetrics {
     pub inside_after: usize,
     /// Vertices × frames.
     pub vertex_frames: usize,
+    /// Edge stretch after the post-process.
+    pub stretch: StretchHistogram,
+    /// The same before it.
+    pub stretch_before: StretchHistogram,
 }
 
 fn mean_distance(a: &[Vector3<f32>], b: &[Vector3<f64>]) -> f64 {
@@ -212,6 +222,8 @@ pub fn run_sequence(
         anim.reset_from(&seq.truth.previous_pose)?;
     }
     let n = a.rig().n_vertices();
+    let binding = pp.binding();
+    let edges = GarmentEdges::new(binding.template(), binding.faces())?;
     let mut m = SequenceMetrics::default();
     let mut kept = Vec::new();
     let mut posed = PosedBody::new(pp.body().clone());
@@ -232,6 +244,8 @@ pub fn run_sequence(
         m.inside_before += posed.measure(before.iter().map(|p| p.cast()), &mut histogram)?;
         m.inside_after += posed.measure(after.iter().map(|p| p.cast()), &mut histogram)?;
         m.vertex_frames += n;
+        edges.add_frame(before, &mut m.stretch_before)?;
+        edges.add_frame(after, &mut m.stretch)?;
         if keep.contains(&t) {
             kept.push(after.to_vec());
         }
@@ -254,6 +268,10 @@ pub struct MethodReport {
     pub collision_percent_after_pp: f64,
     /// Frames evaluated.
     pub frames: usize,
+    /// Edge stretch after the post-process, over edges × frames.
+    pub edge_stretch: StretchSummary,
+    /// The same before it.
+    pub edge_stretch_before_pp: StretchSummary,
     /// Per sequence.
     pub sequences: Vec<SequenceReport>,
 }
@@ -273,6 +291,20 @@ pub struct SequenceReport {
     pub per_frame_error_mm: Vec<f64>,
     /// Inside the body after the post-process, %.
     pub collision_percent_after_pp: f64,
+    /// Edge stretch after the post-process: 99th percentile and maximum.
+    pub edge_stretch_p99: f64,
+    /// See `edge_stretch_p99`.
+    pub edge_stretch_max: f64,
+}
+
+/// The edge stretch of every sequence's `histogram`, merged.
+fn merged(
+    metrics: &[SequenceMetrics],
+    histogram: fn(&SequenceMetrics) -> &StretchHistogram,
+) -> StretchSummary {
+    let mut all = StretchHistogram::default();
+    metrics.iter().for_each(|m| all.merge(histogram(m)));
+    all.summary()
 }
 
 fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport {
@@ -292,6 +324,8 @@ fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport
         collision_percent_before_pp: pct(metrics.iter().map(|m| m.inside_before).sum()),
         collision_percent_after_pp: pct(metrics.iter().map(|m| m.inside_after).sum()),
         frames: metrics.iter().map(|m| m.per_frame_m.len()).sum(),
+        edge_stretch: merged(metrics, |m| &m.stretch),
+        edge_stretch_before_pp: merged(metrics, |m| &m.stretch_before),
         sequences: seqs
             .iter()
             .zip(metrics)
@@ -303,6 +337,8 @@ fn summarise(seqs: &[TestSequence], metrics: &[SequenceMetrics]) -> MethodReport
                 per_frame_error_mm: m.per_frame_m.iter().map(|e| 1e3 * e).collect(),
                 collision_percent_after_pp: 100.0 * m.inside_after as f64
                     / m.vertex_frames.max(1) as f64,
+                edge_stretch_p99: m.stretch.quantile(0.99),
+                edge_stretch_max: m.stretch.summary().edge_stretch_max,
             })
             .collect(),
     }
@@ -464,6 +500,8 @@ pub struct EvalReport {
     /// The ground truth's signed distance to the posed body: percentiles, share below 0 and
     /// −1 mm (the simulator promises none below −1 mm).
     pub ground_truth_signed_distance: DistanceSummary,
+    /// The simulated cloth's edge stretch, per test set (the methods' `edge_stretch` beside it).
+    pub ground_truth_edge_stretch: serde_json::Map<String, serde_json::Value>,
     /// Test sequences left out because their simulation failed.
     pub skipped_failed_simulations: Vec<String>,
     /// What was not evaluated and why.
@@ -552,8 +590,16 @@ pub fn evaluate_run(run: &EvalRun<'_>, progress: &dyn Progress) -> Result<EvalRe
     let shapes_map = reports.pop().unwrap_or_default();
     let motions_map = reports.pop().unwrap_or_default();
 
-    // The simulator's own contacts, by the same measure.
+    // The simulator's own contacts, by the same measure, and its own stretch.
     let gt = ground_truth_collisions(&assets, &motions, &shapes)?;
+    let edges = GarmentEdges::new(assets.binding.template(), assets.binding.faces())?;
+    let mut gt_stretch = serde_json::Map::new();
+    for (set, seqs) in [("held_out_motions", &motions), ("held_out_shapes", &shapes)] {
+        if !seqs.is_empty() {
+            let value = serde_json::to_value(ground_truth_stretch(&edges, seqs)?)?;
+            gt_stretch.insert(set.to_owned(), value);
+        }
+    }
 
     let dir = run.out_dir;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -567,6 +613,7 @@ pub fn evaluate_run(run: &EvalRun<'_>, progress: &dyn Progress) -> Result<EvalRe
         held_out_shapes: shapes_map,
         ground_truth_collision_percent: gt.below_0_mm_percent,
         ground_truth_signed_distance: gt,
+        ground_truth_edge_stretch: gt_stretch,
         skipped_failed_simulations: skipped,
         notes,
         wall_time_s: start.elapsed().as_secs_f64(),
@@ -586,6 +633,63 @@ fn ground_truth_collisions(
 ) -> Result<DistanceSummary> {
     let seqs: Vec<&TestSequence> = motions.iter().chain(shapes).collect();
     Ok(ground_truth_signed_distance(&assets.body, &seqs)?.summary())
+}
+
+/// The edge stretch of a test set's simulated cloth, as `eval.json` reports it.
+#[derive(Clone, Debug, Serialize)]
+pub struct GroundTruthStretch {
+    /// Over the set's edges × frames.
+    #[serde(flatten)]
+    pub all: StretchSummary,
+    /// Per sequence.
+    pub sequences: Vec<SequenceStretch>,
+}
+
+/// One sequence of a [`GroundTruthStretch`].
+#[derive(Clone, Debug, Serialize)]
+pub struct SequenceStretch {
+    /// Shape id.
+    pub shape: String,
+    /// Motion.
+    pub motion: String,
+    /// 99th percentile of the edge stretch.
+    pub edge_stretch_p99: f64,
+    /// Its maximum.
+    pub edge_stretch_max: f64,
+}
+
+/// The edge stretch of `seqs`' simulated cloth (every frame; sequences in parallel).
+pub fn ground_truth_stretch(
+    edges: &GarmentEdges,
+    seqs: &[TestSequence],
+) -> Result<GroundTruthStretch> {
+    let parts = seqs
+        .par_iter()
+        .map(|s| -> Result<StretchHistogram> {
+            let mut h = StretchHistogram::default();
+            for cloth in &s.truth.cloth {
+                edges.add_frame(cloth, &mut h).with_context(|| {
+                    format!("the ground truth of {}", sequence_stem(&s.shape, &s.motion))
+                })?;
+            }
+            Ok(h)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut all = StretchHistogram::default();
+    parts.iter().for_each(|h| all.merge(h));
+    Ok(GroundTruthStretch {
+        all: all.summary(),
+        sequences: seqs
+            .iter()
+            .zip(&parts)
+            .map(|(s, h)| SequenceStretch {
+                shape: s.shape.clone(),
+                motion: s.motion.clone(),
+                edge_stretch_p99: h.quantile(0.99),
+                edge_stretch_max: h.summary().edge_stretch_max,
+            })
+            .collect(),
+    })
 }
 
 /// The signed distance of every ground-truth cloth vertex of `seqs` (every frame) to the posed
@@ -616,18 +720,35 @@ impl EvalReport {
     /// One line per set and method: error after (before) the post-process, collisions.
     pub fn summary_lines(&self) -> Vec<String> {
         let mut lines = Vec::new();
-        for (set, map) in [
-            ("held-out motions", &self.held_out_motions),
-            ("held-out shapes", &self.held_out_shapes),
+        for (set, key, map) in [
+            (
+                "held-out motions",
+                "held_out_motions",
+                &self.held_out_motions,
+            ),
+            ("held-out shapes", "held_out_shapes", &self.held_out_shapes),
         ] {
             for (name, v) in map {
                 let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+                let e = |k: &str| v["edge_stretch"][k].as_f64().unwrap_or(f64::NAN);
                 lines.push(format!(
-                    "{set:>16} {name:>8}: {:7.2} mm ({:7.2} before pp), inside {:5.2} % → {:5.2} %",
+                    "{set:>16} {name:>8}: {:7.2} mm ({:7.2} before pp), \
+                     inside {:5.2} % → {:5.2} %, edges p99 {:.2}× max {:.1}×",
                     f("mean_vertex_error_mm"),
                     f("mean_vertex_error_mm_before_pp"),
                     f("collision_percent_before_pp"),
                     f("collision_percent_after_pp"),
+                    e("edge_stretch_p99"),
+                    e("edge_stretch_max"),
+                ));
+            }
+            if let Some(gt) = self.ground_truth_edge_stretch.get(key) {
+                let e = |k: &str| gt[k].as_f64().unwrap_or(f64::NAN);
+                lines.push(format!(
+                    "{set:>16} {:>8}: edges p99 {:.2}× max {:.1}×",
+                    "truth",
+                    e("edge_stretch_p99"),
+                    e("edge_stretch_max"),
                 ));
             }
         }
@@ -729,6 +850,8 @@ struct SeqIn {
     mean_vertex_error_mm: f64,
     per_frame_error_mm: Vec<f64>,
     collision_percent_after_pp: f64,
+    edge_stretch_p99: f64,
+    edge_stretch_max: f64,
 }
 
 impl SeqIn {
@@ -740,6 +863,8 @@ impl SeqIn {
             mean_vertex_error_mm: self.mean_vertex_error_mm,
             per_frame_error_mm: self.per_frame_error_mm,
             collision_percent_after_pp: self.collision_percent_after_pp,
+            edge_stretch_p99: self.edge_stretch_p99,
+            edge_stretch_max: self.edge_stretch_max,
         }
     }
 }

@@ -8,7 +8,8 @@
 //!
 //! - [`evaluate_run`] (`eval.json`): `ours`, `lbs`, `lr`, `retarget` ([`Method`]) on the held-out
 //!   motions and shapes of a [`sartor_dataset::DatasetPlan`], with and without the collision
-//!   post-process, error plots and a rendered comparison. The pieces ([`Assets`],
+//!   post-process, edge stretch beside the ground truth's ([`StretchSummary`]), error plots and a
+//!   rendered comparison. The pieces ([`Assets`],
 //!   [`test_sets`], [`load_truth`], [`evaluate_with`]) serve the trade-off and the model check.
 //! - [`sweep_model`], [`mark_pareto`], [`plot_tradeoff`] (`tradeoff.json`): what each speed
 //!   knob of the runtime costs in accuracy.
@@ -32,6 +33,7 @@ mod plot;
 mod progress;
 mod report;
 mod slice;
+mod stretch;
 mod timing;
 mod tradeoff;
 
@@ -46,9 +48,10 @@ pub use bench_sim::{
 };
 pub use error::{Context, Error, Result};
 pub use eval::{
-    Assets, EVAL_FILE, EvalReport, EvalRun, Method, MethodReport, SequenceMetrics, SequenceReport,
-    TestSequence, TestSets, evaluate, evaluate_run, evaluate_with, ground_truth_signed_distance,
-    load_truth, run_sequence, shape_distance, test_sets,
+    Assets, EVAL_FILE, EvalReport, EvalRun, GroundTruthStretch, Method, MethodReport,
+    SequenceMetrics, SequenceReport, SequenceStretch, TestSequence, TestSets, evaluate,
+    evaluate_run, evaluate_with, ground_truth_signed_distance, ground_truth_stretch, load_truth,
+    run_sequence, shape_distance, test_sets,
 };
 pub use gt_distance::{
     DistanceHistogram, DistanceSummary, PosedBody, sequence_files_signed_distance,
@@ -60,6 +63,7 @@ pub use slice::{
     RegressionSlice, SLICE_FILE, SliceCheck, TOLERANCE, check_slice, read_slice, slice_error_mm,
     write_slice,
 };
+pub use stretch::{GarmentEdges, StretchHistogram, StretchSummary};
 pub use timing::{FrameTiming, mean, median, thread_cpu_ns, time_frames, time_stages};
 pub use tradeoff::{
     SweptPoint, TradeoffOptions, TradeoffPoint, TradeoffReport, mark_pareto, plot_tradeoff,

@@ -8,7 +8,8 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use sartor_core::{BodyDistance, BodyModel, MeshTopology};
+use sartor_core::{BodyDistance, BodyModel};
+use sartor_eval::GarmentEdges;
 use sartor_mcap::{McapWriter, SceneMesh};
 use sartor_motion::{ArmClearance, ClearanceOptions, ClearanceReport, Motion};
 use sartor_runtime::{
@@ -123,20 +124,12 @@ impl Animation {
         if self.garment.is_empty() {
             return Ok(ClothCheck::default());
         }
-        let edges = MeshTopology::new(n, garment_faces).edges;
-        let rest: Vec<f32> = edges
-            .iter()
-            .map(|&[a, b]| (template[a as usize] - template[b as usize]).norm())
-            .collect();
-        ensure!(
-            rest.iter().all(|&l| l > 0.0),
-            "the garment template has an edge of zero length"
-        );
+        let edges = GarmentEdges::new(template, garment_faces)?;
         // One body, refitted frame to frame (building it costs some 40 ms, refitting it and
         // asking its winding number at every vertex and centroid a few).
         let mut posed: Vec<Vector3<f64>> = self.body[0].iter().map(|p| p.cast()).collect();
         let mut distance = BodyDistance::new(&posed, body_faces)?;
-        let mut frames: Vec<(usize, usize, Vec<f32>)> = Vec::with_capacity(self.garment.len());
+        let mut frames: Vec<(usize, usize, Vec<f64>)> = Vec::with_capacity(self.garment.len());
         for (t, (garment, body)) in self.garment.iter().zip(&self.body).enumerate() {
             if t > 0 {
                 posed.clear();
@@ -157,11 +150,7 @@ impl Animation {
                     )
                 })
                 .count();
-            let stretch = edges
-                .iter()
-                .zip(&rest)
-                .map(|(&[a, b], l)| (garment[a as usize] - garment[b as usize]).norm() / l)
-                .collect();
+            let stretch = edges.ratios(garment).collect();
             frames.push((vertices, triangles, stretch));
         }
         let n_frames = frames.len() as f64;
@@ -170,12 +159,12 @@ impl Animation {
             .enumerate()
             .max_by_key(|(t, f)| (f.1, std::cmp::Reverse(*t)))
             .filter(|(_, f)| f.1 > 0);
-        let mut stretch: Vec<f32> = frames.iter().flat_map(|f| f.2.iter().copied()).collect();
-        stretch.sort_unstable_by(f32::total_cmp);
+        let mut stretch: Vec<f64> = frames.iter().flat_map(|f| f.2.iter().copied()).collect();
+        stretch.sort_unstable_by(f64::total_cmp);
         let at = |q: f64| {
             stretch
                 .get(((stretch.len() as f64 - 1.0) * q).round() as usize)
-                .map_or(0.0, |&s| f64::from(s))
+                .map_or(0.0, |&s| s)
         };
         Ok(ClothCheck {
             cloth_vertices_inside_percent: 100.0 * frames.iter().map(|f| f.0).sum::<usize>() as f64

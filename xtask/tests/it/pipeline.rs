@@ -281,6 +281,34 @@ fn train_export_eval(runs: &Path, config: &serde_json::Value) {
                 eval[set][m]["collision_percent_after_pp"].is_number(),
                 "{set}/{m}"
             );
+            // Edge stretch: ordered quantiles, and the set's maximum that of its sequences.
+            let stretch = &eval[set][m]["edge_stretch"];
+            let q = |k: &str| stretch[k].as_f64().unwrap_or(f64::NAN);
+            assert!(
+                q("edge_stretch_p50") > 0.0
+                    && q("edge_stretch_p50") <= q("edge_stretch_p99")
+                    && q("edge_stretch_p99") <= q("edge_stretch_max")
+                    && q("edge_stretch_max").is_finite(),
+                "{set}/{m}: {stretch}"
+            );
+            let seq_max = eval[set][m]["sequences"]
+                .as_array()
+                .expect("sequences")
+                .iter()
+                .map(|s| s["edge_stretch_max"].as_f64().expect("a number"))
+                .fold(0.0, f64::max);
+            assert_eq!(seq_max, q("edge_stretch_max"), "{set}/{m}");
         }
+        let truth = &eval["ground_truth_edge_stretch"][set];
+        let p99 = truth["edge_stretch_p99"].as_f64();
+        assert!(
+            p99.is_some_and(|p| p.is_finite() && p > 0.0),
+            "{set}: {truth}"
+        );
+        assert_eq!(
+            truth["sequences"].as_array().map(Vec::len),
+            eval[set]["ours"]["sequences"].as_array().map(Vec::len),
+            "{set}"
+        );
     }
 }
