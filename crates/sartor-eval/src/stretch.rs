@@ -198,7 +198,7 @@ impl StretchHistogram {
 pub struct StretchSummary {
     /// Edges × frames.
     pub edge_frames: u64,
-    /// The median ratio (to 0.001, the bin's upper edge).
+    /// The median ratio (to 0.001, the bin's upper edge; a quantile of 20 or more reads 20).
     pub edge_stretch_p50: f64,
     /// The 99th percentile.
     pub edge_stretch_p99: f64,
