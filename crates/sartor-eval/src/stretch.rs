@@ -163,6 +163,11 @@ impl StretchHistogram {
         self.total
     }
 
+    /// The largest ratio (NaN if one was; 0 when empty).
+    pub fn max(&self) -> f64 {
+        self.max
+    }
+
     /// The value at or below which a share `q` (0..1) of the ratios lie: the upper edge of the
     /// bin holding the `⌈q n⌉`-th smallest (at most 0.001 above it), never above the maximum.
     pub fn quantile(&self, q: f64) -> f64 {
