@@ -105,15 +105,8 @@ impl DistanceHistogram {
 
     /// The value below which a share `q` (0..1) of the distances lie (the bin's lower edge), mm.
     pub fn percentile_mm(&self, q: f64) -> f64 {
-        let target = (q * self.total as f64).ceil().max(1.0) as u64;
-        let mut seen = 0;
-        for (bin, &c) in self.counts.iter().enumerate() {
-            seen += c;
-            if seen >= target {
-                return bin as f64 * BIN_MM - RANGE_MM;
-            }
-        }
-        RANGE_MM
+        quantile_bin(&self.counts, self.total, q)
+            .map_or(RANGE_MM, |bin| bin as f64 * BIN_MM - RANGE_MM)
     }
 
     /// The distribution as reported.
@@ -141,6 +134,17 @@ impl DistanceHistogram {
             below_minus_1_mm_between_parts: self.deep_between_parts,
         }
     }
+}
+
+/// The bin of a histogram's `counts` (over `total` values) holding the `⌈q total⌉`-th smallest
+/// value (the first, for `q` = 0); `None` when the counts hold fewer.
+pub(crate) fn quantile_bin(counts: &[u64], total: u64, q: f64) -> Option<usize> {
+    let target = (q * total as f64).ceil().max(1.0) as u64;
+    let mut seen = 0;
+    counts.iter().position(|&c| {
+        seen += c;
+        seen >= target
+    })
 }
 
 /// The distribution of the signed distance, as written to reports.

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use crate::Result;
 use crate::error::ensure;
+use crate::gt_distance::quantile_bin;
 
 /// Bin width of the stretch histogram (a ratio, no unit).
 const BIN: f64 = 0.001;
@@ -135,27 +136,22 @@ impl StretchHistogram {
         // NaN counts as beyond both.
         self.over_1_5 += u64::from(ratio.is_nan() || ratio > 1.5);
         self.over_2 += u64::from(ratio.is_nan() || ratio > 2.0);
-        self.max = if ratio.is_nan() || self.max.is_nan() {
-            f64::NAN
-        } else {
-            self.max.max(ratio)
-        };
+        self.max = nan_max(self.max, ratio);
     }
 
     /// Add another histogram's counts.
     pub fn merge(&mut self, o: &Self) {
-        self.counts
+        let mine = [&mut self.total, &mut self.over_1_5, &mut self.over_2];
+        let theirs = [o.total, o.over_1_5, o.over_2];
+        for (a, b) in self
+            .counts
             .iter_mut()
-            .zip(&o.counts)
-            .for_each(|(a, b)| *a += b);
-        self.total += o.total;
-        self.over_1_5 += o.over_1_5;
-        self.over_2 += o.over_2;
-        self.max = if self.max.is_nan() || o.max.is_nan() {
-            f64::NAN
-        } else {
-            self.max.max(o.max)
-        };
+            .chain(mine)
+            .zip(o.counts.iter().chain(&theirs))
+        {
+            *a += b;
+        }
+        self.max = nan_max(self.max, o.max);
     }
 
     /// Ratios counted.
@@ -171,15 +167,8 @@ impl StretchHistogram {
     /// The value at or below which a share `q` (0..1) of the ratios lie: the upper edge of the
     /// bin holding the `⌈q n⌉`-th smallest (at most 0.001 above it), never above the maximum.
     pub fn quantile(&self, q: f64) -> f64 {
-        let target = (q * self.total as f64).ceil().max(1.0) as u64;
-        let mut seen = 0;
-        for (bin, &c) in self.counts.iter().enumerate() {
-            seen += c;
-            if seen >= target {
-                return ((bin + 1) as f64 * BIN).min(self.max);
-            }
-        }
-        self.max
+        quantile_bin(&self.counts, self.total, q)
+            .map_or(self.max, |bin| ((bin + 1) as f64 * BIN).min(self.max))
     }
 
     /// The distribution as reported.
@@ -194,6 +183,15 @@ impl StretchHistogram {
             over_1_5x_percent: pct(self.over_1_5),
             over_2x_percent: pct(self.over_2),
         }
+    }
+}
+
+/// The larger of `a` and `b`, NaN if either is (`f64::max` drops a NaN).
+fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
     }
 }
 
