@@ -3,9 +3,10 @@
 //! 0.001 without keeping every value, the exact maximum, and the shares stretched beyond 1.5×
 //! and 2×.
 //!
-//! `eval` reports it for every method after the post-process (`edge_stretch`) and for the
-//! simulated ground truth of the same frames (`ground_truth_edge_stretch` in `eval.json`), so
-//! that a model's stretched sleeves can be told from cloth that stretches there in physics too.
+//! `eval` reports it for every method after and before the post-process (`edge_stretch`,
+//! `edge_stretch_before_pp`) and for the simulated ground truth of the same frames
+//! (`ground_truth_edge_stretch` in `eval.json`), so that a model's stretched sleeves can be told
+//! from cloth that stretches there in physics too; `demo` reports its p99 and maximum.
 //! Knit cloth stretches by tens of percent; several times its length is a garment torn open.
 
 use nalgebra::{RealField, Scalar, Vector3};
