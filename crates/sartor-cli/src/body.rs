@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 use sartor_core::{
-    BodyModel, Parallelism, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj,
+    BodyMeasurer, BodyModel, Parallelism, PhenotypeRequest, PhenotypeSpace, skin_points, write_obj,
 };
 use sartor_import::load_smpl_npz;
 use sartor_motion::{ArmClearance, UpAxis, load_motion};
@@ -65,7 +65,9 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
             }
             let request: PhenotypeRequest = text.parse()?;
             let space = PhenotypeSpace::load(&model_dir)?;
-            let (phenotype, betas) = space.betas_for(&model, &request)?;
+            let (phenotype, betas) = space
+                .betas_for(&model, &request)
+                .with_context(|| format!("--phenotype {text:?}"))?;
             let rounded: Vec<String> = betas.iter().map(|b| format!("{b:.2}")).collect();
             println!(
                 "phenotype {text:?} → {phenotype:?}, β [{}]",
@@ -76,6 +78,11 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
         None => args.beta.clone(),
     };
     model.check_betas(&betas)?;
+    let rest = model.shaped_vertices(&betas)?;
+    match BodyMeasurer::new(&model) {
+        Ok(m) => println!("{}", m.measure(&rest, &betas)?),
+        Err(e) => println!("not measured: {e}"),
+    }
     let motion = if args.motion == "rest" {
         None
     } else {
@@ -89,7 +96,6 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
                 .with_context(|| format!("motion {:?}", args.motion))?,
         )
     };
-    let rest = model.shaped_vertices(&betas)?;
     let joints = model.shaped_joints(&betas)?;
     let poses = match &motion {
         Some(m) => {

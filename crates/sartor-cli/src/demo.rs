@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use sartor_core::{BodyModel, PhenotypeRequest, PhenotypeSpace};
+use sartor_core::{BodyMeasurements, BodyMeasurer, BodyModel, PhenotypeRequest, PhenotypeSpace};
 use sartor_eval::{Machine, write_json};
 use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
 use sartor_pipeline::{ClothCheck, DataDir, Format, animate, model_betas, write_animation};
@@ -119,6 +119,8 @@ struct DemoEntry {
     arm_clearance_max_angle_deg: f64,
     /// The deepest held arm vertex inside the torso as the motion came, mm.
     arm_depth_before_mm: Option<f64>,
+    /// The body's size-chart measurements (`sartor_core::BodyMeasurer`): height, girths, mass.
+    body_measurements: Option<BodyMeasurements>,
     /// How the garment sits on the body over the clip: inside it, and stretched.
     #[serde(flatten)]
     check: ClothCheck,
@@ -195,7 +197,9 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         let space = PhenotypeSpace::load(&body_dir)?;
         for text in phenotypes {
             let request: PhenotypeRequest = text.parse()?;
-            let (_, betas) = space.betas_for(&body, &request)?;
+            let (_, betas) = space
+                .betas_for(&body, &request)
+                .with_context(|| format!("--phenotype {text:?}"))?;
             bodies.push((text.to_owned(), betas));
         }
     }
@@ -220,6 +224,9 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
             .expect("static template"),
     );
     let clearance = (!args.no_arm_clearance).then(shipped_arm_clearance);
+    let measurer = BodyMeasurer::new(&body)
+        .inspect_err(|e| bar.println(format!("the bodies are not measured: {e}")))
+        .ok();
     let mut runs = Vec::new();
     for (b, (label, betas)) in bodies.iter().enumerate() {
         let (betas, dropped) = model_betas(&rig, betas);
@@ -230,6 +237,16 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 betas.len()
             ));
         }
+        let body_measurements = match &measurer {
+            Some(m) => {
+                let mut full = betas.clone();
+                full.resize(body.n_betas(), 0.0);
+                let measured = m.measure(&body.shaped_vertices(&full)?, &full)?;
+                bar.println(format!("{label}: {measured}"));
+                Some(measured)
+            }
+            None => None,
+        };
         for (spec, motion) in specs.iter().zip(&motions) {
             bar.set_message(format!("{label} / {spec}"));
             let anim = animate(
@@ -299,6 +316,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 arm_clearance_frames_changed: held.map_or(0, |r| r.frames_changed),
                 arm_clearance_max_angle_deg: held.map_or(0.0, |r| r.max_angle_rad.to_degrees()),
                 arm_depth_before_mm: held.map(|r| r.max_depth_before_m * 1e3),
+                body_measurements,
                 check,
                 files: files.iter().map(|p| p.display().to_string()).collect(),
             });

@@ -10,7 +10,8 @@
 //!   heading/tilt split of a root rotation; [`FPS`], the frame rate of every motion.
 //! - [`BodyModel`]: template, shape basis, joint shape basis, skeleton, [`SkinWeights`]; saved
 //!   as safetensors + JSON. [`PhenotypeSpace`] maps MakeHuman's sliders or a text request such
-//!   as `"female, 1.70 m, heavy"` to the shape vector β.
+//!   as `"female, 1.70 m, heavy"` to the shape vector β; [`BodyMeasurer`] takes a body's
+//!   size-chart measurements (height, chest, waist, hips, mass).
 //! - [`skin_points`] (and [`skin_points_at`], a few points) / [`unskin_points`]: linear blend
 //!   skinning and its inverse, the one implementation every sartor crate uses.
 //! - [`MeshProximity`]: the one closest-point query (refittable BVH, signed distance).
@@ -45,6 +46,7 @@ mod body_distance;
 mod error;
 mod features;
 pub mod io;
+mod measure;
 mod mesh;
 mod model;
 mod norm;
@@ -63,6 +65,10 @@ pub use binding::{
 pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};
 pub use features::{PoseFeatureSpec, PoseFeatures, RootFeature, RotationEncoding};
+pub use measure::{
+    BODY_DENSITY_KG_PER_M3, BodyMeasurements, BodyMeasurer, FIT_BETA_LIMIT, MeasurementFit,
+    MeasurementTargets, fit_measurements,
+};
 pub use mesh::{
     Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, compact_faces, face_normals,
     vertex_normals,

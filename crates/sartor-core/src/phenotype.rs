@@ -34,7 +34,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::asset::AssetFiles;
 use crate::io::{OwnedTensor, serialize_tensors, sha256_hex};
-use crate::{BodyModel, Error, Result};
+use crate::{BodyMeasurer, BodyModel, Error, MeasurementTargets, Result};
 
 /// File name of the phenotype space's tensors inside a model folder.
 pub const PHENOTYPE_TENSORS: &str = "phenotype.safetensors";
@@ -196,9 +196,13 @@ impl Phenotype {
 /// | `young`, `old` | age 0.5 (25 years), 0.8846 (75 years) |
 /// | `1.70 m`, `1.70m`, `170 cm`, `170cm`, `height_m=1.70` | standing height in metres |
 /// | `40 years`, `age_years=40` | age in years (1 to 90, MakeHuman's rule) |
+/// | `chest_cm=96` (or `bust_cm`), `waist_cm=78`, `hips_cm=102` | girths in cm |
+/// | `70 kg`, `70kg`, `mass_kg=70` (or `weight_kg`) | mass ([`crate::BODY_DENSITY_KG_PER_M3`]) |
 /// | `gender=0.3`, `age=…`, `muscle=…`, `weight=…`, `height=…`, `proportions=…`, `cup_size=…`, `firmness=…` | a slider, in `[0, 1]` |
 ///
 /// Giving the same quantity twice (e.g. `female, male`, or `height=0.6, 1.80 m`) is an error.
+/// Girths and mass are met by a fit of the shape ([`PhenotypeSpace::betas_for`]): a shopper's
+/// size-chart figures, `"female, 1.65 m, bust_cm=94, waist_cm=76, hips_cm=102"`.
 ///
 /// ```
 /// use sartor_core::PhenotypeRequest;
@@ -214,6 +218,10 @@ pub struct PhenotypeRequest {
     pub sliders: PartialPhenotype,
     /// Wanted standing height in metres (solved on the height slider).
     pub height_m: Option<f64>,
+    /// Wanted girths and mass (its `height_m` unused: the height is the field above), met by
+    /// [`PhenotypeSpace::betas_for`]'s fit.
+    #[serde(default)]
+    pub measurements: MeasurementTargets,
 }
 
 /// [`Phenotype`] with every slider optional.
@@ -238,6 +246,11 @@ pub struct PartialPhenotype {
 }
 
 impl PartialPhenotype {
+    /// Whether the slider called `name` is given.
+    pub fn is_given(&self, name: &str) -> bool {
+        slider_index(name).is_some_and(|i| sliders!(self; &)[i].is_some())
+    }
+
     fn slot(&mut self, name: &str) -> Option<&mut Option<f64>> {
         let i = slider_index(name)?;
         sliders!(self; &mut).into_iter().nth(i)
@@ -258,6 +271,12 @@ impl PartialPhenotype {
         }
     }
 }
+
+/// Finite-difference step of the measurement fit over the sliders.
+const SLIDER_FIT_STEP: f64 = 0.01;
+/// Pull of that fit towards the start's sliders, per slider unit, against relative measurement
+/// errors: it only settles the sliders the targets leave free.
+const SLIDER_FIT_PRIOR: f64 = 1e-3;
 
 /// Heights a request may ask for, in metres.
 const REQUEST_HEIGHT_RANGE_M: (f64, f64) = (1.0, 2.5);
@@ -311,6 +330,31 @@ impl PhenotypeRequest {
             request.height_m = Some(metres);
             Ok(())
         };
+        // A girth in cm or a mass in kg, stored in metres / kilograms.
+        let set_measure = |request: &mut Self, key: &str, value: f64, word: &str| {
+            let m = &mut request.measurements;
+            let (slot, v) = match key {
+                "chest_cm" => (&mut m.chest_m, value / 100.0),
+                "waist_cm" => (&mut m.waist_m, value / 100.0),
+                "hips_cm" => (&mut m.hips_m, value / 100.0),
+                _ => (&mut m.mass_kg, value),
+            };
+            if slot.is_some() {
+                return Err(bad(format!("{word:?}: {key} is given twice")));
+            }
+            *slot = Some(v);
+            request
+                .measurements
+                .validate()
+                .map_err(|e| bad(format!("{word:?}: {e}")))
+        };
+        fn k_of(key: &str) -> &str {
+            match key {
+                "bust_cm" => "chest_cm",
+                "weight_kg" => "mass_kg",
+                k => k,
+            }
+        }
         let mut i = 0;
         while i < tokens.len() {
             let tok = tokens[i].as_str();
@@ -322,16 +366,23 @@ impl PhenotypeRequest {
                 match next {
                     Some("m") => set_height_m(&mut request, value, tok)?,
                     Some("cm") => set_height_m(&mut request, value / 100.0, tok)?,
+                    Some("kg") => set_measure(&mut request, "mass_kg", value, tok)?,
                     Some("years") | Some("year") | Some("y") => {
                         let age = Phenotype::age_slider_from_years(value)
                             .map_err(|e| bad(e.to_string()))?;
                         set_slider(&mut request, "age", age, tok)?;
                     }
                     _ => {
-                        return Err(bad(format!("number {tok:?} needs a unit (m, cm or years)")));
+                        return Err(bad(format!(
+                            "number {tok:?} needs a unit (m, cm, kg or years)"
+                        )));
                     }
                 }
                 i += 1;
+                continue;
+            }
+            if let Some(v) = tok.strip_suffix("kg").filter(|v| v.parse::<f64>().is_ok()) {
+                set_measure(&mut request, "mass_kg", number(v, "mass")?, tok)?;
                 continue;
             }
             if let Some(v) = tok.strip_suffix("cm").filter(|v| v.parse::<f64>().is_ok()) {
@@ -346,6 +397,9 @@ impl PhenotypeRequest {
                 let v = number(value, key)?;
                 match key {
                     "height_m" => set_height_m(&mut request, v, tok)?,
+                    "chest_cm" | "bust_cm" | "waist_cm" | "hips_cm" | "mass_kg" | "weight_kg" => {
+                        set_measure(&mut request, k_of(key), v, tok)?
+                    }
                     "age_years" => {
                         let age =
                             Phenotype::age_slider_from_years(v).map_err(|e| bad(e.to_string()))?;
@@ -354,7 +408,8 @@ impl PhenotypeRequest {
                     k if SLIDERS.contains(&k) => set_slider(&mut request, k, v, tok)?,
                     k => {
                         return Err(bad(format!(
-                            "unknown key {k:?} (keys: {}, height_m, age_years)",
+                            "unknown key {k:?} (keys: {}, height_m, age_years, chest_cm, bust_cm, \
+                             waist_cm, hips_cm, mass_kg, weight_kg)",
                             SLIDERS.join(", ")
                         )));
                     }
@@ -695,7 +750,92 @@ impl PhenotypeSpace {
     /// Resolve a request into a phenotype and its shape vector. Unset sliders are 0.5; a height
     /// in metres is met (within 0.1 mm) by bisection on the height slider, measuring
     /// [`BodyModel::height_m`] of `model` (which must be the model this space belongs to).
+    ///
+    /// Girths or a mass in the request ([`PhenotypeRequest::measurements`]) are then met in two
+    /// least-squares fits of the relative measurement errors (the height's, when given, weighted
+    /// to be met first): first over the sliders the request leaves free among weight, muscle,
+    /// proportions and cup size (and the height slider when a height is asked for), on
+    /// MakeHuman's own bodies; then, from that body, over every shape component
+    /// ([`crate::fit_measurements`]), pulled towards it, for what MakeHuman's range does not
+    /// reach. The phenotype returned is the first fit's, the shape the second's. A request the
+    /// model's shapes cannot meet (within 2 mm of height or 1 cm of girth; the mass guides the fits
+    /// but is not required, see [`crate::fit_measurements`]) is an error
+    /// naming what the nearest body reached.
     pub fn betas_for(
+        &self,
+        model: &BodyModel,
+        request: &PhenotypeRequest,
+    ) -> Result<(Phenotype, Vec<f64>)> {
+        let (phenotype, start) = self.phenotype_betas(model, request)?;
+        let girths = &request.measurements;
+        if girths.height_m.is_some() {
+            return Err(Error::invalid(
+                "phenotype request",
+                "the height goes in the request's height_m, not in its measurements",
+            ));
+        }
+        if !girths.has_girth_or_mass() {
+            return Ok((phenotype, start));
+        }
+        let targets = MeasurementTargets {
+            height_m: request.height_m,
+            ..*girths
+        };
+        targets.validate()?;
+        let measurer = BodyMeasurer::new(model)?;
+        // First on MakeHuman's bodies: the sliders the request leaves free (the height slider
+        // too when a height is asked for), each kept in [0, 1], pulled weakly towards the start.
+        let mut free: Vec<&str> = ["weight", "muscle", "proportions", "cup_size"]
+            .into_iter()
+            .filter(|name| !request.sliders.is_given(name))
+            .collect();
+        if request.height_m.is_some() {
+            free.push("height");
+        }
+        let x0: Vec<f64> = free
+            .iter()
+            .map(|n| phenotype.get(n).unwrap_or(0.5))
+            .collect();
+        let at = |x: &[f64]| {
+            let mut p = phenotype;
+            for (name, v) in free.iter().zip(x) {
+                *p.get_mut(name).expect("a slider") = *v;
+            }
+            p
+        };
+        let mut vertices = vec![nalgebra::Vector3::zeros(); model.n_vertices()];
+        let (x, _) = crate::measure::least_squares(
+            x0.clone(),
+            &vec![(0.0, 1.0); free.len()],
+            SLIDER_FIT_STEP,
+            |x| {
+                let betas = self.betas(&at(x))?;
+                model.shaped_vertices_into(&betas, &mut vertices)?;
+                let mut r = targets.relative_errors(&measurer.measure(&vertices, &betas)?);
+                r.extend(x.iter().zip(&x0).map(|(a, b)| SLIDER_FIT_PRIOR * (a - b)));
+                Ok(r)
+            },
+        )?;
+        let phenotype = at(&x);
+        // Then over the whole shape space, for what those bodies do not reach.
+        let fit = crate::fit_measurements(model, &measurer, &self.betas(&phenotype)?, &targets)?;
+        let misses = targets.misses(&fit.measurements);
+        if !misses.is_empty() {
+            return Err(Error::invalid(
+                "body measurements",
+                format!(
+                    "no body of {} meets them: the nearest misses {}",
+                    model.name(),
+                    misses.join(", ")
+                ),
+            ));
+        }
+        Ok((phenotype, fit.betas))
+    }
+
+    /// [`Self::betas_for`] without the girths and mass: the sliders, and the height by
+    /// bisection.
+    fn phenotype_betas(
         &self,
         model: &BodyModel,
         request: &PhenotypeRequest,
@@ -991,6 +1131,27 @@ mod tests {
         );
         let r = PhenotypeRequest::parse("30 years, 160 cm").expect("valid");
         assert_eq!(r.height_m, Some(1.6));
+        assert!(r.measurements.is_empty());
+        let r = PhenotypeRequest::parse("female 1.65 m bust_cm=94 waist_cm=76.5 hips_cm=102 60 kg")
+            .expect("valid");
+        let m = r.measurements;
+        assert_eq!(
+            (m.chest_m, m.waist_m, m.hips_m, m.mass_kg, m.height_m),
+            (Some(0.94), Some(0.765), Some(1.02), Some(60.0), None)
+        );
+        assert_eq!(r.height_m, Some(1.65));
+        let r = PhenotypeRequest::parse("chest_cm=100, weight_kg=80.5").expect("valid");
+        assert_eq!(
+            (r.measurements.chest_m, r.measurements.mass_kg),
+            (Some(1.0), Some(80.5))
+        );
+        assert_eq!(
+            PhenotypeRequest::parse("72kg")
+                .expect("valid")
+                .measurements
+                .mass_kg,
+            Some(72.0)
+        );
     }
 
     #[test]
@@ -1006,6 +1167,11 @@ mod tests {
             ("height=0.6, 1.8 m", "both"),
             ("", "empty"),
             ("age_years=120", "range"),
+            ("waist_cm=500", "waist 500 cm is outside [40, 200] cm"),
+            ("bust_cm=90, chest_cm=92", "chest_cm is given twice"),
+            ("70 kg, mass_kg=71", "mass_kg is given twice"),
+            ("hips_cm=nan", "not a number"),
+            ("10 stone", "needs a unit"),
         ];
         for (text, want) in cases {
             let err = PhenotypeRequest::parse(text).expect_err(text).to_string();

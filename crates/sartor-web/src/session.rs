@@ -119,6 +119,7 @@ impl PhenotypeSliders {
                 ..PartialPhenotype::default()
             },
             height_m: Some(self.height_m),
+            measurements: Default::default(),
         })
     }
 }

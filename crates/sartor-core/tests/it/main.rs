@@ -2,5 +2,6 @@
 
 mod body_distance;
 mod common;
+mod measure;
 mod model;
 mod proximity;
