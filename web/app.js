@@ -63,6 +63,10 @@ function sliders() {
 
 function showBetas(betas) {
   $("betas-out").textContent = Array.from(betas, (b) => b.toFixed(2)).join(", ");
+  const [h, chest, waist, hips, kg] = state.tryOn.measurements();
+  $("measured-out").textContent =
+    `${h.toFixed(2)} m, chest ${(100 * chest).toFixed(1)}, waist ${(100 * waist).toFixed(1)}, ` +
+    `hips ${(100 * hips).toFixed(1)} cm, ${kg.toFixed(0)} kg`;
 }
 
 function applyPhenotype() {
@@ -84,6 +88,28 @@ function applyBetas() {
   }
   guarded("β", () => {
     showBetas(state.tryOn.setBetas(new Float64Array(values)));
+    redraw();
+  });
+}
+
+// The body that has the measurements typed (any of them), with the gender, height and age of
+// the sliders; weight and muscle are left to the fit (sartor_core::PhenotypeSpace::betas_for).
+function fitMeasurements() {
+  const s = sliders();
+  const parts = [`gender=${s.gender}`, `height_m=${s.heightM}`, `age_years=${s.ageYears}`];
+  for (const [id, key] of [["chest-cm", "chest_cm"], ["waist-cm", "waist_cm"],
+    ["hips-cm", "hips_cm"], ["mass-kg", "mass_kg"]]) {
+    const text = $(id).value.trim();
+    if (text !== "") parts.push(`${key}=${text}`);
+  }
+  if (parts.length === 3) {
+    showError("measurements: type a bust, waist, hip girth or a weight first");
+    return;
+  }
+  const start = performance.now();
+  guarded("measurements", () => {
+    showBetas(state.tryOn.setPhenotypeText(parts.join(", ")));
+    state.fitMs = performance.now() - start;
     redraw();
   });
 }
@@ -322,6 +348,7 @@ async function main() {
     });
   }
   $("apply-betas").addEventListener("click", applyBetas);
+  $("fit-measurements").addEventListener("click", fitMeasurements);
   select.addEventListener("change", () => chooseMotion(select.value));
   $("bvh").addEventListener("change", (e) => {
     if (e.target.files.length > 0) playBvhFile(e.target.files[0]);

@@ -183,6 +183,13 @@ impl WebTryOn {
         self.inner.betas().to_vec()
     }
 
+    /// The body's size-chart measurements: `[height m, chest m, waist m, hips m, mass kg]`
+    /// (`sartor_core::BodyMeasurer`).
+    pub fn measurements(&self) -> Result<Vec<f64>, JsError> {
+        let m = self.inner.measurements().map_err(js)?;
+        Ok(vec![m.height_m, m.chest_m, m.waist_m, m.hips_m, m.mass_kg])
+    }
+
     /// Standing height of the body, metres.
     #[wasm_bindgen(js_name = heightM)]
     pub fn height_m(&self) -> Result<f64, JsError> {

@@ -12,8 +12,8 @@ use std::sync::Arc;
 
 use nalgebra::Vector3;
 use sartor_core::{
-    BodyModel, BoneTransform, FPS, Parallelism, PartialPhenotype, Phenotype, PhenotypeRequest,
-    PhenotypeSpace, Pose, skin_points,
+    BodyMeasurements, BodyMeasurer, BodyModel, BoneTransform, FPS, Parallelism, PartialPhenotype,
+    Phenotype, PhenotypeRequest, PhenotypeSpace, Pose, skin_points,
 };
 use sartor_motion::{
     ArmClearance, BvhRetargetOptions, ClearanceOnDemand, ClearanceOptions, Motion, RetargetBody,
@@ -526,6 +526,14 @@ impl TryOn {
     /// β in use (the model's components).
     pub fn betas(&self) -> &[f64] {
         &self.betas
+    }
+
+    /// The size-chart measurements of the body shown (`sartor_core::BodyMeasurer`: height,
+    /// chest, waist and hip girths, mass).
+    pub fn measurements(&self) -> Result<BodyMeasurements> {
+        let betas = Self::body_betas(&self.body, &self.betas);
+        let v = self.body.shaped_vertices(&betas)?;
+        Ok(BodyMeasurer::new(&self.body)?.measure(&v, &betas)?)
     }
 
     /// Standing height of the body shown, metres.

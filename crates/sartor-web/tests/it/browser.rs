@@ -431,6 +431,50 @@ fn the_page_works_in_headless_chromium() {
         .fold(0.0, f64::max);
     assert!(diff > 0.05, "the garments of two bodies differ ({diff} m)");
 
+    // A shopper's measurements: the page fits the body to them (gender, height and age from
+    // the sliders) and says what it reached; a body no shape has is an error on the page.
+    let fit = |chest: f64, waist: f64, hips: f64| {
+        browser.eval(&format!(
+            "for (const [id, v] of [['gender', 0], ['height', 1.68], ['chest-cm', {chest}], \
+               ['waist-cm', {waist}], ['hips-cm', {hips}], ['mass-kg', '']]) {{ \
+               document.getElementById(id).value = v; }} \
+             document.getElementById('fit-measurements').click(); \
+             return {{shown_error: document.getElementById('error').hidden ? null \
+                       : document.getElementById('error').textContent, \
+                     measured: Array.from(window.sartor.state.tryOn.measurements()), \
+                     shown: document.getElementById('measured-out').textContent, \
+                     ms: window.sartor.state.fitMs}};"
+        ))
+    };
+    let fitted = fit(92.0, 76.0, 100.0);
+    // (Not `error`: WebDriver reads a result's `error` key as its own.)
+    assert!(fitted["shown_error"].is_null(), "the fit failed: {fitted}");
+    let measured = floats(&fitted["measured"]);
+    for (got, want) in measured[..4].iter().zip([1.68, 0.92, 0.76, 1.0]) {
+        assert!((got - want).abs() < 0.01, "reached {measured:?}: {fitted}");
+    }
+    assert!(
+        fitted["shown"]
+            .as_str()
+            .is_some_and(|s| s.contains("waist 76.0")),
+        "the page shows what it reached: {fitted}"
+    );
+    let fitted_garment = floats(&browser.eval("return window.sartor.garment();"));
+    assert!(fitted_garment.iter().all(|v| v.is_finite()), "finite");
+    let unreachable = fit(80.0, 130.0, 90.0);
+    assert!(
+        unreachable["shown_error"]
+            .as_str()
+            .is_some_and(|e| e.contains("waist 130.0 cm (reached")),
+        "the page names what no body reaches: {unreachable}"
+    );
+    // A slider moved afterwards takes the body back to the sliders and clears the error.
+    let cleared = browser.eval(
+        "document.getElementById('weight').dispatchEvent(new Event('change')); \
+         return document.getElementById('error').hidden;",
+    );
+    assert_eq!(cleared, json!(true), "the error stays after a slider moved");
+
     // Another motion: a stored CMU clip, fetched and retargeted in the page.
     browser.eval(
         "const s = document.getElementById('motion'); s.value = 'cmu/05_06'; \
@@ -510,9 +554,12 @@ fn the_page_works_in_headless_chromium() {
          kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
+         measurements fitted in {} ms: {}\n\
          back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),
         sartor_runtime_isa(),
+        fitted["ms"],
+        fitted["shown"],
         shot.display(),
     );
     let _ = writeln!(
