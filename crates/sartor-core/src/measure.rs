@@ -327,8 +327,10 @@ struct Quantity {
     get: fn(&BodyMeasurements) -> f64,
 }
 
-/// The fits weight the mass's relative error this much against a girth's, and do not require
-/// it: the mass is the volume times one density, which a real body's differs from by a few per
+/// A mass asked for without any girth must be met within this fraction of it.
+const MASS_TOLERANCE: f64 = 0.05;
+/// The fits weight the mass's relative error this much against a girth's, and with a girth given
+/// do not require it: the mass is the volume times one density, which a real body's differs from by a few per
 /// cent, and MakeHuman's bodies of given girths are lighter than people (a neutral 1.73 m male
 /// body, chest 95 cm and waist 77 cm, bounds 62 litres); the girths decide how a garment fits.
 const MASS_WEIGHT: f64 = 0.1;
@@ -440,20 +442,27 @@ impl MeasurementTargets {
     }
 
     /// The targets `measured` misses by more than their tolerance (2 mm of height, 1 cm of
-    /// girth; the mass only guides a fit: see [`fit_measurements`]), as text such as
+    /// girth; a mass beside girths only guides a fit, see [`fit_measurements`], and alone is met
+    /// within 5 %), as text such as
     /// `"waist 120.0 cm (reached 98.3 cm)"`.
     pub fn misses(&self, measured: &BodyMeasurements) -> Vec<String> {
+        let girths = self.chest_m.is_some() || self.waist_m.is_some() || self.hips_m.is_some();
         QUANTITIES
             .iter()
             .zip(self.values())
             .filter_map(|(q, v)| {
                 let (want, got) = (v?, (q.get)(measured));
-                ((got - want).abs() > q.tolerance?).then(|| {
+                // The mass alone is required (see [`MASS_TOLERANCE`]).
+                let tolerance = q.tolerance.or((!girths).then_some(MASS_TOLERANCE * want))?;
+                ((got - want).abs() > tolerance).then(|| {
+                    let decimals = if q.unit == "m" { 3 } else { 1 };
                     format!(
-                        "{} {:.1} {} (reached {:.1} {})",
+                        "{} {:.*} {} (reached {:.*} {})",
                         q.name,
+                        decimals,
                         want * q.scale,
                         q.unit,
+                        decimals,
                         got * q.scale,
                         q.unit
                     )
@@ -487,9 +496,9 @@ const FIT_STEP: f64 = 0.02;
 
 /// The shape nearest `start` (a phenotype's β, say; missing entries zero) whose measurements
 /// meet `targets`: a Levenberg–Marquardt least-squares fit of the relative measurement errors
-/// over every shape component (the mass's weighted 0.1 of a girth's and not required: a body's
-/// density is known to a few per cent, and MakeHuman's bodies of given girths are lighter than
-/// people), with a pull towards `start` ([`FIT_PRIOR`]), each component kept
+/// over every shape component (the mass's weighted 0.1 of a girth's and, beside a girth, not
+/// required: a body's density is known to a few per cent, and MakeHuman's bodies of given girths
+/// are lighter than people), with a pull towards `start` ([`FIT_PRIOR`]), each component kept
 /// within [`FIT_BETA_LIMIT`] of zero (or of `start`, where that lies beyond). Check the result
 /// against the targets with [`MeasurementTargets::misses`]: a combination the model's shape space
 /// cannot reach (a waist far wider than the chest) comes back as the nearest body.

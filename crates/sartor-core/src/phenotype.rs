@@ -757,7 +757,8 @@ impl PhenotypeSpace {
     /// proportions and cup size (and the height slider when a height is asked for), on
     /// MakeHuman's own bodies; then, from that body, over every shape component
     /// ([`crate::fit_measurements`]), pulled towards it, for what MakeHuman's range does not
-    /// reach. The phenotype returned is the first fit's, the shape the second's. A request the
+    /// reach; a height not asked for is held at the start's. The phenotype returned is the first
+    /// fit's, the shape the second's. A request the
     /// model's shapes cannot meet (within 2 mm of height or 1 cm of girth; the mass guides the fits
     /// but is not required, see [`crate::fit_measurements`]) is an error
     /// naming what the nearest body reached.
@@ -777,8 +778,13 @@ impl PhenotypeSpace {
         if !girths.has_girth_or_mass() {
             return Ok((phenotype, start));
         }
+        // A height not asked for stays the start's: a mass or girths alone would otherwise
+        // change the stature too.
         let targets = MeasurementTargets {
-            height_m: request.height_m,
+            height_m: Some(match request.height_m {
+                Some(h) => h,
+                None => model.height_m(&start)?,
+            }),
             ..*girths
         };
         targets.validate()?;

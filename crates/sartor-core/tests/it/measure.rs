@@ -285,3 +285,33 @@ fn bad_bodies_and_vertices_are_errors() {
     let err = BodyMeasurer::new(&body).expect_err("no arms").to_string();
     assert!(err.contains("no arms"), "{err}");
 }
+
+#[test]
+fn a_weight_alone_keeps_the_height_and_is_met() {
+    let (model, space) = builtin();
+    let (_, _, neutral) = measure(&model, &space, "female");
+    let (_, _, m) = measure(&model, &space, "female, 75 kg");
+    assert!(
+        (m.height_m - neutral.height_m).abs() < 0.002,
+        "{neutral} / {m}"
+    );
+    assert!((m.mass_kg - 75.0).abs() < 0.05 * 75.0, "{m}");
+    assert!(m.waist_m > neutral.waist_m + 0.05, "{neutral} / {m}");
+    // The edges of what a request may ask: errors naming the miss, never a body off the mark.
+    for (text, want) in [
+        ("female, mass_kg=300", "mass 300.0 kg (reached"),
+        ("female, 1.45 m, waist_cm=200", "waist 200.0 cm (reached"),
+        ("male, 2.10 m, chest_cm=50", "chest 50.0 cm (reached"),
+        (
+            "chest_cm=200, waist_cm=40, hips_cm=200",
+            "waist 40.0 cm (reached",
+        ),
+    ] {
+        let request: PhenotypeRequest = text.parse().expect("valid");
+        let err = space
+            .betas_for(&model, &request)
+            .expect_err(text)
+            .to_string();
+        assert!(err.contains(want), "{text}: {err}");
+    }
+}
