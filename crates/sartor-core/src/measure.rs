@@ -16,11 +16,11 @@
 //! - **chest** (bust): the largest girth between the waist and the armpit;
 //! - **hips**: the largest girth between 1 cm above the crotch and the waist.
 //!
-//! Each is sought on slices 1 cm apart, then 1 mm apart around the best, and refined by the
-//! parabola through the best slice and its two neighbours. The **mass** is the volume the closed
-//! mesh bounds (divergence theorem) times [`BODY_DENSITY_KG_PER_M3`], that of water: a whole
-//! body's density lies within a few per cent of it (lean tissue above, fat and the air in the
-//! lungs below), so the mass is an estimate to that accuracy.
+//! Each is sought on slices 1 cm apart, then by a golden-section search to 1 mm around the
+//! best. The **mass** is the volume the closed mesh bounds (divergence theorem) times
+//! [`BODY_DENSITY_KG_PER_M3`], that of water: a whole body's density lies within a few per cent
+//! of it (lean tissue above, fat and the air in the lungs below), so the mass is an estimate to
+//! that accuracy.
 //!
 //! [`fit_measurements`] finds the shape that has given measurements (a shopper's size-chart
 //! figures); `sartor_core::PhenotypeSpace::betas_for` runs it for a phenotype request such as
@@ -45,7 +45,7 @@ use crate::{BodyModel, Error, Result};
 pub const BODY_DENSITY_KG_PER_M3: f64 = 1000.0;
 /// Spacing of the slices a girth is first sought on, metres.
 const COARSE_STEP_M: f64 = 0.01;
-/// Spacing of the slices it is then refined on, metres.
+/// The search around the best of those stops when its bracket is this narrow, metres.
 const SLICE_STEP_M: f64 = 0.001;
 /// The hip girth is sought from this far above the crotch, metres (at the crotch itself the
 /// slice runs along the inner thighs).
@@ -535,40 +535,56 @@ pub fn fit_measurements(
 }
 
 /// Levenberg–Marquardt on the residuals `residuals(x)` from `x`, each coordinate kept within
-/// `bounds` (a step leaving them is clamped), the Jacobian by forward differences of `step`
-/// (backward at an upper bound): the minimiser found and the iterations taken (at most 50;
-/// it stops when no damped step lowers the cost or the best moves no coordinate 1e-5).
+/// `bounds` (a step leaving them is clamped): the minimiser found and the iterations taken (at
+/// most 60). The Jacobian is taken by forward differences of `step` (backward at an upper
+/// bound) at the start and every [`JACOBIAN_REFRESH`] accepted steps, and updated by
+/// Broyden's rank-one rule in between (each difference costs a residual evaluation, a
+/// measurement of the whole body); when no damped step lowers the cost with an updated
+/// Jacobian it is taken afresh, and when none does with a fresh one, or the best step moves no
+/// coordinate 1e-5, the fit stops.
 pub(crate) fn least_squares(
     mut x: Vec<f64>,
     bounds: &[(f64, f64)],
     step: f64,
     mut residuals: impl FnMut(&[f64]) -> Result<Vec<f64>>,
 ) -> Result<(Vec<f64>, usize)> {
+    use nalgebra::{DMatrix, DVector};
     let n = x.len();
-    let cost = |r: &[f64]| r.iter().map(|e| e * e).sum::<f64>();
-    let mut r = residuals(&x)?;
-    let mut mu = 1e-3;
-    let mut iterations = 0;
-    while iterations < 50 {
-        iterations += 1;
-        let mut jac = nalgebra::DMatrix::<f64>::zeros(r.len(), n);
+    let cost = |r: &DVector<f64>| r.norm_squared();
+    // Forward differences, backward at an upper bound.
+    let differences = |x: &[f64],
+                       r: &DVector<f64>,
+                       residuals: &mut dyn FnMut(&[f64]) -> Result<Vec<f64>>|
+     -> Result<DMatrix<f64>> {
+        let mut jac = DMatrix::<f64>::zeros(r.len(), n);
         for k in 0..n {
-            let mut xk = x.clone();
+            let mut xk = x.to_vec();
             let h = if xk[k] + step <= bounds[k].1 {
                 step
             } else {
                 -step
             };
             xk[k] += h;
-            for (i, (a, c)) in residuals(&xk)?.iter().zip(&r).enumerate() {
-                jac[(i, k)] = (a - c) / h;
-            }
+            let rk = DVector::from_vec(residuals(&xk)?);
+            jac.set_column(k, &((rk - r) / h));
         }
+        Ok(jac)
+    };
+    let mut r = DVector::from_vec(residuals(&x)?);
+    let mut jac = differences(&x, &r, &mut residuals)?;
+    let (mut fresh, mut since_fresh) = (true, 0);
+    let mut mu = 1e-3;
+    let mut iterations = 0;
+    while iterations < 60 {
+        iterations += 1;
         let jt = jac.transpose();
         let a = &jt * &jac;
-        let g = &jt * nalgebra::DVector::from_column_slice(&r);
-        let mut improved = false;
-        while mu < 1e10 {
+        let g = &jt * &r;
+        let mut accepted = None;
+        // A stale Jacobian gets a few tries before it is taken afresh.
+        let mut tries = if fresh { 40 } else { 6 };
+        while tries > 0 && mu < 1e10 {
+            tries -= 1;
             let mut lhs = a.clone();
             for k in 0..n {
                 lhs[(k, k)] += mu * (a[(k, k)] + 1e-9);
@@ -583,26 +599,46 @@ pub(crate) fn least_squares(
                 .zip(bounds)
                 .map(|((v, d), (lo, hi))| (v + d).clamp(*lo, *hi))
                 .collect();
-            let rt = residuals(&trial)?;
+            let rt = DVector::from_vec(residuals(&trial)?);
             if cost(&rt) < cost(&r) {
-                let moved = trial
-                    .iter()
-                    .zip(&x)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max);
-                (x, r) = (trial, rt);
-                mu = (mu / 3.0).max(1e-9);
-                improved = moved > 1e-5;
+                accepted = Some((trial, rt));
                 break;
             }
             mu *= 4.0;
         }
-        if !improved {
+        let Some((trial, rt)) = accepted else {
+            if fresh {
+                break;
+            }
+            jac = differences(&x, &r, &mut residuals)?;
+            (fresh, since_fresh, mu) = (true, 0, 1e-3);
+            continue;
+        };
+        let d = DVector::from_iterator(n, trial.iter().zip(&x).map(|(a, b)| a - b));
+        let moved = d.amax();
+        // Broyden: the Jacobian that maps this step onto the change it made.
+        let dd = d.norm_squared();
+        if dd > 0.0 {
+            let miss = &rt - &r - &jac * &d;
+            jac += miss * d.transpose() / dd;
+        }
+        (x, r) = (trial, rt);
+        mu = (mu / 3.0).max(1e-9);
+        if moved <= 1e-5 {
             break;
+        }
+        since_fresh += 1;
+        fresh = false;
+        if since_fresh == JACOBIAN_REFRESH {
+            jac = differences(&x, &r, &mut residuals)?;
+            (fresh, since_fresh) = (true, 0);
         }
     }
     Ok((x, iterations))
 }
+
+/// Accepted steps between two Jacobians by differences in [`least_squares`].
+const JACOBIAN_REFRESH: usize = 6;
 
 /// Horizontal cross-sections of a set of faces between two heights.
 struct Slicer<'a> {
@@ -655,49 +691,50 @@ impl<'a> Slicer<'a> {
     }
 
     /// The largest (`max`) or smallest girth between heights `lo` and `hi` and its height:
-    /// slices [`COARSE_STEP_M`] apart, then [`SLICE_STEP_M`] apart within a coarse step of the
-    /// best, the best of those refined by the parabola through it and its two neighbours
-    /// (kept when its vertex lies between them).
+    /// slices [`COARSE_STEP_M`] apart, then a golden-section search within a coarse step of the
+    /// best down to [`SLICE_STEP_M`]; the best slice met.
     fn extreme(&self, lo: f64, hi: f64, max: bool) -> (f64, f64) {
-        let better = |a: f64, b: f64| if max { a > b } else { a < b };
-        let scan = |lo: f64, hi: f64, step: f64| {
-            let n = (((hi - lo) / step).ceil() as usize).max(2);
-            let h = (hi - lo) / n as f64;
-            let g: Vec<f64> = (0..=n).map(|i| self.girth(lo + i as f64 * h)).collect();
-            let mut best = 0;
-            for i in 1..=n {
-                if better(g[i], g[best]) {
-                    best = i;
-                }
+        // Minimise `sign · girth`.
+        let sign = if max { -1.0 } else { 1.0 };
+        let f = |y: f64| sign * self.girth(y);
+        let n = (((hi - lo) / COARSE_STEP_M).ceil() as usize).max(2);
+        let h = (hi - lo) / n as f64;
+        let mut best = (lo, f(lo));
+        for i in 1..=n {
+            let y = lo + i as f64 * h;
+            let v = f(y);
+            if v < best.1 {
+                best = (y, v);
             }
-            (g, best, h)
-        };
-        let (_, best, h) = scan(lo, hi, COARSE_STEP_M);
-        let y = lo + best as f64 * h;
-        let (lo, hi) = ((y - h).max(lo), (y + h).min(hi));
-        let (g, best, h) = scan(lo, hi, SLICE_STEP_M);
-        let y = lo + best as f64 * h;
-        let n = g.len() - 1;
-        if best == 0 || best == n {
-            return (y, g[best]);
         }
-        let (a, b, c) = (g[best - 1], g[best], g[best + 1]);
-        let curvature = a - 2.0 * b + c;
-        if curvature == 0.0 {
-            return (y, b);
+        let (mut a, mut b) = ((best.0 - h).max(lo), (best.0 + h).min(hi));
+        let ratio = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut c, mut d) = (b - ratio * (b - a), a + ratio * (b - a));
+        let (mut fc, mut fd) = (f(c), f(d));
+        while b - a > SLICE_STEP_M {
+            if fc < fd {
+                (b, d, fd) = (d, c, fc);
+                c = b - ratio * (b - a);
+                fc = f(c);
+            } else {
+                (a, c, fc) = (c, d, fd);
+                d = a + ratio * (b - a);
+                fd = f(d);
+            }
         }
-        let s = 0.5 * (a - c) / curvature;
-        if s.abs() >= 1.0 {
-            return (y, b);
+        for (y, v) in [(c, fc), (d, fd)] {
+            if v < best.1 {
+                best = (y, v);
+            }
         }
-        (y + s * h, b - 0.25 * (a - c) * s)
+        (best.0, sign * best.1)
     }
 }
 
 /// Perimeter of the convex hull of `points` (Andrew's monotone chain); 0 for fewer than three
 /// distinct points.
 fn hull_perimeter(mut p: Vec<[f64; 2]>) -> f64 {
-    p.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    p.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
     p.dedup();
     if p.len() < 3 {
         return 0.0;
