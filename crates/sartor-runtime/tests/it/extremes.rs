@@ -1,5 +1,6 @@
 //! The shipped model at extreme body shapes: the corners of the ±3 box of the first four
-//! components, ±5 on each component alone, and two extreme phenotypes. With the default rule
+//! components, ±5 on each component alone, two extreme phenotypes and the largest and smallest
+//! bodies fitted to shoppers' measurements. With the default rule
 //! beyond the training shapes ([`BetaOutOfRange::ProjectAndFollow`]) and the post-process, at
 //! most 0.1 % of the cloth vertices are left inside the body; the rule leaves fewer garment
 //! triangles inside the body than extrapolating does.
@@ -64,13 +65,25 @@ fn extremes(body: &BodyModel, n_betas: usize) -> Vec<(String, Vec<f32>)> {
         }
     }
     let space = PhenotypeSpace::load(&crate::common::builtin_model_dir()).expect("phenotype space");
-    for text in ["1.45 m, heavy", "2.10 m, light"] {
+    // Phenotypes, and the largest and smallest bodies of shoppers' measurements (sartor-core's
+    // fit, beyond MakeHuman's sliders).
+    for (name, text) in [
+        ("1.45m-heavy", "1.45 m, heavy"),
+        ("2.10m-light", "2.10 m, light"),
+        (
+            "measured-2.10m-150kg",
+            "male, 2.10 m, chest_cm=140, waist_cm=130, hips_cm=130, 150 kg",
+        ),
+        (
+            "measured-1.45m-35kg",
+            "female, 1.45 m, bust_cm=70, waist_cm=52, hips_cm=76, 35 kg",
+        ),
+    ] {
         let request: PhenotypeRequest = text.parse().expect("valid request");
         let (_, betas) = space
             .betas_for(body, &request)
             .expect("reachable phenotype");
-        let name = text.replace(", ", "-").replace(' ', "");
-        cases.push((name, betas.iter().map(|&b| b as f32).collect()));
+        cases.push((name.to_owned(), betas.iter().map(|&b| b as f32).collect()));
     }
     cases
 }
