@@ -329,11 +329,25 @@ struct Quantity {
 
 /// A mass asked for without any girth must be met within this fraction of it.
 const MASS_TOLERANCE: f64 = 0.05;
-/// The fits weight the mass's relative error this much against a girth's, and with a girth given
-/// do not require it: the mass is the volume times one density, which a real body's differs from by a few per
-/// cent, and MakeHuman's bodies of given girths are lighter than people (a neutral 1.73 m male
-/// body, chest 95 cm and waist 77 cm, bounds 62 litres); the girths decide how a garment fits.
+/// The fits weight the mass's relative error this much against a girth's, and with a girth
+/// given do not require it: the mass is the volume times one density, which a real body's
+/// differs from by a few per cent, and MakeHuman's bodies of given girths are lighter than people
+/// (a neutral 1.73 m male body, chest 95 cm and waist 77 cm, bounds 62 litres); the girths decide
+/// how a garment fits.
 const MASS_WEIGHT: f64 = 0.1;
+
+/// A girth target: from `min_m` to 2 m, met within 1 cm.
+const fn girth(name: &'static str, min_m: f64, get: fn(&BodyMeasurements) -> f64) -> Quantity {
+    Quantity {
+        name,
+        unit: "cm",
+        scale: 100.0,
+        range: (min_m, 2.0),
+        tolerance: Some(0.01),
+        weight: 1.0,
+        get,
+    }
+}
 
 const QUANTITIES: [Quantity; 5] = [
     Quantity {
@@ -345,33 +359,9 @@ const QUANTITIES: [Quantity; 5] = [
         weight: 10.0,
         get: |m| m.height_m,
     },
-    Quantity {
-        name: "chest",
-        unit: "cm",
-        scale: 100.0,
-        range: (0.5, 2.0),
-        tolerance: Some(0.01),
-        weight: 1.0,
-        get: |m| m.chest_m,
-    },
-    Quantity {
-        name: "waist",
-        unit: "cm",
-        scale: 100.0,
-        range: (0.4, 2.0),
-        tolerance: Some(0.01),
-        weight: 1.0,
-        get: |m| m.waist_m,
-    },
-    Quantity {
-        name: "hips",
-        unit: "cm",
-        scale: 100.0,
-        range: (0.5, 2.0),
-        tolerance: Some(0.01),
-        weight: 1.0,
-        get: |m| m.hips_m,
-    },
+    girth("chest", 0.5, |m| m.chest_m),
+    girth("waist", 0.4, |m| m.waist_m),
+    girth("hips", 0.5, |m| m.hips_m),
     Quantity {
         name: "mass",
         unit: "kg",
