@@ -237,13 +237,21 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
                 betas.len()
             ));
         }
+        // Reported, not required: a body the measurer cannot read is still animated.
         let body_measurements = match &measurer {
             Some(m) => {
                 let mut full = betas.clone();
                 full.resize(body.n_betas(), 0.0);
-                let measured = m.measure(&body.shaped_vertices(&full)?, &full)?;
-                bar.println(format!("{label}: {measured}"));
-                Some(measured)
+                match m.measure(&body.shaped_vertices(&full)?, &full) {
+                    Ok(measured) => {
+                        bar.println(format!("{label}: {measured}"));
+                        Some(measured)
+                    }
+                    Err(e) => {
+                        bar.println(format!("{label}: not measured: {e}"));
+                        None
+                    }
+                }
             }
             None => None,
         };
