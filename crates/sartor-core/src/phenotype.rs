@@ -752,16 +752,15 @@ impl PhenotypeSpace {
     /// [`BodyModel::height_m`] of `model` (which must be the model this space belongs to).
     ///
     /// Girths or a mass in the request ([`PhenotypeRequest::measurements`]) are then met in two
-    /// least-squares fits of the relative measurement errors (the height's, when given, weighted
-    /// to be met first): first over the sliders the request leaves free among weight, muscle,
-    /// proportions and cup size (and the height slider when a height is asked for), on
-    /// MakeHuman's own bodies; then, from that body, over every shape component
-    /// ([`crate::fit_measurements`]), pulled towards it, for what MakeHuman's range does not
-    /// reach; a height not asked for is held at the start's. The phenotype returned is the first
-    /// fit's, the shape the second's. A request the
-    /// model's shapes cannot meet (within 2 mm of height or 1 cm of girth; the mass guides the fits
-    /// but is not required, see [`crate::fit_measurements`]) is an error
-    /// naming what the nearest body reached.
+    /// least-squares fits of the relative measurement errors (the height's weighted to be met
+    /// first; a height not asked for is held at the start's): first over the sliders the request
+    /// leaves free among weight, muscle, proportions and cup size (and the height slider when a
+    /// height is asked for), on MakeHuman's own bodies; then, from that body, over every shape
+    /// component ([`crate::fit_measurements`]), pulled towards it, for what MakeHuman's range
+    /// does not reach. The phenotype returned is the first fit's, the shape the second's. A
+    /// request the model's shapes cannot meet (within 2 mm of height, 1 cm of girth, and 5 % of
+    /// a mass given without girths: beside girths the mass only guides the fits, see
+    /// [`MeasurementTargets::misses`]) is an error naming what the nearest body reached.
     pub fn betas_for(
         &self,
         model: &BodyModel,
