@@ -80,7 +80,7 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
     model.check_betas(&betas)?;
     let rest = model.shaped_vertices(&betas)?;
     // Reported, not required: a body the measurer cannot read is still written.
-    match BodyMeasurer::new(&model).and_then(|m| m.measure(&rest, &betas)) {
+    match BodyMeasurer::new(&model).and_then(|m| m.measure(&model, &rest, &betas)) {
         Ok(measured) => println!("{measured}"),
         Err(e) => println!("not measured: {e}"),
     }

@@ -242,7 +242,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
             Some(m) => {
                 let mut full = betas.clone();
                 full.resize(body.n_betas(), 0.0);
-                match m.measure(&body.shaped_vertices(&full)?, &full) {
+                match m.measure(&body, &body.shaped_vertices(&full)?, &full) {
                     Ok(measured) => {
                         bar.println(format!("{label}: {measured}"));
                         Some(measured)

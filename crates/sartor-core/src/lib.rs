@@ -70,8 +70,8 @@ pub use measure::{
     MeasurementTargets, fit_measurements,
 };
 pub use mesh::{
-    Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, compact_faces, face_normals,
-    vertex_normals,
+    Hinge, MeshTopology, TriMesh, bounding_box, box_mesh, compact_faces, enclosed_volume,
+    face_normals, vertex_normals,
 };
 pub use model::{BodyModel, BodyPoser, MODEL_HEADER, MODEL_TENSORS, PoseBuffers, Provenance};
 pub use norm::{MeanStd, NormStats};

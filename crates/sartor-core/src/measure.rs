@@ -31,7 +31,7 @@
 //!
 //! let body = BodyModel::load(std::path::Path::new("datasets/body/makehuman"))?;
 //! let betas = [0.0; 10];
-//! let m = BodyMeasurer::new(&body)?.measure(&body.shaped_vertices(&betas)?, &betas)?;
+//! let m = BodyMeasurer::new(&body)?.measure(&body, &body.shaped_vertices(&betas)?, &betas)?;
 //! println!("chest {:.1} cm, waist {:.1} cm", 100.0 * m.chest_m, 100.0 * m.waist_m);
 //! # Ok::<(), sartor_core::Error>(())
 //! ```
@@ -39,7 +39,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::{BodyModel, Error, Result};
+use crate::{BodyModel, Error, Result, enclosed_volume};
 
 /// Density the mass is computed with, kg/m³ (water's; see the module docs).
 pub const BODY_DENSITY_KG_PER_M3: f64 = 1000.0;
@@ -101,14 +101,10 @@ impl std::fmt::Display for BodyMeasurements {
 #[derive(Clone, Debug)]
 pub struct BodyMeasurer {
     n_vertices: usize,
-    faces: Vec<[u32; 3]>,
     trunk_faces: Vec<[u32; 3]>,
     midline: Vec<u32>,
     seam: Vec<u32>,
     root: usize,
-    joint_template: Vec<Vector3<f64>>,
-    joint_shape_basis: Vec<f64>,
-    n_betas: usize,
 }
 
 impl BodyMeasurer {
@@ -170,8 +166,8 @@ impl BodyMeasurer {
                 "the skeleton has no arms branching off its spine".into()
             ));
         }
-        let faces = body.faces().to_vec();
-        let dominant = body.skin_weights().face_dominant_joints(&faces);
+        let faces = body.faces();
+        let dominant = body.skin_weights().face_dominant_joints(faces);
         let (mut trunk_faces, mut on_arm, mut on_trunk) = (
             Vec::new(),
             vec![false; body.n_vertices()],
@@ -209,35 +205,25 @@ impl BodyMeasurer {
         }
         Ok(Self {
             n_vertices: body.n_vertices(),
-            faces,
             trunk_faces,
             midline,
             seam,
             root,
-            joint_template: rest.to_vec(),
-            joint_shape_basis: body.joint_shape_basis().to_vec(),
-            n_betas: body.n_betas(),
         })
     }
 
-    /// Measure the shaped rest vertices `vertices` of this model at shape `betas`
-    /// (`body.shaped_vertices(betas)`; β, missing entries zero, gives the pelvis's height, which
-    /// bounds the waist's search). Errors on vertices that are not finite or not the model's
-    /// count, and on a body whose landmarks come out of order (crotch, pelvis, armpit).
-    pub fn measure(&self, vertices: &[Vector3<f64>], betas: &[f64]) -> Result<BodyMeasurements> {
-        if betas.len() > self.n_betas {
-            return Err(Error::invalid(
-                "body measurements",
-                format!("{} betas for a model with {}", betas.len(), self.n_betas),
-            ));
-        }
-        let row = &self.joint_shape_basis[(self.root * 3 + 1) * self.n_betas..][..self.n_betas];
-        let root_y = self.joint_template[self.root].y
-            + row.iter().zip(betas).map(|(r, b)| r * b).sum::<f64>();
-        self.measure_with_root(vertices, root_y)
-    }
-
-    fn measure_with_root(&self, v: &[Vector3<f64>], root_y: f64) -> Result<BodyMeasurements> {
+    /// Measure the shaped rest vertices `vertices` of `body` (the model this measurer was made
+    /// for) at shape `betas` (`body.shaped_vertices(betas)`; β, missing entries zero, gives the
+    /// pelvis's height, which bounds the waist's search). Errors on a shape the body rejects, on
+    /// vertices that are not finite or not the model's count, and on a body whose landmarks come
+    /// out of order (crotch, pelvis, armpit).
+    pub fn measure(
+        &self,
+        body: &BodyModel,
+        v: &[Vector3<f64>],
+        betas: &[f64],
+    ) -> Result<BodyMeasurements> {
+        let root_y = body.shaped_joints(betas)?[self.root].y;
         let bad = |m: String| Error::invalid("body measurements", m);
         if v.len() != self.n_vertices {
             return Err(bad(format!(
@@ -274,14 +260,7 @@ impl BodyMeasurer {
         let (waist_y, waist) = slicer.extreme(root_y, armpit, false);
         let (chest_y, chest) = slicer.extreme(waist_y, armpit, true);
         let (hips_y, hips) = slicer.extreme(hips_from, waist_y, true);
-        let volume: f64 = self
-            .faces
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| v[i as usize]);
-                a.dot(&b.cross(&c)) / 6.0
-            })
-            .sum();
+        let volume = enclosed_volume(v, body.faces());
         Ok(BodyMeasurements {
             height_m: top - floor,
             chest_m: chest,
@@ -509,7 +488,7 @@ pub fn fit_measurements(
     let mut vertices = vec![Vector3::zeros(); body.n_vertices()];
     let mut measure = |betas: &[f64]| -> Result<BodyMeasurements> {
         body.shaped_vertices_into(betas, &mut vertices)?;
-        measurer.measure(&vertices, betas)
+        measurer.measure(body, &vertices, betas)
     };
     let (betas, iterations) = least_squares(start.clone(), &bounds, FIT_STEP, |betas| {
         let mut r = targets.relative_errors(&measure(betas)?);

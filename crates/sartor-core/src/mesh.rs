@@ -189,6 +189,18 @@ pub fn compact_faces(faces: &[[u32; 3]], n_vertices: usize) -> (Vec<u32>, Vec<[u
     (used, faces)
 }
 
+/// The signed volume a closed, outward-oriented triangle mesh bounds (divergence theorem: the
+/// sum of the tetrahedra from the origin to each face), m³; negative for an inward-oriented one.
+pub fn enclosed_volume(positions: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
+    faces
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|i| positions[i as usize]);
+            a.dot(&b.cross(&c)) / 6.0
+        })
+        .sum()
+}
+
 /// Axis-aligned bounds of a point set.
 pub fn bounding_box(points: &[Vector3<f64>]) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let first = *points.first()?;

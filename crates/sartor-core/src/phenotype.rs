@@ -816,7 +816,7 @@ impl PhenotypeSpace {
             |x| {
                 let betas = self.betas(&at(x))?;
                 model.shaped_vertices_into(&betas, &mut vertices)?;
-                let mut r = targets.relative_errors(&measurer.measure(&vertices, &betas)?);
+                let mut r = targets.relative_errors(&measurer.measure(model, &vertices, &betas)?);
                 r.extend(x.iter().zip(&x0).map(|(a, b)| SLIDER_FIT_PRIOR * (a - b)));
                 Ok(r)
             },

@@ -196,6 +196,9 @@ pub struct TryOn {
     arms_ms: f64,
     /// The arm clearance's largest shoulder rotation in the frame shown, radians.
     arm_turn_rad: f64,
+    /// The body's measurer (`None` where the body has no arms or midline to measure by: then
+    /// [`Self::measurements`] says why).
+    measurer: Option<BodyMeasurer>,
 }
 
 /// Flatten points into `x, y, z, x, y, z, …`.
@@ -277,7 +280,9 @@ impl TryOn {
             }
             None => None,
         };
+        let measurer = BodyMeasurer::new(&body).ok();
         let mut try_on = Self {
+            measurer,
             body,
             space,
             retarget,
@@ -533,7 +538,11 @@ impl TryOn {
     pub fn measurements(&self) -> Result<BodyMeasurements> {
         let betas = Self::body_betas(&self.body, &self.betas);
         let v = self.body.shaped_vertices(&betas)?;
-        Ok(BodyMeasurer::new(&self.body)?.measure(&v, &betas)?)
+        let measured = match &self.measurer {
+            Some(m) => m.measure(&self.body, &v, &betas),
+            None => BodyMeasurer::new(&self.body).and_then(|m| m.measure(&self.body, &v, &betas)),
+        };
+        Ok(measured?)
     }
 
     /// Standing height of the body shown, metres.

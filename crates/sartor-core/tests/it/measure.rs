@@ -29,7 +29,7 @@ fn measure(
     let v = model.shaped_vertices(&betas).expect("valid");
     let m = BodyMeasurer::new(model)
         .expect("the built-in body has arms and a midline")
-        .measure(&v, &betas)
+        .measure(model, &v, &betas)
         .expect("measurable");
     (betas, v, m)
 }
@@ -207,7 +207,7 @@ fn a_shoppers_measurements_are_met() {
         let v = model.shaped_vertices(&betas).expect("valid");
         let m = BodyMeasurer::new(&model)
             .expect("measurer")
-            .measure(&v, &betas)
+            .measure(&model, &v, &betas)
             .expect("measurable");
         let want = request.measurements;
         assert!(
@@ -267,15 +267,18 @@ fn bad_bodies_and_vertices_are_errors() {
     let measurer = BodyMeasurer::new(&model).expect("measurer");
     let mut v = model.shaped_vertices(&[]).expect("valid");
     let err = measurer
-        .measure(&v[1..], &[])
+        .measure(&model, &v[1..], &[])
         .expect_err("short")
         .to_string();
     assert!(err.contains("vertices for a body of"), "{err}");
     v[7].y = f64::NAN;
-    let err = measurer.measure(&v, &[]).expect_err("NaN").to_string();
+    let err = measurer
+        .measure(&model, &v, &[])
+        .expect_err("NaN")
+        .to_string();
     assert!(err.contains("vertex 7 is not finite"), "{err}");
     let err = measurer
-        .measure(&v, &[0.0; 11])
+        .measure(&model, &v, &[0.0; 11])
         .expect_err("betas")
         .to_string();
     assert!(err.contains("11 betas"), "{err}");

@@ -15,7 +15,7 @@ use super::{IMPORT_FILES, IMPORT_REPORT_FILE};
 use sartor_core::io::{read_file, sha256_hex, write_atomic};
 use sartor_core::{
     BodyModel, MacroRule, Parallelism, Phenotype, PhenotypeSampling, PhenotypeSpace, Pose,
-    Provenance, SkinWeights, TriMesh, skin_points,
+    Provenance, SkinWeights, TriMesh, enclosed_volume, skin_points,
 };
 use sartor_motion::{CMU_MB_JOINTS, TPOSE_FILE, cmu_mb_skeleton};
 
@@ -621,14 +621,7 @@ pub fn import_makehuman(options: &ImportOptions) -> Result<ImportReport> {
     let (faces, n_quads) = triangulate(&polygons, &template_points);
     let template =
         TriMesh::new(template_points.clone(), faces).map_err(|e| e.in_file(&obj_path))?;
-    let signed_volume: f64 = template
-        .faces()
-        .iter()
-        .map(|f| {
-            let [a, b, c] = f.map(|i| template_points[i as usize]);
-            a.dot(&b.cross(&c)) / 6.0
-        })
-        .sum();
+    let signed_volume = enclosed_volume(&template_points, template.faces());
     let mut shape_basis = vec![0.0; 3 * n_body * N_BETAS];
     let mut joint_shape_basis = vec![0.0; 3 * n_joints * N_BETAS];
     for k in 0..N_BETAS {
