@@ -37,10 +37,14 @@
 //!
 //! CMU bone names equal the rig's ([`crate::CMU_MB_JOINTS`]) except `LeftHandIndex1` /
 //! `RightHandIndex1`, which are the rig's `LeftHandFinger1` / `RightHandFinger1`
-//! ([`cmu_to_rig_name`]). BVH joints the rig lacks are an error listing them, unless
-//! [`BvhRetargetOptions::lenient`] drops them (the report lists what was dropped; their rotations
-//! still move their children). Rig joints the file lacks keep their T-pose relation to their
-//! parent. The rest-pose difference is handled by world-orientation retargeting, see
+//! ([`cmu_to_rig_name`]). A file whose every joint has a rig joint's name drives them by name;
+//! any other (Mixamo, Biovision, Rigify, LAFAN1, DAZ, 3ds Max Biped …) is matched by its
+//! skeleton's structure ([`crate::map_bvh_joints`]): its joints that drive nothing (fingers,
+//! eyes, end joints) are listed in the report, and their rotations still move their children.
+//! Only a skeleton whose structure is not understood needs [`BvhRetargetOptions::lenient`],
+//! which then drops the joints without a rig joint's name. Rig joints the file lacks keep their
+//! T-pose relation to their parent. A joint name may hold spaces (`JOINT Bip01 L Thigh`). The
+//! rest-pose difference is handled by world-orientation retargeting, see
 //! [`crate::motion_sources`].
 
 use std::path::{Path, PathBuf};
@@ -49,7 +53,8 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use sartor_core::io::read_file;
 
-use crate::bvh_tpose::{TposeFrame, detect_tpose_frame, first_performance_frame};
+use crate::bvh_map::{BvhJointMap, BvhJointMatch, map_bvh_joints};
+use crate::bvh_tpose::{TposeFrame, detect_tpose_frame_mapped, first_performance_frame_mapped};
 use crate::rest_pose::SourceRest;
 use crate::retarget::{RetargetBody, hip_height};
 use crate::{Error, Motion, Result};
@@ -151,6 +156,7 @@ struct Token<'a> {
 
 struct Parser<'a> {
     path: &'a Path,
+    text: &'a str,
     tokens: Vec<Token<'a>>,
     pos: usize,
     last_line: usize,
@@ -196,6 +202,26 @@ impl<'a> Parser<'a> {
             self.number(what)?,
             self.number(what)?,
         ))
+    }
+
+    /// A joint's name: the words up to the `{` or the end of the line (3ds Max writes
+    /// `JOINT Bip01 L Thigh`), one space between them.
+    fn joint_name(&mut self, what: &str) -> Result<Token<'a>> {
+        let first = self.next(what)?;
+        let mut name = first;
+        while let Some(t) = self.tokens.get(self.pos)
+            && t.line == first.line
+            && t.text != "{"
+        {
+            name.text = &self.text[self.offset(first.text)..self.offset(t.text) + t.text.len()];
+            self.pos += 1;
+        }
+        Ok(name)
+    }
+
+    /// Where `token` (a slice of the text) starts in the text.
+    fn offset(&self, token: &str) -> usize {
+        token.as_ptr() as usize - self.text.as_ptr() as usize
     }
 
     /// Parse the body of a `ROOT`/`JOINT` block after its name; push it and its children.
@@ -263,7 +289,7 @@ impl<'a> Parser<'a> {
             match t.text {
                 "}" => return Ok(()),
                 "JOINT" => {
-                    let child = self.next("joint name")?;
+                    let child = self.joint_name("joint name")?;
                     self.joint(child, Some(index), joints)?;
                 }
                 "End" => {
@@ -319,13 +345,14 @@ impl Bvh {
         let last_line = text.lines().count().max(1);
         let mut p = Parser {
             path,
+            text,
             tokens,
             pos: 0,
             last_line,
         };
         p.expect("HIERARCHY")?;
         p.expect("ROOT")?;
-        let root = p.next("root joint name")?;
+        let root = p.joint_name("root joint name")?;
         let mut joints = Vec::new();
         p.joint(root, None, &mut joints)?;
         let motion = p.next("MOTION")?;
@@ -650,7 +677,8 @@ pub fn cmu_to_rig_name(name: &str) -> &str {
 /// Options of [`retarget_bvh`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BvhRetargetOptions {
-    /// Drop BVH joints the rig does not have (listed in the report) instead of failing.
+    /// For a skeleton [`crate::map_bvh_joints`] cannot match by its structure: drop the joints
+    /// without a rig joint's name (listed in the report) instead of failing.
     pub lenient: bool,
     /// Keep frame 0 even when it is a T-pose added by the converter
     /// ([`crate::detect_tpose_frame`]); by default such a frame is dropped.
@@ -660,7 +688,10 @@ pub struct BvhRetargetOptions {
 /// What [`retarget_bvh`] did besides producing the motion.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BvhRetargetReport {
-    /// BVH joints the rig lacks, dropped in lenient mode (file order).
+    /// Which rig joint each joint of the file drives, and how they were matched.
+    pub joint_map: BvhJointMap,
+    /// BVH joints that drive no rig joint (file order): fingers, eyes, end joints of a file
+    /// matched by its structure; those a lenient retarget dropped.
     pub dropped_joints: Vec<String>,
     /// Rig joints the file does not drive (they keep their rest relation to their parent).
     pub undriven_joints: Vec<String>,
@@ -707,46 +738,23 @@ pub fn retarget_bvh_native_rate(
     let path = bvh.path();
     let skeleton = body.skeleton();
     // Map BVH joints onto rig joints.
-    let mut rig_of_bvh = Vec::with_capacity(bvh.joints.len());
-    let mut unknown = Vec::new();
-    for j in &bvh.joints {
-        let idx = skeleton.index_of(cmu_to_rig_name(&j.name));
-        if idx.is_none() {
-            unknown.push(j.name.clone());
-        }
-        rig_of_bvh.push(idx);
-    }
-    if !unknown.is_empty() && !options.lenient {
-        return Err(Error::format(
-            path,
-            format!(
-                "joints not in the rig: {} (retarget leniently to drop them)",
-                unknown.join(", ")
-            ),
-        ));
-    }
+    let joint_map = match map_bvh_joints(bvh) {
+        Ok(map) => map,
+        Err(why) => name_map_leniently(bvh, skeleton, options, &why)?,
+    };
     let mut bvh_of_rig: Vec<Option<usize>> = vec![None; skeleton.n_joints()];
-    for (b, r) in rig_of_bvh.iter().enumerate() {
-        if let Some(r) = r {
-            if let Some(prev) = bvh_of_rig[*r] {
-                return Err(Error::format(
-                    path,
-                    format!(
-                        "joints {:?} and {:?} both map onto rig joint {:?}",
-                        bvh.joints[prev].name,
-                        bvh.joints[b].name,
-                        skeleton.names()[*r]
-                    ),
-                ));
-            }
-            bvh_of_rig[*r] = Some(b);
+    let mut dropped_joints = Vec::new();
+    for (b, (r, joint)) in joint_map.rig_joints.iter().zip(&bvh.joints).enumerate() {
+        match r.and_then(|r| skeleton.index_of(r)) {
+            Some(r) => bvh_of_rig[r] = Some(b),
+            None => dropped_joints.push(joint.name.clone()),
         }
     }
     if bvh_of_rig[0] != Some(0) {
         return Err(Error::format(
             path,
             format!(
-                "the file's root {:?} must be the rig's root {:?}",
+                "the file's root {:?} must drive the rig's root {:?}",
                 bvh.joints[0].name,
                 skeleton.names()[0]
             ),
@@ -761,11 +769,7 @@ pub fn retarget_bvh_native_rate(
 
     // Axes: Y up; left on +X, else turn around.
     let rest = bvh.rest_positions();
-    let bvh_names: Vec<String> = bvh
-        .joints
-        .iter()
-        .map(|j| cmu_to_rig_name(&j.name).to_string())
-        .collect();
+    let bvh_names = joint_map.names(bvh);
     let find = |n: &str| bvh_names.iter().position(|x| x == n);
     if let Some(head) = find("Head") {
         let up = rest[head] - rest[0];
@@ -805,11 +809,11 @@ pub fn retarget_bvh_native_rate(
     }
     let scale = our_hip / bvh_hip;
 
-    let tpose_frame = detect_tpose_frame(bvh);
+    let tpose_frame = detect_tpose_frame_mapped(bvh, &joint_map);
     let tpose_frame_dropped =
         !options.keep_tpose_frame && tpose_frame.as_ref().is_some_and(|t| t.is_added_tpose);
     // After the T-pose, blank frames (every channel 0) go too.
-    let start = first_performance_frame(bvh, !options.keep_tpose_frame);
+    let start = first_performance_frame_mapped(bvh, &joint_map, !options.keep_tpose_frame);
     let first = bvh.root_position(start);
     let mut frames = Vec::with_capacity(bvh.n_frames() - start);
     let mut source = vec![None; skeleton.n_joints()];
@@ -827,10 +831,10 @@ pub fn retarget_bvh_native_rate(
     let source_fps = snapped_rate(bvh.frame_time_secs);
     let motion = Motion::new(name, source_fps, skeleton.names().to_vec(), frames)
         .map_err(|e| e.in_file(path))?;
-    let dropped_joints = if options.lenient { unknown } else { Vec::new() };
     Ok((
         motion,
         BvhRetargetReport {
+            joint_map,
             dropped_joints,
             undriven_joints,
             translation_scale: scale,
@@ -840,6 +844,49 @@ pub fn retarget_bvh_native_rate(
             tpose_frame_dropped,
         },
     ))
+}
+
+/// The joints of a file whose structure [`map_bvh_joints`] did not understand (`why`), by name
+/// where [`BvhRetargetOptions::lenient`] allows: joints without a rig joint's name are dropped;
+/// otherwise an error naming them.
+fn name_map_leniently(
+    bvh: &Bvh,
+    skeleton: &sartor_core::Skeleton,
+    options: &BvhRetargetOptions,
+    why: &str,
+) -> Result<BvhJointMap> {
+    let rig_joints: Vec<Option<&'static str>> = bvh
+        .joints
+        .iter()
+        .map(|j| {
+            let name = cmu_to_rig_name(&j.name);
+            crate::CMU_MB_JOINTS
+                .iter()
+                .map(|(n, _)| *n)
+                .find(|n| *n == name && skeleton.index_of(n).is_some())
+        })
+        .collect();
+    if !options.lenient {
+        let unknown: Vec<&str> = bvh
+            .joints
+            .iter()
+            .zip(&rig_joints)
+            .filter(|(_, r)| r.is_none())
+            .map(|(j, _)| j.name.as_str())
+            .collect();
+        return Err(Error::format(
+            bvh.path(),
+            format!(
+                "joints not in the rig: {}; matching by the skeleton's structure failed: {why} \
+                 (retarget leniently to drop them)",
+                unknown.join(", ")
+            ),
+        ));
+    }
+    Ok(BvhJointMap {
+        matched_by: BvhJointMatch::Names,
+        rig_joints,
+    })
 }
 
 /// Frames per second for a frame time. Files write the frame time with few digits (CMU's

@@ -21,7 +21,8 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use crate::bvh::{Bvh, cmu_to_rig_name};
+use crate::bvh::Bvh;
+use crate::bvh_map::{BvhJointMap, map_bvh_joints};
 
 /// Largest angle (degrees) of a T-pose's thighs and shins from straight down.
 pub const TPOSE_LEG_TOLERANCE_DEG: f64 = 10.0;
@@ -60,12 +61,12 @@ pub struct TposeFrame {
 
 /// The world direction of each of [`LIMB_BONES`] in frame `i` (`None` when the file lacks one
 /// of the joints), and the hips' left-to-right line.
-fn limb_directions(bvh: &Bvh, i: usize) -> Option<([Vector3<f64>; 8], Vector3<f64>)> {
-    let find = |n: &str| {
-        bvh.joints()
-            .iter()
-            .position(|j| cmu_to_rig_name(&j.name) == n)
-    };
+fn limb_directions(
+    bvh: &Bvh,
+    map: &BvhJointMap,
+    i: usize,
+) -> Option<([Vector3<f64>; 8], Vector3<f64>)> {
+    let find = |n: &str| map.file_joint(n);
     let p = bvh.world_positions(i);
     let mut dirs = [Vector3::zeros(); 8];
     for (k, (a, b)) in LIMB_BONES.iter().enumerate() {
@@ -82,11 +83,16 @@ fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 /// Measure frame 0 of `bvh` against the rules of the module docs. `None` when the file has
 /// fewer than two frames or lacks a limb joint (nothing is then dropped).
 pub fn detect_tpose_frame(bvh: &Bvh) -> Option<TposeFrame> {
+    detect_tpose_frame_mapped(bvh, &map_bvh_joints(bvh).ok()?)
+}
+
+/// [`detect_tpose_frame`] with the file's joints matched to the rig's by `map`.
+pub(crate) fn detect_tpose_frame_mapped(bvh: &Bvh, map: &BvhJointMap) -> Option<TposeFrame> {
     if bvh.n_frames() < 2 {
         return None;
     }
-    let (d0, lateral) = limb_directions(bvh, 0)?;
-    let (d1, _) = limb_directions(bvh, 1)?;
+    let (d0, lateral) = limb_directions(bvh, map, 0)?;
+    let (d1, _) = limb_directions(bvh, map, 1)?;
     let down = -Vector3::y();
     let legs = d0[..4]
         .iter()
@@ -121,7 +127,20 @@ pub fn detect_tpose_frame(bvh: &Bvh) -> Option<TposeFrame> {
 /// converter wrote, not a performer; CMU `07_12` has one after its T-pose, and playing it makes
 /// the body jump metres in one frame). The last frame is always kept.
 pub fn first_performance_frame(bvh: &Bvh, drop_tpose: bool) -> usize {
-    let tpose = drop_tpose && detect_tpose_frame(bvh).is_some_and(|t| t.is_added_tpose);
+    match map_bvh_joints(bvh) {
+        Ok(map) => first_performance_frame_mapped(bvh, &map, drop_tpose),
+        // No limbs matched: no T-pose detected, only blank frames skipped.
+        Err(_) => first_performance_frame_mapped(bvh, &BvhJointMap::none(bvh), drop_tpose),
+    }
+}
+
+/// [`first_performance_frame`] with the file's joints matched to the rig's by `map`.
+pub(crate) fn first_performance_frame_mapped(
+    bvh: &Bvh,
+    map: &BvhJointMap,
+    drop_tpose: bool,
+) -> usize {
+    let tpose = drop_tpose && detect_tpose_frame_mapped(bvh, map).is_some_and(|t| t.is_added_tpose);
     let mut first = usize::from(tpose);
     if drop_tpose {
         let c = bvh.n_channels();
@@ -139,10 +158,11 @@ pub fn first_performance_frame(bvh: &Bvh, drop_tpose: bool) -> usize {
 /// The largest turn (degrees) of any of [`LIMB_BONES`] between consecutive frames from frame
 /// `first` on: how fast the file's limbs move (glitches included).
 pub fn max_limb_step_deg(bvh: &Bvh, first: usize) -> Option<f64> {
+    let map = map_bvh_joints(bvh).ok()?;
     let mut worst: f64 = 0.0;
-    let mut prev = limb_directions(bvh, first)?.0;
+    let mut prev = limb_directions(bvh, &map, first)?.0;
     for i in first + 1..bvh.n_frames() {
-        let cur = limb_directions(bvh, i)?.0;
+        let cur = limb_directions(bvh, &map, i)?.0;
         for (a, b) in prev.iter().zip(&cur) {
             worst = worst.max(angle_deg(a, b));
         }

@@ -28,6 +28,7 @@
 
 mod amass;
 mod bvh;
+mod bvh_map;
 mod bvh_tpose;
 mod clearance;
 mod motion;
@@ -48,6 +49,7 @@ pub use bvh::{
     Bvh, BvhChannel, BvhJoint, BvhRetargetOptions, BvhRetargetReport, cmu_to_rig_name,
     load_bvh_motion, retarget_bvh, retarget_bvh_native_rate,
 };
+pub use bvh_map::{BvhJointMap, BvhJointMatch, map_bvh_joints, map_bvh_joints_by_structure};
 pub use bvh_tpose::{
     LIMB_BONES, TPOSE_ARM_TOLERANCE_DEG, TPOSE_LEG_TOLERANCE_DEG, TPOSE_MIN_JUMP_DEG, TposeFrame,
     detect_tpose_frame, first_performance_frame, max_limb_step_deg,

@@ -46,7 +46,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
-use crate::bvh::{Bvh, BvhChannel, BvhRetargetOptions, cmu_to_rig_name, retarget_bvh_native_rate};
+use crate::bvh::{Bvh, BvhChannel, BvhRetargetOptions, retarget_bvh_native_rate};
+use crate::bvh_map::BvhJointMatch;
 use crate::bvh_tpose::{TposeFrame, max_limb_step_deg};
 use crate::rest_pose::POSTURE_BONES;
 use crate::retarget::{RetargetBody, world_rotations};
@@ -178,6 +179,10 @@ pub struct ClipCheck {
     pub clip: String,
     /// Frames checked (all of the file's).
     pub frames: usize,
+    /// How the file's joints were matched to the rig's.
+    pub matched_by: BvhJointMatch,
+    /// `[file joint, rig joint]` for every file joint that drives one, in file order.
+    pub joints: Vec<[String; 2]>,
     /// What the T-pose detector found on frame 0.
     pub tpose_frame: Option<TposeFrame>,
     /// The largest turn of a limb bone between consecutive frames after frame 0, degrees.
@@ -273,12 +278,8 @@ pub fn check_bvh_retarget(
     let (reference, _) = retarget_bvh_native_rate(&rest_bvh, body, &keep)?;
     let reference = &reference.frames()[0];
 
-    // Rig joint → BVH joint by name.
-    let bvh_index = |rig_name: &str| {
-        bvh.joints()
-            .iter()
-            .position(|j| cmu_to_rig_name(&j.name) == rig_name)
-    };
+    // Rig joint → BVH joint, as the retarget matched them.
+    let bvh_index = |rig_name: &str| report.joint_map.file_joint(rig_name);
     let bvh_of_rig: Vec<Option<usize>> = skeleton.names().iter().map(|n| bvh_index(n)).collect();
     let mut pairs = Vec::new();
     for (c, parent) in skeleton.parents().iter().enumerate() {
@@ -319,12 +320,15 @@ pub fn check_bvh_retarget(
     let mut reference_posture_deg: f64 = 0.0;
     let mut reference_proportion_deg: f64 = 0.0;
     let mut reference_dirs = Vec::with_capacity(pairs.len());
+    // A joint that starts a posture bone is turned to the file's rest by it, whatever other
+    // bones start there (Mixamo's chest starts the neck's posture bone and the collars').
+    let posture_start = |j: usize| pairs.iter().any(|q| q.posture && q.rig.0 == j);
     for p in &pairs {
         let ours = ref_joints[p.rig.1] - ref_joints[p.rig.0];
         if p.posture {
             let file = turn * bvh.joints()[p.bvh.1].offset;
             reference_posture_deg = reference_posture_deg.max(angle_deg(&ours, &file));
-        } else {
+        } else if !posture_start(p.rig.0) {
             let local = reference.local_rotations[p.rig.0].angle().to_degrees();
             reference_proportion_deg = reference_proportion_deg.max(local);
         }
@@ -455,9 +459,17 @@ pub fn check_bvh_retarget(
             crossing.max_separation_difference, crossing.worst_frame
         ));
     }
+    let joints = bvh
+        .joints()
+        .iter()
+        .zip(&report.joint_map.rig_joints)
+        .filter_map(|(j, r)| Some([j.name.clone(), (*r)?.to_string()]))
+        .collect();
     Ok(ClipCheck {
         clip: clip_name(path),
         frames: bvh.n_frames(),
+        matched_by: report.joint_map.matched_by,
+        joints,
         tpose_frame: report.tpose_frame,
         max_limb_step_deg: max_limb_step_deg(bvh, 1),
         bones,

@@ -18,7 +18,7 @@ pub struct MotionSourceOptions {
     pub motions_dir: PathBuf,
     /// The body BVH and AMASS files are retargeted onto; required for those two.
     pub body: Option<RetargetBody>,
-    /// BVH: drop joints the rig does not have instead of failing.
+    /// BVH: see [`crate::BvhRetargetOptions::lenient`].
     pub lenient: bool,
     /// AMASS: the file's up axis.
     pub up_axis: UpAxis,

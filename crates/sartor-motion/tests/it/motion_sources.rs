@@ -12,8 +12,9 @@ use sartor_motion::procedural::{
     hinge_axes,
 };
 use sartor_motion::{
-    AmassOptions, Bvh, BvhRetargetOptions, Motion, MotionSourceOptions, RetargetBody, UpAxis,
-    cmu_mb_skeleton, load_amass, load_motion, retarget_bvh, retarget_bvh_native_rate,
+    AmassOptions, Bvh, BvhJointMatch, BvhRetargetOptions, Motion, MotionSourceOptions,
+    RetargetBody, UpAxis, cmu_mb_skeleton, load_amass, load_motion, retarget_bvh,
+    retarget_bvh_native_rate,
 };
 
 use rand::SeedableRng;
@@ -442,7 +443,7 @@ fn malformed_bvh_errors_name_file_and_line() {
 }
 
 #[test]
-fn unknown_bvh_joints_fail_unless_lenient() {
+fn a_joint_the_rig_lacks_is_matched_to_nothing_and_reported() {
     let body = synthetic_body();
     let good = fixture_text();
     let (hier, motion) = good.split_once("MOTION").expect("sections");
@@ -461,19 +462,25 @@ fn unknown_bvh_joints_fail_unless_lenient() {
         .collect();
     let text = format!("{hier}{extra}MOTION{}\n", frames.join("\n"));
     let bvh = Bvh::parse(&text, Path::new("wing.bvh")).expect("parses");
-    let e = retarget_bvh(&bvh, &body, &BvhRetargetOptions::default()).expect_err("strict");
-    let msg = e.to_string();
-    assert!(
-        msg.starts_with("wing.bvh:") && msg.contains("LeftWing"),
-        "{msg}"
-    );
-    let lenient = BvhRetargetOptions {
-        lenient: true,
-        keep_tpose_frame: true,
-    };
-    let (m, report) = retarget_bvh(&bvh, &body, &lenient).expect("lenient");
-    assert_eq!(report.dropped_joints, vec!["LeftWing".to_string()]);
+    // Not every joint has a rig joint's name: matched by the skeleton's structure, the wing
+    // drives nothing and the poses are the file's without it, bit for bit.
+    let (m, report) = retarget_bvh(&bvh, &body, &KEEP).expect("by structure");
+    assert_eq!(report.joint_map.matched_by, BvhJointMatch::Structure);
+    // The wing, and the finger no tool names alike.
+    assert_eq!(report.dropped_joints, ["LeftHandIndex1", "LeftWing"]);
+    let plain = Bvh::parse(&good, Path::new("plain.bvh")).expect("parses");
+    let (want, _) = retarget_bvh(&plain, &body, &KEEP).expect("by name");
     assert_eq!(m.n_frames(), 3);
+    let finger = body.skeleton().index_of("LeftHandFinger1").expect("finger");
+    for (a, b) in m.frames().iter().zip(want.frames()) {
+        assert_eq!(a.root_translation_m, b.root_translation_m);
+        assert_eq!(a.root_orientation, b.root_orientation);
+        for (j, (p, q)) in a.local_rotations.iter().zip(&b.local_rotations).enumerate() {
+            if j != finger {
+                assert_eq!(p, q, "joint {j}");
+            }
+        }
+    }
 }
 
 #[test]

@@ -1,0 +1,360 @@
+//! Matching BVH skeletons of other tools to the rig by their structure (`bvh_map.rs`), checked
+//! against the match by name on CMU's own files: renamed as Mixamo, Biovision, Rigify, DAZ or
+//! 3ds Max Biped name them, or with no names at all, they must retarget to the same poses.
+
+use std::path::{Path, PathBuf};
+
+use sartor_motion::{
+    Bvh, BvhJointMatch, BvhRetargetOptions, RetargetBody, check_bvh_retarget, load_stored_clip,
+    map_bvh_joints, map_bvh_joints_by_structure, retarget_bvh,
+};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn motions_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/motions")
+}
+
+/// The CMU joints a structural match leaves to follow their parent: the hand's fingers and
+/// thumb (no tool agrees on them).
+const FINGERS: [&str; 6] = [
+    "LeftFingerBase",
+    "LeftHandIndex1",
+    "LThumb",
+    "RightFingerBase",
+    "RightHandIndex1",
+    "RThumb",
+];
+
+/// Every joint the structure matches, it matches to the rig joint of the same name; every
+/// other joint is a finger.
+fn assert_structure_agrees_with_names(bvh: &Bvh) {
+    let by_name = map_bvh_joints(bvh).expect("names");
+    assert_eq!(by_name.matched_by, BvhJointMatch::Names);
+    let by_structure = map_bvh_joints_by_structure(bvh).expect("structure");
+    for ((joint, name), structure) in bvh
+        .joints()
+        .iter()
+        .zip(&by_name.rig_joints)
+        .zip(&by_structure.rig_joints)
+    {
+        match structure {
+            Some(s) => assert_eq!(Some(*s), *name, "{:?} in {:?}", joint.name, bvh.path()),
+            None => assert!(
+                FINGERS.contains(&joint.name.as_str()),
+                "{:?} unmatched in {:?}",
+                joint.name,
+                bvh.path()
+            ),
+        }
+    }
+}
+
+#[test]
+fn cmu_skeletons_match_by_structure_as_by_name() {
+    for clip in ["02_04", "05_11", "07_01", "09_01"] {
+        let bvh = Bvh::load(&data(&format!("cmu/{clip}.bvh"))).expect("clip");
+        assert_structure_agrees_with_names(&bvh);
+    }
+    // The 60 imported clips: their own skeletons (subjects differ in proportions).
+    let mut n = 0;
+    for entry in std::fs::read_dir(motions_dir().join("cmu")).expect("cmu clips") {
+        let path = entry.expect("entry").path();
+        if path.extension().is_some_and(|e| e == "json") {
+            let stem = path.file_stem().expect("stem").to_string_lossy();
+            let bvh = load_stored_clip(&motions_dir(), &format!("cmu/{stem}")).expect("clip");
+            assert_structure_agrees_with_names(&bvh);
+            n += 1;
+        }
+    }
+    assert_eq!(n, 60);
+}
+
+/// CMU's joint names as other tools write the same joints.
+const CONVENTIONS: [(&str, [(&str, &str); 25]); 5] = [
+    (
+        "mixamo",
+        [
+            ("Spine", "mixamorig:Spine1"),
+            ("RightArm", "mixamorig:RightArm"),
+            ("Hips", "mixamorig:Hips"),
+            ("LHipJoint", "mixamorig:LeftHipJoint"),
+            ("LeftUpLeg", "mixamorig:LeftUpLeg"),
+            ("LeftLeg", "mixamorig:LeftLeg"),
+            ("LeftFoot", "mixamorig:LeftFoot"),
+            ("LeftToeBase", "mixamorig:LeftToeBase"),
+            ("RHipJoint", "mixamorig:RightHipJoint"),
+            ("RightUpLeg", "mixamorig:RightUpLeg"),
+            ("RightLeg", "mixamorig:RightLeg"),
+            ("RightFoot", "mixamorig:RightFoot"),
+            ("RightToeBase", "mixamorig:RightToeBase"),
+            ("LowerBack", "mixamorig:Spine"),
+            ("Spine1", "mixamorig:Spine2"),
+            ("Neck1", "mixamorig:Neck1"),
+            ("Neck", "mixamorig:Neck"),
+            ("Head", "mixamorig:Head"),
+            ("LeftShoulder", "mixamorig:LeftShoulder"),
+            ("LeftArm", "mixamorig:LeftArm"),
+            ("LeftForeArm", "mixamorig:LeftForeArm"),
+            ("LeftHand", "mixamorig:LeftHand"),
+            ("RightShoulder", "mixamorig:RightShoulder"),
+            ("RightForeArm", "mixamorig:RightForeArm"),
+            ("RightHand", "mixamorig:RightHand"),
+        ],
+    ),
+    (
+        "biovision",
+        [
+            ("Spine", "Chest"),
+            ("RightArm", "RightShoulder"),
+            ("Hips", "Hips"),
+            ("LHipJoint", "LeftHipJoint"),
+            ("LeftUpLeg", "LeftHip"),
+            ("LeftLeg", "LeftKnee"),
+            ("LeftFoot", "LeftAnkle"),
+            ("LeftToeBase", "LeftToe"),
+            ("RHipJoint", "RightHipJoint"),
+            ("RightUpLeg", "RightHip"),
+            ("RightLeg", "RightKnee"),
+            ("RightFoot", "RightAnkle"),
+            ("RightToeBase", "RightToe"),
+            ("LowerBack", "Abdomen"),
+            ("Spine1", "Chest2"),
+            ("Neck1", "Neck2"),
+            ("Neck", "Neck"),
+            ("Head", "Head"),
+            ("LeftShoulder", "LeftCollar"),
+            ("LeftArm", "LeftShoulder"),
+            ("LeftForeArm", "LeftElbow"),
+            ("LeftHand", "LeftWrist"),
+            ("RightShoulder", "RightCollar"),
+            ("RightForeArm", "RightElbow"),
+            ("RightHand", "RightWrist"),
+        ],
+    ),
+    (
+        "rigify",
+        [
+            ("Spine", "spine.001"),
+            ("RightArm", "upper_arm.R"),
+            ("Hips", "pelvis"),
+            ("LHipJoint", "pelvis.L"),
+            ("LeftUpLeg", "thigh.L"),
+            ("LeftLeg", "shin.L"),
+            ("LeftFoot", "foot.L"),
+            ("LeftToeBase", "toe.L"),
+            ("RHipJoint", "pelvis.R"),
+            ("RightUpLeg", "thigh.R"),
+            ("RightLeg", "shin.R"),
+            ("RightFoot", "foot.R"),
+            ("RightToeBase", "toe.R"),
+            ("LowerBack", "spine"),
+            ("Spine1", "spine.002"),
+            ("Neck1", "neck.001"),
+            ("Neck", "neck"),
+            ("Head", "head"),
+            ("LeftShoulder", "shoulder.L"),
+            ("LeftArm", "upper_arm.L"),
+            ("LeftForeArm", "forearm.L"),
+            ("LeftHand", "hand.L"),
+            ("RightShoulder", "shoulder.R"),
+            ("RightForeArm", "forearm.R"),
+            ("RightHand", "hand.R"),
+        ],
+    ),
+    (
+        "daz",
+        [
+            ("Spine", "abdomen2"),
+            ("RightArm", "rShldr"),
+            ("Hips", "hip"),
+            ("LHipJoint", "lButtock"),
+            ("LeftUpLeg", "lThigh"),
+            ("LeftLeg", "lShin"),
+            ("LeftFoot", "lFoot"),
+            ("LeftToeBase", "lToe"),
+            ("RHipJoint", "rButtock"),
+            ("RightUpLeg", "rThigh"),
+            ("RightLeg", "rShin"),
+            ("RightFoot", "rFoot"),
+            ("RightToeBase", "rToe"),
+            ("LowerBack", "abdomen"),
+            ("Spine1", "chest"),
+            ("Neck1", "neck2"),
+            ("Neck", "neck"),
+            ("Head", "head"),
+            ("LeftShoulder", "lCollar"),
+            ("LeftArm", "lShldr"),
+            ("LeftForeArm", "lForeArm"),
+            ("LeftHand", "lHand"),
+            ("RightShoulder", "rCollar"),
+            ("RightForeArm", "rForeArm"),
+            ("RightHand", "rHand"),
+        ],
+    ),
+    (
+        "biped",
+        [
+            ("Spine", "Bip01 Spine1"),
+            ("RightArm", "Bip01 R UpperArm"),
+            ("Hips", "Bip01 Pelvis"),
+            ("LHipJoint", "Bip01 L Hip"),
+            ("LeftUpLeg", "Bip01 L Thigh"),
+            ("LeftLeg", "Bip01 L Calf"),
+            ("LeftFoot", "Bip01 L Foot"),
+            ("LeftToeBase", "Bip01 L Toe0"),
+            ("RHipJoint", "Bip01 R Hip"),
+            ("RightUpLeg", "Bip01 R Thigh"),
+            ("RightLeg", "Bip01 R Calf"),
+            ("RightFoot", "Bip01 R Foot"),
+            ("RightToeBase", "Bip01 R Toe0"),
+            ("LowerBack", "Bip01 Spine"),
+            ("Spine1", "Bip01 Spine2"),
+            ("Neck1", "Bip01 Neck1"),
+            ("Neck", "Bip01 Neck"),
+            ("Head", "Bip01 Head"),
+            ("LeftShoulder", "Bip01 L Clavicle"),
+            ("LeftArm", "Bip01 L UpperArm"),
+            ("LeftForeArm", "Bip01 L Forearm"),
+            ("LeftHand", "Bip01 L Hand"),
+            ("RightShoulder", "Bip01 R Clavicle"),
+            ("RightForeArm", "Bip01 R Forearm"),
+            ("RightHand", "Bip01 R Hand"),
+        ],
+    ),
+];
+
+/// `text` with every joint renamed by `rename` (joints it leaves out keep their names).
+fn renamed(text: &str, rename: impl Fn(&str) -> Option<String>) -> String {
+    text.lines()
+        .map(|line| {
+            let t = line.trim_start();
+            for kw in ["ROOT ", "JOINT "] {
+                if let Some(name) = t.strip_prefix(kw)
+                    && let Some(new) = rename(name.trim())
+                {
+                    let indent = &line[..line.len() - t.len()];
+                    return format!("{indent}{kw}{new}");
+                }
+            }
+            line.to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+fn builtin_body() -> RetargetBody {
+    RetargetBody::load(&crate::motion_sources::builtin_model_dir()).expect("built-in body")
+}
+
+/// The poses of `text` (named `name`), and how its joints were matched.
+fn retarget_text(
+    text: &str,
+    name: &str,
+    body: &RetargetBody,
+) -> (Vec<sartor_core::Pose>, BvhJointMatch) {
+    let bvh = Bvh::parse(text, Path::new(name)).expect("parses");
+    let (motion, report) =
+        retarget_bvh(&bvh, body, &BvhRetargetOptions::default()).expect("retargets");
+    (motion.frames().to_vec(), report.joint_map.matched_by)
+}
+
+#[test]
+fn a_cmu_clip_named_as_other_tools_name_it_retargets_to_the_same_poses() {
+    let body = builtin_body();
+    let text = std::fs::read_to_string(data("cmu/02_04.bvh")).expect("clip");
+    let (want, by) = retarget_text(&text, "02_04.bvh", &body);
+    assert_eq!(by, BvhJointMatch::Names);
+    for (tool, names) in CONVENTIONS {
+        let rename = |n: &str| {
+            names
+                .iter()
+                .find(|(cmu, _)| *cmu == n)
+                .map(|(_, other)| other.to_string())
+        };
+        let (got, by) = retarget_text(&renamed(&text, rename), &format!("{tool}.bvh"), &body);
+        assert_eq!(by, BvhJointMatch::Structure, "{tool}");
+        assert_eq!(got.len(), want.len(), "{tool}");
+        // The fingers are matched to nothing: they follow the hand, where CMU's (whose
+        // channels are zero in this clip) sat still on it. Every other joint the same bits.
+        let s = body.skeleton();
+        let fingers: Vec<usize> = ["LeftFingerBase", "LeftHandFinger1", "LThumb"]
+            .iter()
+            .chain(&["RightFingerBase", "RightHandFinger1", "RThumb"])
+            .map(|n| s.index_of(n).expect(n))
+            .collect();
+        for (k, (a, b)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                a.root_translation_m, b.root_translation_m,
+                "{tool} frame {k}"
+            );
+            assert_eq!(a.root_orientation, b.root_orientation, "{tool} frame {k}");
+            for (j, (p, q)) in a.local_rotations.iter().zip(&b.local_rotations).enumerate() {
+                if !fingers.contains(&j) {
+                    assert_eq!(p, q, "{tool} frame {k} joint {}", s.names()[j]);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn without_side_names_the_feet_tell_left_from_right() {
+    let body = builtin_body();
+    let text = std::fs::read_to_string(data("cmu/02_04.bvh")).expect("clip");
+    let bvh = Bvh::parse(&text, Path::new("02_04.bvh")).expect("clip");
+    let names: Vec<String> = bvh.joints().iter().map(|j| j.name.clone()).collect();
+    // Joint names that say nothing of the side (nor of the neck and head).
+    let anonymous = renamed(&text, |n| {
+        names
+            .iter()
+            .position(|x| x == n)
+            .map(|k| format!("joint{k:02}"))
+    });
+    let bvh = Bvh::parse(&anonymous, Path::new("anonymous.bvh")).expect("parses");
+    let map = map_bvh_joints(&bvh).expect("matched");
+    assert_eq!(map.matched_by, BvhJointMatch::Structure);
+    let by_name =
+        map_bvh_joints(&Bvh::parse(&text, Path::new("02_04.bvh")).expect("clip")).expect("names");
+    for (k, (a, b)) in map.rig_joints.iter().zip(&by_name.rig_joints).enumerate() {
+        if a.is_some() {
+            assert_eq!(a, b, "joint {}", names[k]);
+        }
+    }
+    // And its retarget follows the file's own forward kinematics.
+    let check = check_bvh_retarget(&bvh, &body, &Default::default()).expect("checked");
+    assert!(check.passed(), "{:?}", check.failures);
+}
+
+#[test]
+fn a_skeleton_without_arms_is_an_error_unless_lenient() {
+    let text = "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition \
+                Zposition Zrotation Yrotation Xrotation\n  JOINT LeftUpLeg\n  {\n    OFFSET 1 \
+                -1 0\n    CHANNELS 3 Zrotation Xrotation Yrotation\n    End Site\n    {\n      \
+                OFFSET 0 -4 0\n    }\n  }\n  JOINT Tail\n  {\n    OFFSET 0 0 -1\n    CHANNELS 3 \
+                Zrotation Xrotation Yrotation\n    End Site\n    {\n      OFFSET 0 0 -1\n    }\n  \
+                }\n}\nMOTION\nFrames: 2\nFrame Time: 0.0333333\n0 0 0 0 0 0 0 0 0 0 0 0\n0 0 0 \
+                0 0 0 0 0 0 0 0 0\n";
+    let bvh = Bvh::parse(text, Path::new("tail.bvh")).expect("parses");
+    let why = map_bvh_joints(&bvh).expect_err("no spine with arms");
+    assert!(why.contains("arms"), "{why}");
+    let body = crate::motion_sources::synthetic_body();
+    let e = retarget_bvh(&bvh, &body, &BvhRetargetOptions::default()).expect_err("strict");
+    let msg = e.to_string();
+    assert!(
+        msg.starts_with("tail.bvh:") && msg.contains("Tail") && msg.contains("arms"),
+        "{msg}"
+    );
+    let lenient = BvhRetargetOptions {
+        lenient: true,
+        keep_tpose_frame: true,
+    };
+    let (m, report) = retarget_bvh(&bvh, &body, &lenient).expect("lenient");
+    assert_eq!(report.dropped_joints, vec!["Tail".to_string()]);
+    assert_eq!(report.joint_map.matched_by, BvhJointMatch::Names);
+    assert!(m.n_frames() > 0);
+}
