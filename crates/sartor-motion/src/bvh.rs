@@ -11,18 +11,26 @@
 //! Every fault is reported with the file and the 1-based line. Position channels are read on any
 //! joint, but only the root's reach the retargeted motion (the rig's bone lengths are fixed).
 //!
-//! # Axes and units (CMU files)
+//! # Axes and units
 //!
 //! CMU BVH files are Y-up; in their rest T-pose the left limbs lie on +X, so the subject faces
 //! +Z — the same axes as ours (+X the body's left, +Y up, +Z forward). The retargeter checks this
-//! on the rest offsets: when the left hip (or arm) lies on −X it turns the data 180° about +Y, and
-//! it rejects files whose head is not above the hips along +Y. The files' length unit varies
+//! on the rest offsets: when the left hip (or arm) lies on −X it turns the data 180° about +Y.
+//! The files' length unit varies
 //! (CMU's converted files use neither inches nor metres), so it is never guessed: root
 //! translations are scaled by `our hip height / BVH hip height`, both measured from the root joint
 //! down to the feet (`LeftFoot`/`RightFoot`) in the file's rest posture (ours turned into it by
 //! the rest change), a unit-free ratio. Translations are
 //! taken relative to the first frame played (the motion starts at the origin; that frame is
 //! taken to stand at rest height).
+//!
+//! A rest pose need not stand: LAFAN1's files point every bone along +X at rest, so that the
+//! rest body lies on its side with its legs folded up along the spine. Where the rest head is
+//! not above the hips along +Y, the rest is stood up ([`BvhRetargetReport::rest_frame`]: up
+//! from the root to the head, left from the right thigh to the left) and the file's rotations
+//! are taken relative to that standing rest; the file must then be Y-up in its first frame (a
+//! Z-up file is refused), and translations are scaled by the legs' length (thigh and shin)
+//! instead, as such a rest has no hip height.
 //!
 //! # Rest pose and the added T-pose frame
 //!
@@ -699,6 +707,10 @@ pub struct BvhRetargetReport {
     pub translation_scale: f64,
     /// Whether the file's subject faced −Z and was turned 180° about +Y.
     pub turned_around: bool,
+    /// For a file whose rest pose does not stand (head not above the hips along +Y: LAFAN1's),
+    /// the rotation from a standing rest facing +Z to the file's: up from the root to the head,
+    /// left from the right thigh to the left (`None`: the file's rest stands).
+    pub rest_frame: Option<UnitQuaternion<f64>>,
     /// The file's frame rate.
     pub source_fps: f64,
     /// What the T-pose detector measured on frame 0 (`None`: too few frames or limbs).
@@ -767,43 +779,81 @@ pub fn retarget_bvh_native_rate(
         .map(|(r, _)| skeleton.names()[r].clone())
         .collect();
 
-    // Axes: Y up; left on +X, else turn around.
+    // Axes: Y up; left on +X, else turn around. A rest pose that does not stand (LAFAN1's
+    // lies along +X) is stood up first.
     let rest = bvh.rest_positions();
     let bvh_names = joint_map.names(bvh);
     let find = |n: &str| bvh_names.iter().position(|x| x == n);
-    if let Some(head) = find("Head") {
-        let up = rest[head] - rest[0];
-        if up.y <= up.x.abs().max(up.z.abs()) {
+    let stands = |p: &[Vector3<f64>]| {
+        find("Head").is_none_or(|head| {
+            let up = p[head] - p[0];
+            up.y > up.x.abs().max(up.z.abs())
+        })
+    };
+    let rest_frame = if stands(&rest) {
+        None
+    } else {
+        let frame = standing_frame(&rest, &find).ok_or_else(|| {
+            Error::format(
+                path,
+                "the rest pose does not stand (head above the hips along +Y) and lacks a \
+                 head or two thighs to stand it up by",
+            )
+        })?;
+        if !stands(&bvh.world_positions(0)) {
+            let up = bvh.world_positions(0)[find("Head").expect("stands() found it")]
+                - bvh.root_position(0);
             return Err(Error::format(
                 path,
                 format!(
-                    "the rest head lies at {up:?} from the root: expected a Y-up file (head \
-                     above the hips along +Y)"
+                    "neither the rest pose nor frame 1 has the head above the hips: in frame 1 \
+                     it lies at {up:?} from the root; expected a Y-up file"
                 ),
             ));
         }
-    }
+        Some(frame)
+    };
+    let stood: Vec<Vector3<f64>> = match &rest_frame {
+        Some(r) => rest.iter().map(|p| r.inverse() * p).collect(),
+        None => rest.clone(),
+    };
     let turned_around = [("LeftUpLeg", "RightUpLeg"), ("LeftArm", "RightArm")]
         .iter()
-        .find_map(|(l, r)| Some(rest[find(l)?].x < rest[find(r)?].x))
+        .find_map(|(l, r)| Some(stood[find(l)?].x < stood[find(r)?].x))
         .unwrap_or(false);
     let turn = if turned_around {
         UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)
     } else {
         UnitQuaternion::identity()
     };
+    let orient = match &rest_frame {
+        Some(r) => turn * r.inverse(),
+        None => turn,
+    };
 
-    let rest_change = body.rest_change(&bvh_source_rest(bvh, skeleton, &bvh_of_rig, &turn)?)?;
+    let rest_change = body.rest_change(&bvh_source_rest(bvh, skeleton, &bvh_of_rig, &orient)?)?;
 
     // Units: hip heights, both in the file's rest posture.
-    let bvh_hip = hip_height(&bvh_names, &rest);
-    let our_hip = body.hip_height_in_m(&rest_change)?;
+    // A rest that does not stand need not hold the legs below the hips (LAFAN1's points every
+    // bone along +X): there, thigh and shin lengths, both legs' mean.
+    let (bvh_hip, our_hip) = if rest_frame.is_none() {
+        (
+            hip_height(&bvh_names, &stood),
+            body.hip_height_in_m(&rest_change)?,
+        )
+    } else {
+        let ours: Vec<String> = skeleton.names().to_vec();
+        (
+            leg_length(&bvh_names, &rest).unwrap_or(f64::NAN),
+            leg_length(&ours, body.rest_joints_m()).unwrap_or(f64::NAN),
+        )
+    };
     if !(bvh_hip > 0.0 && our_hip > 0.0) {
         return Err(Error::format(
             path,
             format!(
-                "cannot scale translations: rest hip height {bvh_hip} in the file, {our_hip} m \
-                 in the body"
+                "cannot scale translations: rest hip height (or leg length) {bvh_hip} in the \
+                 file, {our_hip} m in the body"
             ),
         ));
     }
@@ -820,7 +870,10 @@ pub fn retarget_bvh_native_rate(
     for i in start..bvh.n_frames() {
         let q = bvh.world_rotations(i);
         for (r, b) in bvh_of_rig.iter().enumerate() {
-            source[r] = b.map(|b| turn * q[b] * turn.inverse());
+            source[r] = b.map(|b| match &rest_frame {
+                Some(frame) => turn * q[b] * turn.inverse() * frame,
+                None => turn * q[b] * turn.inverse(),
+            });
         }
         let d = turn * (bvh.root_position(i) - first) * scale;
         frames.push(body.pose_from_source(&rest_change, &source, d));
@@ -835,6 +888,7 @@ pub fn retarget_bvh_native_rate(
         motion,
         BvhRetargetReport {
             joint_map,
+            rest_frame,
             dropped_joints,
             undriven_joints,
             translation_scale: scale,
@@ -887,6 +941,33 @@ fn name_map_leniently(
         matched_by: BvhJointMatch::Names,
         rig_joints,
     })
+}
+
+/// Thigh plus shin length, the mean of both legs, of the joints `joints` named `names` (rig
+/// names); `None` without both legs' hip, knee and ankle.
+fn leg_length(names: &[String], joints: &[Vector3<f64>]) -> Option<f64> {
+    let at = |n: &str| Some(joints[names.iter().position(|x| x == n)?]);
+    let leg = |side: &str| -> Option<f64> {
+        let (hip, knee) = (at(&format!("{side}UpLeg"))?, at(&format!("{side}Leg"))?);
+        Some((knee - hip).norm() + (at(&format!("{side}Foot"))? - knee).norm())
+    };
+    Some(0.5 * (leg("Left")? + leg("Right")?))
+}
+
+/// The rotation from our axes (+X left, +Y up, +Z forward) to a rest pose's own: up from the
+/// root to the head, left from the right thigh to the left one (made square to up), forward
+/// their cross product; `None` without a head and two thighs (`find` gives a rig joint's file
+/// joint), or where they do not span a frame.
+fn standing_frame(
+    rest: &[Vector3<f64>],
+    find: &impl Fn(&str) -> Option<usize>,
+) -> Option<UnitQuaternion<f64>> {
+    let up = (rest[find("Head")?] - rest[0]).try_normalize(1e-9)?;
+    let left = rest[find("LeftUpLeg")?] - rest[find("RightUpLeg")?];
+    let left = (left - up * left.dot(&up)).try_normalize(1e-9)?;
+    let forward = left.cross(&up);
+    let basis = nalgebra::Matrix3::from_columns(&[left, up, forward]);
+    Some(UnitQuaternion::from_matrix(&basis))
 }
 
 /// Frames per second for a frame time. Files write the frame time with few digits (CMU's

@@ -274,9 +274,13 @@ pub fn check_bvh_retarget(
             ),
         ));
     }
-    let rest_bvh = bvh.with_values(vec![0.0; bvh.n_channels()])?;
+    // The all-zero frame after the file's first (which tells the retarget which way is up
+    // where the rest pose does not stand).
+    let mut values = bvh.frame(0).to_vec();
+    values.resize(2 * bvh.n_channels(), 0.0);
+    let rest_bvh = bvh.with_values(values)?;
     let (reference, _) = retarget_bvh_native_rate(&rest_bvh, body, &keep)?;
-    let reference = &reference.frames()[0];
+    let reference = &reference.frames()[1];
 
     // Rig joint → BVH joint, as the retarget matched them.
     let bvh_index = |rig_name: &str| report.joint_map.file_joint(rig_name);
@@ -309,6 +313,9 @@ pub fn check_bvh_retarget(
     } else {
         Matrix3::identity()
     };
+    let rest_frame = report
+        .rest_frame
+        .map_or_else(Matrix3::identity, |r| r.to_rotation_matrix().into_inner());
     let fk = |pose: &Pose| -> Result<PosedWorld> {
         let (joints, _) = skeleton.forward_kinematics(body.rest_joints_m(), pose)?;
         Ok((joints, world_rotations(skeleton, pose)))
@@ -329,8 +336,15 @@ pub fn check_bvh_retarget(
             let file = turn * bvh.joints()[p.bvh.1].offset;
             reference_posture_deg = reference_posture_deg.max(angle_deg(&ours, &file));
         } else if !posture_start(p.rig.0) {
-            let local = reference.local_rotations[p.rig.0].angle().to_degrees();
-            reference_proportion_deg = reference_proportion_deg.max(local);
+            // The root's "parent" is the rest it was stood up from, where it did not stand.
+            let local = match (p.rig.0, &report.rest_frame) {
+                (0, Some(frame)) => {
+                    let root = reference.root_orientation * reference.local_rotations[0];
+                    root.angle_to(frame)
+                }
+                (j, _) => reference.local_rotations[j].angle(),
+            };
+            reference_proportion_deg = reference_proportion_deg.max(local.to_degrees());
         }
         reference_dirs.push(ours);
     }
@@ -378,6 +392,9 @@ pub fn check_bvh_retarget(
         let file = bvh_forward_kinematics(bvh, i);
         let (joints, world) = fk(pose)?;
         let file_rot = |b: usize| turn * file.rotations[b] * turn.transpose();
+        // The file's pelvis frame: its rotation from a standing rest (the file's own, or the
+        // one its lying rest was stood up from).
+        let file_pelvis = |b: usize| file_rot(b) * rest_frame;
         for ((p, check), r) in pairs.iter().zip(&mut bones).zip(&reference_dirs) {
             let ours = joints[p.rig.1] - joints[p.rig.0];
             let file_bone = turn * (file.positions[p.bvh.1] - file.positions[p.bvh.0]);
@@ -396,7 +413,7 @@ pub fn check_bvh_retarget(
         // Pelvis and root.
         if let Some(b0) = bvh_of_rig[0] {
             let ours = world[0].to_rotation_matrix().into_inner();
-            let theirs = file_rot(b0);
+            let theirs = file_pelvis(b0);
             let rel = Rotation3::from_matrix_unchecked(ours.transpose() * theirs);
             pelvis_worst_deg = pelvis_worst_deg.max(rel.angle().to_degrees());
             let want = turn * (file.positions[b0] - first_root) * report.translation_scale;
@@ -408,7 +425,7 @@ pub fn check_bvh_retarget(
             let file_p = [0, 1, 2, 3, 4, 5].map(|k| turn * file.positions[legs[k].1]);
             let ours_s = separations(ours_p, &world[0].to_rotation_matrix().into_inner());
             let file_s = match bvh_of_rig[0] {
-                Some(b0) => separations(file_p, &file_rot(b0)),
+                Some(b0) => separations(file_p, &file_pelvis(b0)),
                 None => ours_s,
             };
             crossing.min_knee_separation[0] = crossing.min_knee_separation[0].min(ours_s[0]);

@@ -2,11 +2,13 @@
 //! against the match by name on CMU's own files: renamed as Mixamo, Biovision, Rigify, DAZ or
 //! 3ds Max Biped name them, or with no names at all, they must retarget to the same poses.
 
+use std::f64::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 
+use nalgebra::{UnitQuaternion, Vector3};
 use sartor_motion::{
-    Bvh, BvhJointMatch, BvhRetargetOptions, RetargetBody, check_bvh_retarget, load_stored_clip,
-    map_bvh_joints, map_bvh_joints_by_structure, retarget_bvh,
+    Bvh, BvhChannel, BvhJoint, BvhJointMatch, BvhRetargetOptions, RetargetBody, check_bvh_retarget,
+    load_stored_clip, map_bvh_joints, map_bvh_joints_by_structure, retarget_bvh,
 };
 
 fn data(name: &str) -> PathBuf {
@@ -357,4 +359,120 @@ fn a_skeleton_without_arms_is_an_error_unless_lenient() {
     assert_eq!(report.dropped_joints, vec!["Tail".to_string()]);
     assert_eq!(report.joint_map.matched_by, BvhJointMatch::Names);
     assert!(m.n_frames() > 0);
+}
+
+/// `bvh` with its rest pose turned by `turn` about the root and every frame's rotations made up
+/// for it, so that every frame's world pose is the same (the file's channels: Z, Y, X).
+fn with_rest_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
+    let joints: Vec<BvhJoint> = bvh
+        .joints()
+        .iter()
+        .map(|j| {
+            let mut j = j.clone();
+            assert!(j.channels.ends_with(&[
+                BvhChannel::Zrotation,
+                BvhChannel::Yrotation,
+                BvhChannel::Xrotation
+            ]));
+            if j.parent.is_some() {
+                j.offset = turn * j.offset;
+            }
+            j.end_site = j.end_site.map(|e| turn * e);
+            j
+        })
+        .collect();
+    let mut values = Vec::with_capacity(bvh.values().len());
+    for i in 0..bvh.n_frames() {
+        for (j, joint) in bvh.joints().iter().enumerate() {
+            let (t, r) = bvh.local_transform(i, j);
+            let r = match joint.parent {
+                None => r * turn.inverse(),
+                Some(_) => turn * r * turn.inverse(),
+            };
+            if joint.channels.len() == 6 {
+                values.extend((t - joint.offset).iter());
+            }
+            let (x, y, z) = r.euler_angles();
+            values.extend([z, y, x].map(f64::to_degrees));
+        }
+    }
+    Bvh::from_parts(
+        PathBuf::from("lying.bvh"),
+        joints,
+        bvh.frame_time_secs(),
+        values,
+    )
+    .expect("valid")
+}
+
+#[test]
+fn a_rest_pose_that_lies_down_is_stood_up_as_lafan1s_needs() {
+    let body = builtin_body();
+    let bvh = Bvh::load(&data("cmu/02_04.bvh")).expect("clip");
+    // Every bone along +X at rest is how LAFAN1 writes it; here the whole body lies along +X,
+    // its left along +Z.
+    let turn = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), -FRAC_PI_2)
+        * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -FRAC_PI_2);
+    let lying = with_rest_turned(&bvh, turn);
+    // The same world pose in every frame, from other channels.
+    for i in [0, bvh.n_frames() / 2, bvh.n_frames() - 1] {
+        for (a, b) in lying.world_positions(i).iter().zip(bvh.world_positions(i)) {
+            assert!((a - b).norm() < 1e-9, "frame {i}");
+        }
+    }
+    let keep = BvhRetargetOptions {
+        lenient: false,
+        keep_tpose_frame: true,
+    };
+    let (_, standing) = retarget_bvh(&bvh, &body, &keep).expect("standing");
+    let (_, report) = retarget_bvh(&lying, &body, &keep).expect("stood up");
+    assert!(standing.rest_frame.is_none());
+    // The rest frame found is the turn, but for CMU's own rest, which leans a little.
+    let frame = report.rest_frame.expect("stood up");
+    assert!(frame.angle_to(&turn).to_degrees() < 10.0, "{frame:?}");
+    // Scaled by the legs' length (thigh and shin) instead of the hip height: the two
+    // skeletons' hip sockets and CMU's splayed rest thighs make them differ by 11 % here.
+    let ratio = report.translation_scale / standing.translation_scale;
+    assert!((ratio - 1.0).abs() < 0.15, "{ratio}");
+    // Every bone follows the file's own forward kinematics, the pelvis too (to the
+    // precision of an angle from its cosine).
+    let check = check_bvh_retarget(&lying, &body, &Default::default()).expect("checked");
+    assert!(check.passed(), "{:?}", check.failures);
+    assert!(
+        check.pelvis_worst_deg < 1e-4 && check.worst_bone_angle_deg() < 1e-4,
+        "{} {}",
+        check.pelvis_worst_deg,
+        check.worst_bone_angle_deg()
+    );
+    // A rest that lies with a world that does not stand (a Z-up file) is refused.
+    let tipped = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), FRAC_PI_2);
+    let z_up = with_rest_turned(&with_world_turned(&bvh, tipped), tipped);
+    let e = retarget_bvh(&z_up, &body, &keep).expect_err("Z-up");
+    assert!(e.to_string().contains("expected a Y-up file"), "{e}");
+}
+
+/// `bvh` with its whole world (the root's rotation and path) turned by `turn`.
+fn with_world_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
+    let mut values = Vec::with_capacity(bvh.values().len());
+    for i in 0..bvh.n_frames() {
+        for (j, joint) in bvh.joints().iter().enumerate() {
+            let (t, r) = bvh.local_transform(i, j);
+            let (t, r) = match joint.parent {
+                None => (turn * t, turn * r),
+                Some(_) => (t, r),
+            };
+            if joint.channels.len() == 6 {
+                values.extend((t - joint.offset).iter());
+            }
+            let (x, y, z) = r.euler_angles();
+            values.extend([z, y, x].map(f64::to_degrees));
+        }
+    }
+    Bvh::from_parts(
+        PathBuf::from("turned.bvh"),
+        bvh.joints().to_vec(),
+        bvh.frame_time_secs(),
+        values,
+    )
+    .expect("valid")
 }
