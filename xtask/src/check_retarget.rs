@@ -8,7 +8,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use sartor_cli::Env;
 use sartor_eval::{Machine, write_json};
-use sartor_motion::{Bvh, ClipCheck, RetargetBody, RetargetCheckOptions, check_bvh_retarget};
+use sartor_motion::{
+    Bvh, BvhJointMatch, ClipCheck, RetargetBody, RetargetCheckOptions, check_bvh_retarget,
+};
 use serde::Serialize;
 
 /// Arguments of `check-retarget`.
@@ -107,6 +109,10 @@ pub fn check_retarget(args: &CheckRetargetArgs, env: &Env) -> anyhow::Result<()>
                 format!("FAIL: {}", c.failures.join("; "))
             }
         );
+        if c.matched_by == BvhJointMatch::Structure {
+            let pairs: Vec<String> = c.joints.iter().map(|[f, r]| format!("{f}→{r}")).collect();
+            println!("    matched by structure: {}", pairs.join(", "));
+        }
         clips.push(c);
     }
     let mut bones: Vec<BoneSummary> = Vec::new();
