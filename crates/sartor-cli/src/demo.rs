@@ -1,13 +1,15 @@
 //! `sartor demo` (`cargo xtask demo`): the shipped T-shirt model on a few bodies through a few clips, with
 //! frames per second and glTF / MCAP / PNG (/ OBJ) files. Needs only a clone and a toolchain.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::Context;
 use sartor_core::{BodyMeasurements, BodyMeasurer, BodyModel, PhenotypeRequest, PhenotypeSpace};
 use sartor_eval::{Machine, write_json};
-use sartor_motion::{ClearanceOptions, UpAxis, load_motion};
+use sartor_motion::{
+    Bvh, BvhJointMatch, ClearanceOptions, MotionWindow, UpAxis, load_motion, map_bvh_joints,
+};
 use sartor_pipeline::{ClothCheck, DataDir, Format, animate, model_betas, write_animation};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentBinding, GarmentNetwork, GarmentRig, NetworkOptions,
@@ -137,7 +139,63 @@ struct DemoReport {
     push_triangles: bool,
     machine: Machine,
     note: &'static str,
+    /// For each BVH motion whose joints were matched by the skeleton's structure (another
+    /// tool's naming than CMU's), which file joint drove which rig joint.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    motion_joints: Vec<MotionJoints>,
     runs: Vec<DemoEntry>,
+}
+
+/// Which file joint drove which rig joint, for one BVH motion.
+#[derive(Serialize)]
+struct MotionJoints {
+    motion: String,
+    /// `[file joint, rig joint]` in file order.
+    joints: Vec<[String; 2]>,
+    /// The file's joints that drove nothing (fingers, eyes, end joints).
+    unused: Vec<String>,
+}
+
+/// The joint match of each BVH file among `specs` that was matched by its structure (printed
+/// too: a user's file from another tool should say what drove what).
+fn bvh_joint_maps(specs: &[&str]) -> anyhow::Result<Vec<MotionJoints>> {
+    let mut out = Vec::new();
+    for spec in specs {
+        let file = MotionWindow::parse(spec)?.map_or_else(|| spec.to_string(), |w| w.motion);
+        if !file.to_ascii_lowercase().ends_with(".bvh") {
+            continue;
+        }
+        let bvh = Bvh::load(Path::new(&file))?;
+        let Ok(map) = map_bvh_joints(&bvh) else {
+            continue;
+        };
+        if map.matched_by != BvhJointMatch::Structure {
+            continue;
+        }
+        let (mut joints, mut unused) = (Vec::new(), Vec::new());
+        for (joint, rig) in bvh.joints().iter().zip(&map.rig_joints) {
+            match rig {
+                Some(r) => joints.push([joint.name.clone(), r.to_string()]),
+                None => unused.push(joint.name.clone()),
+            }
+        }
+        let pairs: Vec<String> = joints.iter().map(|[f, r]| format!("{f}→{r}")).collect();
+        println!(
+            "{spec}: joints matched by the skeleton's structure: {}; unused: {}",
+            pairs.join(", "),
+            if unused.is_empty() {
+                "none".to_string()
+            } else {
+                unused.join(", ")
+            }
+        );
+        out.push(MotionJoints {
+            motion: spec.to_string(),
+            joints,
+            unused,
+        });
+    }
+    Ok(out)
 }
 
 /// Run the demo.
@@ -215,6 +273,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         .iter()
         .map(|s| load_motion(s, &options).with_context(|| format!("motion {s:?}")))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    let motion_joints = bvh_joint_maps(&specs)?;
 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -338,6 +397,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         garment_vertices: rig.n_vertices(),
         push_triangles: !args.vertices_only,
         machine: Machine::current(),
+        motion_joints,
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
                one thread; posing the full body for the files and holding the arms out of the \
                torso (before the clip, per body) are not counted; cloth_*_inside_percent: garment \

@@ -261,9 +261,14 @@ impl<'a> Structure<'a> {
         })
     }
 
-    /// The two longest chains among `candidates`, longest first (the first on ties).
-    fn two_longest(&self, candidates: &[usize]) -> Option<[Chain; 2]> {
-        let mut chains: Vec<Chain> = candidates.iter().map(|&c| self.chain(c)).collect();
+    /// The two longest chains from the children of `j` other than `besides`, longest first
+    /// (the first on ties).
+    fn two_longest(&self, j: usize, besides: usize) -> Option<[Chain; 2]> {
+        let mut chains: Vec<Chain> = self.children[j]
+            .iter()
+            .filter(|&&c| c != besides)
+            .map(|&c| self.chain(c))
+            .collect();
         // Stable: equal lengths keep file order.
         chains.sort_by(|a, b| self.length(b).total_cmp(&self.length(a)));
         let mut it = chains.into_iter();
@@ -314,13 +319,8 @@ impl<'a> Structure<'a> {
             )?;
             spine.push(chest);
         }
-        let others: Vec<usize> = self.children[root]
-            .iter()
-            .copied()
-            .filter(|&c| c != spine_start)
-            .collect();
         let legs = self
-            .two_longest(&others)
+            .two_longest(root, spine_start)
             .ok_or("the root has fewer than two branches besides the spine: no two legs")?;
         let up = self.rest[chest] - self.rest[root];
         let neck = self.children[chest]
@@ -345,13 +345,8 @@ impl<'a> Structure<'a> {
                 })
             })
             .ok_or("the chest has no neck")?;
-        let arm_roots: Vec<usize> = self.children[chest]
-            .iter()
-            .copied()
-            .filter(|&c| c != neck)
-            .collect();
         let arms = self
-            .two_longest(&arm_roots)
+            .two_longest(chest, neck)
             .ok_or("the chest carries fewer than two arms")?;
         // The body's left in the rest pose, for chains whose names do not tell: from the legs'
         // names, else from up × forward (the ankle-to-toe direction).

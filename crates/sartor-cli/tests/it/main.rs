@@ -1,3 +1,4 @@
 //! sartor-cli's integration tests (one binary).
 
+mod bvh_motion;
 mod relocated;

@@ -11,14 +11,10 @@ use sartor_motion::{
     load_stored_clip, map_bvh_joints, map_bvh_joints_by_structure, retarget_bvh,
 };
 
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
-}
+use crate::motion_sources::data;
 
 fn motions_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/motions")
+    crate::motion_sources::workspace_root().join("datasets/motions")
 }
 
 /// The CMU joints a structural match leaves to follow their parent: the hand's fingers and
@@ -361,34 +357,25 @@ fn a_skeleton_without_arms_is_an_error_unless_lenient() {
     assert!(m.n_frames() > 0);
 }
 
-/// `bvh` with its rest pose turned by `turn` about the root and every frame's rotations made up
-/// for it, so that every frame's world pose is the same (the file's channels: Z, Y, X).
-fn with_rest_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
-    let joints: Vec<BvhJoint> = bvh
-        .joints()
-        .iter()
-        .map(|j| {
-            let mut j = j.clone();
-            assert!(j.channels.ends_with(&[
+/// `bvh`'s frames with every joint's local transform `(translation, rotation)` rewritten by
+/// `rewrite(joint, …)`, over the hierarchy `joints` (the file's channels: Z, Y, X).
+fn rewritten(
+    bvh: &Bvh,
+    joints: Vec<BvhJoint>,
+    rewrite: impl Fn(
+        &BvhJoint,
+        (Vector3<f64>, UnitQuaternion<f64>),
+    ) -> (Vector3<f64>, UnitQuaternion<f64>),
+) -> Bvh {
+    let mut values = Vec::with_capacity(bvh.values().len());
+    for i in 0..bvh.n_frames() {
+        for (j, joint) in joints.iter().enumerate() {
+            assert!(joint.channels.ends_with(&[
                 BvhChannel::Zrotation,
                 BvhChannel::Yrotation,
                 BvhChannel::Xrotation
             ]));
-            if j.parent.is_some() {
-                j.offset = turn * j.offset;
-            }
-            j.end_site = j.end_site.map(|e| turn * e);
-            j
-        })
-        .collect();
-    let mut values = Vec::with_capacity(bvh.values().len());
-    for i in 0..bvh.n_frames() {
-        for (j, joint) in bvh.joints().iter().enumerate() {
-            let (t, r) = bvh.local_transform(i, j);
-            let r = match joint.parent {
-                None => r * turn.inverse(),
-                Some(_) => turn * r * turn.inverse(),
-            };
+            let (t, r) = rewrite(joint, bvh.local_transform(i, j));
             if joint.channels.len() == 6 {
                 values.extend((t - joint.offset).iter());
             }
@@ -397,12 +384,43 @@ fn with_rest_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
         }
     }
     Bvh::from_parts(
-        PathBuf::from("lying.bvh"),
+        bvh.path().to_path_buf(),
         joints,
         bvh.frame_time_secs(),
         values,
     )
     .expect("valid")
+}
+
+/// `bvh` with its rest pose turned by `turn` about the root and every frame's rotations made up
+/// for it, so that every frame's world pose is the same.
+fn with_rest_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
+    let joints: Vec<BvhJoint> = bvh
+        .joints()
+        .iter()
+        .map(|j| {
+            let mut j = j.clone();
+            if j.parent.is_some() {
+                j.offset = turn * j.offset;
+            }
+            j.end_site = j.end_site.map(|e| turn * e);
+            j
+        })
+        .collect();
+    rewritten(bvh, joints, |joint, (t, r)| match joint.parent {
+        None => (t, r * turn.inverse()),
+        Some(_) => (t, turn * r * turn.inverse()),
+    })
+}
+
+/// `bvh` with its whole world (the root's rotation and path) turned by `turn`.
+fn with_world_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
+    rewritten(bvh, bvh.joints().to_vec(), |joint, (t, r)| {
+        match joint.parent {
+            None => (turn * t, turn * r),
+            Some(_) => (t, r),
+        }
+    })
 }
 
 #[test]
@@ -449,30 +467,4 @@ fn a_rest_pose_that_lies_down_is_stood_up_as_lafan1s_needs() {
     let z_up = with_rest_turned(&with_world_turned(&bvh, tipped), tipped);
     let e = retarget_bvh(&z_up, &body, &keep).expect_err("Z-up");
     assert!(e.to_string().contains("expected a Y-up file"), "{e}");
-}
-
-/// `bvh` with its whole world (the root's rotation and path) turned by `turn`.
-fn with_world_turned(bvh: &Bvh, turn: UnitQuaternion<f64>) -> Bvh {
-    let mut values = Vec::with_capacity(bvh.values().len());
-    for i in 0..bvh.n_frames() {
-        for (j, joint) in bvh.joints().iter().enumerate() {
-            let (t, r) = bvh.local_transform(i, j);
-            let (t, r) = match joint.parent {
-                None => (turn * t, turn * r),
-                Some(_) => (t, r),
-            };
-            if joint.channels.len() == 6 {
-                values.extend((t - joint.offset).iter());
-            }
-            let (x, y, z) = r.euler_angles();
-            values.extend([z, y, x].map(f64::to_degrees));
-        }
-    }
-    Bvh::from_parts(
-        PathBuf::from("turned.bvh"),
-        bvh.joints().to_vec(),
-        bvh.frame_time_secs(),
-        values,
-    )
-    .expect("valid")
 }
