@@ -64,7 +64,8 @@ fn rig_name(name: &str) -> Option<&'static str> {
 /// Biovision and MocapBank (`LeftCollar`, `LeftShoulder` for the *upper arm*, `LeftElbow`,
 /// `LeftHip` for the thigh, `Chest`, `Chest2`), Blender's Rigify (`upper_arm.L`, `thigh.R`, the
 /// thighs on the root beside `pelvis.L`), LAFAN1 (`Spine2`, `LeftToe`), DAZ and Poser (`lShldr`,
-/// `lThigh`, `abdomen`), 3ds Max Biped (`Bip01 L UpperArm`). Names are no guide across these —
+/// `lThigh`, `abdomen`), 3ds Max Biped (`Bip01 L UpperArm`), SMPL's BVH exports (`L_Collar`,
+/// `L_Shoulder` for the upper arm, `Spine3`). Names are no guide across these —
 /// `LeftShoulder` is the collar in one and the upper arm in another — so any other file is
 /// matched by its structure ([`BvhJointMatch::Structure`]), with the names used only to tell left
 /// from right:

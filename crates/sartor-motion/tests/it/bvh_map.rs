@@ -72,8 +72,9 @@ fn cmu_skeletons_match_by_structure_as_by_name() {
     assert_eq!(n, 60);
 }
 
-/// CMU's joint names as other tools write the same joints.
-const CONVENTIONS: [(&str, [(&str, &str); 25]); 5] = [
+/// CMU's joint names as other tools write the same joints (SMPL's as its BVH exporters write
+/// them).
+const CONVENTIONS: [(&str, [(&str, &str); 25]); 6] = [
     (
         "mixamo",
         [
@@ -222,6 +223,36 @@ const CONVENTIONS: [(&str, [(&str, &str); 25]); 5] = [
             ("RightShoulder", "Bip01 R Clavicle"),
             ("RightForeArm", "Bip01 R Forearm"),
             ("RightHand", "Bip01 R Hand"),
+        ],
+    ),
+    (
+        "smpl",
+        [
+            ("Hips", "Pelvis"),
+            ("LHipJoint", "L_Pelvis"),
+            ("LeftUpLeg", "L_Hip"),
+            ("LeftLeg", "L_Knee"),
+            ("LeftFoot", "L_Ankle"),
+            ("LeftToeBase", "L_Foot"),
+            ("RHipJoint", "R_Pelvis"),
+            ("RightUpLeg", "R_Hip"),
+            ("RightLeg", "R_Knee"),
+            ("RightFoot", "R_Ankle"),
+            ("RightToeBase", "R_Foot"),
+            ("LowerBack", "Spine1"),
+            ("Spine", "Spine2"),
+            ("Spine1", "Spine3"),
+            ("Neck1", "Neck_2"),
+            ("Neck", "Neck"),
+            ("Head", "Head"),
+            ("LeftShoulder", "L_Collar"),
+            ("LeftArm", "L_Shoulder"),
+            ("LeftForeArm", "L_Elbow"),
+            ("LeftHand", "L_Wrist"),
+            ("RightShoulder", "R_Collar"),
+            ("RightArm", "R_Shoulder"),
+            ("RightForeArm", "R_Elbow"),
+            ("RightHand", "R_Wrist"),
         ],
     ),
 ];
