@@ -758,7 +758,20 @@ pub fn retarget_bvh_native_rate(
     let mut dropped_joints = Vec::new();
     for (b, (r, joint)) in joint_map.rig_joints.iter().zip(&bvh.joints).enumerate() {
         match r.and_then(|r| skeleton.index_of(r)) {
-            Some(r) => bvh_of_rig[r] = Some(b),
+            Some(r) => {
+                if let Some(prev) = bvh_of_rig[r] {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "joints {:?} and {:?} both map onto rig joint {:?}",
+                            bvh.joints[prev].name,
+                            joint.name,
+                            skeleton.names()[r]
+                        ),
+                    ));
+                }
+                bvh_of_rig[r] = Some(b);
+            }
             None => dropped_joints.push(joint.name.clone()),
         }
     }

@@ -499,3 +499,20 @@ fn a_rest_pose_that_lies_down_is_stood_up_as_lafan1s_needs() {
     let e = retarget_bvh(&z_up, &body, &keep).expect_err("Z-up");
     assert!(e.to_string().contains("expected a Y-up file"), "{e}");
 }
+
+#[test]
+fn two_joints_named_for_one_rig_joint_are_an_error() {
+    // CMU's `LeftHandIndex1` is the rig's `LeftHandFinger1`: a file with both names.
+    let text = std::fs::read_to_string(data("cmu_tiny.bvh")).expect("fixture");
+    let both = renamed(&text, |n| {
+        (n == "LeftHand").then(|| "LeftHandFinger1".to_string())
+    });
+    let bvh = Bvh::parse(&both, Path::new("both.bvh")).expect("parses");
+    let body = crate::motion_sources::synthetic_body();
+    let e = retarget_bvh(&bvh, &body, &BvhRetargetOptions::default()).expect_err("ambiguous");
+    let msg = e.to_string();
+    assert!(
+        msg.starts_with("both.bvh:") && msg.contains("both map onto rig joint"),
+        "{msg}"
+    );
+}
