@@ -28,6 +28,9 @@ fn demo_says_how_another_tools_bvh_was_matched() {
         .arg(cmu.join("02_04.bvh"))
         .args(["--frames", "3", "--formats", "png", "--out"])
         .arg(&out_dir)
+        // The binary may be built outside the tree (CARGO_TARGET_DIR): name the data.
+        .arg("--data-dir")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../.."))
         .output()
         .expect("runs");
     let stdout = String::from_utf8_lossy(&out.stdout);

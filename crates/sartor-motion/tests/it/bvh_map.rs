@@ -516,3 +516,92 @@ fn two_joints_named_for_one_rig_joint_are_an_error() {
         "{msg}"
     );
 }
+
+#[test]
+fn any_skeleton_is_matched_once_per_rig_joint_or_refused_without_a_panic() {
+    use rand::Rng;
+    let mut rng = crate::motion_sources::rng(37);
+    let cmu = Bvh::load(&data("cmu/02_04.bvh")).expect("clip");
+    let zyx = vec![
+        BvhChannel::Zrotation,
+        BvhChannel::Yrotation,
+        BvhChannel::Xrotation,
+    ];
+    let (mut matched, mut refused) = (0, 0);
+    for case in 0..2000 {
+        // A random tree (parents before children), offsets often zero, names often sided.
+        let n = rng.random_range(1..40);
+        let offset = |rng: &mut rand_chacha::ChaCha8Rng| {
+            if rng.random_bool(0.2) {
+                Vector3::zeros()
+            } else {
+                Vector3::from_fn(|_, _| rng.random_range(-10.0..10.0))
+            }
+        };
+        let sides = ["Left", "Right", "", "l", "R_", "Neck", "Head"];
+        let mut joints = Vec::with_capacity(n);
+        if case % 2 == 0 {
+            // Any tree.
+            for j in 0..n {
+                let side = sides[rng.random_range(0..sides.len())];
+                joints.push(BvhJoint {
+                    name: format!("{side}j{j}"),
+                    parent: (j > 0).then(|| rng.random_range(0..j)),
+                    offset: offset(&mut rng),
+                    channels: zyx.clone(),
+                    end_site: rng.random_bool(0.5).then(|| offset(&mut rng)),
+                });
+            }
+        } else {
+            // CMU's skeleton with names dropped or changed, bones stretched or zeroed, and
+            // extra joints hung anywhere.
+            for (j, joint) in cmu.joints().iter().enumerate() {
+                let mut joint = joint.clone();
+                if rng.random_bool(0.5) {
+                    joint.name = format!("{}j{j}", sides[rng.random_range(0..sides.len())]);
+                }
+                joint.offset *= if rng.random_bool(0.1) {
+                    0.0
+                } else {
+                    rng.random_range(0.3..2.0)
+                };
+                joints.push(joint);
+            }
+            for k in 0..n % 6 {
+                let parent = rng.random_range(0..joints.len());
+                joints.push(BvhJoint {
+                    name: format!("extra{k}"),
+                    parent: Some(parent),
+                    offset: offset(&mut rng),
+                    channels: zyx.clone(),
+                    end_site: None,
+                });
+            }
+            // Parents before children: the extras hang off earlier joints, appended last.
+        }
+        let values = vec![0.0; joints.iter().map(|j| j.channels.len()).sum()];
+        let bvh = Bvh::from_parts(PathBuf::from("random.bvh"), joints, 1.0 / 30.0, values)
+            .expect("valid");
+        match map_bvh_joints(&bvh) {
+            Ok(map) => {
+                matched += 1;
+                assert_eq!(map.rig_joints[0], Some("Hips"), "case {case}");
+                let mut named: Vec<&str> = map.rig_joints.iter().flatten().copied().collect();
+                let all = named.len();
+                named.sort_unstable();
+                named.dedup();
+                assert_eq!(named.len(), all, "case {case}: a rig joint driven twice");
+            }
+            Err(why) => {
+                refused += 1;
+                assert!(!why.is_empty());
+            }
+        }
+    }
+    // Both outcomes are exercised.
+    println!("{matched} matched, {refused} refused");
+    assert!(
+        matched > 200 && refused > 200,
+        "{matched} matched, {refused} refused"
+    );
+}
