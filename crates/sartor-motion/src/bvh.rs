@@ -775,16 +775,24 @@ pub fn retarget_bvh_native_rate(
             None => dropped_joints.push(joint.name.clone()),
         }
     }
-    if bvh_of_rig[0] != Some(0) {
+    // The hips: the file's root, or a joint below a reference node (whose motion reaches it).
+    let Some(hips) = bvh_of_rig[0] else {
         return Err(Error::format(
             path,
             format!(
-                "the file's root {:?} must drive the rig's root {:?}",
-                bvh.joints[0].name,
-                skeleton.names()[0]
+                "no joint drives the rig's root {:?} (the file's root is {:?})",
+                skeleton.names()[0],
+                bvh.joints[0].name
             ),
         ));
-    }
+    };
+    let hips_position = |i: usize| {
+        if hips == 0 {
+            bvh.root_position(i)
+        } else {
+            bvh.world_positions(i)[hips]
+        }
+    };
     let undriven_joints = bvh_of_rig
         .iter()
         .enumerate()
@@ -799,7 +807,7 @@ pub fn retarget_bvh_native_rate(
     let find = |n: &str| bvh_names.iter().position(|x| x == n);
     let stands = |p: &[Vector3<f64>]| {
         find("Head").is_none_or(|head| {
-            let up = p[head] - p[0];
+            let up = p[head] - p[hips];
             up.y > up.x.abs().max(up.z.abs())
         })
     };
@@ -814,8 +822,8 @@ pub fn retarget_bvh_native_rate(
             )
         })?;
         if !stands(&bvh.world_positions(0)) {
-            let up = bvh.world_positions(0)[find("Head").expect("stands() found it")]
-                - bvh.root_position(0);
+            let up =
+                bvh.world_positions(0)[find("Head").expect("stands() found it")] - hips_position(0);
             return Err(Error::format(
                 path,
                 format!(
@@ -877,7 +885,7 @@ pub fn retarget_bvh_native_rate(
         !options.keep_tpose_frame && tpose_frame.as_ref().is_some_and(|t| t.is_added_tpose);
     // After the T-pose, blank frames (every channel 0) go too.
     let start = first_performance_frame_mapped(bvh, &joint_map, !options.keep_tpose_frame);
-    let first = bvh.root_position(start);
+    let first = hips_position(start);
     let mut frames = Vec::with_capacity(bvh.n_frames() - start);
     let mut source = vec![None; skeleton.n_joints()];
     for i in start..bvh.n_frames() {
@@ -888,7 +896,7 @@ pub fn retarget_bvh_native_rate(
                 None => turn * q[b] * turn.inverse(),
             });
         }
-        let d = turn * (bvh.root_position(i) - first) * scale;
+        let d = turn * (hips_position(i) - first) * scale;
         frames.push(body.pose_from_source(&rest_change, &source, d));
     }
     let name = path
@@ -968,14 +976,14 @@ fn leg_length(names: &[String], joints: &[Vector3<f64>]) -> Option<f64> {
 }
 
 /// The rotation from our axes (+X left, +Y up, +Z forward) to a rest pose's own: up from the
-/// root to the head, left from the right thigh to the left one (made square to up), forward
+/// hips to the head, left from the right thigh to the left one (made square to up), forward
 /// their cross product; `None` without a head and two thighs (`find` gives a rig joint's file
 /// joint), or where they do not span a frame.
 fn standing_frame(
     rest: &[Vector3<f64>],
     find: &impl Fn(&str) -> Option<usize>,
 ) -> Option<UnitQuaternion<f64>> {
-    let up = (rest[find("Head")?] - rest[0]).try_normalize(1e-9)?;
+    let up = (rest[find("Head")?] - rest[find("Hips")?]).try_normalize(1e-9)?;
     let left = rest[find("LeftUpLeg")?] - rest[find("RightUpLeg")?];
     let left = (left - up * left.dot(&up)).try_normalize(1e-9)?;
     let forward = left.cross(&up);

@@ -70,11 +70,13 @@ fn rig_name(name: &str) -> Option<&'static str> {
 /// matched by its structure ([`BvhJointMatch::Structure`]), with the names used only to tell left
 /// from right:
 ///
-/// - the **spine** is the root's child with the largest subtree, followed (child with the
+/// - the **hips** are the root, or the first joint below it with more than one child (a file
+///   may hang its skeleton under a static reference node);
+/// - the **spine** is the hips' child with the largest subtree, followed (child with the
 ///   largest subtree, the first on ties) up to the **chest**, the first joint with three or more
 ///   children; the chest drives `Spine1`, the spine's first joint `LowerBack` and the one before
 ///   the chest `Spine` (a shorter spine leaves them to follow their parent);
-/// - the **legs** are the two other children of the root with the longest chains (a chain: the
+/// - the **legs** are the two other children of the hips with the longest chains (a chain: the
 ///   child with the largest subtree, down to a leaf; its length the sum of its bones, an end
 ///   site's included); the **arms** the two children of the chest with the longest chains other
 ///   than the **neck** (the child named `neck` or `head`, else the one whose chain ends most in
@@ -82,7 +84,8 @@ fn rig_name(name: &str) -> Option<&'static str> {
 /// - along a leg's chain the two longest consecutive bones are the thigh and shin: their joints
 ///   drive `LeftUpLeg` and `LeftLeg`, the next two joints `LeftFoot` and `LeftToeBase`, the joint
 ///   before the thigh `LHipJoint`;
-/// - along an arm's chain the hand is the first joint with fingers (two or more children);
+/// - along an arm's chain the hand is the first joint with fingers (two or more children, none
+///   starting far from it: a forearm's twist bone does not make it a hand);
 ///   without fingers, the forearm is the start of the last long bone (the hand's are short). A
 ///   collar can be longer than a forearm (CMU subject 02's is 3.66 against 3.36 units, subject
 ///   05's forearm is 0.45 of its upper arm), so the longest bones do not find an arm. The hand
@@ -308,7 +311,11 @@ impl<'a> Structure<'a> {
     /// The rig joint each file joint drives (see [`map_bvh_joints`]).
     fn map(&self) -> Result<Vec<Option<&'static str>>, String> {
         let n = self.bvh.joints().len();
-        let root = 0;
+        // The hips: the root, or below a chain of single children (a reference node).
+        let mut root = 0;
+        while let [only] = self.children[root][..] {
+            root = only;
+        }
         let spine_start = self
             .main_child(root)
             .ok_or("the root has no children: no spine or legs")?;
@@ -324,6 +331,7 @@ impl<'a> Structure<'a> {
             .two_longest(root, spine_start)
             .ok_or("the root has fewer than two branches besides the spine: no two legs")?;
         let up = self.rest[chest] - self.rest[root];
+        // Joints above the hips (a reference node) drive nothing; their motion reaches the hips.
         let neck = self.children[chest]
             .iter()
             .copied()
@@ -452,15 +460,24 @@ impl<'a> Structure<'a> {
     }
 
     /// Where along an arm's `chain` the upper arm starts: two joints before the hand, the first
-    /// joint from the third on with two or more children (the fingers); without one, the joint
+    /// joint from the third on with two or more children, all short of [`LONG_SHARE`] of the
+    /// chain's longest bone (the fingers, not a twist bone halfway along the forearm, as Unreal's
+    /// skeletons have); without one, the joint
     /// before the forearm, the start of the chain's last bone at least [`LONG_SHARE`] of its
     /// longest (the hand's and fingers' bones, and an end site beyond the wrist, are shorter).
     fn upper_arm(&self, chain: &[usize]) -> Option<usize> {
-        if let Some(hand) = (2..chain.len()).find(|&k| self.children[chain[k]].len() >= 2) {
-            return Some(hand - 2);
-        }
         let bones: Vec<f64> = (0..chain.len()).map(|i| self.bone(chain, i)).collect();
         let longest = bones.iter().copied().fold(0.0, f64::max);
+        // Fingers start near the hand; a twist bone halfway along the forearm is no finger.
+        let fingers = |j: usize| {
+            self.children[j].len() >= 2
+                && self.children[j]
+                    .iter()
+                    .all(|&c| self.bvh.joints()[c].offset.norm() < LONG_SHARE * longest)
+        };
+        if let Some(hand) = (2..chain.len()).find(|&k| fingers(chain[k])) {
+            return Some(hand - 2);
+        }
         let forearm = bones.iter().rposition(|&b| b >= LONG_SHARE * longest)?;
         forearm.checked_sub(1)
     }

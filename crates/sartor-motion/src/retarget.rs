@@ -163,14 +163,16 @@ impl RetargetBody {
     }
 }
 
-/// Vertical distance from joint 0 down to the feet (`LeftFoot`/`RightFoot`, else the lowest joint).
+/// Vertical distance from the hips (`Hips`, else joint 0) down to the feet (`LeftFoot`/`RightFoot`,
+/// else the lowest joint).
 pub(crate) fn hip_height(names: &[String], joints: &[Vector3<f64>]) -> f64 {
     let find = |n: &str| names.iter().position(|x| x == n);
+    let hips = find("Hips").unwrap_or(0);
     let feet_y = match (find("LeftFoot"), find("RightFoot")) {
         (Some(l), Some(r)) => 0.5 * (joints[l].y + joints[r].y),
         _ => joints.iter().map(|p| p.y).fold(f64::INFINITY, f64::min),
     };
-    joints[0].y - feet_y
+    joints[hips].y - feet_y
 }
 
 /// World rotation of every joint (`G_j`, the product of the local rotations down the chain, the

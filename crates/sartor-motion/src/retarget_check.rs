@@ -387,7 +387,7 @@ pub fn check_bvh_retarget(
     };
     let mut pelvis_worst_deg: f64 = 0.0;
     let mut root_worst_m: f64 = 0.0;
-    let first_root = bvh_forward_kinematics(bvh, 0).positions[0];
+    let first_root = bvh_forward_kinematics(bvh, 0).positions[bvh_of_rig[0].unwrap_or(0)];
     for (i, pose) in motion.frames().iter().enumerate() {
         let file = bvh_forward_kinematics(bvh, i);
         let (joints, world) = fk(pose)?;
