@@ -172,13 +172,7 @@ fn bvh_joint_maps(specs: &[&str]) -> anyhow::Result<Vec<MotionJoints>> {
         if map.matched_by != BvhJointMatch::Structure {
             continue;
         }
-        let (mut joints, mut unused) = (Vec::new(), Vec::new());
-        for (joint, rig) in bvh.joints().iter().zip(&map.rig_joints) {
-            match rig {
-                Some(r) => joints.push([joint.name.clone(), r.to_string()]),
-                None => unused.push(joint.name.clone()),
-            }
-        }
+        let (joints, unused) = map.pairs(&bvh);
         let pairs: Vec<String> = joints.iter().map(|[f, r]| format!("{f}→{r}")).collect();
         println!(
             "{spec}: joints matched by the skeleton's structure: {}; unused: {}",

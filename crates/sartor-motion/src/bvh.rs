@@ -61,7 +61,7 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use sartor_core::io::read_file;
 
-use crate::bvh_map::{BvhJointMap, BvhJointMatch, map_bvh_joints};
+use crate::bvh_map::{BvhJointMap, map_bvh_joints};
 use crate::bvh_tpose::{TposeFrame, detect_tpose_frame_mapped, first_performance_frame_mapped};
 use crate::rest_pose::SourceRest;
 use crate::retarget::{RetargetBody, hip_height};
@@ -752,7 +752,7 @@ pub fn retarget_bvh_native_rate(
     // Map BVH joints onto rig joints.
     let joint_map = match map_bvh_joints(bvh) {
         Ok(map) => map,
-        Err(why) => name_map_leniently(bvh, skeleton, options, &why)?,
+        Err(why) => name_map_leniently(bvh, options, &why)?,
     };
     let mut bvh_of_rig: Vec<Option<usize>> = vec![None; skeleton.n_joints()];
     let mut dropped_joints = Vec::new();
@@ -924,31 +924,10 @@ pub fn retarget_bvh_native_rate(
 /// The joints of a file whose structure [`map_bvh_joints`] did not understand (`why`), by name
 /// where [`BvhRetargetOptions::lenient`] allows: joints without a rig joint's name are dropped;
 /// otherwise an error naming them.
-fn name_map_leniently(
-    bvh: &Bvh,
-    skeleton: &sartor_core::Skeleton,
-    options: &BvhRetargetOptions,
-    why: &str,
-) -> Result<BvhJointMap> {
-    let rig_joints: Vec<Option<&'static str>> = bvh
-        .joints
-        .iter()
-        .map(|j| {
-            let name = cmu_to_rig_name(&j.name);
-            crate::CMU_MB_JOINTS
-                .iter()
-                .map(|(n, _)| *n)
-                .find(|n| *n == name && skeleton.index_of(n).is_some())
-        })
-        .collect();
+fn name_map_leniently(bvh: &Bvh, options: &BvhRetargetOptions, why: &str) -> Result<BvhJointMap> {
+    let map = BvhJointMap::by_name(bvh);
     if !options.lenient {
-        let unknown: Vec<&str> = bvh
-            .joints
-            .iter()
-            .zip(&rig_joints)
-            .filter(|(_, r)| r.is_none())
-            .map(|(j, _)| j.name.as_str())
-            .collect();
+        let (_, unknown) = map.pairs(bvh);
         return Err(Error::format(
             bvh.path(),
             format!(
@@ -958,10 +937,7 @@ fn name_map_leniently(
             ),
         ));
     }
-    Ok(BvhJointMap {
-        matched_by: BvhJointMatch::Names,
-        rig_joints,
-    })
+    Ok(map)
 }
 
 /// Thigh plus shin length, the mean of both legs, of the joints `joints` named `names` (rig

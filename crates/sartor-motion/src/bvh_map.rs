@@ -41,6 +41,32 @@ impl BvhJointMap {
         self.rig_joints.iter().position(|r| *r == Some(name))
     }
 
+    /// Every joint of `bvh` by the name of the rig joint of its name (CMU's naming; `None`
+    /// where the rig has none).
+    pub(crate) fn by_name(bvh: &Bvh) -> Self {
+        Self {
+            matched_by: BvhJointMatch::Names,
+            rig_joints: bvh
+                .joints()
+                .iter()
+                .map(|j| rig_name(cmu_to_rig_name(&j.name)))
+                .collect(),
+        }
+    }
+
+    /// `[file joint, rig joint]` for every joint of `bvh` that drives one, and the names of
+    /// those that drive none, in file order.
+    pub fn pairs(&self, bvh: &Bvh) -> (Vec<[String; 2]>, Vec<String>) {
+        let (mut pairs, mut unused) = (Vec::new(), Vec::new());
+        for (joint, rig) in bvh.joints().iter().zip(&self.rig_joints) {
+            match rig {
+                Some(r) => pairs.push([joint.name.clone(), r.to_string()]),
+                None => unused.push(joint.name.clone()),
+            }
+        }
+        (pairs, unused)
+    }
+
     /// Per joint of the file, the rig joint's name where it drives one, else its own name.
     pub(crate) fn names(&self, bvh: &Bvh) -> Vec<String> {
         self.rig_joints
@@ -102,16 +128,9 @@ fn rig_name(name: &str) -> Option<&'static str> {
 /// for CMU's files: [`crate::check_bvh_retarget`] compares every matched bone with the file's own
 /// forward kinematics.
 pub fn map_bvh_joints(bvh: &Bvh) -> Result<BvhJointMap, String> {
-    let by_name: Vec<Option<&'static str>> = bvh
-        .joints()
-        .iter()
-        .map(|j| rig_name(cmu_to_rig_name(&j.name)))
-        .collect();
-    if by_name.iter().all(Option::is_some) {
-        return Ok(BvhJointMap {
-            matched_by: BvhJointMatch::Names,
-            rig_joints: by_name,
-        });
+    let by_name = BvhJointMap::by_name(bvh);
+    if by_name.rig_joints.iter().all(Option::is_some) {
+        return Ok(by_name);
     }
     map_bvh_joints_by_structure(bvh)
 }

@@ -476,12 +476,7 @@ pub fn check_bvh_retarget(
             crossing.max_separation_difference, crossing.worst_frame
         ));
     }
-    let joints = bvh
-        .joints()
-        .iter()
-        .zip(&report.joint_map.rig_joints)
-        .filter_map(|(j, r)| Some([j.name.clone(), (*r)?.to_string()]))
-        .collect();
+    let (joints, _) = report.joint_map.pairs(bvh);
     Ok(ClipCheck {
         clip: clip_name(path),
         frames: bvh.n_frames(),

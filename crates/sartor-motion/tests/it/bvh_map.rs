@@ -311,9 +311,8 @@ fn a_cmu_clip_named_as_other_tools_name_it_retargets_to_the_same_poses() {
         // The fingers are matched to nothing: they follow the hand, where CMU's (whose
         // channels are zero in this clip) sat still on it. Every other joint the same bits.
         let s = body.skeleton();
-        let fingers: Vec<usize> = ["LeftFingerBase", "LeftHandFinger1", "LThumb"]
+        let fingers: Vec<usize> = FINGERS_RIG
             .iter()
-            .chain(&["RightFingerBase", "RightHandFinger1", "RThumb"])
             .map(|n| s.index_of(n).expect(n))
             .collect();
         for (k, (a, b)) in got.iter().zip(&want).enumerate() {
