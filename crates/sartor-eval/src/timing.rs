@@ -72,6 +72,7 @@ pub fn time_stages(
         let t = a.stage_times().unwrap_or_default();
         sum.network_ms += t.network_ms;
         sum.skinning_ms += t.skinning_ms;
+        sum.strain_limit_ms += t.strain_limit_ms;
         sum.post_process_ms += t.post_process_ms;
     });
     avatar.set_stage_clock(None);
@@ -79,6 +80,7 @@ pub fn time_stages(
     let mean = StageTimes {
         network_ms: sum.network_ms / n,
         skinning_ms: sum.skinning_ms / n,
+        strain_limit_ms: sum.strain_limit_ms / n,
         post_process_ms: sum.post_process_ms / n,
     };
     Ok((timing?, Some(mean)))

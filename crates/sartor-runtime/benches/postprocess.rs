@@ -11,7 +11,8 @@
 //! (different shapes and phases of the walk), the whole crowd's frame on one thread and on
 //! the pool of two. `certified-heavy-cmu` is the default query at the try-on page's "male,
 //! 1.90 m, heavy" body (beyond the training shapes) dancing CMU 05_06; `-faces` pushes the
-//! triangles out too, as the page does.
+//! triangles out too, as the page does. `strain-limit/…` is the strain limit's own time
+//! ([`sartor_runtime::StrainLimit`], before the post-process) on the walk and on that dance.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
 
@@ -24,7 +25,7 @@ use sartor_core::{BodyModel, Pose};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
     GarmentCrowd, GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
-    Precision,
+    Precision, StageTimes, StrainLimit,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -45,14 +46,6 @@ fn rig(
     parallelism: Parallelism,
     precision: Precision,
 ) -> Arc<GarmentRig> {
-    let dir = data("models/default");
-    let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
-    let options = NetworkOptions {
-        precision,
-        ..NetworkOptions::default()
-    };
-    let network = Arc::new(GarmentNetwork::load_with(&dir, options).expect("model"));
-    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
     let options = AnimatorOptions {
         parallelism,
         collision: Some(CollisionOptions {
@@ -63,6 +56,19 @@ fn rig(
         }),
         ..AnimatorOptions::default()
     };
+    rig_with(options, precision)
+}
+
+/// The shipped model's rig with `options`, its weights in `precision`.
+fn rig_with(options: AnimatorOptions, precision: Precision) -> Arc<GarmentRig> {
+    let dir = data("models/default");
+    let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
+    let network_options = NetworkOptions {
+        precision,
+        ..NetworkOptions::default()
+    };
+    let network = Arc::new(GarmentNetwork::load_with(&dir, network_options).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
     Arc::new(GarmentRig::new(network, binding, body, options).expect("rig"))
 }
 
@@ -109,11 +115,23 @@ fn post_process_time(
     k: &mut usize,
     iters: u64,
 ) -> Duration {
+    stage_time(avatar, poses, k, iters, |t| t.post_process_ms)
+}
+
+/// The time of the stage `stage` picks (the avatar's stage clock) over the next `iters` frames
+/// of `poses`, from frame `*k` on, cycling.
+fn stage_time(
+    avatar: &mut GarmentAnimator,
+    poses: &[Pose],
+    k: &mut usize,
+    iters: u64,
+    stage: impl Fn(&StageTimes) -> f64,
+) -> Duration {
     let mut total = 0.0;
     for _ in 0..iters {
         avatar.frame(&poses[*k % poses.len()]).expect("frame");
         *k += 1;
-        total += avatar.stage_times().expect("clock").post_process_ms;
+        total += stage(&avatar.stage_times().expect("clock"));
     }
     Duration::from_secs_f64(total * 1e-3)
 }
@@ -186,6 +204,28 @@ fn post_process(c: &mut Criterion) {
         });
     }
     group.finish();
+    // The strain limit's own time (`StrainLimit::default()`, before the post-process): on the
+    // walk at the nominal shape, where few edges are too long, and at the heavy body dancing
+    // CMU 05_06, where the arms go up.
+    let nominal = vec![0.0; betas.len()];
+    for (name, shape, clip) in [
+        ("strain-limit/shipped-4210", &nominal, &poses),
+        ("strain-limit/shipped-4210-heavy-cmu", &betas, &dance),
+    ] {
+        let options = AnimatorOptions {
+            strain_limit: Some(StrainLimit::default()),
+            ..AnimatorOptions::default()
+        };
+        let mut avatar = GarmentAnimator::new(rig_with(options, Precision::F32)).expect("avatar");
+        avatar.set_stage_clock(Some(clock_ms));
+        avatar.set_shape(shape).expect("finite shape");
+        let mut k = 0;
+        c.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                stage_time(&mut avatar, clip, &mut k, iters, |t| t.strain_limit_ms)
+            })
+        });
+    }
     // The whole frame: f32 on one thread, and int8 on one thread and on a pool of two.
     for (name, precision, parallelism) in [
         ("frame/shipped-4210-certified", Precision::F32, seq),

@@ -30,6 +30,7 @@ use crate::error::{Error, Result, check_finite, check_len};
 use crate::format::Feature;
 use crate::kernels::Precision;
 use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
+use crate::strain::{GarmentEdges, LimitScratch, StrainLimit};
 use sartor_core::GarmentBinding;
 
 /// Where an avatar's shaped garment `T̄_c + Δ` comes from, set once per shape.
@@ -90,6 +91,9 @@ pub struct AnimatorOptions {
     pub beta_out_of_range: BetaOutOfRange,
     /// The wrinkles: the GRU (default), the linear baseline, or none (static try-on).
     pub wrinkles: WrinkleMode,
+    /// Strain limiting of the posed garment before the post-process (see [`StrainLimit`]), or
+    /// `None`: the paper's method, and the default.
+    pub strain_limit: Option<StrainLimit>,
     /// The collision post-process, or `None` to skip it.
     pub collision: Option<CollisionOptions>,
     /// Threads for the network, the skinning and the post-process (results do not depend on it).
@@ -100,14 +104,15 @@ pub struct AnimatorOptions {
 }
 
 impl Default for AnimatorOptions {
-    /// Wrinkles on, post-process on (defaults of [`CollisionOptions`]), β beyond the training
-    /// shapes projected onto them for the networks with the garment following the body, one
-    /// thread, 30 fps.
+    /// Wrinkles on, no strain limit, post-process on (defaults of [`CollisionOptions`]), β
+    /// beyond the training shapes projected onto them for the networks with the garment
+    /// following the body, one thread, 30 fps.
     fn default() -> Self {
         Self {
             fit: FitMode::Network,
             beta_out_of_range: BetaOutOfRange::default(),
             wrinkles: WrinkleMode::Gru,
+            strain_limit: None,
             collision: Some(CollisionOptions::default()),
             parallelism: Parallelism::Sequential,
             frame_dt_secs: 1.0 / FPS,
@@ -214,6 +219,8 @@ pub struct GarmentRig {
     /// For [`FitMode::Retarget`] and [`BetaOutOfRange::ProjectAndFollow`]: each cloth vertex
     /// anchored on the template body.
     retarget: Option<SurfaceAnchors>,
+    /// The garment's edges, where [`AnimatorOptions::strain_limit`] is set.
+    edges: Option<GarmentEdges>,
 }
 
 impl GarmentRig {
@@ -251,6 +258,9 @@ impl GarmentRig {
         if let Some(c) = &options.collision {
             c.validate()?;
         }
+        if let Some(l) = &options.strain_limit {
+            l.validate()?;
+        }
         if options.wrinkles == WrinkleMode::Linear && !network.has_linear_baseline() {
             return Err(Error::invalid(
                 "animator options",
@@ -267,6 +277,9 @@ impl GarmentRig {
             FitMode::Network if follow => Some(retarget_binding(&body, binding.template())?),
             FitMode::Network | FitMode::Template => None,
         };
+        let edges = options
+            .strain_limit
+            .map(|_| GarmentEdges::new(binding.template().len(), binding.faces()));
         Ok(Self {
             network,
             binding,
@@ -275,6 +288,7 @@ impl GarmentRig {
             inputs,
             region,
             retarget,
+            edges,
         })
     }
 
@@ -353,6 +367,8 @@ pub struct StageTimes {
     pub network_ms: f64,
     /// Forward kinematics and the garment's skinning.
     pub skinning_ms: f64,
+    /// The strain limit ([`AnimatorOptions::strain_limit`]; 0 without it).
+    pub strain_limit_ms: f64,
     /// The collision post-process (posing the body region and pushing vertices out).
     pub post_process_ms: f64,
 }
@@ -371,6 +387,11 @@ struct Avatar {
     previous: Pose,
     has_previous: bool,
     collider: Option<Collider>,
+    /// Per garment edge, its longest allowed length at this shape (strain limit only).
+    edge_limits: Vec<f32>,
+    limit_scratch: LimitScratch,
+    /// Edge projections of the strain limit in the last frame.
+    strained: usize,
     vertices: Vec<Vector3<f32>>,
     pushed: usize,
     /// A clock in milliseconds that times the stages of a frame (none: not timed).
@@ -393,6 +414,9 @@ impl Avatar {
             previous: Pose::rest(j),
             has_previous: false,
             collider: None,
+            edge_limits: Vec::new(),
+            limit_scratch: LimitScratch::default(),
+            strained: 0,
             vertices: rig.binding.template().to_vec(),
             pushed: 0,
             clock: None,
@@ -471,6 +495,15 @@ impl Avatar {
             }
             None => None,
         };
+        if let (Some(edges), Some(limit)) = (&rig.edges, &rig.options.strain_limit) {
+            edges.limits(
+                template,
+                &cloth_rest,
+                limit.max_stretch,
+                &mut self.edge_limits,
+            );
+            self.limit_scratch.reserve(self.edge_limits.len());
+        }
         self.betas = seen;
         self.rest_joints = rest_joints;
         self.cloth_rest = cloth_rest;
@@ -532,6 +565,16 @@ impl Avatar {
             par,
         )?;
         let skinned = self.now();
+        self.strained = 0;
+        if let (Some(edges), Some(limit)) = (&rig.edges, &rig.options.strain_limit) {
+            self.strained = edges.limit(
+                &mut self.vertices,
+                &self.edge_limits,
+                limit.rounds,
+                &mut self.limit_scratch,
+            );
+        }
+        let limited = self.now();
         self.pushed = 0;
         if let Some(collider) = &mut self.collider {
             collider.pose(&rig.region, &self.transforms, par)?;
@@ -539,7 +582,8 @@ impl Avatar {
         }
         let done = self.now();
         self.times.skinning_ms = skinned - start;
-        self.times.post_process_ms = done - skinned;
+        self.times.strain_limit_ms = limited - skinned;
+        self.times.post_process_ms = done - limited;
         self.remember(pose);
         Ok(())
     }
@@ -793,6 +837,11 @@ impl GarmentAnimator {
     /// Vertices the post-process moved in the last frame (0 when it is off).
     pub fn last_frame_pushed(&self) -> usize {
         self.avatar.pushed
+    }
+
+    /// Edge projections of the strain limit in the last frame (0 when it is off).
+    pub fn last_frame_strained(&self) -> usize {
+        self.avatar.strained
     }
 
     /// The body region posed in the last frame, as region vertices (see

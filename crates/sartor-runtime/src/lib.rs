@@ -63,6 +63,7 @@ mod format;
 mod kernels;
 mod lowrank;
 mod network;
+mod strain;
 mod writers;
 
 pub use animator::{
@@ -87,6 +88,7 @@ pub use network::{GarmentNetwork, NetworkOptions, Workspace};
 pub use sartor_core::{
     BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader, GarmentBinding,
 };
+pub use strain::StrainLimit;
 #[cfg(feature = "png")]
 pub use writers::render_png;
 pub use writers::{

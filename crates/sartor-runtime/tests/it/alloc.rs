@@ -6,7 +6,7 @@ use std::cell::Cell;
 
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentCrowd,
-    NetworkOptions, OutputKind, Precision,
+    NetworkOptions, OutputKind, Precision, StrainLimit,
 };
 
 use crate::scene::{clip, model, rig};
@@ -119,6 +119,12 @@ fn frames_allocate_nothing() {
                 sartor_runtime::WrinkleMode::None
             },
             collision,
+            // Every edge longer than its template length projected: the strain limit's work
+            // lists at their fullest.
+            strain_limit: Some(StrainLimit {
+                max_stretch: 1.0,
+                rounds: 4,
+            }),
             ..AnimatorOptions::default()
         };
         let network = NetworkOptions {
@@ -146,6 +152,7 @@ fn frames_allocate_nothing() {
             n, 0,
             "{precision:?} wrinkles {wrinkles} collision {collision:?}: {n} allocations"
         );
+        assert!(avatar.last_frame_strained() > 0, "the strain limit ran");
         // The counter counts (the test can fail).
         assert!(allocations_during(|| avatar.set_shape(&[0.1; 10]).expect("finite")) > 0);
     }

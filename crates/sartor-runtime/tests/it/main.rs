@@ -14,4 +14,5 @@ mod post_process;
 mod reference;
 mod rollout;
 mod scene;
+mod strain;
 mod writers;

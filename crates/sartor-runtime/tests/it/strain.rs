@@ -1,0 +1,197 @@
+//! The strain limit ([`StrainLimit`]) on the shipped model and real motion capture: CMU 05_10,
+//! whose raised arms stretch the sleeves' undersides and the armpits to several times their
+//! rest length in the garment the network and the skinning predict (README, "Limits").
+
+use std::path::Path;
+use std::sync::Arc;
+
+use nalgebra::Vector3;
+use sartor_core::{MeshTopology, PhenotypeRequest, PhenotypeSpace, Pose};
+use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
+use sartor_runtime::{
+    AnimatorOptions, CollisionOptions, GarmentAnimator, GarmentBinding, GarmentNetwork, GarmentRig,
+    NetworkOptions, StrainLimit,
+};
+
+/// What one run of the clip gave: per frame the garment, and the fitted rest garment.
+struct Run {
+    frames: Vec<Vec<Vector3<f32>>>,
+    fitted: Vec<Vector3<f32>>,
+    strained: usize,
+}
+
+fn run(
+    network: &Arc<GarmentNetwork>,
+    binding: &Arc<GarmentBinding>,
+    body: &Arc<sartor_core::BodyModel>,
+    options: AnimatorOptions,
+    betas: &[f32],
+    poses: &[Pose],
+) -> Run {
+    let rig = Arc::new(
+        GarmentRig::new(network.clone(), binding.clone(), body.clone(), options).expect("rig"),
+    );
+    let mut avatar = GarmentAnimator::new(rig).expect("avatar");
+    avatar.set_shape(betas).expect("finite shape");
+    let mut frames = Vec::new();
+    let mut strained = 0;
+    for pose in poses {
+        frames.push(avatar.frame(pose).expect("frame").to_vec());
+        strained += avatar.last_frame_strained();
+    }
+    let fitted = binding
+        .template()
+        .iter()
+        .zip(avatar.fit_displacement().chunks_exact(3))
+        .map(|(t, d)| t + Vector3::new(d[0], d[1], d[2]))
+        .collect();
+    Run {
+        frames,
+        fitted,
+        strained,
+    }
+}
+
+/// The longest edge of `x` over its rest length `rest`.
+fn worst(edges: &[[u32; 2]], x: &[Vector3<f32>], rest: &[f32]) -> f32 {
+    edges
+        .iter()
+        .zip(rest)
+        .map(|(&[a, b], &r)| (x[a as usize] - x[b as usize]).norm() / r)
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_strain_limit_pulls_back_the_stretched_armpits_of_a_real_dance() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = root.join("datasets/models/default");
+    let body = Arc::new(crate::common::load_builtin().expect("built-in body"));
+    let network =
+        Arc::new(GarmentNetwork::load_with(&dir, NetworkOptions::default()).expect("model"));
+    let binding = Arc::new(GarmentBinding::load(&dir).expect("binding"));
+    let options = MotionSourceOptions {
+        motions_dir: root.join("datasets/motions"),
+        body: Some(RetargetBody::load(&crate::common::builtin_model_dir()).expect("built-in body")),
+        ..MotionSourceOptions::default()
+    };
+    // The arms go up over frames 26–39.
+    let poses = load_motion("cmu/05_10@0+40", &options)
+        .expect("stored CMU clip")
+        .frames()
+        .to_vec();
+    let space = PhenotypeSpace::load(&crate::common::builtin_model_dir()).expect("phenotypes");
+    let request: PhenotypeRequest = "male, 1.90 m, heavy".parse().expect("request");
+    let (_, heavy) = space.betas_for(&body, &request).expect("reachable");
+    let mut heavy: Vec<f32> = heavy.iter().map(|&b| b as f32).collect();
+    heavy.resize(network.n_betas(), 0.0);
+    let nominal = vec![0.0; network.n_betas()];
+
+    let template = binding.template();
+    let edges = MeshTopology::new(template.len(), binding.faces()).edges;
+    let length = |x: &[Vector3<f32>], [a, b]: [u32; 2]| (x[a as usize] - x[b as usize]).norm();
+    let template_rest: Vec<f32> = edges.iter().map(|&e| length(template, e)).collect();
+    let no_pp = |strain_limit| AnimatorOptions {
+        strain_limit,
+        collision: None,
+        ..AnimatorOptions::default()
+    };
+    let converged = StrainLimit {
+        rounds: 1000,
+        ..StrainLimit::default()
+    };
+    for (name, betas) in [("nominal", &nominal), ("heavy", &heavy)] {
+        let off = run(&network, &binding, &body, no_pp(None), betas, &poses);
+        let on = run(
+            &network,
+            &binding,
+            &body,
+            no_pp(Some(StrainLimit::default())),
+            betas,
+            &poses,
+        );
+        let full = run(
+            &network,
+            &binding,
+            &body,
+            no_pp(Some(converged)),
+            betas,
+            &poses,
+        );
+        assert_eq!(off.strained, 0);
+        // Each edge's rest length: the longer of template and fitted garment.
+        let rest: Vec<f32> = edges
+            .iter()
+            .zip(&template_rest)
+            .map(|(&e, &t)| t.max(length(&full.fitted, e)))
+            .collect();
+        let worst_off = off.frames.iter().map(|x| worst(&edges, x, &template_rest));
+        let worst_off = worst_off.fold(0.0, f32::max);
+        // The network and skinning stretch the armpits (not a garment at rest).
+        assert!(
+            worst_off > 3.0,
+            "{name}: longest edge only {worst_off}× without a limit"
+        );
+        let (mut worst_on, mut moved) = (0.0f32, 0usize);
+        for ((x_off, x_on), x_full) in off.frames.iter().zip(&on.frames).zip(&full.frames) {
+            // Run to convergence, every edge is within its limit.
+            let w = worst(&edges, x_full, &rest);
+            assert!(
+                w <= 1.5 * (1.0 + 3e-5),
+                "{name}: an edge {w}× its rest length"
+            );
+            worst_on = worst_on.max(worst(&edges, x_on, &rest));
+            // Only vertices near stretched edges move.
+            moved += x_off.iter().zip(x_on).filter(|(a, b)| a != b).count();
+        }
+        assert!(on.strained > 0);
+        // The default 16 rounds: most of the way.
+        assert!(
+            worst_on < worst_off / 2.0,
+            "{name}: {worst_on}× against {worst_off}×"
+        );
+        let share = moved as f64 / (poses.len() * template.len()) as f64;
+        assert!(
+            share < 0.1,
+            "{name}: {:.1} % of vertex-frames moved",
+            share * 100.0
+        );
+        println!(
+            "{name}: longest edge {worst_off:.2}× without the limit, {worst_on:.2}× with it \
+             ({:.2} % of vertex-frames moved)",
+            share * 100.0
+        );
+
+        // With the post-process after it: the post-process's own count of vertices left
+        // within the margin is no worse than without the limit.
+        let with_pp = |strain_limit| AnimatorOptions {
+            strain_limit,
+            collision: Some(CollisionOptions::default()),
+            ..AnimatorOptions::default()
+        };
+        let rig = |o| {
+            Arc::new(
+                GarmentRig::new(network.clone(), binding.clone(), body.clone(), o).expect("rig"),
+            )
+        };
+        let mut counts = Vec::new();
+        for limit in [None, Some(StrainLimit::default())] {
+            let mut avatar = GarmentAnimator::new(rig(with_pp(limit))).expect("avatar");
+            avatar.set_shape(betas).expect("finite shape");
+            let mut inside = 0;
+            for pose in &poses {
+                avatar.frame(pose).expect("frame");
+                inside += avatar
+                    .collision_count(1e-6)
+                    .expect("post-process on")
+                    .inside;
+            }
+            counts.push(inside);
+        }
+        assert!(
+            counts[1] <= counts[0],
+            "{name}: inside {} with the limit, {} without",
+            counts[1],
+            counts[0]
+        );
+    }
+}
