@@ -6,7 +6,8 @@
 //! `ship` and `check-model` commands all call this crate. No experiment config here: callers pass
 //! the plan, folders and options.
 //!
-//! - [`evaluate_run`] (`eval.json`): `ours`, `lbs`, `lr`, `retarget` ([`Method`]) on the held-out
+//! - [`evaluate_run`] (`eval.json`): `ours`, `ours_strain_limit`, `lbs`, `lr`, `retarget`
+//!   ([`Method`]) on the held-out
 //!   motions and shapes of a [`sartor_dataset::DatasetPlan`], with and without the collision
 //!   post-process, edge stretch beside the ground truth's ([`StretchSummary`]), error plots and a
 //!   rendered comparison. The pieces ([`Assets`],
@@ -50,8 +51,8 @@ pub use error::{Context, Error, Result};
 pub use eval::{
     Assets, EVAL_FILE, EvalReport, EvalRun, GroundTruthStretch, Method, MethodReport,
     SequenceMetrics, SequenceReport, SequenceStretch, TestSequence, TestSets, evaluate,
-    evaluate_run, evaluate_with, ground_truth_signed_distance, ground_truth_stretch, load_truth,
-    run_sequence, shape_distance, test_sets,
+    evaluate_run, evaluate_with, ground_truth_signed_distance, ground_truth_stretch,
+    ground_truth_stretch_of, load_truth, run_sequence, shape_distance, split_sequences, test_sets,
 };
 pub use gt_distance::{
     DistanceHistogram, DistanceSummary, PosedBody, sequence_files_signed_distance,

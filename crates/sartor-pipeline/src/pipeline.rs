@@ -210,8 +210,14 @@ pub fn summary(e: &Experiment) -> Vec<(String, Value)> {
         ));
     }
     for (set, methods) in [
-        ("held_out_motions", &["ours", "lr", "lbs"][..]),
-        ("held_out_shapes", &["ours", "retarget", "lbs"][..]),
+        (
+            "held_out_motions",
+            &["ours", "ours_strain_limit", "lr", "lbs"][..],
+        ),
+        (
+            "held_out_shapes",
+            &["ours", "ours_strain_limit", "retarget", "lbs"][..],
+        ),
     ] {
         for m in methods {
             summary.push((

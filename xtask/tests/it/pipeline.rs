@@ -268,8 +268,14 @@ fn train_export_eval(runs: &Path, config: &serde_json::Value) {
     run(&["eval"], runs);
     let eval = read_json(&runs.join("tiny/eval/eval.json"));
     for (set, methods) in [
-        ("held_out_motions", ["ours", "lbs", "lr"]),
-        ("held_out_shapes", ["ours", "retarget", "lbs"]),
+        (
+            "held_out_motions",
+            &["ours", "ours_strain_limit", "lbs", "lr"][..],
+        ),
+        (
+            "held_out_shapes",
+            &["ours", "ours_strain_limit", "retarget", "lbs"][..],
+        ),
     ] {
         for m in methods {
             let e = eval[set][m]["mean_vertex_error_mm"].as_f64();
@@ -310,5 +316,23 @@ fn train_export_eval(runs: &Path, config: &serde_json::Value) {
             eval[set]["ours"]["sequences"].as_array().map(Vec::len),
             "{set}"
         );
+        // The strain limit leaves no edge longer than the network and skinning made it.
+        let longest = |m: &str| {
+            eval[set][m]["edge_stretch_before_pp"]["edge_stretch_max"]
+                .as_f64()
+                .expect("a number")
+        };
+        assert!(
+            longest("ours_strain_limit") <= longest("ours"),
+            "{set}: {} against {}",
+            longest("ours_strain_limit"),
+            longest("ours")
+        );
+    }
+    // The simulated cloth's stretch on the sequences learnt from and selected on, too.
+    for set in ["train", "validation"] {
+        let truth = &eval["ground_truth_edge_stretch"][set];
+        let frames = truth["edge_frames"].as_u64();
+        assert!(frames.is_some_and(|n| n > 0), "{set}: {truth}");
     }
 }
