@@ -225,14 +225,14 @@ impl WebTryOn {
         self.inner.pushed()
     }
 
-    /// Milliseconds of the frame shown: network, skinning, post-process, body posing, arm
-    /// clearance.
+    /// Milliseconds of the frame shown: network, skinning, post-process (the strain limit and
+    /// the collisions), body posing, arm clearance.
     pub fn times(&self) -> Vec<f64> {
         let t = self.inner.times();
         vec![
             t.garment.network_ms,
             t.garment.skinning_ms,
-            t.garment.post_process_ms,
+            t.garment.strain_limit_ms + t.garment.post_process_ms,
             t.body_ms,
             t.arms_ms,
         ]

@@ -21,7 +21,7 @@ use sartor_motion::{
 };
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentAnimator, GarmentBinding, GarmentModel,
-    GarmentNetwork, GarmentRig, NetworkOptions, Precision, StageTimes,
+    GarmentNetwork, GarmentRig, NetworkOptions, Precision, StageTimes, StrainLimit,
 };
 
 use crate::error::{Error, Result};
@@ -39,7 +39,8 @@ pub struct TryOnOptions {
     /// with exactly those values).
     pub precision: Precision,
     /// The collision post-process (on by default), the cloth triangles pushed out as well as
-    /// the vertices (`CollisionOptions::faces`).
+    /// the vertices (`CollisionOptions::faces`), after the strain limit (`StrainLimit`'s
+    /// default: no garment edge beyond 1.5× its rest length).
     pub post_process: bool,
     /// A monotonic clock in milliseconds that times each stage (`None`: no timing).
     pub clock: Option<fn() -> f64>,
@@ -248,6 +249,9 @@ impl TryOn {
         let rest = body.shaped_joints(&vec![0.0; body.n_betas()])?;
         let retarget = RetargetBody::new(body.skeleton().clone(), rest, tpose)?;
         let animator_options = AnimatorOptions {
+            // Edges stretched beyond 1.5× pulled back first: with the arms up the armpit
+            // otherwise tears open (see `StrainLimit`).
+            strain_limit: options.post_process.then(StrainLimit::default),
             // The triangles pushed out too: on a raised arm the shoulders otherwise show through
             // the sleeves between cloth vertices (see `CollisionOptions::faces`).
             collision: options.post_process.then(|| CollisionOptions {

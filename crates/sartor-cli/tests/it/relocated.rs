@@ -108,7 +108,12 @@ fn a_relocated_binary_finds_its_data_beside_it_by_flag_or_by_environment() {
     let by_env = tmp.path().join("by-env");
     let out = demo(&exe, &elsewhere, &by_env)
         .env("SARTOR_DATA_DIR", &data)
-        .args(["--precision", "int8", "--vertices-only"])
+        .args([
+            "--precision",
+            "int8",
+            "--vertices-only",
+            "--no-strain-limit",
+        ])
         .output()
         .expect("runs");
     assert_ok(&out, "demo with SARTOR_DATA_DIR");
@@ -120,6 +125,9 @@ fn a_relocated_binary_finds_its_data_beside_it_by_flag_or_by_environment() {
     // Triangles are pushed out of the body unless asked not to.
     assert_eq!(report(&by_flag)["push_triangles"], true);
     assert_eq!(report(&by_env)["push_triangles"], false);
+    // And the strain limit is on unless asked not to.
+    assert_eq!(report(&by_flag)["strain_limit"], 1.5);
+    assert_eq!(report(&by_env)["strain_limit"], serde_json::Value::Null);
 
     // Installed beside the binary: <prefix>/share/sartor.
     copy_data(&prefix.join("share/sartor"));
