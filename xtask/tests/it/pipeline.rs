@@ -329,10 +329,10 @@ fn train_export_eval(runs: &Path, config: &serde_json::Value) {
             longest("ours")
         );
     }
-    // The simulated cloth's stretch on the sequences learnt from and selected on, too.
-    for set in ["train", "validation"] {
-        let truth = &eval["ground_truth_edge_stretch"][set];
-        let frames = truth["edge_frames"].as_u64();
-        assert!(frames.is_some_and(|n| n > 0), "{set}: {truth}");
-    }
+    // The simulated cloth's stretch on the sequences learnt from, too (and selected on, where
+    // a config has validation motions: the tiny one has none).
+    let truth = &eval["ground_truth_edge_stretch"]["train"];
+    let frames = truth["edge_frames"].as_u64();
+    assert!(frames.is_some_and(|n| n > 0), "train: {truth}");
+    assert!(eval["ground_truth_edge_stretch"]["validation"].is_null());
 }
