@@ -213,6 +213,15 @@ mod tests {
         (x, faces)
     }
 
+    /// A strip of `n` squares, its edges, and their limits at `max_stretch` of the strip.
+    fn limited_strip(n: usize, max_stretch: f32) -> (Vec<Vector3<f32>>, GarmentEdges, Vec<f32>) {
+        let (rest, faces) = strip(n);
+        let edges = GarmentEdges::new(rest.len(), &faces);
+        let mut limits = Vec::new();
+        edges.limits(&rest, &rest, max_stretch, &mut limits);
+        (rest, edges, limits)
+    }
+
     fn ratios<'a>(
         edges: &'a GarmentEdges,
         x: &'a [Vector3<f32>],
@@ -246,10 +255,7 @@ mod tests {
 
     #[test]
     fn a_stretched_strip_ends_within_the_limit_and_an_unstretched_one_is_not_touched() {
-        let (rest, faces) = strip(20);
-        let edges = GarmentEdges::new(rest.len(), &faces);
-        let mut limits = Vec::new();
-        edges.limits(&rest, &rest, 1.2, &mut limits);
+        let (rest, edges, limits) = limited_strip(20, 1.2);
         let mut scratch = LimitScratch::default();
         scratch.reserve(limits.len());
 
@@ -315,10 +321,7 @@ mod tests {
 
     #[test]
     fn nan_is_left_where_it_is_and_does_not_spread() {
-        let (rest, faces) = strip(3);
-        let edges = GarmentEdges::new(rest.len(), &faces);
-        let mut limits = Vec::new();
-        edges.limits(&rest, &rest, 1.5, &mut limits);
+        let (rest, edges, limits) = limited_strip(3, 1.5);
         let mut x = rest.clone();
         x[0] = Vector3::new(f32::NAN, 0.0, 0.0);
         x[7].x += 0.05;
