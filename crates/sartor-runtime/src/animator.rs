@@ -10,7 +10,9 @@
 //! 3. `T_c = T̄_c + Δ_G + Δ_L` with `Δ_G = R_G(β)` cached by `set_shape`;
 //! 4. `M_c = W(T_c, β, θ, W_c)` by `sartor_core::skin_points`, with the body's skinning
 //!    transforms at `J(β)` (cached);
-//! 5. the collision post-process (optional, see `collision.rs`) against the body region, posed
+//! 5. the strain limit (optional, off by default, see `strain.rs`): no garment edge beyond a
+//!    multiple of its rest length;
+//! 6. the collision post-process (optional, see `collision.rs`) against the body region, posed
 //!    from `T_b(β)` (cached).
 //!
 //! After `set_shape`, a frame allocates nothing (the integration tests count allocations).

@@ -29,8 +29,9 @@
 //! - **Animation** ([`GarmentRig`], [`GarmentAnimator`], [`GarmentCrowd`]): the rig shares the
 //!   loaded assets (`Arc`) across avatars; an avatar caches `R_G(β)`, `J(β)` and the shaped body
 //!   region once per shape, then turns each pose into garment vertices —
-//!   `T̄_c + Δ_G + Δ_L`, skinned with `W_c` by `sartor_core::skin_points`, then the collision
-//!   post-process ([`CollisionOptions`], [`CollisionQuery`]) — carrying the GRU state and the
+//!   `T̄_c + Δ_G + Δ_L`, skinned with `W_c` by `sartor_core::skin_points`, then optionally
+//!   strain-limited ([`StrainLimit`]), then the collision post-process ([`CollisionOptions`],
+//!   [`CollisionQuery`]) — carrying the GRU state and the
 //!   previous pose. A crowd steps many avatars with one pass over the weights. A frame
 //!   allocates nothing (tested with a counting allocator).
 //! - **Levels of detail** ([`LevelOfDetail`]): precision and output rank at load, fit-only
