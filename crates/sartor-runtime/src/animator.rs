@@ -130,6 +130,7 @@ impl Default for AnimatorOptions {
 /// | `network.precision` | load | f32 / f16 / int8 weights: memory and bandwidth ÷1 / ÷2 / ÷4 |
 /// | `network.output_rank` | load | rank-`r` output (PCA prefix or truncated SVD) |
 /// | `animator.wrinkles` | per rig | fit-only mode for static try-on (no GRU) |
+/// | `animator.strain_limit` | per rig | strain limit (bench `postprocess`; eval `ours_strain_limit`) |
 /// | `animator.collision` | per rig | collision post-process on / off, and its query |
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LevelOfDetail {
