@@ -715,15 +715,7 @@ pub fn ground_truth_stretch(
 ) -> Result<GroundTruthStretch> {
     let parts = seqs
         .par_iter()
-        .map(|s| -> Result<StretchHistogram> {
-            let mut h = StretchHistogram::default();
-            for cloth in &s.truth.cloth {
-                edges.add_frame(cloth, &mut h).with_context(|| {
-                    format!("the ground truth of {}", sequence_stem(&s.shape, &s.motion))
-                })?;
-            }
-            Ok(h)
-        })
+        .map(|s| cloth_stretch(edges, &s.truth.cloth, &s.shape, &s.motion))
         .collect::<Result<Vec<_>>>()?;
     let ids = seqs.iter().map(|s| (s.shape.clone(), s.motion.clone()));
     Ok(stretch_report(ids, &parts))
@@ -738,19 +730,33 @@ pub fn ground_truth_stretch_of(
 ) -> Result<GroundTruthStretch> {
     let parts = set
         .par_iter()
-        .map(|(shape, motion)| -> Result<StretchHistogram> {
-            let truth = files.motion(shape, motion)?;
-            let mut h = StretchHistogram::default();
-            for cloth in &truth.cloth {
-                edges.add_frame(cloth, &mut h).with_context(|| {
-                    format!("the ground truth of {}", sequence_stem(&shape.id, motion))
-                })?;
-            }
-            Ok(h)
+        .map(|(shape, motion)| {
+            cloth_stretch(
+                edges,
+                &files.motion(shape, motion)?.cloth,
+                &shape.id,
+                motion,
+            )
         })
         .collect::<Result<Vec<_>>>()?;
     let ids = set.iter().map(|(s, m)| (s.id.clone(), m.clone()));
     Ok(stretch_report(ids, &parts))
+}
+
+/// The edge stretch of one sequence's simulated cloth (`frames`), errors naming it.
+fn cloth_stretch(
+    edges: &GarmentEdges,
+    frames: &[Vec<Vector3<f64>>],
+    shape: &str,
+    motion: &str,
+) -> Result<StretchHistogram> {
+    let mut h = StretchHistogram::default();
+    for cloth in frames {
+        edges
+            .add_frame(cloth, &mut h)
+            .with_context(|| format!("the ground truth of {}", sequence_stem(shape, motion)))?;
+    }
+    Ok(h)
 }
 
 /// A [`GroundTruthStretch`] from each sequence's `(shape, motion)` and histogram.
