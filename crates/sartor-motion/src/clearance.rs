@@ -269,7 +269,13 @@ impl Posing {
     /// distance (the same first vertex of the largest shortfall, the same bits out of
     /// [`ArmClearance::apply`] on five CMU clips, two shapes, with and without the upper arms):
     /// there `apply` took 96 ms a frame, 75 with the hints, 28 without the far vertices'
-    /// searches (Intel Xeon VM, release build; 24 with [`ArmClearance::frame_fixes`]).
+    /// searches (Intel Xeon VM, release build; 24 with [`ArmClearance::frame_fixes`]). A vertex
+    /// farther than that bound from the torso's box is not searched either: of 2.8 million held
+    /// vertices two changes of shape on the try-on page looked at (CMU 02_02, two bodies), 2.7
+    /// million were searched and 5,600 found a face; now 246,000 are searched, the same bits out
+    /// of `apply` (five CMU clips, three shapes, with and without the upper arms), and the page's
+    /// change of shape natively 176.6 → 148–151 ms (`cargo bench -p sartor-web --bench seek --
+    /// shape`, AMD EPYC VM).
     fn worst(&mut self, targets: &[(usize, f64)], slack: f64) -> (Option<Shortfall>, f64) {
         let d = self.distance.as_ref().expect("posed before");
         let mut worst: Option<Shortfall> = None;
@@ -290,6 +296,13 @@ impl Posing {
                 clearance - floor
             };
             if reach <= 0.0 {
+                continue;
+            }
+            // Nor is one farther than that from the torso's box, which holds every face.
+            let gap2: f64 = (0..3)
+                .map(|k| (lo[k] - p[k]).max(p[k] - hi[k]).max(0.0).powi(2))
+                .sum();
+            if gap2 > reach * reach * (1.0 + 1e-9) {
                 continue;
             }
             // (Unbounded, as `BodyDistance::query_hinted`: the whole search if the hinted one
