@@ -18,7 +18,8 @@ use crate::lowrank::truncated_svd;
 /// model's step took longer on two threads than on one (AMD EPYC VM: 46–62 µs in f32 against
 /// 39–41; entered once, 31–33); inside the pool the helper still fell asleep between the
 /// step's products (Intel Xeon VM, fresh two-thread pools: 27–29 µs in most frames, 68–80,
-/// its one-thread time, in up to half of them; polling, 27–30 in every pool: see the README).
+/// its one-thread time, in up to half of them; polling, 27–30 in every pool: see
+/// `docs/speed-log.md`).
 /// A call whose products all stay on the calling thread does not move (entering cost the int8
 /// step 8.5 → 20–21 µs).
 fn runs_awake(splits: bool, par: Parallelism) -> bool {
