@@ -603,6 +603,7 @@ fn charts(r: &Report) -> Vec<Chart> {
         name: name.into(),
         points,
         marker: Some(Marker::Circle),
+        color: None,
     };
     let curve = |model: &str, hidden: Option<usize>| -> Vec<(f64, f64)> {
         let mut p: Vec<(f64, f64)> = r
@@ -677,6 +678,7 @@ fn charts(r: &Report) -> Vec<Chart> {
                         .map(|(i, &d)| (i as f64, d))
                         .collect(),
                     marker: None,
+                    color: None,
                 })
                 .collect(),
             log_x: false,

@@ -392,16 +392,19 @@ pub fn tradeoff_cmd(args: &TradeoffArgs, env: &Env) -> anyhow::Result<()> {
     };
     let (report, path) = run_tradeoff(&run, &Bar::new())?;
     println!(
-        "{:<34} {:>9} {:>9}  pareto",
-        "variant", "error mm", "ms/frame"
+        "{:<34} {:>9} {:>9} {:>9} {:>8}  pareto (3 axes, with stretch)",
+        "variant", "error mm", "inside %", "p99.9 ×", "ms/frame"
     );
     for p in &report.points {
         println!(
-            "{:<34} {:>9.2} {:>9.3}  {}",
+            "{:<34} {:>9.2} {:>9.3} {:>9.2} {:>8.3}  {} {}",
             p.label,
             p.mean_vertex_error_mm,
+            p.collision_percent,
+            p.edge_stretch_p999,
             p.ms_per_frame,
-            if p.pareto { "*" } else { "" }
+            if p.pareto { "*" } else { " " },
+            if p.pareto_with_stretch { "+" } else { " " }
         );
     }
     println!("wrote {}", path.display());

@@ -895,6 +895,7 @@ fn plot_errors(
                 name: name.clone(),
                 points,
                 marker: None,
+                color: None,
             });
         }
         charts.push(Chart {
@@ -919,6 +920,7 @@ fn plot_errors(
                 .map(|s| (s.shape_distance, s.mean_vertex_error_mm))
                 .collect(),
             marker: Some(Marker::Circle),
+            color: None,
         })
         .collect();
     if !series.is_empty() {

@@ -22,6 +22,10 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Draw these markers only (a scatter); `None`: a line.
     pub marker: Option<Marker>,
+    /// Its colour, an index into the palette (`None`: the series' own index). A series with
+    /// an empty name has no legend entry, and one without points only a legend entry: charts
+    /// whose colour and marker say two things give each its own entries.
+    pub color: Option<usize>,
 }
 
 /// The shape of a scatter series' markers.
@@ -251,7 +255,7 @@ where
         let color = if s.marker == Some(Marker::Ring) {
             BLACK
         } else {
-            PALETTE[k % PALETTE.len()]
+            PALETTE[s.color.unwrap_or(k) % PALETTE.len()]
         };
         let pts = s
             .points
@@ -276,6 +280,9 @@ where
                 ctx.draw_series(pts.map(|p| Circle::new(p, 8, color.stroke_width(2))))?
             }
         };
+        if s.name.is_empty() {
+            continue;
+        }
         let marker = s.marker;
         anno.label(&s.name).legend(move |(x, y)| {
             let at = (x + 8, y);
@@ -322,11 +329,13 @@ mod tests {
                     name: "ours".into(),
                     points: (0..10).map(|i| (i as f64, (i * i) as f64)).collect(),
                     marker: None,
+                    color: None,
                 },
                 Series {
                     name: "lbs".into(),
                     points: vec![(1.0, 3.0), (4.0, f64::NAN)],
                     marker: Some(Marker::Circle),
+                    color: None,
                 },
             ],
             log_x: false,
@@ -340,6 +349,7 @@ mod tests {
                 name: "ring".into(),
                 points: vec![(0.05, 1.0), (3.0, 2.0)],
                 marker: Some(Marker::Ring),
+                color: None,
             }],
             ..chart.clone()
         };

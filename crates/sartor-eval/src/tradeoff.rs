@@ -7,19 +7,25 @@
 //! - the output rank `k` (the runtime's `NetworkOptions::output_rank`: the first `k` PCA
 //!   components, or a rank-`k` truncated SVD of a dense output layer) — `--ranks`;
 //! - the weight precision: f32, f16, int8;
-//! - the collision post-process on and off;
+//! - the collision post-process on and off, and on after the strain limit
+//!   ([`sartor_runtime::StrainLimit`], its defaults: no edge beyond 1.5× its rest length);
 //! - the fit-only static try-on mode (no wrinkle GRU), per precision.
 //!
 //! Each point's error is the mean vertex error (mm) of `ours` on the experiment's held-out
 //! motions (on the nominal shape unless `--all-shapes`), exactly as `eval` computes it, with the
 //! share of cloth vertex-frames inside the body before and after the post-process (eval's
-//! measure, the body's winding number: [`sartor_core::BodyDistance`]). Its cost is the wall time
+//! measure, the body's winding number: [`sartor_core::BodyDistance`]) and the garment's edge
+//! stretch (eval's too: each edge's length over its rest length, after the post-process where
+//! the point runs it). Its cost is the wall time
 //! of `GarmentAnimator::frame` on one thread over one held-out clip ([`time_points`]: every
 //! point timed once per round, after a warm-up; the median over a round's frames, then the
 //! median over the rounds), and the bytes of its weights. A point is in the Pareto set when no other
-//! point is at least as good in error, collisions and time and better in one. Writes
+//! point is at least as good in error, collisions and time and better in one (`pareto`, the three
+//! axes of the trade-off); `pareto_with_stretch` adds the stretch's 99.9th percentile as a fourth,
+//! the axis the strain limit buys. Writes
 //! `runs/<name>/tradeoff/tradeoff.json` and `pareto.{png,svg}` (one chart per garment resolution
-//! on shared axes, log time axis, one marker shape per precision, the Pareto set ringed).
+//! on shared axes, log time axis, one marker shape per precision, one colour per post-process
+//! setting, the three-axis Pareto set ringed).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -28,7 +34,7 @@ use sartor_core::Pose;
 
 use sartor_runtime::{
     AnimatorOptions, FitMode, GarmentAnimator, GarmentRig, NetworkOptions, OutputKind, Precision,
-    WrinkleMode,
+    StrainLimit, WrinkleMode,
 };
 use serde::Serialize;
 
@@ -68,6 +74,8 @@ pub struct TradeoffPoint {
     pub precision: String,
     /// Collision post-process on.
     pub post_process: bool,
+    /// The strain limit before the post-process ([`sartor_runtime::StrainLimit::default`]).
+    pub strain_limit: bool,
     /// Fit-only static try-on (no wrinkle GRU).
     pub fit_only: bool,
     /// Mean vertex error on the test set, mm.
@@ -79,6 +87,10 @@ pub struct TradeoffPoint {
     pub collision_percent_before_pp: f64,
     /// The same network's share after the post-process, %.
     pub collision_percent_after_pp: f64,
+    /// The 99.9th percentile of this point's edge-frames' stretch (length over rest length).
+    pub edge_stretch_p999: f64,
+    /// The longest edge over its rest length, of all this point's edge-frames.
+    pub edge_stretch_max: f64,
     /// ms per frame, one thread: the median over the rounds of each round's median.
     pub ms_per_frame: f64,
     /// Each round's median ms per frame.
@@ -87,6 +99,9 @@ pub struct TradeoffPoint {
     pub model_mb: f64,
     /// No other point is at least as good in error, collisions and time and better in one.
     pub pareto: bool,
+    /// No other point is at least as good in error, collisions, time and stretch (99.9th
+    /// percentile) and better in one.
+    pub pareto_with_stretch: bool,
 }
 
 /// `tradeoff.json`.
@@ -182,25 +197,37 @@ pub fn time_points(
 }
 
 /// Mark the points no other point dominates over (time, error, collisions): at least as good
-/// in all three and strictly better in one.
+/// in all three and strictly better in one (`pareto`); and over those and the stretch's 99.9th
+/// percentile (`pareto_with_stretch`).
 pub fn mark_pareto(points: &mut [TradeoffPoint]) {
-    let key: Vec<[f64; 3]> = points
+    let key: Vec<[f64; 4]> = points
         .iter()
-        .map(|p| [p.ms_per_frame, p.mean_vertex_error_mm, p.collision_percent])
+        .map(|p| {
+            [
+                p.ms_per_frame,
+                p.mean_vertex_error_mm,
+                p.collision_percent,
+                p.edge_stretch_p999,
+            ]
+        })
         .collect();
+    let undominated = |i: usize, axes: usize| {
+        let a = &key[i][..axes];
+        !key.iter().enumerate().any(|(j, b)| {
+            let b = &b[..axes];
+            j != i && (0..axes).all(|k| b[k] <= a[k]) && (0..axes).any(|k| b[k] < a[k])
+        })
+    };
     for (i, p) in points.iter_mut().enumerate() {
-        let a = key[i];
-        p.pareto = !key
-            .iter()
-            .enumerate()
-            .any(|(j, b)| j != i && (0..3).all(|k| b[k] <= a[k]) && (0..3).any(|k| b[k] < a[k]));
+        p.pareto = undominated(i, 3);
+        p.pareto_with_stretch = undominated(i, 4);
     }
 }
 
 /// Sweep one exported model (its assets and its test sequences): every output rank of
-/// `options` below the model's own, f32 / f16 / int8, post-process on and off, and fit-only;
-/// each point's error and collisions, and what [`time_points`] times it with (on the first
-/// test sequence).
+/// `options` below the model's own, f32 / f16 / int8, post-process on and off and on after the
+/// strain limit, and fit-only; each point's error, collisions and stretch, and what
+/// [`time_points`] times it with (on the first test sequence).
 pub fn sweep_model(
     assets: &Assets,
     seqs: &[TestSequence],
@@ -249,7 +276,7 @@ pub fn sweep_model(
                     output_rank: rank,
                 })?;
                 let base = AnimatorOptions::default();
-                let options = |pp: bool| {
+                let options = |pp: bool, limit: bool| {
                     let o = if fit_only {
                         AnimatorOptions {
                             fit: FitMode::Network,
@@ -261,6 +288,7 @@ pub fn sweep_model(
                     };
                     AnimatorOptions {
                         collision: if pp { o.collision } else { None },
+                        strain_limit: limit.then(StrainLimit::default),
                         ..o
                     }
                 };
@@ -270,18 +298,34 @@ pub fn sweep_model(
                     } else {
                         network.wrinkle_weight_bytes()
                     };
-                // One evaluation gives the error with and without the post-process.
-                let report = evaluate_with(assets, &network, options(true), seqs, &quiet)?;
-                for pp in [true, false] {
-                    let rig = assets.rig(&network, options(pp))?;
+                // One evaluation gives the error with and without the post-process; the strain
+                // limit is swept with the post-process after it, as a scene runs it.
+                let report = evaluate_with(assets, &network, options(true, false), seqs, &quiet)?;
+                let limited = evaluate_with(assets, &network, options(true, true), seqs, &quiet)?;
+                for (pp, limit, report) in [
+                    (true, false, &report),
+                    (false, false, &report),
+                    (true, true, &limited),
+                ] {
+                    let rig = assets.rig(&network, options(pp, limit))?;
+                    let stretch = if pp {
+                        &report.edge_stretch
+                    } else {
+                        &report.edge_stretch_before_pp
+                    };
                     let point = TradeoffPoint {
-                        label: format!("{label}{}", if pp { " pp" } else { "" }),
+                        label: format!(
+                            "{label}{}{}",
+                            if limit { " sl" } else { "" },
+                            if pp { " pp" } else { "" }
+                        ),
                         model: model.clone(),
                         garment_triangles: triangles,
                         gru_hidden: if fit_only { 0 } else { sizes.gru_hidden },
                         output_rank: if fit_only { 0 } else { width },
                         precision: pname.into(),
                         post_process: pp,
+                        strain_limit: limit,
                         fit_only,
                         mean_vertex_error_mm: if pp {
                             report.mean_vertex_error_mm
@@ -295,10 +339,13 @@ pub fn sweep_model(
                         },
                         collision_percent_before_pp: report.collision_percent_before_pp,
                         collision_percent_after_pp: report.collision_percent_after_pp,
+                        edge_stretch_p999: stretch.edge_stretch_p999,
+                        edge_stretch_max: stretch.edge_stretch_max,
                         ms_per_frame: f64::NAN,
                         ms_per_frame_rounds: Vec::new(),
                         model_mb: bytes as f64 * 1e-6,
                         pareto: false,
+                        pareto_with_stretch: false,
                     };
                     points.push(SweptPoint {
                         point,
@@ -315,8 +362,9 @@ pub fn sweep_model(
 }
 
 /// `pareto.{png,svg}` in `dir`: one chart per garment resolution, side by side on the same
-/// axes, of error against ms per frame on a log axis, one series per precision (its marker
-/// shape) and post-process setting, the Pareto set (over every size) ringed.
+/// axes, of error against ms per frame on a log axis, one marker shape per precision (and one
+/// for fit-only), one colour per post-process setting (off, on, on after the strain limit), the
+/// three-axis Pareto set (over every size) ringed.
 pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
     // One chart per garment resolution, side by side on the same axes.
     let mut sizes: Vec<usize> = points.iter().map(|p| p.garment_triangles).collect();
@@ -331,30 +379,66 @@ pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
         .fold(0.0f64, f64::max);
     // The time axis as `plot` pads a log axis; errors from zero.
     let ranges = crate::plot::log_range(points.iter().map(x)).map(|xs| (xs, 0.0..y_hi * 1.05));
+    // Marker: the precision (or fit-only); colour: what runs after the network. Each has its
+    // own legend entries, so that the legend stays short enough to leave the points clear.
+    const MODES: [(&str, usize); 3] = [
+        ("network only", 1),
+        ("+ post-process", 0),
+        ("+ strain limit + post-process", 2),
+    ];
+    let kinds = [
+        ("f32", Marker::Circle),
+        ("f16", Marker::Triangle),
+        ("int8", Marker::Cross),
+        ("fit MLP only (any precision)", Marker::Square),
+    ];
     let mut charts = Vec::new();
     for &size in &sizes {
         let mut series: Vec<Series> = Vec::new();
         for p in points.iter().filter(|p| p.garment_triangles == size) {
-            let (kind, marker) = if p.fit_only {
-                ("fit-only", Marker::Square)
+            let kind = if p.fit_only {
+                3
             } else {
                 match p.precision.as_str() {
-                    "f32" => ("f32", Marker::Circle),
-                    "f16" => ("f16", Marker::Triangle),
-                    _ => ("int8", Marker::Cross),
+                    "f32" => 0,
+                    "f16" => 1,
+                    _ => 2,
                 }
             };
-            let name = format!("{kind}{}", if p.post_process { " + pp" } else { "" });
+            let mode = match (p.post_process, p.strain_limit) {
+                (false, _) => 0,
+                (true, false) => 1,
+                (true, true) => 2,
+            };
+            let (name, color) = (format!("{kind} {mode}"), MODES[mode].1);
             let point = (x(p), y(p));
             match series.iter_mut().find(|s| s.name == name) {
                 Some(s) => s.points.push(point),
                 None => series.push(Series {
                     name,
                     points: vec![point],
-                    marker: Some(marker),
+                    marker: Some(kinds[kind].1),
+                    color: Some(color),
                 }),
             }
         }
+        // The data series draw without legend entries; the legend's come last, without
+        // points: the markers in black, the modes as coloured bars.
+        for s in &mut series {
+            s.name.clear();
+        }
+        series.extend(kinds.iter().map(|&(name, marker)| Series {
+            name: name.into(),
+            points: Vec::new(),
+            marker: Some(marker),
+            color: Some(7),
+        }));
+        series.extend(MODES.iter().map(|&(name, color)| Series {
+            name: name.into(),
+            points: Vec::new(),
+            marker: None,
+            color: Some(color),
+        }));
         series.push(Series {
             name: "Pareto set of all sizes (error, collisions, time)".into(),
             points: points
@@ -363,6 +447,7 @@ pub fn plot_tradeoff(dir: &Path, points: &[TradeoffPoint]) -> Result<()> {
                 .map(|p| (x(p), y(p)))
                 .collect(),
             marker: Some(Marker::Ring),
+            color: None,
         });
         charts.push(Chart {
             title: format!("{size}-triangle garment: error against cost per frame (one thread)"),
@@ -392,15 +477,19 @@ mod tests {
             output_rank: 0,
             precision: "f32".into(),
             post_process: false,
+            strain_limit: false,
             fit_only: false,
             mean_vertex_error_mm: err,
             collision_percent: 0.0,
             collision_percent_before_pp: 0.0,
             collision_percent_after_pp: 0.0,
+            edge_stretch_p999: 1.0,
+            edge_stretch_max: 1.0,
             ms_per_frame: ms,
             ms_per_frame_rounds: vec![ms],
             model_mb: 0.0,
             pareto: false,
+            pareto_with_stretch: false,
         }
     }
 
@@ -426,5 +515,14 @@ mod tests {
         mark_pareto(&mut q);
         let flags: Vec<bool> = q.iter().map(|p| p.pareto).collect();
         assert_eq!(flags, [true, true, false]);
+        // Stretch is the fourth axis of the second set only: the third point, dominated on
+        // the three axes, stretches least.
+        q[2].edge_stretch_p999 = 0.5;
+        mark_pareto(&mut q);
+        let flags: Vec<[bool; 2]> = q
+            .iter()
+            .map(|p| [p.pareto, p.pareto_with_stretch])
+            .collect();
+        assert_eq!(flags, [[true, true], [true, true], [false, true]]);
     }
 }

@@ -335,4 +335,54 @@ fn train_export_eval(runs: &Path, config: &serde_json::Value) {
     let frames = truth["edge_frames"].as_u64();
     assert!(frames.is_some_and(|n| n > 0), "train: {truth}");
     assert!(eval["ground_truth_edge_stretch"]["validation"].is_null());
+
+    // The trade-off sweep: each variant with and without the post-process, and with the
+    // strain limit before it; every point's error, collisions, stretch and time.
+    run(
+        &[
+            "tradeoff",
+            "--ranks",
+            "4",
+            "--timed-frames",
+            "2",
+            "--rounds",
+            "1",
+        ],
+        runs,
+    );
+    let dir = runs.join("tiny/tradeoff");
+    let report = read_json(&dir.join("tradeoff.json"));
+    let points = report["points"].as_array().expect("points");
+    let flag = |p: &serde_json::Value, k: &str| p[k].as_bool().expect("a flag");
+    let number = |p: &serde_json::Value, k: &str| p[k].as_f64().unwrap_or(f64::NAN);
+    for p in points {
+        for k in [
+            "mean_vertex_error_mm",
+            "edge_stretch_p999",
+            "edge_stretch_max",
+            "ms_per_frame",
+        ] {
+            assert!(number(p, k).is_finite() && number(p, k) > 0.0, "{k}: {p}");
+        }
+        assert!(
+            number(p, "edge_stretch_p999") <= number(p, "edge_stretch_max"),
+            "{p}"
+        );
+        let inside = if flag(p, "post_process") {
+            "collision_percent_after_pp"
+        } else {
+            "collision_percent_before_pp"
+        };
+        assert_eq!(number(p, "collision_percent"), number(p, inside), "{p}");
+        // A strain-limited point runs the post-process after the limit.
+        assert!(!flag(p, "strain_limit") || flag(p, "post_process"), "{p}");
+    }
+    // Three points a variant: the post-process off, on, and on after the strain limit.
+    let limited = points.iter().filter(|p| flag(p, "strain_limit")).count();
+    let raw = points.iter().filter(|p| !flag(p, "post_process")).count();
+    assert!(limited > 0 && limited == raw && 3 * limited == points.len());
+    for set in ["pareto", "pareto_with_stretch"] {
+        assert!(points.iter().any(|p| flag(p, set)), "no point in {set}");
+    }
+    assert!(dir.join("pareto.png").is_file());
 }
