@@ -546,6 +546,48 @@ fn the_page_works_in_headless_chromium() {
         json!("cmu/05_06")
     );
 
+    // The layout: the side panel never scrolls sideways (a fieldset's minimum width was its
+    // longest clip name's), and on a phone held upright the view sits above the panel, each
+    // the page's width.
+    let layout = |b: &Browser| {
+        b.eval(
+            "const c = document.getElementById('view').getBoundingClientRect(); \
+             const a = document.querySelector('aside'); const r = a.getBoundingClientRect(); \
+             return {width: window.innerWidth, height: window.innerHeight, \
+                     canvas: [c.left, c.top, c.width, c.height], aside: [r.left, r.top, r.width], \
+                     panelOverflow: a.scrollWidth - a.clientWidth, \
+                     pageOverflow: document.documentElement.scrollWidth - window.innerWidth};",
+        )
+    };
+    let wide = layout(&browser);
+    assert_eq!(
+        wide["panelOverflow"],
+        json!(0),
+        "the panel scrolls sideways: {wide}"
+    );
+    browser.call(
+        "POST",
+        "/window/rect",
+        Some(&json!({"width": 390, "height": 844})),
+    );
+    let narrow = layout(&browser);
+    let n = |k: &str, i: usize| narrow[k][i].as_f64().unwrap_or(f64::NAN);
+    let page_width = narrow["width"].as_f64().unwrap_or(f64::NAN);
+    assert!(page_width < 700.0, "the window did not narrow: {narrow}");
+    assert!(
+        n("canvas", 2) >= 0.95 * page_width
+            && n("canvas", 3) >= 0.4 * narrow["height"].as_f64().unwrap_or(f64::NAN)
+            && n("aside", 1) >= n("canvas", 1) + n("canvas", 3) - 1.0
+            && n("aside", 2) >= 0.95 * page_width,
+        "narrow layout: {narrow}"
+    );
+    for k in ["panelOverflow", "pageOverflow"] {
+        assert!(
+            narrow[k].as_f64().is_some_and(|v| v <= 0.0),
+            "{k}: {narrow}"
+        );
+    }
+
     let console = browser.console();
 
     println!(
