@@ -128,26 +128,57 @@ export class Viewer {
   }
 
   installControls() {
-    let drag = null;
+    // The pointers down on the view: one turns the camera round the body, two pinch to zoom
+    // (a phone), the wheel zooms too.
+    const down = new Map();
+    let pinch = null; // the two pointers' distance when last seen
+    const spread = () => {
+      const [a, b] = [...down.values()];
+      return Math.hypot(a.x - b.x, a.y - b.y);
+    };
     this.canvas.addEventListener("pointerdown", (e) => {
-      drag = { x: e.clientX, y: e.clientY };
-      this.canvas.setPointerCapture(e.pointerId);
+      down.set(e.pointerId, { x: e.clientX, y: e.clientY });
+      // Capture keeps a drag that leaves the view; a pointer the browser does not know as
+      // active (a synthetic one) cannot be captured, and needs not be.
+      try {
+        this.canvas.setPointerCapture(e.pointerId);
+      } catch {}
+      pinch = down.size === 2 ? spread() : null;
     });
-    this.canvas.addEventListener("pointerup", () => (drag = null));
+    const up = (e) => {
+      down.delete(e.pointerId);
+      pinch = down.size === 2 ? spread() : null;
+    };
+    this.canvas.addEventListener("pointerup", up);
+    this.canvas.addEventListener("pointercancel", up);
     this.canvas.addEventListener("pointermove", (e) => {
-      if (!drag) return;
-      this.azimuth -= (e.clientX - drag.x) * 0.01;
-      this.elevation = Math.max(-1.2, Math.min(1.2, this.elevation + (e.clientY - drag.y) * 0.01));
-      drag = { x: e.clientX, y: e.clientY };
+      const last = down.get(e.pointerId);
+      if (!last) return;
+      const now = { x: e.clientX, y: e.clientY };
+      down.set(e.pointerId, now);
+      if (down.size === 1) {
+        this.azimuth -= (now.x - last.x) * 0.01;
+        this.elevation = Math.max(-1.2, Math.min(1.2, this.elevation + (now.y - last.y) * 0.01));
+      } else if (down.size === 2 && pinch) {
+        // Fingers apart bring the camera closer, together take it back.
+        const d = spread();
+        if (d > 0) this.zoomBy(pinch / d);
+        pinch = d;
+      }
     });
     this.canvas.addEventListener(
       "wheel",
       (e) => {
         e.preventDefault();
-        this.zoom = Math.max(0.3, Math.min(4, this.zoom * Math.exp(e.deltaY * 0.001)));
+        this.zoomBy(Math.exp(e.deltaY * 0.001));
       },
       { passive: false },
     );
+  }
+
+  /// The camera's distance times `factor`, within 0.3 to 4 times the framing's.
+  zoomBy(factor) {
+    this.zoom = Math.max(0.3, Math.min(4, this.zoom * factor));
   }
 
   /// (Re)create a mesh: `faces` a Uint32Array, `vertexCount` its vertices, `color` [r, g, b].

@@ -587,6 +587,24 @@ fn the_page_works_in_headless_chromium() {
             "{k}: {narrow}"
         );
     }
+    // On it, one finger turns the camera (40 px: 0.4 rad) and two pinch to zoom (fingers
+    // 50 px apart spread to 100: the camera at half its distance).
+    let gesture = browser.eval(
+        "const c = document.getElementById('view'); const v = window.sartor.state.viewer; \
+         const ev = (type, id, x) => c.dispatchEvent(new PointerEvent(type, {pointerId: id, \
+           clientX: x, clientY: 300, bubbles: true, isPrimary: id === 1, pointerType: 'touch'})); \
+         const a0 = v.azimuth, z0 = v.zoom; \
+         ev('pointerdown', 1, 150); ev('pointermove', 1, 190); ev('pointerup', 1, 190); \
+         const turned = v.azimuth - a0; \
+         ev('pointerdown', 1, 150); ev('pointerdown', 2, 200); ev('pointermove', 2, 250); \
+         ev('pointerup', 2, 250); ev('pointerup', 1, 150); \
+         return {turned, zoom: v.zoom / z0};",
+    );
+    let g = |k: &str| gesture[k].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (g("turned") + 0.4).abs() < 1e-9 && (g("zoom") - 0.5).abs() < 1e-9,
+        "gestures: {gesture}"
+    );
 
     let console = browser.console();
 
