@@ -64,8 +64,9 @@ pub enum Command {
     Eval(EvalArgs),
     /// simulate → dataset → train → export → eval, end to end and resumable, with a summary.
     Pipeline(PipelineArgs),
-    /// Sweep the runtime's speed knobs (output rank, precision, post-process, fit-only, model
-    /// size, garment resolution): error against ms per frame, tradeoff.json and a Pareto plot.
+    /// Sweep the runtime's speed knobs (output rank, precision, post-process and strain limit,
+    /// fit-only, model size, garment resolution): error, collisions and stretch against ms per
+    /// frame, tradeoff.json and a Pareto plot.
     Tradeoff(TradeoffArgs),
     /// Benchmarks that write JSON reports (`bench sim`: the cloth simulator per garment size;
     /// `bench runtime`: the runtime against the paper's Table 1).
