@@ -117,10 +117,10 @@ struct Arm {
     shoulder: usize,
     vertices: Vec<usize>,
     upper: Vec<usize>,
-    /// The body vertices read per pose ([`ArmClearance`]'s `needed`) that turning the shoulder
-    /// can move (a joint of its subtree among their weights), ascending, and whether a torso
-    /// face's vertex is among them: the poses of a fix differ only in the shoulder's rotation.
-    moved: Vec<u32>,
+    /// The torso's vertices that turning the shoulder can move (a joint of its subtree among
+    /// their weights), ascending, and whether there is one: the poses of a fix differ only in
+    /// the shoulder's rotation, which moves these and the arm's own.
+    moved_torso: Vec<u32>,
     moves_torso: bool,
 }
 
@@ -136,8 +136,41 @@ const UPPER_ARM_REST_SLACK_M: f64 = 5e-3;
 /// A held vertex this little short of its clearance is not chased, m (half a millimetre).
 const SLACK_M: f64 = 5e-4;
 
-/// Per arm, the vertices held out of the torso and how far, m.
-type Targets = Vec<Vec<(usize, f64)>>;
+/// Per arm, the vertices held out of the torso and how far.
+type Targets = Vec<ArmTargets>;
+
+/// An arm's held vertices, in groups that share a dominant joint: each group's skinned
+/// positions lie within a box known from its joints' transforms alone, and a pose skins and looks at
+/// a group only where that box comes within its clearance of the torso's ([`Posing::pose`]).
+#[derive(Clone, Debug)]
+struct ArmTargets {
+    /// `(body vertex, clearance in m)`.
+    list: Vec<(usize, f64)>,
+    /// Per vertex of `list`, its group.
+    group_of: Vec<u16>,
+    groups: Vec<Group>,
+}
+
+/// Held vertices of one arm that share a dominant joint.
+#[derive(Clone, Debug)]
+struct Group {
+    /// Their body vertices, ascending.
+    vertices: Vec<u32>,
+    /// The joints among their skin weights.
+    joints: Vec<usize>,
+    /// The centre and half extent of their box in the shaped rest pose (the extent grown by
+    /// [`GROUP_PAD_M`]), m. Skinned, a vertex is a convex blend of its rest position moved by
+    /// each of its joints' transforms; each moves the rest box into a box about the moved
+    /// centre, so the vertex lies within the box of those boxes.
+    center: Vector3<f64>,
+    half: Vector3<f64>,
+    /// Their largest clearance, m.
+    clearance: f64,
+}
+
+/// Added to each group's half extent ([`Group::half`]), m: far beyond the rounding of the
+/// skinning's blend (its f32 weights sum to one within 1e-7, coordinates are within metres).
+const GROUP_PAD_M: f64 = 1e-6;
 
 /// The body's arms and torso, for measuring and removing arm–torso intersection (see the
 /// [module docs](self)).
@@ -195,6 +228,11 @@ struct Posing {
     /// Per body vertex, the torso face it was closest to when last asked (a hint that gives
     /// [`BodyDistance::query_hinted`] the same answer for less work).
     hints: Vec<u32>,
+    /// Per arm and group of its targets, whether the last pose left the group unskinned: its
+    /// box farther than its clearance from the torso's.
+    culled: Vec<Vec<bool>>,
+    /// The group vertices a pose skins (scratch).
+    active: Vec<u32>,
 }
 
 impl Posing {
@@ -207,6 +245,8 @@ impl Posing {
             torso_posed: Vec::new(),
             distance: None,
             hints: vec![u32::MAX; body.n_vertices()],
+            culled: Vec::new(),
+            active: Vec::new(),
         })
     }
 
@@ -219,11 +259,48 @@ impl Posing {
 
     /// Pose the body at the vertices `needed` (the torso faces' and the arms') and the torso's
     /// distance field.
-    fn pose(&mut self, body: &BodyModel, pose: &Pose, torso: &Torso, needed: &[u32]) -> Result<()> {
+    fn pose_all(
+        &mut self,
+        body: &BodyModel,
+        pose: &Pose,
+        torso: &Torso,
+        needed: &[u32],
+    ) -> Result<()> {
+        self.poser
+            .pose_vertices_into(body, &self.betas, pose, needed, &mut self.posed)?;
+        self.fit_torso(torso)
+    }
+
+    /// Pose the body at the torso's vertices and the torso's distance field, then at the held
+    /// vertices of each group of `targets` whose box comes within its clearance of the torso's
+    /// (the others are marked in [`Posing::culled`]: [`Posing::worst`] would skip each of their
+    /// vertices, farther than its reach from the torso's box): the same bits (tested), `apply`
+    /// over five CMU clips × three shapes × the upper arms held or not 2.13 → 1.92 s, and the
+    /// page's change of shape (`cargo bench -p sartor-web --bench seek -- shape`) 148.2–148.7 →
+    /// 141.9–142.3 ms (AMD EPYC VM, two rounds of old and new builds in turn).
+    fn pose(
+        &mut self,
+        body: &BodyModel,
+        pose: &Pose,
+        torso: &Torso,
+        targets: &Targets,
+    ) -> Result<()> {
         // Only the vertices read: the torso faces' (its distance field) and the arms' (the
         // held vertices); the legs, head and the rest are some two thirds of the body.
         self.poser
-            .pose_vertices_into(body, &self.betas, pose, needed, &mut self.posed)?;
+            .pose_vertices_into(body, &self.betas, pose, &torso.vertices, &mut self.posed)?;
+        self.fit_torso(torso)?;
+        self.culled.resize(targets.len(), Vec::new());
+        self.active.clear();
+        for (a, t) in targets.iter().enumerate() {
+            self.cull(a, t);
+        }
+        self.poser
+            .pose_vertices_into(body, &self.betas, pose, &self.active, &mut self.posed)
+    }
+
+    /// The torso's distance field at the posed torso vertices.
+    fn fit_torso(&mut self, torso: &Torso) -> Result<()> {
         self.gather_torso(torso);
         match &mut self.distance {
             // The few closest points asked per pose compute their normals themselves: the
@@ -234,19 +311,56 @@ impl Posing {
         Ok(())
     }
 
-    /// Pose the body at `pose`, which differs from the last pose only in the rotation of
-    /// `arm`'s shoulder: only the vertices that turn moves are skinned again, and the torso's
-    /// distance field is refitted only if a torso vertex is among them (the same bits as
-    /// [`Posing::pose`]).
+    /// Mark the groups of arm `a`'s `targets` whose box lies farther than their clearance
+    /// from the torso's ([`Posing::culled`]), from the posed joints and the torso's box of the
+    /// last pose; the vertices of the others onto [`Posing::active`].
+    fn cull(&mut self, a: usize, targets: &ArmTargets) {
+        let (lo, hi) = self.distance.as_ref().expect("posed before").bounds();
+        let transforms = self.poser.transforms();
+        let culled = &mut self.culled[a];
+        culled.clear();
+        for group in &targets.groups {
+            let (mut glo, mut ghi) = (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            );
+            for &j in &group.joints {
+                let t = &transforms[j];
+                let center = t.linear * group.center + t.translation;
+                let half = t.linear.abs() * group.half;
+                glo = glo.inf(&(center - half));
+                ghi = ghi.sup(&(center + half));
+            }
+            let gap2: f64 = (0..3)
+                .map(|k| (lo[k] - ghi[k]).max(glo[k] - hi[k]).max(0.0).powi(2))
+                .sum();
+            let far = gap2 > (group.clearance + GROUP_PAD_M).powi(2) && !tests::no_culling();
+            culled.push(far);
+            if !far {
+                self.active.extend_from_slice(&group.vertices);
+            }
+        }
+    }
+
+    /// Pose the body at `pose`, which differs from the last pose only in the rotation of arm
+    /// `a`'s shoulder: only the torso vertices that turn moves and the arm's held vertices (as
+    /// [`Posing::pose`] culls them) are skinned again, and the torso's distance field is
+    /// refitted only if a torso vertex is among them (the same bits as [`Posing::pose`]).
     fn pose_turned(
         &mut self,
         body: &BodyModel,
         pose: &Pose,
-        arm: &Arm,
+        (a, arm): (usize, &Arm),
         torso: &Torso,
+        targets: &ArmTargets,
     ) -> Result<()> {
-        self.poser
-            .pose_vertices_into(body, &self.betas, pose, &arm.moved, &mut self.posed)?;
+        self.poser.pose_vertices_into(
+            body,
+            &self.betas,
+            pose,
+            &arm.moved_torso,
+            &mut self.posed,
+        )?;
         if arm.moves_torso {
             self.gather_torso(torso);
             self.distance
@@ -254,7 +368,10 @@ impl Posing {
                 .expect("posed before")
                 .update_positions_refit(&self.torso_posed)?;
         }
-        Ok(())
+        self.active.clear();
+        self.cull(a, targets);
+        self.poser
+            .pose_vertices_into(body, &self.betas, pose, &self.active, &mut self.posed)
     }
 
     /// The worst of an arm's held vertices `targets` in the last pose, if it is more than
@@ -276,7 +393,7 @@ impl Posing {
     /// of `apply` (five CMU clips, three shapes, with and without the upper arms), and the page's
     /// change of shape natively 176.6 → 148–151 ms (`cargo bench -p sartor-web --bench seek --
     /// shape`, AMD EPYC VM).
-    fn worst(&mut self, targets: &[(usize, f64)], slack: f64) -> (Option<Shortfall>, f64) {
+    fn worst(&mut self, a: usize, targets: &ArmTargets, slack: f64) -> (Option<Shortfall>, f64) {
         let d = self.distance.as_ref().expect("posed before");
         let mut worst: Option<Shortfall> = None;
         let mut depth = 0.0f64;
@@ -284,7 +401,12 @@ impl Posing {
         // of the held vertices of five CMU clips, whose winding numbers were 59 % of the
         // clearance's time.
         let (lo, hi) = d.bounds();
-        for &(v, clearance) in targets {
+        let culled = &self.culled[a];
+        for (&(v, clearance), &g) in targets.list.iter().zip(&targets.group_of) {
+            if culled[g as usize] {
+                // Unskinned: each of its vertices farther than its reach from the torso's box.
+                continue;
+            }
             let p = self.posed[v];
             let in_box = (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]);
             let inside = in_box && d.winding_number_fast(&p) > 0.5;
@@ -371,7 +493,7 @@ impl ArmClearance {
                         shoulder,
                         vertices: Vec::new(),
                         upper: Vec::new(),
-                        moved: Vec::new(),
+                        moved_torso: Vec::new(),
                         moves_torso: false,
                     });
                     arms.last_mut().expect("pushed")
@@ -426,7 +548,8 @@ impl ArmClearance {
                 }
             };
             let subtree: Vec<bool> = (0..skeleton.n_joints()).map(below).collect();
-            arm.moved = needed
+            arm.moved_torso = torso
+                .vertices
                 .iter()
                 .copied()
                 .filter(|&v| {
@@ -435,7 +558,7 @@ impl ArmClearance {
                         .any(|(j, _)| subtree[j])
                 })
                 .collect();
-            arm.moves_torso = arm.moved.iter().any(|&v| in_torso[v as usize]);
+            arm.moves_torso = !arm.moved_torso.is_empty();
         }
         Ok(Self {
             arms,
@@ -459,10 +582,11 @@ impl ArmClearance {
         poses
             .iter()
             .map(|pose| {
-                posing.pose(body, pose, &self.torso, &self.needed)?;
+                posing.pose(body, pose, &self.torso, &targets)?;
                 Ok(targets
                     .iter()
-                    .map(|t| posing.worst(t, f64::INFINITY).1)
+                    .enumerate()
+                    .map(|(a, t)| posing.worst(a, t, f64::INFINITY).1)
                     .fold(0.0f64, f64::max))
             })
             .collect()
@@ -478,7 +602,7 @@ impl ArmClearance {
         posing: &mut Posing,
         options: &ClearanceOptions,
     ) -> Result<Targets> {
-        let mut targets: Targets = self
+        let mut lists: Vec<Vec<(usize, f64)>> = self
             .arms
             .iter()
             .map(|a| {
@@ -488,39 +612,94 @@ impl ArmClearance {
                     .collect()
             })
             .collect();
-        let Some(upper) = options.upper_arm_clearance_m else {
-            return Ok(targets);
-        };
-        let skeleton = body.skeleton();
-        let parents = skeleton.parents();
-        posing.pose(
-            body,
-            &Pose::rest(skeleton.n_joints()),
-            &self.torso,
-            &self.needed,
-        )?;
-        let joints = posing.poser.posed_joints();
-        let distance = posing.distance.as_ref().expect("posed");
-        for (arm, targets) in self.arms.iter().zip(&mut targets) {
-            // The elbow: the farthest child of the shoulder (the forearm's joint).
-            let shoulder = joints[arm.shoulder];
-            let length = (0..parents.len())
-                .filter(|&c| parents[c] == Some(arm.shoulder))
-                .map(|c| (joints[c] - shoulder).norm())
-                .fold(0.0, f64::max);
-            targets.extend(
-                arm.upper
-                    .iter()
-                    .filter(|&&v| {
-                        let p = posing.posed[v];
-                        (p - shoulder).norm() >= UPPER_ARM_MIN_LEVER * length
-                            && distance.query(&p).signed_distance_m
-                                >= upper + UPPER_ARM_REST_SLACK_M
-                    })
-                    .map(|&v| (v, upper)),
-            );
+        if let Some(upper) = options.upper_arm_clearance_m {
+            let skeleton = body.skeleton();
+            let parents = skeleton.parents();
+            posing.pose_all(
+                body,
+                &Pose::rest(skeleton.n_joints()),
+                &self.torso,
+                &self.needed,
+            )?;
+            let joints = posing.poser.posed_joints();
+            let distance = posing.distance.as_ref().expect("posed");
+            for (arm, list) in self.arms.iter().zip(&mut lists) {
+                // The elbow: the farthest child of the shoulder (the forearm's joint).
+                let shoulder = joints[arm.shoulder];
+                let length = (0..parents.len())
+                    .filter(|&c| parents[c] == Some(arm.shoulder))
+                    .map(|c| (joints[c] - shoulder).norm())
+                    .fold(0.0, f64::max);
+                list.extend(
+                    arm.upper
+                        .iter()
+                        .filter(|&&v| {
+                            let p = posing.posed[v];
+                            (p - shoulder).norm() >= UPPER_ARM_MIN_LEVER * length
+                                && distance.query(&p).signed_distance_m
+                                    >= upper + UPPER_ARM_REST_SLACK_M
+                        })
+                        .map(|&v| (v, upper)),
+                );
+            }
         }
-        Ok(targets)
+        // The groups, from the shaped rest pose (not posed through `posing`, whose torso
+        // tree is built at its first pose).
+        let rest = body.shaped_vertices(&posing.betas)?;
+        let weights = body.skin_weights();
+        Ok(lists
+            .into_iter()
+            .map(|list| {
+                let mut joint_group: Vec<(usize, usize)> = Vec::new();
+                let mut groups: Vec<Group> = Vec::new();
+                let group_of = list
+                    .iter()
+                    .map(|&(v, clearance)| {
+                        let dominant = weights.dominant_joint(v);
+                        let g = match joint_group.iter().find(|(j, _)| *j == dominant) {
+                            Some(&(_, g)) => g,
+                            None => {
+                                joint_group.push((dominant, groups.len()));
+                                groups.push(Group {
+                                    vertices: Vec::new(),
+                                    joints: Vec::new(),
+                                    center: Vector3::zeros(),
+                                    half: Vector3::zeros(),
+                                    clearance: 0.0,
+                                });
+                                groups.len() - 1
+                            }
+                        };
+                        let group = &mut groups[g];
+                        group.vertices.push(v as u32);
+                        group.clearance = group.clearance.max(clearance);
+                        for (j, _) in weights.point(v) {
+                            if !group.joints.contains(&j) {
+                                group.joints.push(j);
+                            }
+                        }
+                        u16::try_from(g).expect("fewer groups than joints")
+                    })
+                    .collect();
+                for group in &mut groups {
+                    group.vertices.sort_unstable();
+                    let (lo, hi) = group.vertices.iter().fold(
+                        (
+                            Vector3::repeat(f64::INFINITY),
+                            Vector3::repeat(f64::NEG_INFINITY),
+                        ),
+                        |(lo, hi), &v| (lo.inf(&rest[v as usize]), hi.sup(&rest[v as usize])),
+                    );
+                    group.center = (lo + hi) * 0.5;
+                    group.half = (hi - lo) * 0.5 + Vector3::repeat(GROUP_PAD_M);
+                }
+                ArmTargets {
+                    list,
+                    group_of,
+                    groups,
+                }
+            })
+            .collect())
     }
 
     /// `poses` with the forearms and hands moved out of the torso of shape `betas` (see the
@@ -620,28 +799,30 @@ impl ArmClearance {
         targets: &Targets,
         options: &ClearanceOptions,
     ) -> Result<Vec<(Option<Vector3<f64>>, f64)>> {
-        posing.pose(body, pose, &self.torso, &self.needed)?;
-        let firsts: Vec<_> = targets.iter().map(|t| posing.worst(t, SLACK_M)).collect();
+        posing.pose(body, pose, &self.torso, targets)?;
+        let firsts: Vec<_> = (targets.iter().enumerate())
+            .map(|(a, t)| posing.worst(a, t, SLACK_M))
+            .collect();
         let mut at_pose = true;
         let mut fixes = Vec::with_capacity(self.arms.len());
-        for ((arm, targets), (worst, depth)) in self.arms.iter().zip(targets).zip(firsts) {
-            let Some(worst) = worst else {
-                fixes.push((None, depth));
+        for (a, (arm, worst_depth)) in self.arms.iter().zip(firsts).enumerate() {
+            let (Some(worst), depth) = worst_depth else {
+                fixes.push((None, worst_depth.1));
                 continue;
             };
             if !at_pose {
-                posing.pose(body, pose, &self.torso, &self.needed)?;
+                posing.pose(body, pose, &self.torso, targets)?;
             }
             let (fix, posed_again) =
-                self.frame_fix(body, posing, pose, arm, targets, worst, options)?;
+                self.frame_fix(body, posing, pose, (a, arm), targets, worst, options)?;
             at_pose &= !posed_again;
             fixes.push((fix, depth));
         }
         Ok(fixes)
     }
 
-    /// The rotation (vector, in the upper arm's parent frame) that takes `arm`'s held vertices
-    /// `targets` their clearance out of the torso in `pose`, starting from `posing` posed at
+    /// The rotation (vector, in the upper arm's parent frame) that takes arm `a`'s held
+    /// vertices (of `targets`) their clearance out of the torso in `pose`, starting from `posing` posed at
     /// `pose` and the worst of them there (more than [`SLACK_M`] short), `None` if it cannot
     /// turn; and whether it posed the body otherwise.
     fn frame_fix(
@@ -649,8 +830,8 @@ impl ArmClearance {
         body: &BodyModel,
         posing: &mut Posing,
         pose: &Pose,
-        arm: &Arm,
-        targets: &[(usize, f64)],
+        (a, arm): (usize, &Arm),
+        targets: &Targets,
         worst: Shortfall,
         options: &ClearanceOptions,
     ) -> Result<(Option<Vector3<f64>>, bool)> {
@@ -663,9 +844,9 @@ impl ArmClearance {
         let mut posed_again = false;
         for iteration in 0..options.max_iterations.max(1) {
             if iteration > 0 {
-                posing.pose_turned(body, &trial, arm, &self.torso)?;
+                posing.pose_turned(body, &trial, (a, arm), &self.torso, &targets[a])?;
                 posed_again = true;
-                worst = posing.worst(targets, SLACK_M).0;
+                worst = posing.worst(a, &targets[a], SLACK_M).0;
             }
             let Some(Shortfall {
                 short,
@@ -777,9 +958,112 @@ fn eased_at(
     }
 }
 
+/// Outside tests, culling is always on.
+#[cfg(not(test))]
+mod tests {
+    pub(super) fn no_culling() -> bool {
+        false
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::cell::Cell;
+    use std::path::PathBuf;
+
+    thread_local! {
+        /// Set by a test on its own thread: every group is skinned and looked at.
+        static NO_CULLING: Cell<bool> = const { Cell::new(false) };
+    }
+
+    pub(super) fn no_culling() -> bool {
+        NO_CULLING.with(Cell::get)
+    }
+
+    fn data(path: &str) -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../datasets")
+            .join(path)
+    }
+
+    /// A real clip at two shapes beyond the training range, the upper arms held too: the
+    /// groups' boxes hold every held vertex as skinned in each pose of the clip, and `apply`
+    /// with the groups culled (its fixes' trial poses too) gives the poses and report of
+    /// `apply` skinning and looking at every held vertex, bit for bit.
+    #[test]
+    fn culled_groups_hold_their_vertices_and_change_no_bit() {
+        use crate::{MotionSourceOptions, RetargetBody, load_motion};
+        let body = BodyModel::load(&data("body/makehuman")).expect("built-in body");
+        let options = MotionSourceOptions {
+            motions_dir: data("motions"),
+            body: Some(RetargetBody::load(&data("body/makehuman")).expect("body")),
+            ..MotionSourceOptions::default()
+        };
+        let clip = load_motion("cmu/02_02@8+30", &options).expect("clip");
+        let clearance = ArmClearance::new(&body).expect("arms");
+        let held = ClearanceOptions {
+            upper_arm_clearance_m: Some(0.005),
+            ..ClearanceOptions::default()
+        };
+        let mut culled = 0;
+        for betas in [vec![0.0, 2.5], vec![3.0, -2.0, 1.0]] {
+            let mut posing = Posing::new(&body, &betas).expect("posing");
+            let targets = clearance
+                .targets(&body, &mut posing, &held)
+                .expect("targets");
+            let mut all = Posing::new(&body, &betas).expect("posing");
+            for pose in clip.frames() {
+                posing
+                    .pose(&body, pose, &clearance.torso, &targets)
+                    .expect("pose");
+                all.pose_all(&body, pose, &clearance.torso, &clearance.needed)
+                    .expect("pose");
+                let transforms = posing.poser.transforms();
+                for (a, t) in targets.iter().enumerate() {
+                    for (g, group) in t.groups.iter().enumerate() {
+                        culled += usize::from(posing.culled[a][g]);
+                        for &v in &group.vertices {
+                            let p = all.posed[v as usize];
+                            let inside = group.joints.iter().fold(
+                                (
+                                    Vector3::repeat(f64::INFINITY),
+                                    Vector3::repeat(f64::NEG_INFINITY),
+                                ),
+                                |(lo, hi), &j| {
+                                    let c = transforms[j].linear * group.center
+                                        + transforms[j].translation;
+                                    let h = transforms[j].linear.abs() * group.half;
+                                    (lo.inf(&(c - h)), hi.sup(&(c + h)))
+                                },
+                            );
+                            assert!(
+                                (0..3).all(|k| p[k] >= inside.0[k] && p[k] <= inside.1[k]),
+                                "vertex {v} outside its group's box"
+                            );
+                        }
+                    }
+                }
+            }
+            let (poses, report) = clearance
+                .apply(&body, &betas, clip.frames(), &held)
+                .expect("apply");
+            NO_CULLING.with(|c| c.set(true));
+            let (poses_all, report_all) = clearance
+                .apply(&body, &betas, clip.frames(), &held)
+                .expect("apply");
+            NO_CULLING.with(|c| c.set(false));
+            assert_eq!(report, report_all);
+            for (p, q) in poses.iter().zip(&poses_all) {
+                for (r, s) in p.local_rotations.iter().zip(&q.local_rotations) {
+                    assert_eq!(r.coords.map(f64::to_bits), s.coords.map(f64::to_bits));
+                }
+            }
+        }
+        // Most groups lie far from the torso in most poses: the test would pass vacuously
+        // were none culled.
+        assert!(culled > 0, "no group culled");
+    }
 
     #[test]
     fn easing_ramps_in_and_out_and_reaches_no_farther() {
