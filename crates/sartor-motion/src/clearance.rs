@@ -312,8 +312,8 @@ impl Posing {
     }
 
     /// Mark the groups of arm `a`'s `targets` whose box lies farther than their clearance
-    /// from the torso's ([`Posing::culled`]), from the posed joints and the torso's box of the
-    /// last pose; the vertices of the others onto [`Posing::active`].
+    /// from the torso's ([`Posing::culled`]), from the joints' transforms and the torso's box
+    /// of the last pose; the vertices of the others onto [`Posing::active`].
     fn cull(&mut self, a: usize, targets: &ArmTargets) {
         let (lo, hi) = self.distance.as_ref().expect("posed before").bounds();
         let transforms = self.poser.transforms();
