@@ -168,6 +168,14 @@ struct Group {
     clearance: f64,
 }
 
+/// Whether a test turned [`Posing::pose`]'s culling off on its thread (never outside tests).
+fn culling_off() -> bool {
+    #[cfg(test)]
+    return tests::NO_CULLING.with(std::cell::Cell::get);
+    #[cfg(not(test))]
+    false
+}
+
 /// Added to each group's half extent ([`Group::half`]), m: far beyond the rounding of the
 /// skinning's blend (its f32 weights sum to one within 1e-7, coordinates are within metres).
 const GROUP_PAD_M: f64 = 1e-6;
@@ -334,7 +342,7 @@ impl Posing {
             let gap2: f64 = (0..3)
                 .map(|k| (lo[k] - ghi[k]).max(glo[k] - hi[k]).max(0.0).powi(2))
                 .sum();
-            let far = gap2 > (group.clearance + GROUP_PAD_M).powi(2) && !tests::no_culling();
+            let far = gap2 > (group.clearance + GROUP_PAD_M).powi(2) && !culling_off();
             culled.push(far);
             if !far {
                 self.active.extend_from_slice(&group.vertices);
@@ -532,10 +540,6 @@ impl ArmClearance {
         needed.sort_unstable();
         needed.dedup();
         let torso = Torso::new(&torso_faces, body.n_vertices());
-        let mut in_torso = vec![false; body.n_vertices()];
-        for &v in &torso.vertices {
-            in_torso[v as usize] = true;
-        }
         for arm in &mut arms {
             // The shoulder's subtree: joints whose chain of parents reaches it.
             let below = |mut j: usize| loop {
@@ -958,14 +962,6 @@ fn eased_at(
     }
 }
 
-/// Outside tests, culling is always on.
-#[cfg(not(test))]
-mod tests {
-    pub(super) fn no_culling() -> bool {
-        false
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -974,11 +970,7 @@ mod tests {
 
     thread_local! {
         /// Set by a test on its own thread: every group is skinned and looked at.
-        static NO_CULLING: Cell<bool> = const { Cell::new(false) };
-    }
-
-    pub(super) fn no_culling() -> bool {
-        NO_CULLING.with(Cell::get)
+        pub(super) static NO_CULLING: Cell<bool> = const { Cell::new(false) };
     }
 
     fn data(path: &str) -> PathBuf {
