@@ -17,6 +17,8 @@ const state = {
   framesStepped: 0,
   readyMs: null,
   errors: 0,
+  previewFrame: 0, // the animation frame a slider's preview waits for (0: none)
+  previews: 0,
 };
 
 function showError(message) {
@@ -69,10 +71,35 @@ function showBetas(betas) {
     `hips ${(100 * hips).toFixed(1)} cm, ${kg.toFixed(0)} kg`;
 }
 
-function applyPhenotype() {
-  const s = sliders();
+function showSliders(s) {
   $("height-out").textContent = `${s.heightM.toFixed(2)} m`;
   $("age-out").textContent = `${s.ageYears} years`;
+}
+
+/// While a slider moves: the body and the garment in the slider's shape at the next display
+/// frame (one preview a frame however many input events come), the arms held as for the shape
+/// last set; the slider's release sets the shape and holds the arms anew (applyPhenotype).
+function previewPhenotype() {
+  showSliders(sliders());
+  if (state.previewFrame) return;
+  state.previewFrame = requestAnimationFrame(() => {
+    state.previewFrame = 0;
+    const s = sliders();
+    guarded("body", () => {
+      showBetas(state.tryOn.previewPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
+      state.previews += 1;
+      redraw();
+    });
+  });
+}
+
+function applyPhenotype() {
+  if (state.previewFrame) {
+    cancelAnimationFrame(state.previewFrame);
+    state.previewFrame = 0;
+  }
+  const s = sliders();
+  showSliders(s);
   guarded("body", () => {
     showBetas(state.tryOn.setPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
     redraw();
@@ -245,7 +272,8 @@ function transferred() {
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
 /// milliseconds of each stage (what the page can sustain, independent of the display rate), of
-/// a jump's garment (`jump`) and of a whole change of shape (`shape`).
+/// a jump's garment (`jump`), of a whole change of shape (`shape`) and of its preview while a
+/// slider moves (`preview`).
 function bench(frames = 120) {
   const t = state.tryOn;
   const was = state.playing;
@@ -258,28 +286,20 @@ function bench(frames = 120) {
   }
   // A jump's garment: seeks alternating between two frames the steps above went through (so
   // the arms' poses are kept), each running the GRU's warm-up and the frame shown.
-  const jumps = [];
   const targets = [Math.floor(frames / 3), Math.floor((2 * frames) / 3)].map((f) =>
     Math.min(f, t.nFrames - 1),
   );
-  for (let i = 0; i < 10; i++) {
-    const start = performance.now();
-    t.seek(targets[i % 2]);
-    jumps.push(performance.now() - start);
-  }
-  jumps.sort((a, b) => a - b);
+  const jump = medianMs(10, (i) => t.seek(targets[i % 2]));
   // A change of shape, as a slider's release gives it: the body, the garment's shape caches,
   // the arms' poses anew for the frames the one shown depends on, and its jump. β₁ up by 0.5
   // and back, twice; the shape in use is restored.
   const betas = t.betas();
   const other = Float64Array.from(betas, (b, i) => (i === 0 ? b + 0.5 : b));
-  const shapes = [];
-  for (let i = 0; i < 4; i++) {
-    const start = performance.now();
-    t.setBetas(i % 2 === 0 ? other : betas);
-    shapes.push(performance.now() - start);
-  }
-  shapes.sort((a, b) => a - b);
+  const shape = medianMs(4, (i) => t.setBetas(i % 2 === 0 ? other : betas));
+  // The same changes as a slider's move previews them (the arms as held for the shape last
+  // set), then the shape in use set again.
+  const preview = medianMs(4, (i) => t.previewBetas(i % 2 === 0 ? other : betas));
+  t.setBetas(betas);
   setPlaying(was);
   const median = (k) => {
     const v = rows.map((r) => r[k]).sort((a, b) => a - b);
@@ -294,9 +314,22 @@ function bench(frames = 120) {
     body: median(3),
     arms: median(4),
     garmentFrame: totals[Math.floor(totals.length / 2)],
-    jump: jumps[Math.floor(jumps.length / 2)],
-    shape: shapes[Math.floor(shapes.length / 2)],
+    jump,
+    shape,
+    preview,
   };
+}
+
+/// The median milliseconds of `f(0)`, …, `f(n - 1)`.
+function medianMs(n, f) {
+  const ms = [];
+  for (let i = 0; i < n; i++) {
+    const start = performance.now();
+    f(i);
+    ms.push(performance.now() - start);
+  }
+  ms.sort((a, b) => a - b);
+  return ms[Math.floor(n / 2)];
 }
 
 async function main() {
@@ -342,10 +375,7 @@ async function main() {
 
   for (const id of ["gender", "height", "weight", "muscle", "age"]) {
     $(id).addEventListener("change", applyPhenotype);
-    $(id).addEventListener("input", () => {
-      $("height-out").textContent = `${Number($("height").value).toFixed(2)} m`;
-      $("age-out").textContent = `${$("age").value} years`;
-    });
+    $(id).addEventListener("input", previewPhenotype);
   }
   $("apply-betas").addEventListener("click", applyBetas);
   $("fit-measurements").addEventListener("click", fitMeasurements);

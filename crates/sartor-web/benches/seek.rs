@@ -7,12 +7,12 @@
 //! arms' poses are kept from the first seek to each frame (as the page keeps them while the
 //! shape and the clip stay), so this is the garment's part of a jump, not the arms' (see the
 //! README's "The same arms on the try-on page"). `shape/…` is a whole change of shape, arms
-//! included.
+//! included; `shape-preview/…` the same changes as a moving slider previews them.
 //!
 //! `cargo bench -p sartor-web --bench seek -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use sartor_web::{TryOn, TryOnOptions};
+use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
 
 // The integration tests' loaders of the shipped files (the bench uses some of them).
 #[allow(dead_code)]
@@ -76,5 +76,33 @@ fn new_shape(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, seek, new_shape);
+/// The same two phenotypes as a slider's move previews them ([`TryOn::preview_phenotype`]: the
+/// arms as held for the shape last set), from the sliders the page gives.
+fn preview_shape(c: &mut Criterion) {
+    let mut t = playing(None);
+    t.seek(50).expect("seek");
+    let heavy = PhenotypeSliders {
+        gender: 1.0,
+        height_m: 1.90,
+        weight: 0.75,
+        muscle: 0.5,
+        age_years: 25.0,
+    };
+    let light = PhenotypeSliders {
+        gender: 0.0,
+        height_m: 1.60,
+        weight: 0.25,
+        ..heavy
+    };
+    let mut k = 0;
+    c.bench_function("shape-preview/02_02-two-phenotypes", |b| {
+        b.iter(|| {
+            t.preview_phenotype([&heavy, &light][k % 2])
+                .expect("phenotype");
+            k += 1;
+        })
+    });
+}
+
+criterion_group!(benches, seek, new_shape, preview_shape);
 criterion_main!(benches);

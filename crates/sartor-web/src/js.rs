@@ -21,6 +21,24 @@ fn js(e: crate::Error) -> JsError {
     JsError::new(&e.to_string())
 }
 
+/// The page's slider values (gender 0–1, height in metres, weight 0–1, muscle 0–1, age in
+/// years).
+fn sliders(
+    gender: f64,
+    height_m: f64,
+    weight: f64,
+    muscle: f64,
+    age_years: f64,
+) -> PhenotypeSliders {
+    PhenotypeSliders {
+        gender,
+        height_m,
+        weight,
+        muscle,
+        age_years,
+    }
+}
+
 /// Files fetched by the page, by name (`model/model.json`, `body/tpose.json`, …).
 #[wasm_bindgen]
 #[derive(Default)]
@@ -97,14 +115,24 @@ impl WebTryOn {
         muscle: f64,
         age_years: f64,
     ) -> Result<Vec<f64>, JsError> {
-        let sliders = PhenotypeSliders {
-            gender,
-            height_m,
-            weight,
-            muscle,
-            age_years,
-        };
+        let sliders = sliders(gender, height_m, weight, muscle, age_years);
         self.inner.set_phenotype(&sliders).map_err(js)
+    }
+
+    /// [`Self::set_phenotype`] as a preview while a slider moves: body and garment in the new
+    /// shape, the arms held as for the shape last set (see `TryOn::preview_betas`); set the
+    /// shape with `setPhenotype` once the slider settles. Returns β.
+    #[wasm_bindgen(js_name = previewPhenotype)]
+    pub fn preview_phenotype(
+        &mut self,
+        gender: f64,
+        height_m: f64,
+        weight: f64,
+        muscle: f64,
+        age_years: f64,
+    ) -> Result<Vec<f64>, JsError> {
+        let sliders = sliders(gender, height_m, weight, muscle, age_years);
+        self.inner.preview_phenotype(&sliders).map_err(js)
     }
 
     /// Shape from a phenotype text such as `female, 1.70 m, heavy`; returns β.
@@ -117,6 +145,12 @@ impl WebTryOn {
     #[wasm_bindgen(js_name = setBetas)]
     pub fn set_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>, JsError> {
         self.inner.set_betas(betas).map_err(js)
+    }
+
+    /// [`Self::set_betas`] as a preview (see `previewPhenotype`); returns the β in use.
+    #[wasm_bindgen(js_name = previewBetas)]
+    pub fn preview_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>, JsError> {
+        self.inner.preview_betas(betas).map_err(js)
     }
 
     /// Play a procedural clip.

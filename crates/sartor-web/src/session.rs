@@ -346,19 +346,48 @@ impl TryOn {
     /// model's are dropped for body and garment alike, as the command line does). Recomputes
     /// the frame shown. Returns the β in use.
     pub fn set_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>> {
+        self.shape(betas, true)
+    }
+
+    /// [`TryOn::set_betas`] as a preview while a slider moves: the body and the garment take
+    /// the new shape at once, but the arms stay held as for the shape last set with
+    /// `set_betas`: holding them anew, for every frame the one shown depends on, is most of a
+    /// change of shape's time (`cargo bench -p sartor-web --bench seek -- shape`: 142 ms a
+    /// change, 15 a preview, on the AMD EPYC VM). Set the shape with `set_betas` (or
+    /// [`TryOn::set_phenotype`]) once the slider settles: that gives the frame it would give
+    /// without the previews. Returns the β in use.
+    pub fn preview_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>> {
+        self.shape(betas, false)
+    }
+
+    /// [`TryOn::set_betas`], the arms held anew for the shape when `hold_arms`, else as they
+    /// are held ([`TryOn::preview_betas`]).
+    fn shape(&mut self, betas: &[f64], hold_arms: bool) -> Result<Vec<f64>> {
         self.body.check_betas(betas)?;
         let n = self.betas.len();
         let mut model_betas: Vec<f64> = betas.iter().copied().take(n).collect();
         model_betas.resize(n, 0.0);
-        let cleared = self.clearance_for(&self.motion, &model_betas)?;
+        let cleared = if hold_arms {
+            Some(self.clearance_for(&self.motion, &model_betas)?)
+        } else {
+            None
+        };
         let posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
         let b32: Vec<f32> = model_betas.iter().map(|&b| b as f32).collect();
         self.animator.set_shape(&b32)?;
         self.posed_body = posed_body;
-        self.cleared = cleared;
+        if let Some(cleared) = cleared {
+            self.cleared = cleared;
+        }
         self.betas = model_betas;
         self.seek(self.frame)?;
         Ok(self.betas.clone())
+    }
+
+    /// [`TryOn::preview_betas`] from the phenotype sliders (see [`TryOn::set_phenotype`]).
+    pub fn preview_phenotype(&mut self, sliders: &PhenotypeSliders) -> Result<Vec<f64>> {
+        let (_, betas) = self.space.betas_for(&self.body, &sliders.request()?)?;
+        self.preview_betas(&betas)
     }
 
     /// Set the shape from the phenotype sliders (the command line's rule); returns β.

@@ -431,6 +431,62 @@ fn the_page_works_in_headless_chromium() {
         .fold(0.0, f64::max);
     assert!(diff > 0.05, "the garments of two bodies differ ({diff} m)");
 
+    // A slider's move: the input events of one display frame give one preview (body and
+    // garment in the new shape, the arms as held for the shape last set), the release sets the
+    // shape, and what it shows does not depend on the previews before it.
+    let measured = || browser.eval("return document.getElementById('measured-out').textContent;");
+    let measured_before = measured();
+    let previews = browser.eval(
+        "const e = document.getElementById('weight'); const n = window.sartor.state.previews; \
+         for (const v of [0.8, 0.7, 0.6]) { e.value = v; e.dispatchEvent(new Event('input')); } \
+         return n;",
+    );
+    let previews = previews.as_f64().expect("a count");
+    browser.wait_for(
+        &format!(
+            "window.sartor.state.previews > {previews} && window.sartor.state.previewFrame === 0"
+        ),
+        Duration::from_secs(10),
+    );
+    let previewed = floats(&browser.eval("return window.sartor.garment();"));
+    let preview_shot = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("sartor-web-preview.png");
+    let png = base64_decode(
+        browser
+            .call("GET", "/screenshot", None)
+            .as_str()
+            .expect("base64 PNG"),
+    );
+    std::fs::write(&preview_shot, &png).expect("preview screenshot written");
+    assert_eq!(
+        browser
+            .eval("return window.sartor.state.previews;")
+            .as_f64(),
+        Some(previews + 1.0),
+        "one preview for the input events of one frame"
+    );
+    let moved = heavy
+        .iter()
+        .zip(&previewed)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    // (A preview that changed nothing would read 0.)
+    assert!(moved > 1e-3, "the preview shows the new shape ({moved} m)");
+    assert_ne!(measured(), measured_before, "and its measurements");
+    let released = floats(&browser.eval(
+        "document.getElementById('weight').dispatchEvent(new Event('change')); \
+         return window.sartor.garment();",
+    ));
+    let direct = floats(&browser.eval(
+        "const v = (id) => Number(document.getElementById(id).value); \
+         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
+           v('muscle'), v('age')); \
+         return window.sartor.garment();",
+    ));
+    assert_eq!(
+        released, direct,
+        "the release shows what setting the shape shows"
+    );
+
     // A shopper's measurements: the page fits the body to them (gender, height and age from
     // the sliders) and says what it reached; a body no shape has is an error on the page.
     let fit = |chest: f64, waist: f64, hips: f64| {
@@ -632,7 +688,7 @@ fn the_page_works_in_headless_chromium() {
         pixels[1] > 0.01 * pixels[0] && pixels[2] > 0.005 * pixels[0],
         "body and garment are drawn: {pixels:?}"
     );
-    for key in ["garmentFrame", "jump", "shape"] {
+    for key in ["garmentFrame", "jump", "shape", "preview"] {
         let ms = bench[key].as_f64().expect("ms");
         assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
     }

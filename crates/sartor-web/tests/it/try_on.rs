@@ -241,3 +241,53 @@ fn real_mocap_plays_with_the_arms_held_as_the_model_was_trained() {
     eprintln!("02_02, β₁ = 2: {before:.3} % inside as it comes, {after:.3} % held");
     assert!(after <= 0.1 && after < before, "{before:.3} → {after:.3} %");
 }
+
+#[test]
+fn a_preview_shows_the_new_shape_with_the_arms_held_for_the_last_and_leaves_no_trace() {
+    // As a slider moves, the page previews each shape: body and garment anew, the arms as held
+    // for the shape last set (CMU 02_02 holds them in every frame); the release sets the shape.
+    let play = || {
+        let mut t = TryOn::load(
+            shipped_files(),
+            TryOnOptions {
+                arm_clearance: Some(shipped_arm_clearance()),
+                ..TryOnOptions::default()
+            },
+        )
+        .expect("load");
+        let clip = stored_clip(&t, "02_02");
+        t.set_motion(clip).expect("play");
+        t.seek(20).expect("seek");
+        t
+    };
+    let mut t = play();
+    let (garment, body, turn) = (t.garment_vertices(), t.body_vertices(), t.arm_turn_deg());
+    assert!(turn > 0.0, "frame 20 holds the arms");
+    let wide = [0.0, 2.0];
+    assert_eq!(t.preview_betas(&wide).expect("preview")[..2], wide);
+    assert_eq!(t.frame(), 20);
+    assert!(max_abs_diff(&garment, &t.garment_vertices()) > 0.01);
+    assert!(max_abs_diff(&body, &t.body_vertices()) > 0.01);
+    assert_eq!(
+        t.arm_turn_deg(),
+        turn,
+        "the arms as held for the last shape"
+    );
+    let previewed = t.garment_vertices();
+    // Another preview, then the release.
+    t.preview_betas(&[0.0, 1.0]).expect("preview");
+    t.set_betas(&wide).expect("shape");
+    assert!(
+        t.arm_turn_deg() > turn,
+        "held anew, farther out, for the wider body"
+    );
+    let mut direct = play();
+    direct.set_betas(&wide).expect("shape");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.body_vertices(), direct.body_vertices());
+    assert!(max_abs_diff(&previewed, &direct.garment_vertices()) > 0.0);
+    // Bad input loses nothing: the shape in use stays.
+    assert!(t.preview_betas(&[f64::NAN]).is_err());
+    assert_eq!(t.betas()[..2], wide);
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+}
