@@ -134,12 +134,11 @@ struct Grid {
     dims: [usize; 3],
     /// Per cell (x fastest), its entries `[start[c], start[c + 1])`.
     start: Vec<u32>,
-    /// Per entry: the face, its box, its plane (copied in cell order, so a row of cells is
-    /// one contiguous run to scan).
+    /// Per entry: the face and its box (copied in cell order, so a row of cells is one
+    /// contiguous run to scan; the face's plane is read from the face data where needed).
     entries: Vec<u32>,
     lo: [Vec<f32>; 3],
     hi: [Vec<f32>; 3],
-    plane: [Vec<f32>; 4],
     /// Per face, its cell range (lower and upper corner), computed once per frame.
     ranges: Vec<([u32; 3], [u32; 3])>,
     /// Per axis `k`, per row of cells along it (the other two indices, in order, the lower
@@ -474,9 +473,6 @@ impl Certifier {
                     entries: Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES),
                     lo: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
                     hi: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
-                    plane: std::array::from_fn(|_| {
-                        Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)
-                    }),
                     ranges: vec![([0; 3], [0; 3]); n_f],
                     // A dimension is at least 3 cells, so a row count at most a third of them.
                     first: std::array::from_fn(|_| {
@@ -648,9 +644,10 @@ impl Frame {
             grid.start[c + 1] += grid.start[c];
         }
         // The faces into their cells' entries (`LANES` padding entries at the end: far away,
-        // never a hit), then each entry's box and plane gathered in entry order: each array
-        // written in sequence, not scattered (the scatter of all eleven arrays was most of the
-        // update's time in `perf`).
+        // never a hit), then each entry's box gathered in entry order: each array written in
+        // sequence, not scattered (the scatter of the boxes and planes, eleven arrays, was most
+        // of the update's time in `perf`; the planes, which only the rare ways out read, are no
+        // longer copied).
         grid.entries.clear();
         grid.entries.resize(total + LANES, 0);
         let start = grid.start.as_mut_slice();
@@ -675,9 +672,6 @@ impl Frame {
         for k in 0..3 {
             gather(&mut grid.lo[k], faces, |f| data.lo[f][k], f32::INFINITY);
             gather(&mut grid.hi[k], faces, |f| data.hi[f][k], f32::INFINITY);
-        }
-        for k in 0..4 {
-            gather(&mut grid.plane[k], faces, |f| data.plane[f][k], 0.0);
         }
         for c in (1..=n_cells).rev() {
             grid.start[c] = grid.start[c - 1];
@@ -1602,12 +1596,16 @@ impl Frame {
                 while e < c1 {
                     let (lx, ly, lz) = (lanes(&g.lo[0], e), lanes(&g.lo[1], e), lanes(&g.lo[2], e));
                     let (hx, hy, hz) = (lanes(&g.hi[0], e), lanes(&g.hi[1], e), lanes(&g.hi[2], e));
-                    let (px, py, pz, po) = (
-                        lanes(&g.plane[0], e),
-                        lanes(&g.plane[1], e),
-                        lanes(&g.plane[2], e),
-                        lanes(&g.plane[3], e),
-                    );
+                    // The planes from the face data (only the rare ways out read them; the
+                    // grid keeps the boxes, which every ray reads).
+                    let mut plane = [[0.0f32; LANES]; 4];
+                    for l in 0..LANES {
+                        let p = self.data.plane[g.entries[e + l] as usize];
+                        for (k, lane) in plane.iter_mut().enumerate() {
+                            lane[l] = p[k];
+                        }
+                    }
+                    let [px, py, pz, po] = &plane;
                     let mut lb2 = [0.0f32; LANES];
                     for l in 0..LANES {
                         let dx = fmax(fmax(lx[l] - x[0], x[0] - hx[l]), 0.0);
