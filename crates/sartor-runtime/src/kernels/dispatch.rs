@@ -248,8 +248,9 @@ impl LaneMask {
         Self::default()
     }
 
-    /// Bit `l` set where `v[l] ≤ t`, for a positive finite `t` and no NaN lane (the search's
-    /// reach is a positive square; bounds at infinity lie beyond it).
+    /// Bit `l` set where `v[l] ≤ t`, for a finite `t ≥ 0` and no NaN lane (the search's reach
+    /// is a positive square, the rays' box test compares with 0; bounds at infinity lie
+    /// beyond).
     #[inline(always)]
     pub(crate) fn at_most(self, v: &[f32; 16], t: f32) -> u32 {
         #[cfg(target_arch = "x86_64")]
