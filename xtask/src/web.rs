@@ -48,8 +48,10 @@ struct Manifest {
     procedural: Vec<String>,
     clips: Vec<ManifestClip>,
     model: ModelInfo,
-    /// The shipped model's experiment's `simulation.arm_clearance`: the page holds the arms out
-    /// of the torso as the training motions did (`null`: it did not).
+    /// The shipped model's experiment's `simulation.arm_clearance` with the legs held too
+    /// (`sartor_motion::LEG_CLEARANCE_M`, as `sartor demo`): the page holds the arms out of the
+    /// torso as the training motions did, and the legs (`null`: the experiment held nothing,
+    /// neither does the page).
     arm_clearance: Option<sartor_motion::ClearanceOptions>,
 }
 
@@ -280,8 +282,13 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
         &std::fs::read(&config_path).with_context(|| config_path.display().to_string())?,
     )
     .with_context(|| config_path.display().to_string())?;
-    let arm_clearance = serde_json::from_value(config["simulation"]["arm_clearance"].clone())
-        .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
+    let arm_clearance: Option<sartor_motion::ClearanceOptions> =
+        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+            .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
+    let arm_clearance = arm_clearance.map(|arms| sartor_motion::ClearanceOptions {
+        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
+        ..arms
+    });
     let manifest = Manifest {
         procedural: PAGE_PROCEDURAL.iter().map(|s| s.to_string()).collect(),
         clips: PAGE_CLIPS

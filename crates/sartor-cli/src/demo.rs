@@ -87,6 +87,12 @@ pub struct DemoArgs {
     /// the hips and the upper arms into the torso's sides, with the shirt caught between.
     #[arg(long)]
     pub no_arm_clearance: bool,
+    /// Leave the motion's legs as they come. By default they are held out of the torso too
+    /// (`sartor_motion::LEG_CLEARANCE_M`, which the training data did not do): a performer's
+    /// raised thigh (climbing, kicking, dancing) sinks into the body's belly with the shirt
+    /// between. Without the arms' clearance the legs are not held either.
+    #[arg(long)]
+    pub no_leg_clearance: bool,
 }
 
 /// How the shipped model's training motions held the arms out of the torso: the
@@ -97,6 +103,16 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
         upper_arm_clearance_m: Some(0.005),
         ..ClearanceOptions::default()
     }
+}
+
+/// The limbs as `demo` holds them: the arms as the shipped model's training motions
+/// ([`shipped_arm_clearance`]) and the legs at `sartor_motion::LEG_CLEARANCE_M`, unless
+/// `--no-arm-clearance` / `--no-leg-clearance`.
+fn player_clearance(args: &DemoArgs) -> Option<ClearanceOptions> {
+    (!args.no_arm_clearance).then(|| ClearanceOptions {
+        leg_clearance_m: (!args.no_leg_clearance).then_some(sartor_motion::LEG_CLEARANCE_M),
+        ..shipped_arm_clearance()
+    })
 }
 
 /// `--precision` of `demo`.
@@ -125,11 +141,11 @@ struct DemoEntry {
     frames: usize,
     ms_per_frame: f64,
     frames_per_second: f64,
-    /// Frames whose arms were turned out of the torso (none without the clearance).
+    /// Frames whose arms (or legs) were turned out of the torso (none without the clearance).
     arm_clearance_frames_changed: usize,
     /// The largest such turn, degrees.
     arm_clearance_max_angle_deg: f64,
-    /// The deepest held arm vertex inside the torso as the motion came, mm.
+    /// The deepest held arm (or leg) vertex inside the torso as the motion came, mm.
     arm_depth_before_mm: Option<f64>,
     /// The body's size-chart measurements (`sartor_core::BodyMeasurer`): height, girths, mass.
     body_measurements: Option<BodyMeasurements>,
@@ -150,6 +166,11 @@ struct DemoReport {
     /// The strain limit's longest edge over its rest length (`--max-stretch`); none with
     /// `--no-strain-limit`.
     strain_limit: Option<f32>,
+    /// How far out of the torso the limbs were held, m: the arms' forearms and hands and upper
+    /// arms, and the legs (`null`: not held).
+    arm_clearance_m: Option<f64>,
+    upper_arm_clearance_m: Option<f64>,
+    leg_clearance_m: Option<f64>,
     machine: Machine,
     note: &'static str,
     /// For each BVH motion whose joints were matched by the skeleton's structure (another
@@ -298,7 +319,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} clips {msg}")
             .expect("static template"),
     );
-    let clearance = (!args.no_arm_clearance).then(shipped_arm_clearance);
+    let clearance = player_clearance(args);
     let measurer = BodyMeasurer::new(&body)
         .inspect_err(|e| bar.println(format!("the bodies are not measured: {e}")))
         .ok();
@@ -413,6 +434,9 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         garment_vertices: rig.n_vertices(),
         push_triangles: !args.vertices_only,
         strain_limit: strain_limit(args).map(|l| l.max_stretch),
+        arm_clearance_m: clearance.as_ref().map(|c| c.clearance_m),
+        upper_arm_clearance_m: clearance.as_ref().and_then(|c| c.upper_arm_clearance_m),
+        leg_clearance_m: clearance.as_ref().and_then(|c| c.leg_clearance_m),
         machine: Machine::current(),
         motion_joints,
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \

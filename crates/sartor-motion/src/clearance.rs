@@ -20,6 +20,25 @@
 //! outside the torso by the clearance in the rest pose, are then held at that clearance; the
 //! armpit itself, where arm and torso meet, cannot be and is not.
 //!
+//! With [`ClearanceOptions::leg_clearance_m`] the legs are held out too, their shin, foot and
+//! toe vertices as the forearm and hand, the thigh beyond [`UPPER_ARM_MIN_LEVER`] of its length
+//! as the upper arm (where thigh and torso meet at the groin, nothing is held). A leg first
+//! swings its knee outwards about the line from its hip to its ankle, which keeps the foot
+//! where the motion put it, by up to 20°; then it turns about the hip as an arm
+//! does. The foot turns back by as much as the hip, so that it keeps its orientation (a foot
+//! flat on the floor stays flat). Motion capture of a performer more supple than the body sinks
+//! a raised thigh into the belly, with the shirt caught between: retargeted onto the built-in
+//! body at 1.75 m, 9 of the 60 stored CMU clips put a leg more than 10 mm into the torso
+//! (climbing, kicking, dancing, a crouch; up to 78 mm, and in 114 of the 559 frames of
+//! `cmu/02_06`). Held at [`LEG_CLEARANCE_M`], 7 of them have no leg vertex left inside;
+//! `cmu/02_10` keeps 3 frames (of 35; 69 → 21 mm) and the cartwheel of `cmu/05_06` 3 (of 30;
+//! 81 → 6 mm). On the 1.90 m heavy male those two keep 2 and 6 frames (75 → 0, 84 → 55 mm),
+//! on the 1.60 m light female 10 and 7 (33 → 27, 55 → 26 mm). 33 of the 60 clips keep their
+//! legs bit for bit at 1.75 m, the walks among them. Where a turn is needed the feet move: by up to 16 cm in the crouch of `cmu/02_06`
+//! (frames 272–283), more where a foot is in the air (a kick, the cartwheel); and a leg within
+//! the clearance but not inside can turn too (`cmu/05_11`, a dance: 33°). `apply` over the 60
+//! clips takes some 10 % longer with the legs held.
+//!
 //! The torso is the body's triangles whose vertices are all dominated (largest skin weight) by
 //! the spine, hips, neck or shoulder roots — where a T-shirt is. Inside is decided by the
 //! winding number of that open surface ([`BodyDistance`]).
@@ -46,6 +65,13 @@ pub struct ClearanceOptions {
     /// puts it. See the [module docs](self).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub upper_arm_clearance_m: Option<f64>,
+    /// How far outside the torso the legs must be, m, or `None` (the default, and the
+    /// behaviour of configurations written before it): the legs are left where the motion puts
+    /// them. Set, the shins and feet are held at it, and the thighs as the upper arms are (at
+    /// least [`UPPER_ARM_MIN_LEVER`] of their length from the hip and clear of the torso in
+    /// the rest pose), each leg turned about its hip. See the [module docs](self).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub leg_clearance_m: Option<f64>,
     /// Over how many frames before and after a corrected frame its rotation is eased in and
     /// out (linearly). Default 8 (0.27 s at 30 fps).
     pub ramp_frames: usize,
@@ -64,6 +90,7 @@ impl Default for ClearanceOptions {
         Self {
             clearance_m: 0.025,
             upper_arm_clearance_m: None,
+            leg_clearance_m: None,
             ramp_frames: 8,
             max_iterations: 8,
             max_passes: 3,
@@ -73,21 +100,28 @@ impl Default for ClearanceOptions {
 }
 
 impl ClearanceOptions {
-    /// Check the options: finite clearances ≥ 0 (the upper arm's when set), a finite largest
-    /// angle > 0.
+    /// Check the options: finite clearances ≥ 0 (the upper arm's and the legs' when set), a
+    /// finite largest angle > 0.
     pub fn validate(&self) -> Result<()> {
-        let clearance_ok = [Some(self.clearance_m), self.upper_arm_clearance_m]
-            .into_iter()
-            .flatten()
-            .all(|c| c.is_finite() && c >= 0.0);
+        let clearance_ok = [
+            Some(self.clearance_m),
+            self.upper_arm_clearance_m,
+            self.leg_clearance_m,
+        ]
+        .into_iter()
+        .flatten()
+        .all(|c| c.is_finite() && c >= 0.0);
         let angle_ok = self.max_angle_rad.is_finite() && self.max_angle_rad > 0.0;
         if !(clearance_ok && angle_ok) {
             return Err(Error::invalid(
                 "arm clearance",
                 format!(
-                    "clearance_m {} and upper_arm_clearance_m {:?} must be finite and ≥ 0, \
-                     max_angle_rad {} finite and > 0",
-                    self.clearance_m, self.upper_arm_clearance_m, self.max_angle_rad
+                    "clearance_m {}, upper_arm_clearance_m {:?} and leg_clearance_m {:?} must \
+                     be finite and ≥ 0, max_angle_rad {} finite and > 0",
+                    self.clearance_m,
+                    self.upper_arm_clearance_m,
+                    self.leg_clearance_m,
+                    self.max_angle_rad
                 ),
             ));
         }
@@ -103,18 +137,26 @@ pub struct ClearanceReport {
     /// The largest shoulder rotation added, radians.
     pub max_angle_rad: f64,
     /// Deepest held vertex (forearm, hand, and the upper arm's with
-    /// [`ClearanceOptions::upper_arm_clearance_m`]) inside the torso before and after, m (0:
-    /// none inside).
+    /// [`ClearanceOptions::upper_arm_clearance_m`], the legs' with
+    /// [`ClearanceOptions::leg_clearance_m`]) inside the torso before and after, m (0: none
+    /// inside).
     pub max_depth_before_m: f64,
     /// See `max_depth_before_m`.
     pub max_depth_after_m: f64,
 }
 
-/// One arm: its upper-arm joint (the pivot), the forearm and hand vertices it carries, and the
-/// upper arm's own vertices.
+/// One arm (or leg): its upper-arm joint (the pivot), the forearm and hand vertices it carries,
+/// and the upper arm's own vertices.
 #[derive(Clone, Debug)]
 struct Arm {
+    /// Whether it is a leg: its hip for the shoulder, its shin, foot and toes for the forearm
+    /// and hand, its thigh for the upper arm (held only with
+    /// [`ClearanceOptions::leg_clearance_m`]).
+    leg: bool,
     shoulder: usize,
+    /// A leg's knee and ankle joints (the hip's child and the knee's): a leg turns about the
+    /// line from its hip to its ankle, which keeps the foot where the motion puts it.
+    swivel: Option<[usize; 2]>,
     vertices: Vec<usize>,
     upper: Vec<usize>,
     /// The torso's vertices that turning the shoulder can move (a joint of its subtree among
@@ -123,6 +165,23 @@ struct Arm {
     moved_torso: Vec<u32>,
     moves_torso: bool,
 }
+
+/// The legs' clearance of sartor's players (`sartor demo`, the try-on page), m, set on top of
+/// the arm clearance the shipped model's training motions had ([`ClearanceOptions::leg_clearance_m`]:
+/// the training data's legs were left as they came). Measured on the 60 stored CMU clips at
+/// 1.75 m: held at 0 the shins and thighs of 9 clips were still inside in 1–16 frames each
+/// (a turn stops once the worst vertex is within half a millimetre, and the easing leaves
+/// neighbours short); at 10 mm none of 7 clips, with no leg of a walk or run turned.
+pub const LEG_CLEARANCE_M: f64 = 0.01;
+
+/// How far a leg's knee swings outwards about the line from its hip to its ankle, keeping the
+/// foot where the motion puts it, before the leg turns freely about the hip, radians (20°).
+/// Measured on the stored CMU clips that need it, at 1.75 m and on the 1.60 m light female: a
+/// swing alone (no free turn) left 12 of `cmu/02_06`'s 114 frames inside instead of none and
+/// swung knees by up to 120°; a free turn alone moved the feet by up to 27 cm in that clip's
+/// crouch; with the swing capped at 20°, 40° and 57°, the crouch's feet moved by up to 16, 6
+/// and 5 cm, and the cartwheel of `cmu/05_06` kept 3, 11 and 13 of its 30 frames inside.
+const SWIVEL_MAX_RAD: f64 = 0.35;
 
 /// An upper-arm vertex is held out of the torso only this share of the upper arm's length
 /// (shoulder to elbow joint) or farther from the shoulder: nearer, turning the arm hardly moves
@@ -185,6 +244,8 @@ const GROUP_PAD_M: f64 = 1e-6;
 #[derive(Clone, Debug)]
 pub struct ArmClearance {
     arms: Vec<Arm>,
+    /// The skeleton's root joint (the pelvis): a leg's outside is away from it.
+    root: usize,
     torso: Torso,
     /// The body vertices a pose is read at (the torso faces' and the arms'), ascending: the
     /// rest of the body is not skinned.
@@ -220,6 +281,21 @@ fn distal_arm(name: &str) -> bool {
 /// Whether a joint name is of an upper arm (`LeftArm`, not `LeftForeArm`).
 fn upper_arm(name: &str) -> bool {
     name.ends_with("Arm") && !name.ends_with("ForeArm")
+}
+
+/// A test of a joint's name ([`upper_arm`], [`distal_arm`], [`thigh`], [`distal_leg`]).
+type JointKind = fn(&str) -> bool;
+
+/// Whether a joint name is of a shin, a foot or toes (`LeftLeg`, not `LeftUpLeg`).
+fn distal_leg(name: &str) -> bool {
+    (name.ends_with("Leg") && !name.ends_with("UpLeg"))
+        || name.contains("Foot")
+        || name.contains("Toe")
+}
+
+/// Whether a joint name is of a thigh (`LeftUpLeg`).
+fn thigh(name: &str) -> bool {
+    name.ends_with("UpLeg")
 }
 
 /// A body of one shape posed once per frame, with the torso's distance field. It does not hold
@@ -474,44 +550,65 @@ struct Shortfall {
 
 impl ArmClearance {
     /// Find the arms (forearm and hand vertices by their dominant joint, grouped by the upper
-    /// arm above it) and the torso of `body`.
+    /// arm above it), the legs (shin, foot and toe vertices, grouped by the thigh above them)
+    /// and the torso of `body`.
     pub fn new(body: &BodyModel) -> Result<Self> {
         let skeleton = body.skeleton();
         let names = skeleton.names();
         let dominant: Vec<usize> = (0..body.n_vertices())
             .map(|v| body.skin_weights().dominant_joint(v))
             .collect();
-        let pivot = |mut j: usize| loop {
-            if upper_arm(&names[j]) {
-                return Some(j);
-            }
-            j = skeleton.parents()[j]?;
-        };
+        // The arms first, then the legs: with the legs not held, the arms' turns are those
+        // of a body without them, bit for bit.
         let mut arms: Vec<Arm> = Vec::new();
-        for (v, &j) in dominant.iter().enumerate() {
-            let distal = distal_arm(&names[j]);
-            if !(distal || upper_arm(&names[j])) {
-                continue;
-            }
-            let Some(shoulder) = pivot(j) else { continue };
-            let arm = match arms.iter().position(|a| a.shoulder == shoulder) {
-                Some(a) => &mut arms[a],
-                None => {
-                    arms.push(Arm {
-                        shoulder,
-                        vertices: Vec::new(),
-                        upper: Vec::new(),
-                        moved_torso: Vec::new(),
-                        moves_torso: false,
-                    });
-                    arms.last_mut().expect("pushed")
-                }
-            };
-            if distal {
-                arm.vertices.push(v);
+        for leg in [false, true] {
+            let (proximal, distal): (JointKind, JointKind) = if leg {
+                (thigh, distal_leg)
             } else {
-                arm.upper.push(v);
+                (upper_arm, distal_arm)
+            };
+            let pivot = |mut j: usize| loop {
+                if proximal(&names[j]) {
+                    return Some(j);
+                }
+                j = skeleton.parents()[j]?;
+            };
+            let first = arms.len();
+            for (v, &j) in dominant.iter().enumerate() {
+                let is_distal = distal(&names[j]);
+                if !(is_distal || proximal(&names[j])) {
+                    continue;
+                }
+                let Some(shoulder) = pivot(j) else { continue };
+                let arm = match arms[first..].iter().position(|a| a.shoulder == shoulder) {
+                    Some(a) => &mut arms[first + a],
+                    None => {
+                        arms.push(Arm {
+                            leg,
+                            shoulder,
+                            swivel: None,
+                            vertices: Vec::new(),
+                            upper: Vec::new(),
+                            moved_torso: Vec::new(),
+                            moves_torso: false,
+                        });
+                        arms.last_mut().expect("pushed")
+                    }
+                };
+                if is_distal {
+                    arm.vertices.push(v);
+                } else {
+                    arm.upper.push(v);
+                }
             }
+        }
+        // A leg's knee and ankle: the hip's child named a leg, and its child named a foot.
+        let children =
+            |j: usize| (0..names.len()).filter(move |&c| skeleton.parents()[c] == Some(j));
+        for arm in arms.iter_mut().filter(|a| a.leg) {
+            arm.swivel = children(arm.shoulder)
+                .filter(|&k| distal_leg(&names[k]))
+                .find_map(|k| Some([k, children(k).find(|&a| names[a].contains("Foot"))?]));
         }
         arms.retain(|a| !a.vertices.is_empty());
         let torso = |v: u32| {
@@ -527,7 +624,7 @@ impl ArmClearance {
             .filter(|f| f.iter().all(|&v| torso(v)))
             .copied()
             .collect();
-        if arms.is_empty() || torso_faces.is_empty() {
+        if arms.iter().all(|a| a.leg) || torso_faces.is_empty() {
             return Err(Error::invalid(
                 "arm clearance",
                 "the body has no forearm and hand vertices under an upper arm, or no torso",
@@ -564,16 +661,21 @@ impl ArmClearance {
                 .collect();
             arm.moves_torso = !arm.moved_torso.is_empty();
         }
+        let root = (0..names.len())
+            .find(|&j| skeleton.parents()[j].is_none())
+            .expect("a skeleton has a root");
         Ok(Self {
             arms,
+            root,
             torso,
             needed,
         })
     }
 
     /// Per pose, the depth of the deepest vertex that `options` holds out (forearms and hands,
-    /// and with [`ClearanceOptions::upper_arm_clearance_m`] the upper arms beyond the armpit)
-    /// inside the torso of the body of shape `betas`, m (0: none inside).
+    /// with [`ClearanceOptions::upper_arm_clearance_m`] the upper arms beyond the armpit, with
+    /// [`ClearanceOptions::leg_clearance_m`] the legs) inside the torso of the body of shape
+    /// `betas`, m (0: none inside).
     pub fn depths(
         &self,
         body: &BodyModel,
@@ -599,24 +701,29 @@ impl ArmClearance {
     /// Per arm, the vertices held out of the torso of `posing`'s shape and their clearance:
     /// every forearm and hand vertex at `clearance_m`; with `upper_arm_clearance_m`, the upper
     /// arm's vertices at least [`UPPER_ARM_MIN_LEVER`] of its length from the shoulder and
-    /// clear of the torso in the rest pose by that clearance and [`UPPER_ARM_REST_SLACK_M`].
+    /// clear of the torso in the rest pose by that clearance and [`UPPER_ARM_REST_SLACK_M`];
+    /// with `leg_clearance_m`, per leg the shin, foot and toe vertices and the thigh's (chosen
+    /// as the upper arm's) at it. Without, a leg holds none (and costs next to nothing).
     fn targets(
         &self,
         body: &BodyModel,
         posing: &mut Posing,
         options: &ClearanceOptions,
     ) -> Result<Targets> {
-        let mut lists: Vec<Vec<(usize, f64)>> = self
-            .arms
-            .iter()
-            .map(|a| {
-                a.vertices
-                    .iter()
-                    .map(|&v| (v, options.clearance_m))
-                    .collect()
+        // Per limb, the clearance of its distal vertices and of its upper part's.
+        let clearances: Vec<(Option<f64>, Option<f64>)> = (self.arms.iter())
+            .map(|a| match a.leg {
+                false => (Some(options.clearance_m), options.upper_arm_clearance_m),
+                true => (options.leg_clearance_m, options.leg_clearance_m),
             })
             .collect();
-        if let Some(upper) = options.upper_arm_clearance_m {
+        let mut lists: Vec<Vec<(usize, f64)>> = (self.arms.iter().zip(&clearances))
+            .map(|(a, &(distal, _))| match distal {
+                Some(c) => a.vertices.iter().map(|&v| (v, c)).collect(),
+                None => Vec::new(),
+            })
+            .collect();
+        if clearances.iter().any(|c| c.1.is_some()) {
             let skeleton = body.skeleton();
             let parents = skeleton.parents();
             posing.pose_all(
@@ -627,8 +734,9 @@ impl ArmClearance {
             )?;
             let joints = posing.poser.posed_joints();
             let distance = posing.distance.as_ref().expect("posed");
-            for (arm, list) in self.arms.iter().zip(&mut lists) {
-                // The elbow: the farthest child of the shoulder (the forearm's joint).
+            for ((arm, list), &(_, upper)) in self.arms.iter().zip(&mut lists).zip(&clearances) {
+                let Some(upper) = upper else { continue };
+                // The elbow (knee): the farthest child of the shoulder (hip).
                 let shoulder = joints[arm.shoulder];
                 let length = (0..parents.len())
                     .filter(|&c| parents[c] == Some(arm.shoulder))
@@ -780,13 +888,10 @@ impl ArmClearance {
     }
 
     /// `pose` with each arm's correction (in the order of `self.arms`) put before its upper
-    /// arm's local rotation.
+    /// arm's local rotation ([`turn`]).
     fn correct<'r>(&self, pose: &mut Pose, per_arm: impl IntoIterator<Item = &'r Vector3<f64>>) {
         for (arm, r) in self.arms.iter().zip(per_arm) {
-            if *r != Vector3::zeros() {
-                let q = &mut pose.local_rotations[arm.shoulder];
-                *q = UnitQuaternion::from_scaled_axis(*r) * *q;
-            }
+            turn(pose, arm, r);
         }
     }
 
@@ -846,6 +951,8 @@ impl ArmClearance {
         let mut local = UnitQuaternion::identity();
         let mut worst = Some(worst);
         let mut posed_again = false;
+        // A leg's swing of the knee so far, radians.
+        let mut swivel = 0.0;
         for iteration in 0..options.max_iterations.max(1) {
             if iteration > 0 {
                 posing.pose_turned(body, &trial, (a, arm), &self.torso, &targets[a])?;
@@ -860,16 +967,39 @@ impl ArmClearance {
             else {
                 break;
             };
-            let lever = posing.posed[v] - posing.poser.posed_joints()[j];
-            let axis = lever.cross(&out);
-            let reach = axis.norm();
-            if reach < 1e-3 {
+            let joints = posing.poser.posed_joints();
+            let lever = posing.posed[v] - joints[j];
+            // Turning by α about a unit axis `a` through the shoulder moves the vertex
+            // α·(a × lever) (to first order): an arm turns about `lever × out`, which moves it
+            // by α·|lever × out| along `out`; a leg about the line from its hip to its ankle.
+            let free = || {
+                let axis = lever.cross(&out);
+                let reach = axis.norm();
+                (axis / reach, reach)
+            };
+            let (axis, reach) = match arm.swivel {
+                None => free(),
+                Some([knee, ankle]) => {
+                    // The knee swung outwards about the line from hip to ankle while that takes
+                    // the vertex out, up to `SWIVEL_MAX_RAD`; then the leg turned freely.
+                    let a = (joints[ankle] - joints[j]).normalize();
+                    let rate = a.cross(&lever).dot(&out);
+                    let knee_moves = a.cross(&(joints[knee] - joints[j])) * rate.signum();
+                    let outwards = knee_moves.dot(&(joints[j] - joints[self.root])) > 0.0;
+                    let step = (short / rate.abs()).min(0.35);
+                    if outwards && rate.abs() >= 1e-3 && swivel + step <= SWIVEL_MAX_RAD {
+                        swivel += step;
+                        (a * rate.signum(), rate.abs())
+                    } else {
+                        free()
+                    }
+                }
+            };
+            if reach < 1e-3 || !reach.is_finite() {
                 break;
             }
-            // Turning by α about `axis` through the shoulder moves the vertex α·|lever × out|
-            // along `out` (to first order).
             let angle = (short / reach).min(0.35);
-            world = UnitQuaternion::from_scaled_axis(axis / reach * angle) * world;
+            world = UnitQuaternion::from_scaled_axis(axis * angle) * world;
             let over = world.angle() - options.max_angle_rad;
             if over > 0.0 {
                 // Clamp to the largest rotation and stop.
@@ -879,7 +1009,16 @@ impl ArmClearance {
             }
             let parent_world = parent_rotation(posing, pose, parent);
             local = parent_world.inverse() * world * parent_world;
-            trial.local_rotations[j] = local * pose.local_rotations[j];
+            match arm.swivel {
+                None => trial.local_rotations[j] = local * pose.local_rotations[j],
+                Some([_, ankle]) => {
+                    // As `correct` will turn it.
+                    for k in [j, ankle] {
+                        trial.local_rotations[k] = pose.local_rotations[k];
+                    }
+                    turn(&mut trial, arm, &local.scaled_axis());
+                }
+            }
             if over > 0.0 {
                 break;
             }
@@ -889,6 +1028,26 @@ impl ArmClearance {
         }
         Ok((Some(local.scaled_axis()), posed_again))
     }
+}
+
+/// Arm `arm`'s correction `r` (a rotation vector in the frame of its upper arm's parent) put
+/// before its upper arm's local rotation in `pose`. A leg's foot turns back by as much: with the
+/// knee's world rotation `W = P H K` turned by the hip's `T` (in the hip's parent frame:
+/// `W' = P T H K`), the foot's local rotation `(H K)⁻¹ T⁻¹ (H K) F` keeps its world rotation
+/// `W F`; and a turn about the line from hip to ankle keeps the ankle where it was.
+fn turn(pose: &mut Pose, arm: &Arm, r: &Vector3<f64>) {
+    if *r == Vector3::zeros() {
+        return;
+    }
+    let j = arm.shoulder;
+    let t = UnitQuaternion::from_scaled_axis(*r);
+    if let Some([knee, ankle]) = arm.swivel {
+        let hip_knee = pose.local_rotations[j] * pose.local_rotations[knee];
+        let foot = &mut pose.local_rotations[ankle];
+        *foot = hip_knee.inverse() * t.inverse() * hip_knee * *foot;
+    }
+    let q = &mut pose.local_rotations[j];
+    *q = t * *q;
 }
 
 /// The world rotation of joint `parent` (the root orientation for none) in the last posing.

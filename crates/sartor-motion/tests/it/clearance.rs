@@ -2,9 +2,10 @@
 //! forearms through the hips; [`ArmClearance::apply`] takes them out and changes nothing else.
 
 use nalgebra::Vector3;
-use sartor_core::{BodyDistance, BodyModel, BodyPoser, Pose, vertex_normals};
+use sartor_core::{BodyDistance, BodyModel, BodyPoser, BoneTransform, Pose, vertex_normals};
 use sartor_motion::{
-    ArmClearance, ClearanceOnDemand, ClearanceOptions, UPPER_ARM_MIN_LEVER, load_motion,
+    ArmClearance, ClearanceOnDemand, ClearanceOptions, LEG_CLEARANCE_M, UPPER_ARM_MIN_LEVER,
+    load_motion,
 };
 
 use crate::motion_library::library_options;
@@ -115,12 +116,105 @@ fn the_rest_pose_needs_nothing_and_bad_options_are_refused() {
             upper_arm_clearance_m: Some(-1e-3),
             ..ClearanceOptions::default()
         },
+        ClearanceOptions {
+            leg_clearance_m: Some(f64::INFINITY),
+            ..ClearanceOptions::default()
+        },
     ] {
         let e = clearance
             .apply(&body, &[0.0], &rest, &bad)
             .expect_err("refused");
         assert!(e.to_string().contains("arm clearance"), "{e}");
     }
+}
+
+#[test]
+fn a_raised_thigh_is_held_out_of_the_belly_and_a_walk_keeps_its_legs() {
+    // A dance whose performer lifts a knee higher than the body's belly lets it (CMU 05_08,
+    // frames 12–35: the thigh 46 mm into the torso at frame 28), and a walk.
+    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
+    let clearance = ArmClearance::new(&body).expect("arms and legs and torso");
+    let arms = ClearanceOptions {
+        upper_arm_clearance_m: Some(0.005),
+        ..ClearanceOptions::default()
+    };
+    let legs = ClearanceOptions {
+        leg_clearance_m: Some(LEG_CLEARANCE_M),
+        ..arms.clone()
+    };
+    // Every held vertex's depth, the legs' among them (the arms, held at 25 mm, are out).
+    let inside = ClearanceOptions {
+        clearance_m: 0.0,
+        leg_clearance_m: Some(0.0),
+        ..arms.clone()
+    };
+    let deepest = |poses: &[Pose]| {
+        clearance
+            .depths(&body, &[0.0, 0.0], poses, &inside)
+            .expect("depths")
+            .into_iter()
+            .fold(0.0, f64::max)
+    };
+    let dance = load_motion("cmu/05_08@12+24", &library_options()).expect("clip");
+    let (arms_held, _) = clearance
+        .apply(&body, &[0.0, 0.0], dance.frames(), &arms)
+        .expect("apply");
+    let before = deepest(&arms_held);
+    assert!(before > 0.04, "the thigh {:.1} mm inside", before * 1e3);
+    let (held, report) = clearance
+        .apply(&body, &[0.0, 0.0], dance.frames(), &legs)
+        .expect("apply");
+    let after = deepest(&held);
+    assert!(after < 1e-3, "still {:.1} mm inside", after * 1e3);
+    assert!(report.max_depth_before_m >= before);
+    assert!(report.max_angle_rad <= legs.max_angle_rad * legs.max_passes as f64);
+    // Only the hips turn besides the shoulders (whose fixes see the torso the hips move), and
+    // the feet, which turn back: each foot keeps its orientation in the world (the skeleton's
+    // own forward kinematics of both poses).
+    let skeleton = body.skeleton();
+    let names = skeleton.names();
+    let rest = body.shaped_joints(&[0.0, 0.0]).expect("joints");
+    let world = |pose: &Pose| {
+        let n = skeleton.n_joints();
+        let mut joints = vec![nalgebra::Vector3::zeros(); n];
+        let mut transforms = vec![BoneTransform::identity(); n];
+        (skeleton.forward_kinematics_into(&rest, pose, &mut joints, &mut transforms))
+            .expect("forward kinematics");
+        transforms
+    };
+    let mut hips_turned = 0;
+    for (got, was) in held.iter().zip(&arms_held) {
+        assert_eq!(got.root_orientation, was.root_orientation);
+        let (got_world, was_world) = (world(got), world(was));
+        for (j, (a, b)) in got
+            .local_rotations
+            .iter()
+            .zip(&was.local_rotations)
+            .enumerate()
+        {
+            if a != b {
+                let foot = names[j].ends_with("Foot");
+                assert!(
+                    names[j].ends_with("UpLeg") || names[j].ends_with("Arm") || foot,
+                    "{} turned",
+                    names[j]
+                );
+                hips_turned += usize::from(names[j].ends_with("UpLeg"));
+                if foot {
+                    let turned = got_world[j].linear.transpose() * was_world[j].linear;
+                    let off = (turned - nalgebra::Matrix3::identity()).abs().max();
+                    assert!(off < 1e-9, "{}'s orientation moved by {off:e}", names[j]);
+                }
+            }
+        }
+    }
+    assert!(hips_turned > 0);
+
+    // A walk's legs never come near the belly: the same poses, bit for bit.
+    let walk = load_motion("cmu/02_02@8+60", &library_options()).expect("clip");
+    let with = clearance.apply(&body, &[0.0, 2.0], walk.frames(), &legs);
+    let without = clearance.apply(&body, &[0.0, 2.0], walk.frames(), &arms);
+    assert_eq!(with.expect("apply").0, without.expect("apply").0);
 }
 
 #[test]
@@ -208,17 +302,23 @@ fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
             .collect()
     };
     let mut turned = 0;
-    for (clip, betas) in [
-        ("cmu/02_02@8+60", [0.0, 2.0]),
-        ("cmu/05_06@0+40", [0.0, 0.0]),
+    // And with the legs held, as the try-on page holds them.
+    let with_legs = ClearanceOptions {
+        leg_clearance_m: Some(LEG_CLEARANCE_M),
+        ..options.clone()
+    };
+    for (clip, betas, options) in [
+        ("cmu/02_02@8+60", [0.0, 2.0], &options),
+        ("cmu/05_06@0+40", [0.0, 0.0], &options),
+        ("cmu/05_08@12+24", [0.0, 0.0], &with_legs),
     ] {
         let motion = load_motion(clip, &library_options()).expect("clip");
         let poses = motion.frames();
         let (whole, report) = clearance
-            .apply(&body, &betas, poses, &options)
+            .apply(&body, &betas, poses, options)
             .expect("apply");
         let mut on_demand =
-            ClearanceOnDemand::new(&clearance, &body, &betas, poses.to_vec(), &options)
+            ClearanceOnDemand::new(&clearance, &body, &betas, poses.to_vec(), options)
                 .expect("on demand");
         let n = poses.len();
         let order = (n / 2..n).chain(0..n / 2);

@@ -36,15 +36,21 @@ pub fn load() -> TryOn {
     .expect("the shipped assets load")
 }
 
-/// The arms held out as the shipped model's experiment held them in its training motions
-/// (`configs/default.json`; the page reads the same from `manifest.json`).
+/// The limbs held out as the page holds them (`manifest.json`, which `cargo xtask web` writes):
+/// the arms as the shipped model's experiment held them in its training motions
+/// (`configs/default.json`), and the legs at `sartor_motion::LEG_CLEARANCE_M`.
 pub fn shipped_arm_clearance() -> ClearanceOptions {
     let config: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(repo().join("configs/default.json")).expect("config"),
     )
     .expect("JSON");
-    serde_json::from_value(config["simulation"]["arm_clearance"].clone())
-        .expect("the shipped experiment holds the arms out")
+    let arms: ClearanceOptions =
+        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+            .expect("the shipped experiment holds the arms out");
+    ClearanceOptions {
+        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
+        ..arms
+    }
 }
 
 /// The stored CMU clip `id` (`02_02`) as the page fetches and loads it, retargeted onto `t`'s

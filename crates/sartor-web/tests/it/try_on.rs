@@ -243,6 +243,48 @@ fn real_mocap_plays_with_the_arms_held_as_the_model_was_trained() {
 }
 
 #[test]
+fn a_crouch_plays_with_the_legs_held_out_of_the_shirt() {
+    // CMU 02_06 crouches (frames 272–283 of the stored clip): the retargeted thighs sink some
+    // 78 mm into the body's belly, with the shirt's front caught between. The page holds the
+    // legs out as well as the arms; with the arms alone held, as in the training motions, they
+    // stay in. With them held the hem lies on the tops of the thighs, by the groin, where no
+    // leg is held (`cargo xtask demo --beta 0 --motion cmu/02_06@274+8`, looked at).
+    let play = |legs: bool| {
+        let arms = ClearanceOptions {
+            leg_clearance_m: None,
+            ..shipped_arm_clearance()
+        };
+        let mut t = TryOn::load(
+            shipped_files(),
+            TryOnOptions {
+                arm_clearance: Some(if legs { shipped_arm_clearance() } else { arms }),
+                ..TryOnOptions::default()
+            },
+        )
+        .expect("load");
+        let clip = stored_clip(&t, "02_06");
+        t.set_motion(clip).expect("play");
+        t
+    };
+    assert!(shipped_arm_clearance().leg_clearance_m.is_some());
+    let (mut arms_only, mut legs_too) = (play(false), play(true));
+    let frames = 8;
+    let before = inside_percent(&mut arms_only, 274, frames);
+    let after = inside_percent(&mut legs_too, 274, frames);
+    eprintln!(
+        "02_06 crouch, nominal: {before:.3} % inside with the arms held, {after:.3} % with the legs too"
+    );
+    assert!(
+        before > 1.0,
+        "the clip no longer shows the fault: {before:.3} %"
+    );
+    assert!(
+        after < before / 10.0,
+        "{before:.3} → {after:.3} % inside with the legs held out"
+    );
+}
+
+#[test]
 fn a_preview_shows_the_new_shape_with_the_arms_held_for_the_last_and_leaves_no_trace() {
     // As a slider moves, the page previews each shape: body and garment anew, the arms as held
     // for the shape last set (CMU 02_02 holds them in every frame); the release sets the shape.
