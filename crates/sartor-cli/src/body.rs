@@ -11,7 +11,7 @@ use sartor_import::load_smpl_npz;
 use sartor_motion::{ArmClearance, UpAxis, load_motion};
 use sartor_pipeline::DataDir;
 
-use crate::demo::shipped_arm_clearance;
+use crate::demo::player_clearance;
 use crate::motion_options;
 
 /// Arguments of `body`.
@@ -41,9 +41,10 @@ pub struct BodyArgs {
     /// the motion puts them).
     #[arg(long)]
     smpl: Option<PathBuf>,
-    /// Leave the motion's arms as they come. By default the built-in body's arms are held out
-    /// of its torso as `demo`, the try-on page and the shipped model's training data hold them
-    /// (`shipped_arm_clearance`), so that the body written is the one they show.
+    /// Leave the motion's arms and legs as they come. By default the built-in body's arms and
+    /// legs are held out of its torso as `demo` and the try-on page hold them
+    /// (`player_clearance`: the arms as the shipped model's training data held them, and the
+    /// legs), so that the body written is the one they show.
     #[arg(long)]
     no_arm_clearance: bool,
     /// Output folder.
@@ -119,10 +120,10 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
             &model,
             &full_betas,
             &poses[..n],
-            &shipped_arm_clearance(),
+            &player_clearance(),
         )?;
         println!(
-            "arms held out of the torso in {} of {n} frames (turned up to {:.1}°; {:.1} mm deep \
+            "arms and legs held out of the torso in {} of {n} frames (turned up to {:.1}°; {:.1} mm deep \
              before; --no-arm-clearance leaves them)",
             report.frames_changed,
             report.max_angle_rad.to_degrees(),
@@ -207,7 +208,7 @@ mod tests {
         full.resize(model.n_betas(), 0.0);
         let (poses, report) = ArmClearance::new(&model)
             .expect("arms")
-            .apply(&model, &full, motion.frames(), &shipped_arm_clearance())
+            .apply(&model, &full, motion.frames(), &player_clearance())
             .expect("apply");
         assert!(report.frames_changed > 0, "{report:?}");
         let gap = |a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]| {

@@ -89,7 +89,7 @@ pub struct DemoArgs {
     pub no_arm_clearance: bool,
     /// Leave the motion's legs as they come. By default they are held out of the torso too
     /// (`sartor_motion::LEG_CLEARANCE_M`, which the training data did not do): a performer's
-    /// raised thigh (climbing, kicking, dancing) sinks into the body's belly with the shirt
+    /// raised thigh (climbing, dancing, crouching) sinks into the body's belly with the shirt
     /// between. Without the arms' clearance the legs are not held either.
     #[arg(long)]
     pub no_leg_clearance: bool,
@@ -105,13 +105,25 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
     }
 }
 
-/// The limbs as `demo` holds them: the arms as the shipped model's training motions
-/// ([`shipped_arm_clearance`]) and the legs at `sartor_motion::LEG_CLEARANCE_M`, unless
-/// `--no-arm-clearance` / `--no-leg-clearance`.
-fn player_clearance(args: &DemoArgs) -> Option<ClearanceOptions> {
-    (!args.no_arm_clearance).then(|| ClearanceOptions {
-        leg_clearance_m: (!args.no_leg_clearance).then_some(sartor_motion::LEG_CLEARANCE_M),
+/// The limbs as the players (`demo`, the try-on page) hold them: the arms as the shipped
+/// model's training motions did ([`shipped_arm_clearance`]), and the legs at
+/// `sartor_motion::LEG_CLEARANCE_M`.
+pub fn player_clearance() -> ClearanceOptions {
+    ClearanceOptions {
+        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
         ..shipped_arm_clearance()
+    }
+}
+
+/// The limbs as `demo` holds them ([`player_clearance`]), unless `--no-arm-clearance` /
+/// `--no-leg-clearance`.
+fn demo_clearance(args: &DemoArgs) -> Option<ClearanceOptions> {
+    (!args.no_arm_clearance).then(|| {
+        let mut limbs = player_clearance();
+        if args.no_leg_clearance {
+            limbs.leg_clearance_m = None;
+        }
+        limbs
     })
 }
 
@@ -319,7 +331,7 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} clips {msg}")
             .expect("static template"),
     );
-    let clearance = player_clearance(args);
+    let clearance = demo_clearance(args);
     let measurer = BodyMeasurer::new(&body)
         .inspect_err(|e| bar.println(format!("the bodies are not measured: {e}")))
         .ok();

@@ -29,7 +29,8 @@
 //! flat on the floor stays flat). Motion capture of a performer more supple than the body sinks
 //! a raised thigh into the belly, with the shirt caught between: retargeted onto the built-in
 //! body at 1.75 m, 9 of the 60 stored CMU clips put a leg more than 10 mm into the torso
-//! (climbing, kicking, dancing, a crouch; up to 78 mm, and in 114 of the 559 frames of
+//! (playground climbing, modern dance, subject 02's clips, among them a crouch; up to 78 mm,
+//! and in 114 of the 559 frames of
 //! `cmu/02_06`). Held at [`LEG_CLEARANCE_M`], 7 of them have no leg vertex left inside;
 //! `cmu/02_10` keeps 3 frames (of 35; 69 → 21 mm) and the cartwheel of `cmu/05_06` 3 (of 30;
 //! 81 → 6 mm). On the 1.90 m heavy male those two keep 2 and 6 frames (75 → 0, 84 → 55 mm),
