@@ -49,20 +49,13 @@ fn a_walk_on_a_wide_body_keeps_its_hands_out_of_the_hips_and_the_rest_as_it_was(
         assert_eq!(got.root_translation_m, was.root_translation_m);
         assert_eq!(got.root_orientation, was.root_orientation);
         let mut moved = false;
-        for (j, (a, b)) in got
-            .local_rotations
-            .iter()
-            .zip(&was.local_rotations)
-            .enumerate()
-        {
-            if a != b {
-                assert!(
-                    names[j] == "LeftArm" || names[j] == "RightArm",
-                    "frame {t}: {} changed",
-                    names[j]
-                );
-                moved = true;
-            }
+        for j in turned_joints(got, was) {
+            assert!(
+                names[j] == "LeftArm" || names[j] == "RightArm",
+                "frame {t}: {} changed",
+                names[j]
+            );
+            moved = true;
         }
         if moved {
             changed += 1;
@@ -128,12 +121,19 @@ fn the_rest_pose_needs_nothing_and_bad_options_are_refused() {
     }
 }
 
-#[test]
-fn a_raised_thigh_is_held_out_of_the_belly_and_a_walk_keeps_its_legs() {
-    // A dance whose performer lifts a knee higher than the body's belly lets it (CMU 05_08,
-    // frames 12–35: the thigh 46 mm into the torso at frame 28), and a walk.
+/// The joints whose local rotation differs between two poses.
+fn turned_joints<'a>(got: &'a Pose, was: &'a Pose) -> impl Iterator<Item = usize> + 'a {
+    (got.local_rotations.iter().zip(&was.local_rotations))
+        .enumerate()
+        .filter(|(_, (a, b))| a != b)
+        .map(|(j, _)| j)
+}
+
+/// The built-in body and its limbs, with the arms held as the shipped model's experiment held
+/// them, and the same with the legs held as the players hold them.
+fn shipped_limbs() -> (BodyModel, ArmClearance, ClearanceOptions, ClearanceOptions) {
     let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
-    let clearance = ArmClearance::new(&body).expect("arms and legs and torso");
+    let clearance = ArmClearance::new(&body).expect("arms, legs and torso");
     let arms = ClearanceOptions {
         upper_arm_clearance_m: Some(0.005),
         ..ClearanceOptions::default()
@@ -142,6 +142,14 @@ fn a_raised_thigh_is_held_out_of_the_belly_and_a_walk_keeps_its_legs() {
         leg_clearance_m: Some(LEG_CLEARANCE_M),
         ..arms.clone()
     };
+    (body, clearance, arms, legs)
+}
+
+#[test]
+fn a_raised_thigh_is_held_out_of_the_belly_and_a_walk_keeps_its_legs() {
+    // A dance whose performer lifts a knee higher than the body's belly lets it (CMU 05_08,
+    // frames 12–35: the thigh 46 mm into the torso at frame 28), and a walk.
+    let (body, clearance, arms, legs) = shipped_limbs();
     // Every held vertex's depth, the legs' among them (the arms, held at 25 mm, are out).
     let inside = ClearanceOptions {
         clearance_m: 0.0,
@@ -186,25 +194,18 @@ fn a_raised_thigh_is_held_out_of_the_belly_and_a_walk_keeps_its_legs() {
     for (got, was) in held.iter().zip(&arms_held) {
         assert_eq!(got.root_orientation, was.root_orientation);
         let (got_world, was_world) = (world(got), world(was));
-        for (j, (a, b)) in got
-            .local_rotations
-            .iter()
-            .zip(&was.local_rotations)
-            .enumerate()
-        {
-            if a != b {
-                let foot = names[j].ends_with("Foot");
-                assert!(
-                    names[j].ends_with("UpLeg") || names[j].ends_with("Arm") || foot,
-                    "{} turned",
-                    names[j]
-                );
-                hips_turned += usize::from(names[j].ends_with("UpLeg"));
-                if foot {
-                    let turned = got_world[j].linear.transpose() * was_world[j].linear;
-                    let off = (turned - nalgebra::Matrix3::identity()).abs().max();
-                    assert!(off < 1e-9, "{}'s orientation moved by {off:e}", names[j]);
-                }
+        for j in turned_joints(got, was) {
+            let foot = names[j].ends_with("Foot");
+            assert!(
+                names[j].ends_with("UpLeg") || names[j].ends_with("Arm") || foot,
+                "{} turned",
+                names[j]
+            );
+            hips_turned += usize::from(names[j].ends_with("UpLeg"));
+            if foot {
+                let turned = got_world[j].linear.transpose() * was_world[j].linear;
+                let off = (turned - nalgebra::Matrix3::identity()).abs().max();
+                assert!(off < 1e-9, "{}'s orientation moved by {off:e}", names[j]);
             }
         }
     }
@@ -288,12 +289,7 @@ fn held_out_upper_arms_leave_no_pocket_between_arm_and_torso() {
 fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
     // As the try-on page asks: a jump into the middle, playing on to the end, then from the
     // start again; on the shapes and options the shipped model was trained with.
-    let body = BodyModel::load(&builtin_model_dir()).expect("built-in body");
-    let clearance = ArmClearance::new(&body).expect("arms and torso");
-    let options = ClearanceOptions {
-        upper_arm_clearance_m: Some(0.005),
-        ..ClearanceOptions::default()
-    };
+    let (body, clearance, options, with_legs) = shipped_limbs();
     let bits = |pose: &Pose| -> Vec<u64> {
         std::iter::once(&pose.root_orientation)
             .chain(&pose.local_rotations)
@@ -303,10 +299,6 @@ fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
     };
     let mut turned = 0;
     // And with the legs held, as the try-on page holds them.
-    let with_legs = ClearanceOptions {
-        leg_clearance_m: Some(LEG_CLEARANCE_M),
-        ..options.clone()
-    };
     for (clip, betas, options) in [
         ("cmu/02_02@8+60", [0.0, 2.0], &options),
         ("cmu/05_06@0+40", [0.0, 0.0], &options),
