@@ -219,7 +219,7 @@ function redraw() {
   $("scrub").value = String(t.frame);
   const turn = t.armTurnDeg;
   $("frame-out").textContent =
-    `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (arms turned ${turn.toFixed(0)}°)` : "");
+    `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (limbs turned ${turn.toFixed(0)}°)` : "");
   return draw;
 }
 

@@ -123,8 +123,8 @@ pub fn body(args: &BodyArgs, data: &DataDir) -> anyhow::Result<()> {
             &player_clearance(),
         )?;
         println!(
-            "arms and legs held out of the torso in {} of {n} frames (turned up to {:.1}°; {:.1} mm deep \
-             before; --no-arm-clearance leaves them)",
+            "arms and legs held out of the torso in {} of {n} frames (turned up to {:.1}°; \
+             {:.1} mm deep before; --no-arm-clearance leaves them)",
             report.frames_changed,
             report.max_angle_rad.to_degrees(),
             report.max_depth_before_m * 1e3

@@ -452,11 +452,11 @@ pub fn demo(args: &DemoArgs, data: &DataDir) -> anyhow::Result<()> {
         machine: Machine::current(),
         motion_joints,
         note: "ms_per_frame: GarmentAnimator::frame (network, skinning, collision post-process), \
-               one thread; posing the full body for the files and holding the arms out of the \
-               torso (before the clip, per body) are not counted; cloth_*_inside_percent: garment \
-               vertex-frames and triangle-frames (by centroid) inside the whole posed body, by \
-               its winding number (eval's measure); edge_stretch_*: garment edge length over its \
-               length in the rest template",
+               one thread; posing the full body for the files and holding the arms and legs out \
+               of the torso (before the clip, per body) are not counted; \
+               cloth_*_inside_percent: garment vertex-frames and triangle-frames (by centroid) \
+               inside the whole posed body, by its winding number (eval's measure); \
+               edge_stretch_*: garment edge length over its length in the rest template",
         runs,
     };
     let path = args.out.join("demo.json");

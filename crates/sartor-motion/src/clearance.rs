@@ -30,15 +30,15 @@
 //! a raised thigh into the belly, with the shirt caught between: retargeted onto the built-in
 //! body at 1.75 m, 9 of the 60 stored CMU clips put a leg more than 10 mm into the torso
 //! (playground climbing, modern dance, subject 02's clips, among them a crouch; up to 78 mm,
-//! and in 114 of the 559 frames of
-//! `cmu/02_06`). Held at [`LEG_CLEARANCE_M`], 7 of them have no leg vertex left inside;
-//! `cmu/02_10` keeps 3 frames (of 35; 69 → 21 mm) and the cartwheel of `cmu/05_06` 3 (of 30;
-//! 81 → 6 mm). On the 1.90 m heavy male those two keep 2 and 6 frames (75 → 0, 84 → 55 mm),
-//! on the 1.60 m light female 10 and 7 (33 → 27, 55 → 26 mm). 33 of the 60 clips keep their
-//! legs bit for bit at 1.75 m, the walks among them. Where a turn is needed the feet move: by up to 16 cm in the crouch of `cmu/02_06`
-//! (frames 272–283), more where a foot is in the air (a kick, the cartwheel); and a leg within
-//! the clearance but not inside can turn too (`cmu/05_11`, a dance: 33°). `apply` over the 60
-//! clips takes some 10 % longer with the legs held.
+//! and in 114 of the 559 frames of `cmu/02_06`). Held at [`LEG_CLEARANCE_M`], 7 of them have
+//! no leg vertex left inside; `cmu/02_10` keeps 3 frames (of 35; 69 → 21 mm) and the cartwheel
+//! of `cmu/05_06` 3 (of 30; 81 → 6 mm). On the 1.90 m heavy male those two keep 2 and 6 frames
+//! (75 → 0, 84 → 55 mm), on the 1.60 m light female 10 and 7 (33 → 27, 55 → 26 mm). 33 of the
+//! 60 clips keep their legs bit for bit at 1.75 m, the walks among them. Where a turn is needed
+//! the feet move: by up to 16 cm in the crouch of `cmu/02_06` (frames 272–283), more where a
+//! foot is in the air (a kick, the cartwheel); and a leg within the clearance but not inside
+//! can turn too (`cmu/05_11`, a dance: 33°). `apply` over the 60 clips takes some 10 % longer
+//! with the legs held.
 //!
 //! The torso is the body's triangles whose vertices are all dominated (largest skin weight) by
 //! the spine, hips, neck or shoulder roots — where a T-shirt is. Inside is decided by the
@@ -168,20 +168,21 @@ struct Arm {
 }
 
 /// The legs' clearance of sartor's players (`sartor demo`, the try-on page), m, set on top of
-/// the arm clearance the shipped model's training motions had ([`ClearanceOptions::leg_clearance_m`]:
-/// the training data's legs were left as they came). Measured on the 60 stored CMU clips at
-/// 1.75 m: held at 0 the shins and thighs of 9 clips were still inside in 1–16 frames each
-/// (a turn stops once the worst vertex is within half a millimetre, and the easing leaves
-/// neighbours short); at 10 mm none of 7 clips, with no leg of a walk or run turned.
+/// the arm clearance the shipped model's training motions had
+/// ([`ClearanceOptions::leg_clearance_m`]: the training data's legs were left as they came).
+/// Measured on the 9 stored CMU clips that sink a leg into the torso at 1.75 m: held at 0,
+/// every one of them kept 1–16 frames with a leg inside (a turn stops once the worst vertex is
+/// within half a millimetre, and the easing leaves the frames around short), the cartwheel of
+/// `cmu/05_06` 9 (62 mm deep); at 10 mm 7 of them none (see the [module docs](self)).
 pub const LEG_CLEARANCE_M: f64 = 0.01;
 
 /// How far a leg's knee swings outwards about the line from its hip to its ankle, keeping the
 /// foot where the motion puts it, before the leg turns freely about the hip, radians (20°).
-/// Measured on the stored CMU clips that need it, at 1.75 m and on the 1.60 m light female: a
-/// swing alone (no free turn) left 12 of `cmu/02_06`'s 114 frames inside instead of none and
-/// swung knees by up to 120°; a free turn alone moved the feet by up to 27 cm in that clip's
-/// crouch; with the swing capped at 20°, 40° and 57°, the crouch's feet moved by up to 16, 6
-/// and 5 cm, and the cartwheel of `cmu/05_06` kept 3, 11 and 13 of its 30 frames inside.
+/// Measured on the stored CMU clips that need it, at 1.75 m: a swing alone (no free turn) left
+/// 12 of `cmu/02_06`'s 114 frames inside instead of none and swung knees by up to 120°; a free
+/// turn alone moved the feet by up to 27 cm over that clip; with the swing capped at 20°, 40°
+/// and 57°, the feet of its crouch (frames 272–283) moved by up to 16, 6 and 5 cm, and the
+/// cartwheel of `cmu/05_06` kept 3, 11 and 13 of its 30 frames inside.
 const SWIVEL_MAX_RAD: f64 = 0.35;
 
 /// An upper-arm vertex is held out of the torso only this share of the upper arm's length

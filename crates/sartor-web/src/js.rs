@@ -272,7 +272,8 @@ impl WebTryOn {
         ]
     }
 
-    /// The largest shoulder rotation the arm clearance added to the frame shown, degrees.
+    /// The largest shoulder (or, with the legs held, hip) rotation the arm clearance added to
+    /// the frame shown, degrees.
     #[wasm_bindgen(getter, js_name = armTurnDeg)]
     pub fn arm_turn_deg(&self) -> f64 {
         self.inner.arm_turn_deg()

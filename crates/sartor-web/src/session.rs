@@ -540,8 +540,8 @@ impl TryOn {
         Ok(())
     }
 
-    /// The largest shoulder rotation the arm clearance added to the frame shown, degrees (0:
-    /// the motion's own pose, or no arm clearance).
+    /// The largest shoulder (or, with the legs held, hip) rotation the arm clearance added to
+    /// the frame shown, degrees (0: the motion's own pose, or no arm clearance).
     pub fn arm_turn_deg(&self) -> f64 {
         self.arm_turn_rad.to_degrees()
     }

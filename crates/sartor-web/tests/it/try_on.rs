@@ -272,7 +272,8 @@ fn a_crouch_plays_with_the_legs_held_out_of_the_shirt() {
     let before = inside_percent(&mut arms_only, 274, frames);
     let after = inside_percent(&mut legs_too, 274, frames);
     eprintln!(
-        "02_06 crouch, nominal: {before:.3} % inside with the arms held, {after:.3} % with the legs too"
+        "02_06 crouch, nominal: {before:.3} % inside with the arms held, \
+         {after:.3} % with the legs too"
     );
     assert!(
         before > 1.0,
