@@ -10,6 +10,29 @@ use super::{
 /// Per frame, one correction (rotation vector) per arm, once computed.
 type PerFrame = Vec<Option<Box<[Vector3<f64>]>>>;
 
+/// Why the computation of a frame stopped before its answer.
+enum Halt {
+    /// [`ClearanceOnDemand::prepare`]'s looks ran out (what was computed is kept).
+    Looks,
+    Failed(Error),
+}
+
+type Halting<T> = std::result::Result<T, Halt>;
+
+impl From<Error> for Halt {
+    fn from(e: Error) -> Self {
+        Self::Failed(e)
+    }
+}
+
+/// A computation that no look allowance limits: it halts only on an error.
+fn unlimited<T>(result: Halting<T>) -> Result<T> {
+    result.map_err(|halt| match halt {
+        Halt::Failed(e) => e,
+        Halt::Looks => unreachable!("no look allowance was set"),
+    })
+}
+
 /// A motion's poses with the arms held out of the torso of one body shape, each frame computed
 /// when first asked for: the poses of [`ArmClearance::apply`], bit for bit, for a player that
 /// shows a motion as it goes and changes the shape between frames (the try-on page), where
@@ -23,7 +46,9 @@ type PerFrame = Vec<Option<Box<[Vector3<f64>]>>>;
 /// for needs it: the first frame asked for costs its window (73 looks at most with the
 /// defaults), each next frame of a playing motion about one look per pass, and a frame whose
 /// pose no earlier pass turned is not looked at again (its look is the previous pass's). A new
-/// shape is a new `ClearanceOnDemand`.
+/// shape is a new `ClearanceOnDemand`. A player that must not stall while a frame's window is
+/// computed (the page after a change of shape) does the work a few looks at a time with
+/// [`ClearanceOnDemand::prepare`], which keeps what it computed between calls.
 #[derive(Clone, Debug)]
 pub struct ClearanceOnDemand {
     clearance: ArmClearance,
@@ -37,6 +62,8 @@ pub struct ClearanceOnDemand {
     /// passes before).
     total: Vec<PerFrame>,
     looks: usize,
+    /// Looks the call in progress may still take (`None`: no limit; see [`Self::prepare`]).
+    allowance: Option<usize>,
 }
 
 impl ClearanceOnDemand {
@@ -63,6 +90,7 @@ impl ClearanceOnDemand {
             total: vec![vec![None; n]; passes],
             poses,
             looks: 0,
+            allowance: None,
         })
     }
 
@@ -73,7 +101,7 @@ impl ClearanceOnDemand {
 
     /// Frame `t` with the arms held out, as [`ArmClearance::apply`] gives it.
     pub fn pose(&mut self, body: &BodyModel, t: usize) -> Result<Pose> {
-        let total = self.final_total(body, t)?;
+        let total = unlimited(self.final_total(body, t))?;
         let mut pose = self.poses[t].clone();
         self.clearance.correct(&mut pose, total.iter());
         Ok(pose)
@@ -81,8 +109,7 @@ impl ClearanceOnDemand {
 
     /// The largest shoulder rotation added to frame `t`, radians (0: the motion's own pose).
     pub fn angle_rad(&mut self, body: &BodyModel, t: usize) -> Result<f64> {
-        Ok(self
-            .final_total(body, t)?
+        Ok(unlimited(self.final_total(body, t))?
             .iter()
             .map(|r| r.norm())
             .fold(0.0, f64::max))
@@ -94,18 +121,36 @@ impl ClearanceOnDemand {
         self.looks
     }
 
-    fn final_total(&mut self, body: &BodyModel, t: usize) -> Result<Box<[Vector3<f64>]>> {
+    /// Compute what frame `t`'s pose needs, taking at most `max_looks` looks: `true` once all
+    /// of it is computed ([`Self::pose`] and [`Self::angle_rad`] of `t` then look at no frame),
+    /// `false` when the looks ran out first (what was computed is kept: call again). The poses
+    /// are the same bit for bit however the work is split: each look and each frame's sum of
+    /// turns is kept only once complete, and depends on the motion, the body and the options
+    /// alone.
+    pub fn prepare(&mut self, body: &BodyModel, t: usize, max_looks: usize) -> Result<bool> {
+        self.allowance = Some(max_looks);
+        let result = self.final_total(body, t);
+        self.allowance = None;
+        match result {
+            Ok(_) => Ok(true),
+            Err(Halt::Looks) => Ok(false),
+            Err(Halt::Failed(e)) => Err(e),
+        }
+    }
+
+    fn final_total(&mut self, body: &BodyModel, t: usize) -> Halting<Box<[Vector3<f64>]>> {
         if t >= self.poses.len() {
             return Err(Error::invalid(
                 "arm clearance",
                 format!("frame {t} of a motion of {} frames", self.poses.len()),
-            ));
+            )
+            .into());
         }
         self.total(body, self.needed.len(), t)
     }
 
     /// Frame `t`'s correction after `passes` passes.
-    fn total(&mut self, body: &BodyModel, passes: usize, t: usize) -> Result<Box<[Vector3<f64>]>> {
+    fn total(&mut self, body: &BodyModel, passes: usize, t: usize) -> Halting<Box<[Vector3<f64>]>> {
         let Some(pass) = passes.checked_sub(1) else {
             return Ok(vec![Vector3::zeros(); self.clearance.arms.len()].into());
         };
@@ -134,7 +179,7 @@ impl ClearanceOnDemand {
     }
 
     /// Pass `pass`'s look at frame `t`, kept in `self.needed`.
-    fn needed(&mut self, body: &BodyModel, pass: usize, t: usize) -> Result<()> {
+    fn needed(&mut self, body: &BodyModel, pass: usize, t: usize) -> Halting<()> {
         if self.needed[pass][t].is_some() {
             return Ok(());
         }
@@ -144,6 +189,11 @@ impl ClearanceOnDemand {
             self.needed(body, pass - 1, t)?;
             self.needed[pass][t] = self.needed[pass - 1][t].clone();
             return Ok(());
+        }
+        match &mut self.allowance {
+            Some(0) => return Err(Halt::Looks),
+            Some(left) => *left -= 1,
+            None => {}
         }
         let mut pose = self.poses[t].clone();
         self.clearance.correct(&mut pose, total.iter());

@@ -288,7 +288,8 @@ fn held_out_upper_arms_leave_no_pocket_between_arm_and_torso() {
 #[test]
 fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
     // As the try-on page asks: a jump into the middle, playing on to the end, then from the
-    // start again; on the shapes and options the shipped model was trained with.
+    // start again; on the shapes and options the shipped model was trained with. And the same
+    // work done a few looks at a time, as the page does after a change of shape (`prepare`).
     let (body, clearance, options, with_legs) = shipped_limbs();
     let bits = |pose: &Pose| -> Vec<u64> {
         std::iter::once(&pose.root_orientation)
@@ -309,14 +310,39 @@ fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
         let (whole, report) = clearance
             .apply(&body, &betas, poses, options)
             .expect("apply");
-        let mut on_demand =
+        let new = || {
             ClearanceOnDemand::new(&clearance, &body, &betas, poses.to_vec(), options)
-                .expect("on demand");
+                .expect("on demand")
+        };
+        let (mut on_demand, mut stepwise) = (new(), new());
         let n = poses.len();
         let order = (n / 2..n).chain(0..n / 2);
+        let mut halted = 0;
         for t in order {
             let pose = on_demand.pose(&body, t).expect("pose");
             assert_eq!(bits(&pose), bits(&whole[t]), "{clip} frame {t}");
+            // At most three looks a call: a call that stops short took all three.
+            const LOOKS: usize = 3;
+            loop {
+                let looks = stepwise.looks();
+                let done = stepwise.prepare(&body, t, LOOKS).expect("prepare");
+                let took = stepwise.looks() - looks;
+                assert!(
+                    took == LOOKS || (done && took < LOOKS),
+                    "{clip} frame {t}: {took}"
+                );
+                if done {
+                    break;
+                }
+                halted += 1;
+            }
+            let looks = stepwise.looks();
+            assert_eq!(bits(&stepwise.pose(&body, t).expect("pose")), bits(&pose));
+            assert_eq!(
+                stepwise.looks(),
+                looks,
+                "{clip} frame {t}: prepared, no look left"
+            );
             let angle = on_demand.angle_rad(&body, t).expect("angle");
             assert!(angle <= options.max_angle_rad, "{angle}");
             assert_eq!(
@@ -337,7 +363,12 @@ fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
                 "{clip}: nothing turned, every frame looked at once"
             );
         }
+        // The same looks, split or not.
+        assert_eq!(stepwise.looks(), looks, "{clip}");
+        assert!(halted > 0, "{clip}: no call ran out of looks");
         let e = on_demand.pose(&body, n).expect_err("past the end");
+        assert!(e.to_string().contains("frame"), "{e}");
+        let e = stepwise.prepare(&body, n, 1).expect_err("past the end");
         assert!(e.to_string().contains("frame"), "{e}");
     }
     assert!(turned > 0, "neither clip was turned: nothing compared");
