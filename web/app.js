@@ -8,6 +8,9 @@ import { Viewer } from "./viewer.js";
 const $ = (id) => document.getElementById(id);
 const MOTION_FPS = 30;
 const WINDOW = 60;
+// After a change of shape the arms are held anew for it in slices of at most this many
+// milliseconds a display frame (a slice ends after the look that passes it).
+const SETTLE_MS = 8;
 
 const state = {
   tryOn: null,
@@ -19,6 +22,8 @@ const state = {
   errors: 0,
   previewFrame: 0, // the animation frame a slider's preview waits for (0: none)
   previews: 0,
+  settling: false, // the arms being held anew for a new shape (settleSome)
+  settleLongestMs: 0, // the longest call of the slices so far
 };
 
 function showError(message) {
@@ -78,12 +83,14 @@ function showSliders(s) {
 
 /// While a slider moves: the body and the garment in the slider's shape at the next display
 /// frame (one preview a frame however many input events come), the arms held as for the shape
-/// last set; the slider's release sets the shape and holds the arms anew (applyPhenotype).
+/// last set; the slider's release shows the shape and holds the arms anew (applyPhenotype).
 function previewPhenotype() {
   showSliders(sliders());
   if (state.previewFrame) return;
   state.previewFrame = requestAnimationFrame(() => {
     state.previewFrame = 0;
+    // The slider moves on: the arms are held anew at its release.
+    state.settling = false;
     const s = sliders();
     guarded("body", () => {
       showBetas(state.tryOn.previewPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
@@ -93,6 +100,9 @@ function previewPhenotype() {
   });
 }
 
+/// A slider's release: the shape shown at once (a preview), the arms then held anew for it a
+/// slice a display frame (settleSome), so that the page never waits for the whole of it
+/// (`TryOn::settle`; setting the shape at once takes some 200 ms in the browser).
 function applyPhenotype() {
   if (state.previewFrame) {
     cancelAnimationFrame(state.previewFrame);
@@ -101,9 +111,29 @@ function applyPhenotype() {
   const s = sliders();
   showSliders(s);
   guarded("body", () => {
-    showBetas(state.tryOn.setPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
+    showBetas(state.tryOn.previewPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
+    state.settling = true;
     redraw();
   });
+}
+
+/// One display frame's slice of holding the arms anew for the shape shown: `settle` a look at a
+/// time until SETTLE_MS pass; when the arms are held the frame shown is recomputed with them
+/// (the frame setting the shape at once gives) and drawn. Returns whether that happened.
+function settleSome() {
+  const t = state.tryOn;
+  const start = performance.now();
+  let done = false;
+  const ok = guarded("arms", () => {
+    while (!done && performance.now() - start < SETTLE_MS) {
+      const call = performance.now();
+      done = t.settle(1);
+      state.settleLongestMs = Math.max(state.settleLongestMs, performance.now() - call);
+    }
+  });
+  if (!ok || done) state.settling = false;
+  if (done) redraw();
+  return done;
 }
 
 function applyBetas() {
@@ -114,7 +144,8 @@ function applyBetas() {
     return;
   }
   guarded("β", () => {
-    showBetas(state.tryOn.setBetas(new Float64Array(values)));
+    showBetas(state.tryOn.previewBetas(new Float64Array(values)));
+    state.settling = true;
     redraw();
   });
 }
@@ -219,12 +250,18 @@ function redraw() {
   $("scrub").value = String(t.frame);
   const turn = t.armTurnDeg;
   $("frame-out").textContent =
-    `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (limbs turned ${turn.toFixed(0)}°)` : "");
+    `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (limbs turned ${turn.toFixed(0)}°)` : "") +
+    (state.settling ? " (holding the limbs for the new shape)" : "");
   return draw;
 }
 
 function tick(now) {
   const t = state.tryOn;
+  // A display frame whose slice recomputed (and drew) the frame shown steps no further.
+  if (state.settling && settleSome()) {
+    requestAnimationFrame(tick);
+    return;
+  }
   if (state.playing && now - state.lastStep >= 1000 / MOTION_FPS - 1) {
     state.lastStep = now;
     let stepped = true;
@@ -272,8 +309,10 @@ function transferred() {
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
 /// milliseconds of each stage (what the page can sustain, independent of the display rate), of
-/// a jump's garment (`jump`), of a whole change of shape (`shape`) and of its preview while a
-/// slider moves (`preview`).
+/// a jump's garment (`jump`), of a whole change of shape (`shape`), of the same change as a
+/// slider's release makes it in slices (`releaseLongest`, the longest call of the preview and
+/// the `settle(1)` calls, and `releaseWhole`, all of them) and of a preview while a slider
+/// moves (`preview`).
 function bench(frames = 120) {
   const t = state.tryOn;
   const was = state.playing;
@@ -296,6 +335,25 @@ function bench(frames = 120) {
   const betas = t.betas();
   const other = Float64Array.from(betas, (b, i) => (i === 0 ? b + 0.5 : b));
   const shape = medianMs(4, (i) => t.setBetas(i % 2 === 0 ? other : betas));
+  // The same changes as a slider's release makes them: the preview, then `settle` a look at a
+  // time (the page spreads these calls over display frames, SETTLE_MS each).
+  const longest = [];
+  const whole = [];
+  for (let i = 0; i < 4; i++) {
+    let most = 0;
+    const call = (f) => {
+      const start = performance.now();
+      const result = f();
+      most = Math.max(most, performance.now() - start);
+      return result;
+    };
+    const start = performance.now();
+    call(() => t.previewBetas(i % 2 === 0 ? other : betas));
+    while (!call(() => t.settle(1)));
+    longest.push(most);
+    whole.push(performance.now() - start);
+  }
+  const middle = (v) => v.sort((a, b) => a - b)[Math.floor(v.length / 2)];
   // The same changes as a slider's move previews them (the arms as held for the shape last
   // set, the one in use): the last preview is of that shape, so it stays as it was set.
   const preview = medianMs(4, (i) => t.previewBetas(i % 2 === 0 ? other : betas));
@@ -315,6 +373,8 @@ function bench(frames = 120) {
     garmentFrame: totals[Math.floor(totals.length / 2)],
     jump,
     shape,
+    releaseLongest: middle(longest),
+    releaseWhole: middle(whole),
     preview,
   };
 }

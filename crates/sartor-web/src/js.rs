@@ -135,6 +135,13 @@ impl WebTryOn {
         self.inner.preview_phenotype(&sliders).map_err(js)
     }
 
+    /// After a preview, hold the arms out for the shape in use, at most `maxLooks` looks of the
+    /// body this call (about 1 to 2 ms each; see `TryOn::settle`); `true` once they are held
+    /// and the frame shown is the one `setPhenotype` gives, `false` while there is more to do.
+    pub fn settle(&mut self, max_looks: usize) -> Result<bool, JsError> {
+        self.inner.settle(max_looks).map_err(js)
+    }
+
     /// Shape from a phenotype text such as `female, 1.70 m, heavy`; returns β.
     #[wasm_bindgen(js_name = setPhenotypeText)]
     pub fn set_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>, JsError> {

@@ -188,8 +188,14 @@ pub struct TryOn {
     motion: Motion,
     /// The body's arms and torso and the options, with [`TryOnOptions::arm_clearance`].
     arms: Option<(ArmClearance, ClearanceOptions)>,
-    /// The motion's poses with the arms held out for the shape in use, as far as computed.
+    /// The motion's poses with the arms held out for the shape `held_for`, as far as computed.
     cleared: Option<ClearanceOnDemand>,
+    /// The model's β the arms of `cleared` are held for: `betas`, but after a preview
+    /// ([`TryOn::preview_betas`]) until [`TryOn::settle`] holds them anew.
+    held_for: Vec<f64>,
+    /// The arms being held anew for `betas` by [`TryOn::settle`], as far as computed (`None`:
+    /// not begun).
+    settling: Option<ClearanceOnDemand>,
     frame: usize,
     clock: Option<fn() -> f64>,
     times: FrameTimes,
@@ -291,11 +297,13 @@ impl TryOn {
             space,
             retarget,
             animator,
+            held_for: betas.clone(),
             betas,
             posed_body,
             motion: still,
             arms,
             cleared: None,
+            settling: None,
             frame: 0,
             clock: options.clock,
             times: FrameTimes::default(),
@@ -350,14 +358,56 @@ impl TryOn {
     }
 
     /// [`TryOn::set_betas`] as a preview while a slider moves: the body and the garment take
-    /// the new shape at once, but the arms stay held as for the shape last set with
-    /// `set_betas`: holding them anew, for every frame the one shown depends on, is most of a
-    /// change of shape's time (`cargo bench -p sartor-web --bench seek -- shape`: 142 ms a
-    /// change, 15 a preview, on the AMD EPYC VM). Set the shape with `set_betas` (or
-    /// [`TryOn::set_phenotype`]) once the slider settles: that gives the frame it would give
+    /// the new shape at once, but the arms stay held as for the shape they were last held for
+    /// (by `set_betas` or [`TryOn::settle`]): holding them anew, for every frame the one shown
+    /// depends on, is most of a change of shape's time (`cargo bench -p sartor-web --bench seek
+    /// -- shape`: 172–179 ms a change, 15 a preview, on the AMD EPYC VM). Once the slider
+    /// settles, hold the arms for the shape with [`TryOn::settle`] a few looks at a time (or set
+    /// the shape with `set_betas` at once): either gives the frame that `set_betas` would give
     /// without the previews. Returns the β in use.
     pub fn preview_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>> {
         self.shape(betas, false)
+    }
+
+    /// Hold the arms out for the shape in use after a preview ([`TryOn::preview_betas`]), in
+    /// steps that keep a page responsive: each call takes at most `max_looks` looks (a look
+    /// poses the body at one frame and measures the held limbs: about 0.8 ms natively on the
+    /// AMD EPYC VM), the first builds the new shape's torso instead (about 5 ms), and what is
+    /// computed is kept between calls. Meanwhile frames play with the arms as held before. Once
+    /// every frame that the frame shown depends on is held, the new arms take over and the
+    /// frame shown is computed anew (a jump, [`TryOn::seek`]): it is then the frame
+    /// [`TryOn::set_betas`] gives, bit for bit. Returns `true` when the arms are held for the
+    /// shape in use (at once without a preview pending, or without
+    /// [`TryOnOptions::arm_clearance`]), `false` when there is more to do.
+    pub fn settle(&mut self, max_looks: usize) -> Result<bool> {
+        if self.arms.is_none() || self.held_for == self.betas {
+            return Ok(true);
+        }
+        let Some(settling) = &mut self.settling else {
+            self.settling = self.clearance_for(&self.motion, &self.betas)?;
+            return Ok(false);
+        };
+        // The frames a jump to the frame shown poses (see `seek`).
+        let first = self.frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1);
+        let mut left = max_looks;
+        for t in first..=self.frame {
+            let looks = settling.looks();
+            if !settling.prepare(&self.body, t, left)? {
+                return Ok(false);
+            }
+            left -= settling.looks() - looks;
+        }
+        let previous = (
+            std::mem::replace(&mut self.cleared, self.settling.take()),
+            std::mem::replace(&mut self.held_for, self.betas.clone()),
+        );
+        if let Err(e) = self.seek(self.frame) {
+            // The arms as they were held, at the frame shown.
+            (self.cleared, self.held_for) = previous;
+            self.seek(self.frame)?;
+            return Err(e);
+        }
+        Ok(true)
     }
 
     /// [`TryOn::set_betas`], the arms held anew for the shape when `hold_arms`, else as they
@@ -378,7 +428,9 @@ impl TryOn {
         self.posed_body = posed_body;
         if let Some(cleared) = cleared {
             self.cleared = cleared;
+            self.held_for = model_betas.clone();
         }
+        self.settling = None;
         self.betas = model_betas;
         self.seek(self.frame)?;
         Ok(self.betas.clone())
@@ -434,10 +486,12 @@ impl TryOn {
         let previous = (
             std::mem::replace(&mut self.motion, motion),
             std::mem::replace(&mut self.cleared, cleared),
+            std::mem::replace(&mut self.held_for, self.betas.clone()),
+            self.settling.take(),
         );
         if let Err(e) = self.seek(0) {
             // Back to the motion that played, at its frame.
-            (self.motion, self.cleared) = previous;
+            (self.motion, self.cleared, self.held_for, self.settling) = previous;
             self.seek(self.frame)?;
             return Err(e);
         }

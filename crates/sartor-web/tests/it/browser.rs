@@ -409,14 +409,17 @@ fn the_page_works_in_headless_chromium() {
     std::thread::sleep(Duration::from_millis(700));
     assert_ne!(first, frame(&browser), "frames advance");
 
-    // Two bodies: the garment differs, and stays finite.
+    // Two bodies: the garment differs, and stays finite. A slider's release shows the shape at
+    // once and holds the arms anew over the next display frames.
     browser.eval("window.sartor.setPlaying(false);");
+    let settled = || browser.wait_for("!window.sartor.state.settling", Duration::from_secs(20));
     let set_body = |weight: f64, height: f64, gender: f64| {
         browser.eval(&format!(
             "for (const [id, v] of [['weight', {weight}], ['height', {height}], ['gender', {gender}]]) {{ \
                const e = document.getElementById(id); e.value = v; \
                e.dispatchEvent(new Event('change')); }}"
         ));
+        settled();
         floats(&browser.eval("return window.sartor.garment();"))
     };
     let light = set_body(0.1, 1.60, 0.0);
@@ -472,10 +475,23 @@ fn the_page_works_in_headless_chromium() {
     // (A preview that changed nothing would read 0.)
     assert!(moved > 1e-3, "the preview shows the new shape ({moved} m)");
     assert_ne!(measured(), measured_before, "and its measurements");
-    let released = floats(&browser.eval(
+    let holding = browser.eval(
         "document.getElementById('weight').dispatchEvent(new Event('change')); \
-         return window.sartor.garment();",
-    ));
+         return [window.sartor.state.settling, document.getElementById('frame-out').textContent];",
+    );
+    assert_eq!(
+        holding[0],
+        json!(true),
+        "the release holds the arms anew: {holding}"
+    );
+    assert!(
+        holding[1]
+            .as_str()
+            .is_some_and(|s| s.contains("holding the limbs")),
+        "and says so: {holding}"
+    );
+    settled();
+    let released = floats(&browser.eval("return window.sartor.garment();"));
     let direct = floats(&browser.eval(
         "const v = (id) => Number(document.getElementById(id).value); \
          window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
@@ -486,6 +502,18 @@ fn the_page_works_in_headless_chromium() {
         released, direct,
         "the release shows what setting the shape shows"
     );
+    // Released while the clip plays: it plays on while the arms are held anew.
+    let playing_from = browser.eval(
+        "window.sartor.setPlaying(true); const e = document.getElementById('weight'); \
+         e.value = 0.5; e.dispatchEvent(new Event('change')); \
+         return window.sartor.state.tryOn.frame;",
+    );
+    let release_wall = settled();
+    let release = browser.eval(
+        "window.sartor.setPlaying(false); \
+         return [window.sartor.state.tryOn.frame, window.sartor.state.settleLongestMs];",
+    );
+    assert_ne!(release[0], playing_from, "frames advanced while settling");
 
     // A shopper's measurements: the page fits the body to them (gender, height and age from
     // the sliders) and says what it reached; a body no shape has is an error on the page.
@@ -670,10 +698,14 @@ fn the_page_works_in_headless_chromium() {
          kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
+         released while playing: arms held after {release_wall:?} (frames {playing_from} to {}), \
+         longest call of the page's slices {} ms\n\
          measurements fitted in {} ms: {}\n\
          back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),
         sartor_runtime_isa(),
+        release[0],
+        release[1],
         fitted["ms"],
         fitted["shown"],
         shot.display(),
@@ -688,7 +720,14 @@ fn the_page_works_in_headless_chromium() {
         pixels[1] > 0.01 * pixels[0] && pixels[2] > 0.005 * pixels[0],
         "body and garment are drawn: {pixels:?}"
     );
-    for key in ["garmentFrame", "jump", "shape", "preview"] {
+    for key in [
+        "garmentFrame",
+        "jump",
+        "shape",
+        "releaseLongest",
+        "releaseWhole",
+        "preview",
+    ] {
         let ms = bench[key].as_f64().expect("ms");
         assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
     }

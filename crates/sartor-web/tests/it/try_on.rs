@@ -285,24 +285,28 @@ fn a_crouch_plays_with_the_legs_held_out_of_the_shirt() {
     );
 }
 
+/// The page's session with the limbs held, playing CMU 02_02 (which holds the arms in every
+/// frame), at frame 20.
+fn playing_02_02() -> TryOn {
+    let mut t = TryOn::load(
+        shipped_files(),
+        TryOnOptions {
+            arm_clearance: Some(shipped_arm_clearance()),
+            ..TryOnOptions::default()
+        },
+    )
+    .expect("load");
+    let clip = stored_clip(&t, "02_02");
+    t.set_motion(clip).expect("play");
+    t.seek(20).expect("seek");
+    t
+}
+
 #[test]
 fn a_preview_shows_the_new_shape_with_the_arms_held_for_the_last_and_leaves_no_trace() {
     // As a slider moves, the page previews each shape: body and garment anew, the arms as held
     // for the shape last set (CMU 02_02 holds them in every frame); the release sets the shape.
-    let play = || {
-        let mut t = TryOn::load(
-            shipped_files(),
-            TryOnOptions {
-                arm_clearance: Some(shipped_arm_clearance()),
-                ..TryOnOptions::default()
-            },
-        )
-        .expect("load");
-        let clip = stored_clip(&t, "02_02");
-        t.set_motion(clip).expect("play");
-        t.seek(20).expect("seek");
-        t
-    };
+    let play = playing_02_02;
     let mut t = play();
     let (garment, body, turn) = (t.garment_vertices(), t.body_vertices(), t.arm_turn_deg());
     assert!(turn > 0.0, "frame 20 holds the arms");
@@ -333,4 +337,74 @@ fn a_preview_shows_the_new_shape_with_the_arms_held_for_the_last_and_leaves_no_t
     assert!(t.preview_betas(&[f64::NAN]).is_err());
     assert_eq!(t.betas()[..2], wide);
     assert_eq!(t.garment_vertices(), direct.garment_vertices());
+}
+
+#[test]
+fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_shows() {
+    // The page's release: a preview of the shape, then the arms held anew a few looks at a
+    // time between display frames, paused and while playing; then the frame `set_betas` gives.
+    let wide = [0.0, 2.0];
+    let mut t = playing_02_02();
+    let turn = t.arm_turn_deg();
+    t.preview_betas(&wide).expect("preview");
+    let previewed = t.garment_vertices();
+    let mut calls = 0;
+    while !t.settle(3).expect("settle") {
+        calls += 1;
+        // The frame shown keeps the arms as held before until the new ones take over.
+        assert_eq!(t.arm_turn_deg(), turn);
+        assert_eq!(t.garment_vertices(), previewed);
+    }
+    // CMU 02_02's 16 frames shown after a jump depend on 73 frames, several looks each.
+    assert!(calls > 20, "{calls} calls of three looks");
+    assert!(t.arm_turn_deg() > turn, "held anew for the wider body");
+    let mut direct = playing_02_02();
+    direct.set_betas(&wide).expect("shape");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.body_vertices(), direct.body_vertices());
+    assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+    assert!(t.settle(3).expect("settled"), "nothing left to do");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+
+    // While the clip plays, and after a second preview that starts the work again: the frame
+    // reached when the arms take over is the one the shape set at once shows there.
+    let narrow = [0.0, -1.0];
+    let mut t = playing_02_02();
+    t.preview_betas(&wide).expect("preview");
+    for _ in 0..5 {
+        t.settle(3).expect("settle");
+        t.step().expect("step");
+    }
+    t.preview_betas(&narrow).expect("preview");
+    // A playing frame asks about one look a pass of a frame not yet looked at: the steps
+    // must leave room for more to catch up.
+    let mut steps = 0;
+    while !t.settle(8).expect("settle") {
+        t.step().expect("step");
+        steps += 1;
+    }
+    let frame = t.frame();
+    assert!(steps > 5, "{steps} frames played while settling");
+    assert_eq!(
+        frame,
+        25 + steps,
+        "played on while settling ({} frames)",
+        t.n_frames()
+    );
+    let mut direct = playing_02_02();
+    direct.set_betas(&narrow).expect("shape");
+    direct.seek(frame).expect("seek");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+    // Playing on, the frames are those of the shape set at once.
+    for _ in 0..3 {
+        t.step().expect("step");
+        direct.step().expect("step");
+        assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    }
+
+    // Without held arms there is nothing to settle.
+    let mut plain = load();
+    plain.preview_betas(&wide).expect("preview");
+    assert!(plain.settle(0).expect("settle"));
 }
