@@ -23,6 +23,8 @@ const state = {
   previewFrame: 0, // the animation frame a slider's preview waits for (0: none)
   previews: 0,
   settling: false, // the arms being held anew for a new shape (settleSome)
+  seekTarget: null, // the frame the scrub bar asks for while its held arms are computed (seekSome)
+  seekSlices: [0, 0], // of the last scrub: display frames with a slice, milliseconds in them
   settleLongestMs: 0, // the longest call of the slices so far
 };
 
@@ -134,6 +136,26 @@ function settleSome() {
   if (!ok || done) state.settling = false;
   if (done) redraw();
   return done;
+}
+
+/// One display frame's slice of a scrub: the held arms of the frame the scrub bar asks for (and
+/// of the warm-up frames before it) computed a look at a time until SETTLE_MS pass, then the
+/// jump to it. Returns whether the jump happened (and was drawn).
+function seekSome() {
+  const t = state.tryOn;
+  const start = performance.now();
+  let ready = false;
+  const ok = guarded("seek", () => {
+    while (!ready && performance.now() - start < SETTLE_MS) {
+      ready = t.prepareSeek(state.seekTarget, 1);
+    }
+    if (ready) t.seek(state.seekTarget);
+  });
+  state.seekSlices[0] += 1;
+  state.seekSlices[1] += performance.now() - start;
+  if (!ok || ready) state.seekTarget = null;
+  if (ready) redraw();
+  return ready;
 }
 
 function applyBetas() {
@@ -258,7 +280,7 @@ function redraw() {
 function tick(now) {
   const t = state.tryOn;
   // A display frame whose slice recomputed (and drew) the frame shown steps no further.
-  if (state.settling && settleSome()) {
+  if ((state.seekTarget !== null && seekSome()) || (state.settling && settleSome())) {
     requestAnimationFrame(tick);
     return;
   }
@@ -449,12 +471,12 @@ async function main() {
     if (file) playBvhFile(file);
   });
   $("play").addEventListener("click", () => setPlaying(!state.playing));
+  // The jump waits for its frame's held arms, computed a slice a display frame (seekSome).
   $("scrub").addEventListener("input", () => {
     setPlaying(false);
-    guarded("seek", () => {
-      t.seek(Number($("scrub").value));
-      redraw();
-    });
+    state.seekTarget = Number($("scrub").value);
+    state.seekSlices = [0, 0];
+    $("frame-out").textContent = `${state.seekTarget + 1} / ${t.nFrames} (holding the limbs)`;
   });
   $("body-panel").disabled = false;
   $("motion-panel").disabled = false;

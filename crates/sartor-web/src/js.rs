@@ -142,6 +142,13 @@ impl WebTryOn {
         self.inner.settle(max_looks).map_err(js)
     }
 
+    /// Compute, at most `maxLooks` looks of the body this call, the held arms a jump to `frame`
+    /// needs (see `TryOn::prepare_seek`); `true` once `seek(frame)` would compute none of them.
+    #[wasm_bindgen(js_name = prepareSeek)]
+    pub fn prepare_seek(&mut self, frame: usize, max_looks: usize) -> Result<bool, JsError> {
+        self.inner.prepare_seek(frame, max_looks).map_err(js)
+    }
+
     /// Shape from a phenotype text such as `female, 1.70 m, heavy`; returns β.
     #[wasm_bindgen(js_name = setPhenotypeText)]
     pub fn set_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>, JsError> {

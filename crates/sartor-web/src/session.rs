@@ -208,6 +208,27 @@ pub struct TryOn {
     measurer: Option<BodyMeasurer>,
 }
 
+/// Compute in `held`, taking at most `max_looks` looks, the poses [`TryOn::seek`] asks of a
+/// jump to `frame` (the frame before the warm-up, the warm-up frames and `frame`): whether all
+/// of them are computed.
+fn prepare_jump(
+    held: &mut ClearanceOnDemand,
+    body: &BodyModel,
+    frame: usize,
+    max_looks: usize,
+) -> Result<bool> {
+    let first = frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1);
+    let mut left = max_looks;
+    for t in first..=frame {
+        let looks = held.looks();
+        if !held.prepare(body, t, left)? {
+            return Ok(false);
+        }
+        left -= held.looks() - looks;
+    }
+    Ok(true)
+}
+
 /// Flatten points into `x, y, z, x, y, z, …`.
 fn flat(points: &[Vector3<f32>]) -> Vec<f32> {
     points.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
@@ -387,15 +408,8 @@ impl TryOn {
             self.settling = self.clearance_for(&self.motion, &self.betas)?;
             return Ok(false);
         };
-        // The frames a jump to the frame shown poses (see `seek`).
-        let first = self.frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1);
-        let mut left = max_looks;
-        for t in first..=self.frame {
-            let looks = settling.looks();
-            if !settling.prepare(&self.body, t, left)? {
-                return Ok(false);
-            }
-            left -= settling.looks() - looks;
+        if !prepare_jump(settling, &self.body, self.frame, max_looks)? {
+            return Ok(false);
         }
         let previous = (
             std::mem::replace(&mut self.cleared, self.settling.take()),
@@ -408,6 +422,21 @@ impl TryOn {
             return Err(e);
         }
         Ok(true)
+    }
+
+    /// Compute, taking at most `max_looks` looks, the held arms a jump to `frame` (clamped to
+    /// the motion) needs ([`TryOn::seek`] poses the frame and the warm-up frames before it):
+    /// `true` once that `seek` would look at no frame (it then costs the garment's part of a
+    /// jump alone), `false` while there is more to do; what is computed is kept. A page that
+    /// scrubs through a clip whose frames need their arms held calls it between display
+    /// frames and seeks when it is ready, instead of waiting on `seek` (up to some 200 ms).
+    /// Without [`TryOnOptions::arm_clearance`], `true`.
+    pub fn prepare_seek(&mut self, frame: usize, max_looks: usize) -> Result<bool> {
+        let frame = frame.min(self.motion.n_frames() - 1);
+        match &mut self.cleared {
+            Some(cleared) => prepare_jump(cleared, &self.body, frame, max_looks),
+            None => Ok(true),
+        }
     }
 
     /// [`TryOn::set_betas`], the arms held anew for the shape when `hold_arms`, else as they

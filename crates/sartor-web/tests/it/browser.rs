@@ -568,6 +568,33 @@ fn the_page_works_in_headless_chromium() {
         "window.sartor.state.tryOn.motionName === 'cmu/05_06' && window.sartor.state.tryOn.frame > 5",
         Duration::from_secs(30),
     );
+    // The scrub bar: the jump waits for its frame's held arms, computed over display frames
+    // while the page draws on, then shows what a jump at once shows.
+    let scrub = browser.eval(
+        "const s = document.getElementById('scrub'); s.value = 150; \
+         s.dispatchEvent(new Event('input')); \
+         return [window.sartor.state.seekTarget, \
+                 document.getElementById('frame-out').textContent];",
+    );
+    assert_eq!(scrub[0], json!(150), "the jump waits: {scrub}");
+    let scrub_wall = browser.wait_for(
+        "window.sartor.state.seekTarget === null",
+        Duration::from_secs(20),
+    );
+    let scrubbed = browser.eval(
+        "return [window.sartor.state.tryOn.frame, window.sartor.garment(), \
+                 document.getElementById('error').hidden, window.sartor.state.seekSlices];",
+    );
+    assert_eq!(scrubbed[0], json!(150), "{}", scrubbed[2]);
+    let direct = floats(
+        &browser.eval("window.sartor.state.tryOn.seek(150); return window.sartor.garment();"),
+    );
+    assert_eq!(
+        floats(&scrubbed[1]),
+        direct,
+        "the scrub shows what a jump at once shows"
+    );
+    browser.eval("window.sartor.setPlaying(true);");
 
     // Speed: the page's own mean, then a back-to-back run.
     std::thread::sleep(Duration::from_millis(2500));
@@ -699,13 +726,15 @@ fn the_page_works_in_headless_chromium() {
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
          released while playing: arms held after {release_wall:?} (frames {playing_from} to {}), \
-         longest call of the page's slices {} ms\n\
+         longest call of the page's slices {} ms; a scrub to frame 150 of 05_06 shown after \
+         {scrub_wall:?} ([display frames with a slice, ms in them] {})\n\
          measurements fitted in {} ms: {}\n\
          back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),
         sartor_runtime_isa(),
         release[0],
         release[1],
+        scrubbed[3],
         fitted["ms"],
         fitted["shown"],
         shot.display(),

@@ -408,3 +408,31 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
     plain.preview_betas(&wide).expect("preview");
     assert!(plain.settle(0).expect("settle"));
 }
+
+#[test]
+fn a_scrub_computes_the_held_arms_of_its_frame_a_few_looks_at_a_time() {
+    // The page's scrub bar: the held arms a jump needs computed between display frames, then
+    // the jump, which then looks at no frame and shows what a jump at once shows.
+    let mut t = playing_02_02();
+    let shown = t.garment_vertices();
+    let target = t.n_frames() - 10;
+    let mut calls = 0;
+    while !t.prepare_seek(target, 3).expect("prepare") {
+        calls += 1;
+        assert_eq!(t.frame(), 20, "the frame shown stays");
+    }
+    assert!(calls > 20, "{calls} calls of three looks");
+    assert!(t.prepare_seek(target, 0).expect("prepared"), "nothing left");
+    assert_eq!(t.garment_vertices(), shown);
+    t.seek(target).expect("seek");
+    let mut direct = playing_02_02();
+    direct.seek(target).expect("seek");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+    // A frame past the end is the last, as `seek` takes it (not an error).
+    while !t.prepare_seek(usize::MAX, 3).expect("clamped") {}
+    t.seek(usize::MAX).expect("seek");
+    assert_eq!(t.frame(), t.n_frames() - 1);
+    // Without held arms a jump needs nothing.
+    assert!(load().prepare_seek(0, 0).expect("prepare"));
+}
