@@ -119,43 +119,48 @@ function applyPhenotype() {
   });
 }
 
-/// One display frame's slice of holding the arms anew for the shape shown: `settle` a look at a
-/// time until SETTLE_MS pass; when the arms are held the frame shown is recomputed with them
-/// (the frame setting the shape at once gives) and drawn. Returns whether that happened.
-function settleSome() {
-  const t = state.tryOn;
+/// One display frame's slice of work: `look` (a call that takes at most one look and returns
+/// whether the work is done) until it is done or SETTLE_MS pass, then `finish` if done. Returns
+/// whether the work is over: done, or failed (the error is shown).
+function slice(what, look, finish) {
   const start = performance.now();
   let done = false;
-  const ok = guarded("arms", () => {
-    while (!done && performance.now() - start < SETTLE_MS) {
-      const call = performance.now();
-      done = t.settle(1);
-      state.settleLongestMs = Math.max(state.settleLongestMs, performance.now() - call);
-    }
+  const ok = guarded(what, () => {
+    while (!done && performance.now() - start < SETTLE_MS) done = look();
+    if (done) finish();
   });
-  if (!ok || done) state.settling = false;
+  return { over: !ok || done, done: ok && done, ms: performance.now() - start };
+}
+
+/// One display frame's slice of holding the arms anew for the shape shown (`settle`); when they
+/// are held the frame shown is recomputed with them (the frame setting the shape at once gives)
+/// and drawn. Returns whether that happened.
+function settleSome() {
+  const t = state.tryOn;
+  const look = () => {
+    const call = performance.now();
+    const done = t.settle(1);
+    state.settleLongestMs = Math.max(state.settleLongestMs, performance.now() - call);
+    return done;
+  };
+  const { over, done } = slice("arms", look, () => {});
+  if (over) state.settling = false;
   if (done) redraw();
   return done;
 }
 
 /// One display frame's slice of a scrub: the held arms of the frame the scrub bar asks for (and
-/// of the warm-up frames before it) computed a look at a time until SETTLE_MS pass, then the
-/// jump to it. Returns whether the jump happened (and was drawn).
+/// of the warm-up frames before it, `prepareSeek`), then the jump to it. Returns whether the
+/// jump happened (and was drawn).
 function seekSome() {
   const t = state.tryOn;
-  const start = performance.now();
-  let ready = false;
-  const ok = guarded("seek", () => {
-    while (!ready && performance.now() - start < SETTLE_MS) {
-      ready = t.prepareSeek(state.seekTarget, 1);
-    }
-    if (ready) t.seek(state.seekTarget);
-  });
+  const target = state.seekTarget;
+  const { over, done, ms } = slice("seek", () => t.prepareSeek(target, 1), () => t.seek(target));
   state.seekSlices[0] += 1;
-  state.seekSlices[1] += performance.now() - start;
-  if (!ok || ready) state.seekTarget = null;
-  if (ready) redraw();
-  return ready;
+  state.seekSlices[1] += ms;
+  if (over) state.seekTarget = null;
+  if (done) redraw();
+  return done;
 }
 
 function applyBetas() {

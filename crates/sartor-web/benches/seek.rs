@@ -12,31 +12,22 @@
 //! `cargo bench -p sartor-web --bench seek -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
+use sartor_web::{PhenotypeSliders, TryOn};
 
 // The integration tests' loaders of the shipped files (the bench uses some of them).
 #[allow(dead_code)]
 #[path = "../tests/it/common.rs"]
 mod common;
 
-use common::{shipped_arm_clearance, shipped_files, stored_clip};
+use common::playing_02_02;
 
 /// The page's session with the arms held, on the body of `phenotype` (`None`: nominal),
 /// playing CMU 02_02.
 fn playing(phenotype: Option<&str>) -> TryOn {
-    let mut t = TryOn::load(
-        shipped_files(),
-        TryOnOptions {
-            arm_clearance: Some(shipped_arm_clearance()),
-            ..TryOnOptions::default()
-        },
-    )
-    .expect("the shipped assets load");
+    let mut t = playing_02_02();
     if let Some(text) = phenotype {
         t.set_phenotype_text(text).expect("phenotype");
     }
-    let clip = stored_clip(&t, "02_02");
-    t.set_motion(clip).expect("play");
     t
 }
 

@@ -53,6 +53,22 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
     }
 }
 
+/// The page's session with the limbs held as the page holds them, playing CMU 02_02 (a walk
+/// whose every frame needs the arms held) from its first frame.
+pub fn playing_02_02() -> TryOn {
+    let mut t = TryOn::load(
+        shipped_files(),
+        TryOnOptions {
+            arm_clearance: Some(shipped_arm_clearance()),
+            ..TryOnOptions::default()
+        },
+    )
+    .expect("the shipped assets load");
+    let clip = stored_clip(&t, "02_02");
+    t.set_motion(clip).expect("play");
+    t
+}
+
 /// The stored CMU clip `id` (`02_02`) as the page fetches and loads it, retargeted onto `t`'s
 /// body.
 pub fn stored_clip(t: &TryOn, id: &str) -> Motion {

@@ -6,7 +6,7 @@ use sartor_core::BodyDistance;
 use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
 use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
 
-use crate::common::{load, repo, shipped_arm_clearance, shipped_files, stored_clip};
+use crate::common::{load, playing_02_02, repo, shipped_arm_clearance, shipped_files, stored_clip};
 
 use crate::reference::max_abs_diff;
 
@@ -285,19 +285,9 @@ fn a_crouch_plays_with_the_legs_held_out_of_the_shirt() {
     );
 }
 
-/// The page's session with the limbs held, playing CMU 02_02 (which holds the arms in every
-/// frame), at frame 20.
-fn playing_02_02() -> TryOn {
-    let mut t = TryOn::load(
-        shipped_files(),
-        TryOnOptions {
-            arm_clearance: Some(shipped_arm_clearance()),
-            ..TryOnOptions::default()
-        },
-    )
-    .expect("load");
-    let clip = stored_clip(&t, "02_02");
-    t.set_motion(clip).expect("play");
+/// [`playing_02_02`] at frame 20.
+fn at_frame_20() -> TryOn {
+    let mut t = playing_02_02();
     t.seek(20).expect("seek");
     t
 }
@@ -306,7 +296,7 @@ fn playing_02_02() -> TryOn {
 fn a_preview_shows_the_new_shape_with_the_arms_held_for_the_last_and_leaves_no_trace() {
     // As a slider moves, the page previews each shape: body and garment anew, the arms as held
     // for the shape last set (CMU 02_02 holds them in every frame); the release sets the shape.
-    let play = playing_02_02;
+    let play = at_frame_20;
     let mut t = play();
     let (garment, body, turn) = (t.garment_vertices(), t.body_vertices(), t.arm_turn_deg());
     assert!(turn > 0.0, "frame 20 holds the arms");
@@ -344,7 +334,7 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
     // The page's release: a preview of the shape, then the arms held anew a few looks at a
     // time between display frames, paused and while playing; then the frame `set_betas` gives.
     let wide = [0.0, 2.0];
-    let mut t = playing_02_02();
+    let mut t = at_frame_20();
     let turn = t.arm_turn_deg();
     t.preview_betas(&wide).expect("preview");
     let previewed = t.garment_vertices();
@@ -358,7 +348,7 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
     // CMU 02_02's 16 frames shown after a jump depend on 73 frames, several looks each.
     assert!(calls > 20, "{calls} calls of three looks");
     assert!(t.arm_turn_deg() > turn, "held anew for the wider body");
-    let mut direct = playing_02_02();
+    let mut direct = at_frame_20();
     direct.set_betas(&wide).expect("shape");
     assert_eq!(t.garment_vertices(), direct.garment_vertices());
     assert_eq!(t.body_vertices(), direct.body_vertices());
@@ -369,7 +359,7 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
     // While the clip plays, and after a second preview that starts the work again: the frame
     // reached when the arms take over is the one the shape set at once shows there.
     let narrow = [0.0, -1.0];
-    let mut t = playing_02_02();
+    let mut t = at_frame_20();
     t.preview_betas(&wide).expect("preview");
     for _ in 0..5 {
         t.settle(3).expect("settle");
@@ -391,7 +381,7 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
         "played on while settling ({} frames)",
         t.n_frames()
     );
-    let mut direct = playing_02_02();
+    let mut direct = at_frame_20();
     direct.set_betas(&narrow).expect("shape");
     direct.seek(frame).expect("seek");
     assert_eq!(t.garment_vertices(), direct.garment_vertices());
@@ -413,7 +403,7 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
 fn a_scrub_computes_the_held_arms_of_its_frame_a_few_looks_at_a_time() {
     // The page's scrub bar: the held arms a jump needs computed between display frames, then
     // the jump, which then looks at no frame and shows what a jump at once shows.
-    let mut t = playing_02_02();
+    let mut t = at_frame_20();
     let shown = t.garment_vertices();
     let target = t.n_frames() - 10;
     let mut calls = 0;
@@ -425,7 +415,7 @@ fn a_scrub_computes_the_held_arms_of_its_frame_a_few_looks_at_a_time() {
     assert!(t.prepare_seek(target, 0).expect("prepared"), "nothing left");
     assert_eq!(t.garment_vertices(), shown);
     t.seek(target).expect("seek");
-    let mut direct = playing_02_02();
+    let mut direct = at_frame_20();
     direct.seek(target).expect("seek");
     assert_eq!(t.garment_vertices(), direct.garment_vertices());
     assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
