@@ -22,7 +22,8 @@ const state = {
   errors: 0,
   previewFrame: 0, // the animation frame a slider's preview waits for (0: none)
   previews: 0,
-  settling: false, // the arms being held anew for a new shape (settleSome)
+  settling: false, // the arms being held anew for a new shape or clip (settleSome)
+  motionShown: null, // the name of the motion the scrub bar is set up for
   seekTarget: null, // the frame the scrub bar asks for while its held arms are computed (seekSome)
   seekSlices: [0, 0], // of the last scrub: display frames with a slice, milliseconds in them
   settleLongestMs: 0, // the longest call of the slices so far
@@ -132,9 +133,9 @@ function slice(what, look, finish) {
   return { over: !ok || done, done: ok && done, ms: performance.now() - start };
 }
 
-/// One display frame's slice of holding the arms anew for the shape shown (`settle`); when they
-/// are held the frame shown is recomputed with them (the frame setting the shape at once gives)
-/// and drawn. Returns whether that happened.
+/// One display frame's slice of holding the arms anew for the shape shown or a clip chosen
+/// (`settle`); when they are held the frame shown is recomputed with them (the frame setting
+/// the shape at once gives; a new clip's first frame) and drawn. Returns whether that happened.
 function settleSome() {
   const t = state.tryOn;
   const look = () => {
@@ -145,7 +146,8 @@ function settleSome() {
   };
   const { over, done } = slice("arms", look, () => {});
   if (over) state.settling = false;
-  if (done) redraw();
+  if (done && t.motionName !== state.motionShown) motionChanged();
+  else if (done) redraw();
   return done;
 }
 
@@ -213,26 +215,28 @@ async function chooseMotion(value) {
       ]);
       t.playStored(value, json, tensors);
     }
+    // It plays once its first frames' arms are held (settleSome).
+    state.settling = true;
     clearError();
   } catch (e) {
     showError(`motion ${value}: ${e && e.message ? e.message : e}`);
   }
-  motionChanged();
 }
 
 async function playBvhFile(file) {
   try {
     const text = await file.text();
     state.tryOn.playBvh(file.name, text);
+    state.settling = true;
     clearError();
   } catch (e) {
     showError(`dropped BVH: ${e && e.message ? e.message : e}`);
   }
-  motionChanged();
 }
 
 function motionChanged() {
   const t = state.tryOn;
+  state.motionShown = t.motionName;
   $("scrub").max = String(t.nFrames - 1);
   state.times = [];
   redraw();
@@ -278,7 +282,7 @@ function redraw() {
   const turn = t.armTurnDeg;
   $("frame-out").textContent =
     `${t.frame + 1} / ${t.nFrames}` + (turn > 0 ? ` (limbs turned ${turn.toFixed(0)}°)` : "") +
-    (state.settling ? " (holding the limbs for the new shape)" : "");
+    (state.settling ? " (holding the limbs)" : "");
   return draw;
 }
 

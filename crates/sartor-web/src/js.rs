@@ -120,8 +120,9 @@ impl WebTryOn {
     }
 
     /// [`Self::set_phenotype`] as a preview while a slider moves: body and garment in the new
-    /// shape, the arms held as for the shape last set (see `TryOn::preview_betas`); set the
-    /// shape with `setPhenotype` once the slider settles. Returns β.
+    /// shape, the arms held as for the shape last set (see `TryOn::preview_betas`); once the
+    /// slider settles, hold the arms for it with `settle` (or set the shape with
+    /// `setPhenotype`). Returns β.
     #[wasm_bindgen(js_name = previewPhenotype)]
     pub fn preview_phenotype(
         &mut self,
@@ -135,9 +136,11 @@ impl WebTryOn {
         self.inner.preview_phenotype(&sliders).map_err(js)
     }
 
-    /// After a preview, hold the arms out for the shape in use, at most `maxLooks` looks of the
-    /// body this call (about 1 to 2 ms each; see `TryOn::settle`); `true` once they are held
-    /// and the frame shown is the one `setPhenotype` gives, `false` while there is more to do.
+    /// After a preview or a `play…`, hold the arms out for the shape in use and the motion
+    /// begun, at most `maxLooks` looks of the body this call (about 1 to 2 ms each; see
+    /// `TryOn::settle`); `true` once they are held (the motion begun then plays from its first
+    /// frame, and the frame shown is the one `setPhenotype` gives), `false` while there is more
+    /// to do.
     pub fn settle(&mut self, max_looks: usize) -> Result<bool, JsError> {
         self.inner.settle(max_looks).map_err(js)
     }
@@ -167,18 +170,19 @@ impl WebTryOn {
         self.inner.preview_betas(betas).map_err(js)
     }
 
-    /// Play a procedural clip.
+    /// Play a procedural clip once `settle` returns `true` (see `TryOn::begin_motion`; so do
+    /// the other `play…` calls).
     #[wasm_bindgen(js_name = playProcedural)]
     pub fn play_procedural(&mut self, name: &str) -> Result<(), JsError> {
         let motion = TryOn::motion_procedural(name).map_err(js)?;
-        self.inner.set_motion(motion).map_err(js)
+        self.inner.begin_motion(motion).map_err(js)
     }
 
     /// Play a saved JSON motion (the walk cycle).
     #[wasm_bindgen(js_name = playJson)]
     pub fn play_json(&mut self, name: &str, bytes: &[u8]) -> Result<(), JsError> {
         let motion = TryOn::motion_json(name, bytes).map_err(js)?;
-        self.inner.set_motion(motion).map_err(js)
+        self.inner.begin_motion(motion).map_err(js)
     }
 
     /// Play a stored mocap clip (`cmu/05_06`: its JSON and safetensors bytes).
@@ -188,14 +192,14 @@ impl WebTryOn {
             .inner
             .motion_stored(name, json, tensors.to_vec())
             .map_err(js)?;
-        self.inner.set_motion(motion).map_err(js)
+        self.inner.begin_motion(motion).map_err(js)
     }
 
     /// Play a BVH file's text (`name`: its file name).
     #[wasm_bindgen(js_name = playBvh)]
     pub fn play_bvh(&mut self, name: &str, text: &str) -> Result<(), JsError> {
         let motion = self.inner.motion_bvh(name, text).map_err(js)?;
-        self.inner.set_motion(motion).map_err(js)
+        self.inner.begin_motion(motion).map_err(js)
     }
 
     /// Show frame `frame` (scrubbing).

@@ -196,6 +196,9 @@ pub struct TryOn {
     /// The arms being held anew for `betas` by [`TryOn::settle`], as far as computed (`None`:
     /// not begun).
     settling: Option<ClearanceOnDemand>,
+    /// A motion that plays once [`TryOn::settle`] has held its first frames
+    /// ([`TryOn::begin_motion`]), and its held arms for `betas` as far as computed.
+    next_motion: Option<(Motion, Option<ClearanceOnDemand>)>,
     frame: usize,
     clock: Option<fn() -> f64>,
     times: FrameTimes,
@@ -325,6 +328,7 @@ impl TryOn {
             arms,
             cleared: None,
             settling: None,
+            next_motion: None,
             frame: 0,
             clock: options.clock,
             times: FrameTimes::default(),
@@ -397,10 +401,31 @@ impl TryOn {
     /// computed is kept between calls. Meanwhile frames play with the arms as held before. Once
     /// every frame that the frame shown depends on is held, the new arms take over and the
     /// frame shown is computed anew (a jump, [`TryOn::seek`]): it is then the frame
-    /// [`TryOn::set_betas`] gives, bit for bit. Returns `true` when the arms are held for the
-    /// shape in use (at once without a preview pending, or without
-    /// [`TryOnOptions::arm_clearance`]), `false` when there is more to do.
+    /// [`TryOn::set_betas`] gives, bit for bit. A motion begun ([`TryOn::begin_motion`]) comes
+    /// first: once its first frames are held it plays from its first frame, its arms held for
+    /// the shape in use, as [`TryOn::set_motion`] would play it. Returns `true` when the arms
+    /// are held for the shape in use and the motion begun plays (at once when neither waits,
+    /// or without [`TryOnOptions::arm_clearance`]), `false` when there is more to do.
     pub fn settle(&mut self, max_looks: usize) -> Result<bool> {
+        if let Some((_, held)) = &mut self.next_motion {
+            let ready = match held {
+                Some(held) => prepare_jump(held, &self.body, 0, max_looks),
+                None => Ok(true),
+            };
+            match ready {
+                Ok(false) => return Ok(false),
+                Ok(true) => {
+                    let (motion, cleared) = self.next_motion.take().expect("a motion begun");
+                    // Held for the shape in use: nothing left to settle.
+                    self.switch_motion(motion, cleared)?;
+                    return Ok(true);
+                }
+                Err(e) => {
+                    self.next_motion = None;
+                    return Err(e);
+                }
+            }
+        }
         if self.arms.is_none() || self.held_for == self.betas {
             return Ok(true);
         }
@@ -451,6 +476,11 @@ impl TryOn {
         } else {
             None
         };
+        // A motion begun holds its arms for the new shape.
+        let next_cleared = match &self.next_motion {
+            Some((motion, _)) => Some(self.clearance_for(motion, &model_betas)?),
+            None => None,
+        };
         let posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
         let b32: Vec<f32> = model_betas.iter().map(|&b| b as f32).collect();
         self.animator.set_shape(&b32)?;
@@ -460,6 +490,9 @@ impl TryOn {
             self.held_for = model_betas.clone();
         }
         self.settling = None;
+        if let (Some((_, held)), Some(cleared)) = (&mut self.next_motion, next_cleared) {
+            *held = cleared;
+        }
         self.betas = model_betas;
         self.seek(self.frame)?;
         Ok(self.betas.clone())
@@ -490,6 +523,24 @@ impl TryOn {
     /// Play `motion` (the body's skeleton, any frame rate: resampled to 30 fps) from its first
     /// frame.
     pub fn set_motion(&mut self, motion: Motion) -> Result<()> {
+        let (motion, cleared) = self.playable(motion)?;
+        self.next_motion = None;
+        self.switch_motion(motion, cleared)
+    }
+
+    /// [`TryOn::set_motion`] once [`TryOn::settle`] has held the arms of its first frames (the
+    /// frame shown and the warm-up of a jump to it, a few looks a call), while the motion
+    /// playing plays on: a page keeps drawing instead of waiting for them. The motion is
+    /// checked at once (an error leaves everything as it was); another `begin_motion` or
+    /// `set_motion` replaces it.
+    pub fn begin_motion(&mut self, motion: Motion) -> Result<()> {
+        self.next_motion = Some(self.playable(motion)?);
+        Ok(())
+    }
+
+    /// `motion` checked against the body and resampled to 30 fps, and its held arms for the
+    /// shape in use (none computed yet).
+    fn playable(&self, motion: Motion) -> Result<(Motion, Option<ClearanceOnDemand>)> {
         if motion.joint_names() != self.body.skeleton().names() {
             return Err(Error::invalid(
                 "motion",
@@ -512,6 +563,11 @@ impl TryOn {
             motion
         };
         let cleared = self.clearance_for(&motion, &self.betas)?;
+        Ok((motion, cleared))
+    }
+
+    /// Play `motion`, its arms held as `cleared` holds them, from its first frame.
+    fn switch_motion(&mut self, motion: Motion, cleared: Option<ClearanceOnDemand>) -> Result<()> {
         let previous = (
             std::mem::replace(&mut self.motion, motion),
             std::mem::replace(&mut self.cleared, cleared),

@@ -362,7 +362,8 @@ fn the_page_works_in_headless_chromium() {
     // maths libraries, hence a tolerance).
     let shown = browser.eval(
         "const t = window.sartor.state.tryOn; window.sartor.setPlaying(false); \
-         t.setPhenotype(0.2, 1.65, 0.7, 0.4, 40); t.playProcedural('jumping_jacks'); t.seek(30); \
+         t.setPhenotype(0.2, 1.65, 0.7, 0.4, 40); t.playProcedural('jumping_jacks'); \
+         while (!t.settle(100)); t.seek(30); \
          const v = Array.from(t.garmentVertices()); const turn = t.armTurnDeg; \
          document.getElementById('motion').dispatchEvent(new Event('change')); \
          window.sartor.setPlaying(true); return {v, turn};",
@@ -559,13 +560,18 @@ fn the_page_works_in_headless_chromium() {
     );
     assert_eq!(cleared, json!(true), "the error stays after a slider moved");
 
-    // Another motion: a stored CMU clip, fetched and retargeted in the page.
+    // Another motion: a stored CMU clip, fetched and retargeted in the page; it plays once
+    // its first frames' arms are held, the clip before playing on meanwhile.
     browser.eval(
         "const s = document.getElementById('motion'); s.value = 'cmu/05_06'; \
          s.dispatchEvent(new Event('change')); window.sartor.setPlaying(true);",
     );
+    let clip_wall = browser.wait_for(
+        "window.sartor.state.tryOn.motionName === 'cmu/05_06'",
+        Duration::from_secs(30),
+    );
     browser.wait_for(
-        "window.sartor.state.tryOn.motionName === 'cmu/05_06' && window.sartor.state.tryOn.frame > 5",
+        "window.sartor.state.tryOn.frame > 5",
         Duration::from_secs(30),
     );
     // The scrub bar: the jump waits for its frame's held arms, computed over display frames
@@ -727,7 +733,8 @@ fn the_page_works_in_headless_chromium() {
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
          released while playing: arms held after {release_wall:?} (frames {playing_from} to {}), \
          longest call of the page's slices {} ms; a scrub to frame 150 of 05_06 shown after \
-         {scrub_wall:?} ([display frames with a slice, ms in them] {})\n\
+         {scrub_wall:?} ([display frames with a slice, ms in them] {}); CMU 05_06 chosen, \
+         playing after {clip_wall:?}\n\
          measurements fitted in {} ms: {}\n\
          back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),

@@ -426,3 +426,62 @@ fn a_scrub_computes_the_held_arms_of_its_frame_a_few_looks_at_a_time() {
     // Without held arms a jump needs nothing.
     assert!(load().prepare_seek(0, 0).expect("prepare"));
 }
+
+#[test]
+fn a_new_clip_plays_once_its_first_frames_are_held_while_the_last_one_plays_on() {
+    // The page's choice of a clip: the clip playing plays on while the new one's first frames
+    // get their arms held a few looks at a time; then it plays from its first frame as if
+    // set at once.
+    let mut t = at_frame_20();
+    let clip = stored_clip(&t, "05_06");
+    t.begin_motion(clip.clone()).expect("begin");
+    let mut steps = 0;
+    while !t.settle(3).expect("settle") {
+        assert_eq!(t.motion_name(), "cmu/02_02");
+        t.step().expect("step");
+        steps += 1;
+    }
+    assert!(steps > 3, "{steps} frames of the last clip while waiting");
+    assert_eq!((t.motion_name(), t.frame()), ("cmu/05_06", 0));
+    let mut direct = at_frame_20();
+    direct.set_motion(clip.clone()).expect("play");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    for _ in 0..3 {
+        t.step().expect("step");
+        direct.step().expect("step");
+    }
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert!(t.settle(0).expect("settled"), "nothing left to do");
+
+    // A shape previewed while the clip waits: the clip plays with the arms held for it.
+    let wide = [0.0, 2.0];
+    let mut t = at_frame_20();
+    t.begin_motion(clip.clone()).expect("begin");
+    assert!(!t.settle(3).expect("settle"));
+    t.preview_betas(&wide).expect("preview");
+    while !t.settle(3).expect("settle") {}
+    let mut direct = at_frame_20();
+    direct.set_betas(&wide).expect("shape");
+    direct.set_motion(clip.clone()).expect("play");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+
+    // A clip set at once replaces the one begun; a clip for another skeleton is refused and
+    // begins nothing.
+    let mut t = at_frame_20();
+    t.begin_motion(clip).expect("begin");
+    t.set_motion(stored_clip(&t, "02_10")).expect("play");
+    assert!(t.settle(0).expect("nothing waits"));
+    assert_eq!(t.motion_name(), "cmu/02_10");
+    let other = sartor_motion::Motion::new(
+        "other".into(),
+        30.0,
+        vec!["root".into()],
+        vec![sartor_core::Pose::rest(1)],
+    )
+    .expect("a one-joint motion");
+    let e = t.begin_motion(other).expect_err("another skeleton");
+    assert!(e.to_string().contains("another skeleton"), "{e}");
+    assert!(t.settle(0).expect("nothing waits"));
+    assert_eq!(t.motion_name(), "cmu/02_10");
+}
