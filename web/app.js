@@ -181,6 +181,7 @@ function applyBetas() {
 
 // The body that has the measurements typed (any of them), with the gender, height and age of
 // the sliders; weight and muscle are left to the fit (sartor_core::PhenotypeSpace::betas_for).
+// Shown at once, the arms then held anew for it as on a slider's release (settleSome).
 function fitMeasurements() {
   const s = sliders();
   const parts = [`gender=${s.gender}`, `height_m=${s.heightM}`, `age_years=${s.ageYears}`];
@@ -195,8 +196,9 @@ function fitMeasurements() {
   }
   const start = performance.now();
   guarded("measurements", () => {
-    showBetas(state.tryOn.setPhenotypeText(parts.join(", ")));
+    showBetas(state.tryOn.previewPhenotypeText(parts.join(", ")));
     state.fitMs = performance.now() - start;
+    state.settling = true;
     redraw();
   });
 }

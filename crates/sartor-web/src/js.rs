@@ -158,6 +158,12 @@ impl WebTryOn {
         self.inner.set_phenotype_text(text).map_err(js)
     }
 
+    /// [`Self::set_phenotype_text`] as a preview (see `previewPhenotype`); returns β.
+    #[wasm_bindgen(js_name = previewPhenotypeText)]
+    pub fn preview_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>, JsError> {
+        self.inner.preview_phenotype_text(text).map_err(js)
+    }
+
     /// Shape from β; returns the β in use.
     #[wasm_bindgen(js_name = setBetas)]
     pub fn set_betas(&mut self, betas: &[f64]) -> Result<Vec<f64>, JsError> {

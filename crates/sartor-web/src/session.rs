@@ -515,6 +515,15 @@ impl TryOn {
         self.set_phenotype_request(&PhenotypeRequest::parse(text)?)
     }
 
+    /// [`TryOn::set_phenotype_text`] as a preview ([`TryOn::preview_betas`]: the arms held as
+    /// before until [`TryOn::settle`] holds them for it); returns β.
+    pub fn preview_phenotype_text(&mut self, text: &str) -> Result<Vec<f64>> {
+        let (_, betas) = self
+            .space
+            .betas_for(&self.body, &PhenotypeRequest::parse(text)?)?;
+        self.preview_betas(&betas)
+    }
+
     fn set_phenotype_request(&mut self, request: &PhenotypeRequest) -> Result<Vec<f64>> {
         let (_, betas) = self.space.betas_for(&self.body, request)?;
         self.set_betas(&betas)

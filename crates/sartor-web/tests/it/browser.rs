@@ -544,6 +544,7 @@ fn the_page_works_in_headless_chromium() {
             .is_some_and(|s| s.contains("waist 76.0")),
         "the page shows what it reached: {fitted}"
     );
+    settled();
     let fitted_garment = floats(&browser.eval("return window.sartor.garment();"));
     assert!(fitted_garment.iter().all(|v| v.is_finite()), "finite");
     let unreachable = fit(80.0, 130.0, 90.0);

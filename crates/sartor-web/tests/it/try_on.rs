@@ -393,6 +393,20 @@ fn a_released_slider_holds_the_arms_in_steps_and_shows_what_setting_the_shape_sh
         assert_eq!(t.garment_vertices(), direct.garment_vertices());
     }
 
+    // A shopper's measurements, shown at once and settled the same way.
+    let text = "female, 1.68 m, chest_cm=92, waist_cm=76, hips_cm=100";
+    let mut t = at_frame_20();
+    let betas = t.preview_phenotype_text(text).expect("fit");
+    while !t.settle(8).expect("settle") {}
+    let mut direct = at_frame_20();
+    assert_eq!(direct.set_phenotype_text(text).expect("fit"), betas);
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert!(
+        t.preview_phenotype_text("female, 1.68 m, waist_cm=130x")
+            .is_err()
+    );
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+
     // Without held arms there is nothing to settle.
     let mut plain = load();
     plain.preview_betas(&wide).expect("preview");
