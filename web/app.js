@@ -122,14 +122,18 @@ function applyPhenotype() {
 
 /// One display frame's slice of work: `look` (a call that takes at most one look and returns
 /// whether the work is done) until it is done or SETTLE_MS pass, then `finish` if done. Returns
-/// whether the work is over: done, or failed (the error is shown).
+/// whether the work is over: done, or failed (the error is shown; an error shown before stays).
 function slice(what, look, finish) {
   const start = performance.now();
   let done = false;
-  const ok = guarded(what, () => {
+  let ok = true;
+  try {
     while (!done && performance.now() - start < SETTLE_MS) done = look();
     if (done) finish();
-  });
+  } catch (e) {
+    ok = false;
+    showError(`${what}: ${e && e.message ? e.message : e}`);
+  }
   return { over: !ok || done, done: ok && done, ms: performance.now() - start };
 }
 

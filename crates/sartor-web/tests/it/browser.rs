@@ -663,6 +663,20 @@ fn the_page_works_in_headless_chromium() {
         browser.eval("return window.sartor.state.tryOn.motionName;"),
         json!("cmu/05_06")
     );
+    // The page's slices of held arms (a scrub's here) leave the error shown.
+    browser.eval(
+        "const s = document.getElementById('scrub'); s.value = 60; \
+         s.dispatchEvent(new Event('input'));",
+    );
+    browser.wait_for(
+        "window.sartor.state.seekTarget === null",
+        Duration::from_secs(20),
+    );
+    assert_eq!(
+        browser.eval("return document.getElementById('error').hidden;"),
+        json!(false),
+        "the error stays"
+    );
 
     // The layout: the side panel never scrolls sideways (a fieldset's minimum width was its
     // longest clip name's), and on a phone held upright the view sits above the panel, each
