@@ -285,10 +285,7 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
     let arm_clearance: Option<sartor_motion::ClearanceOptions> =
         serde_json::from_value(config["simulation"]["arm_clearance"].clone())
             .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
-    let arm_clearance = arm_clearance.map(|arms| sartor_motion::ClearanceOptions {
-        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
-        ..arms
-    });
+    let arm_clearance = arm_clearance.map(sartor_motion::ClearanceOptions::with_player_legs);
     let manifest = Manifest {
         procedural: PAGE_PROCEDURAL.iter().map(|s| s.to_string()).collect(),
         clips: PAGE_CLIPS

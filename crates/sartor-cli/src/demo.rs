@@ -109,10 +109,7 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
 /// model's training motions did ([`shipped_arm_clearance`]), and the legs at
 /// `sartor_motion::LEG_CLEARANCE_M`.
 pub fn player_clearance() -> ClearanceOptions {
-    ClearanceOptions {
-        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
-        ..shipped_arm_clearance()
-    }
+    shipped_arm_clearance().with_player_legs()
 }
 
 /// The limbs as `demo` holds them ([`player_clearance`]), unless `--no-arm-clearance` /

@@ -101,6 +101,16 @@ impl Default for ClearanceOptions {
 }
 
 impl ClearanceOptions {
+    /// These options with the legs held at [`LEG_CLEARANCE_M`]: how sartor's players
+    /// (`sartor demo`, the try-on page) hold the limbs on top of the arms a model's training
+    /// motions had.
+    pub fn with_player_legs(self) -> Self {
+        Self {
+            leg_clearance_m: Some(LEG_CLEARANCE_M),
+            ..self
+        }
+    }
+
     /// Check the options: finite clearances ≥ 0 (the upper arm's and the legs' when set), a
     /// finite largest angle > 0.
     pub fn validate(&self) -> Result<()> {
@@ -184,6 +194,10 @@ pub const LEG_CLEARANCE_M: f64 = 0.01;
 /// and 57°, the feet of its crouch (frames 272–283) moved by up to 16, 6 and 5 cm, and the
 /// cartwheel of `cmu/05_06` kept 3, 11 and 13 of its 30 frames inside.
 const SWIVEL_MAX_RAD: f64 = 0.35;
+
+/// The largest turn of one iteration of a limb's fix, radians (20°): the first-order step
+/// `short / reach` overshoots where the lever is short.
+const MAX_STEP_RAD: f64 = 0.35;
 
 /// An upper-arm vertex is held out of the torso only this share of the upper arm's length
 /// (shoulder to elbow joint) or farther from the shoulder: nearer, turning the arm hardly moves
@@ -988,7 +1002,7 @@ impl ArmClearance {
                     let rate = a.cross(&lever).dot(&out);
                     let knee_moves = a.cross(&(joints[knee] - joints[j])) * rate.signum();
                     let outwards = knee_moves.dot(&(joints[j] - joints[self.root])) > 0.0;
-                    let step = (short / rate.abs()).min(0.35);
+                    let step = (short / rate.abs()).min(MAX_STEP_RAD);
                     if outwards && rate.abs() >= 1e-3 && swivel + step <= SWIVEL_MAX_RAD {
                         swivel += step;
                         (a * rate.signum(), rate.abs())
@@ -1000,7 +1014,7 @@ impl ArmClearance {
             if reach < 1e-3 || !reach.is_finite() {
                 break;
             }
-            let angle = (short / reach).min(0.35);
+            let angle = (short / reach).min(MAX_STEP_RAD);
             world = UnitQuaternion::from_scaled_axis(axis * angle) * world;
             let over = world.angle() - options.max_angle_rad;
             if over > 0.0 {

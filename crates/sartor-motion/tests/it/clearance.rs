@@ -138,10 +138,8 @@ fn shipped_limbs() -> (BodyModel, ArmClearance, ClearanceOptions, ClearanceOptio
         upper_arm_clearance_m: Some(0.005),
         ..ClearanceOptions::default()
     };
-    let legs = ClearanceOptions {
-        leg_clearance_m: Some(LEG_CLEARANCE_M),
-        ..arms.clone()
-    };
+    let legs = arms.clone().with_player_legs();
+    assert_eq!(legs.leg_clearance_m, Some(LEG_CLEARANCE_M));
     (body, clearance, arms, legs)
 }
 

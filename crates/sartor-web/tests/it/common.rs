@@ -38,7 +38,7 @@ pub fn load() -> TryOn {
 
 /// The limbs held out as the page holds them (`manifest.json`, which `cargo xtask web` writes):
 /// the arms as the shipped model's experiment held them in its training motions
-/// (`configs/default.json`), and the legs at `sartor_motion::LEG_CLEARANCE_M`.
+/// (`configs/default.json`), and the legs (`ClearanceOptions::with_player_legs`).
 pub fn shipped_arm_clearance() -> ClearanceOptions {
     let config: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(repo().join("configs/default.json")).expect("config"),
@@ -47,10 +47,7 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
     let arms: ClearanceOptions =
         serde_json::from_value(config["simulation"]["arm_clearance"].clone())
             .expect("the shipped experiment holds the arms out");
-    ClearanceOptions {
-        leg_clearance_m: Some(sartor_motion::LEG_CLEARANCE_M),
-        ..arms
-    }
+    arms.with_player_legs()
 }
 
 /// The page's session with the limbs held as the page holds them, playing CMU 02_02 (a walk
