@@ -15,6 +15,10 @@
 //! ([`sartor_runtime::StrainLimit`], before the post-process) on the walk and on that dance.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
+//!
+//! `SARTOR_BENCH_MODEL=datasets/models/default-8710` runs the same benchmarks on another trained
+//! export (here the shipped 8,710-triangle T-shirt, which `cargo xtask pipeline --config
+//! configs/default-8710.json` trains), named by its folder (`post-process/default-8710/…`).
 
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
@@ -59,9 +63,36 @@ fn rig(
     rig_with(options, precision)
 }
 
-/// The shipped model's rig with `options`, its weights in `precision`.
+/// The model the benchmarks run: the shipped one, or the export `SARTOR_BENCH_MODEL` names
+/// (a trained model of another garment, e.g. `datasets/models/default-8710`; relative to the
+/// workspace).
+fn model_dir() -> PathBuf {
+    match std::env::var_os("SARTOR_BENCH_MODEL") {
+        Some(dir) => PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(dir),
+        None => data("models/default"),
+    }
+}
+
+/// The benchmarked model's name in the benchmarks' ids: `shipped-4210`, or the named export's
+/// folder (its parent's name for an `export` folder, e.g. `default-8710`).
+fn model_label() -> String {
+    let Some(dir) = std::env::var_os("SARTOR_BENCH_MODEL") else {
+        return "shipped-4210".into();
+    };
+    let dir = PathBuf::from(dir);
+    let name = |p: &std::path::Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    match name(&dir).as_deref() {
+        Some("export") => dir.parent().and_then(name),
+        other => other.map(str::to_owned),
+    }
+    .unwrap_or_else(|| "model".into())
+}
+
+/// The benchmarked model's rig with `options`, its weights in `precision`.
 fn rig_with(options: AnimatorOptions, precision: Precision) -> Arc<GarmentRig> {
-    let dir = data("models/default");
+    let dir = model_dir();
     let body = Arc::new(BodyModel::load(&data("body/makehuman")).expect("built-in body"));
     let network_options = NetworkOptions {
         precision,
@@ -139,7 +170,7 @@ fn stage_time(
 fn post_process(c: &mut Criterion) {
     let walk = sartor_motion::procedural::clip("walk_normal").expect("clip");
     let poses: Vec<Pose> = walk.frames().to_vec();
-    let mut group = c.benchmark_group("post-process/shipped-4210");
+    let mut group = c.benchmark_group(format!("post-process/{}", model_label()));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
         .build()
@@ -208,9 +239,10 @@ fn post_process(c: &mut Criterion) {
     // walk at the nominal shape, where few edges are too long, and at the heavy body dancing
     // CMU 05_06, where the arms go up.
     let nominal = vec![0.0; betas.len()];
+    let label = model_label();
     for (name, shape, clip) in [
-        ("strain-limit/shipped-4210", &nominal, &poses),
-        ("strain-limit/shipped-4210-heavy-cmu", &betas, &dance),
+        (format!("strain-limit/{label}"), &nominal, &poses),
+        (format!("strain-limit/{label}-heavy-cmu"), &betas, &dance),
     ] {
         let options = AnimatorOptions {
             strain_limit: Some(StrainLimit::default()),
@@ -220,7 +252,7 @@ fn post_process(c: &mut Criterion) {
         avatar.set_stage_clock(Some(clock_ms));
         avatar.set_shape(shape).expect("finite shape");
         let mut k = 0;
-        c.bench_function(name, |b| {
+        c.bench_function(&name, |b| {
             b.iter_custom(|iters| {
                 stage_time(&mut avatar, clip, &mut k, iters, |t| t.strain_limit_ms)
             })
@@ -228,14 +260,15 @@ fn post_process(c: &mut Criterion) {
     }
     // The whole frame: f32 on one thread, and int8 on one thread and on a pool of two.
     for (name, precision, parallelism) in [
-        ("frame/shipped-4210-certified", Precision::F32, seq),
-        ("frame/shipped-4210-certified-int8", Precision::Int8, seq),
+        ("certified", Precision::F32, seq),
+        ("certified-int8", Precision::Int8, seq),
         (
-            "frame/shipped-4210-certified-int8-2threads",
+            "certified-int8-2threads",
             Precision::Int8,
             Parallelism::Rayon,
         ),
     ] {
+        let name = format!("frame/{label}-{name}");
         let mut avatar = animator(
             CollisionQuery::Certified,
             within,
@@ -246,7 +279,7 @@ fn post_process(c: &mut Criterion) {
         let mut k = 0;
         // The pool entered once per batch of iterations, not per frame: handing each frame to
         // a pool thread and back cost some 35 µs, which the frame itself does not.
-        c.bench_function(name, |b| {
+        c.bench_function(&name, |b| {
             b.iter_custom(|iters| {
                 pool.install(|| {
                     let start = Instant::now();
@@ -291,7 +324,7 @@ fn post_process(c: &mut Criterion) {
             })
             .collect();
         let mut k = 0;
-        let name = format!("crowd/shipped-4210-certified-int8-{n}avatars-{threads}");
+        let name = format!("crowd/{label}-certified-int8-{n}avatars-{threads}");
         c.bench_function(&name, |b| {
             b.iter_custom(|iters| {
                 pool.install(|| {
