@@ -173,8 +173,8 @@ pub struct RuntimeBenchArgs {
     pub anchors_rounds: u64,
     /// Trained exported models whose post-process is timed on their own garment, on the clip
     /// and on `--trained-motion`s (`trained` in the report) [default: the data folder's shipped
-    /// model]: its cost follows how much cloth lies within the margin, which random weights do
-    /// not reproduce.
+    /// models, `datasets/models/*`]: its cost follows how much cloth lies within the margin,
+    /// which random weights do not reproduce.
     #[arg(long = "trained-model")]
     pub trained_models: Vec<PathBuf>,
     /// Motions the trained models are timed on besides the clip (stored motion capture is
@@ -233,13 +233,16 @@ fn garment_dirs(env: &Env, cache: &Path) -> GarmentDirs {
 /// Motions by name.
 type NamedMotions = Vec<(String, Vec<sartor_core::Pose>)>;
 
-/// The trained models (`--trained-model`, else the shipped model) and the motions
+/// The trained models (`--trained-model`, else every shipped model) and the motions
 /// (`--trained-motion`, else [`HELD_OUT_MOTIONS`]) of `bench runtime`'s `trained` section, each
 /// motion retargeted onto the built-in body and its arms held out of the torso (5 mm, at the
 /// nominal shape) as the reference configs hold them.
 fn trained_inputs(a: &RuntimeBenchArgs, env: &Env) -> anyhow::Result<(Vec<PathBuf>, NamedMotions)> {
     let models = if a.trained_models.is_empty() {
-        vec![env.data.default_model_dir()]
+        let dir = env.data.models_dir();
+        env.data
+            .shipped_model_dirs()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?
     } else {
         a.trained_models
             .iter()

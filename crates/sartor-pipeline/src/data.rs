@@ -112,6 +112,21 @@ impl DataDir {
         self.models_dir().join("default")
     }
 
+    /// Every shipped model: the folders of `datasets/models` that hold a `model.json`, by
+    /// name (`default`, the 4,210-triangle T-shirt, first; `default-8710`, the same experiment
+    /// on the 8,710-triangle one, where shipped).
+    pub fn shipped_model_dirs(&self) -> std::io::Result<Vec<PathBuf>> {
+        let mut dirs = Vec::new();
+        for entry in std::fs::read_dir(self.models_dir())? {
+            let dir = entry?.path();
+            if dir.join("model.json").is_file() {
+                dirs.push(dir);
+            }
+        }
+        dirs.sort();
+        Ok(dirs)
+    }
+
     /// `path` relative to the data folder when it lies inside it (so reports do not depend on
     /// where the folder is), else as given.
     pub fn relative(&self, path: &Path) -> String {

@@ -1,6 +1,7 @@
-//! The committed reference model (`datasets/models/default`): its error on the stored slice of
-//! held-out ground truth stays within 10 % of the figure in its committed eval.json, and
-//! `check-model` does fail when the record and the model disagree.
+//! The committed models (`datasets/models/default`, the reference, and every other folder of
+//! `datasets/models`): each one's error on its stored slice of held-out ground truth stays
+//! within 10 % of the figure in its committed eval.json, and `check-model` does fail when the
+//! record and the model disagree.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -18,14 +19,25 @@ fn check_model(dir: &Path) -> std::process::Output {
 }
 
 #[test]
-fn shipped_model_keeps_its_recorded_error() {
-    let out = check_model(&shipped());
-    assert!(
-        out.status.success(),
-        "check-model failed:\n{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+fn every_shipped_model_keeps_its_recorded_error() {
+    let models = shipped().parent().expect("datasets/models").to_path_buf();
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&models)
+        .expect("datasets/models")
+        .map(|e| e.expect("entry").path())
+        .filter(|d| d.join("model.json").is_file())
+        .collect();
+    dirs.sort();
+    assert!(dirs.contains(&shipped()), "no reference model in {dirs:?}");
+    for dir in dirs {
+        let out = check_model(&dir);
+        assert!(
+            out.status.success(),
+            "check-model of {} failed:\n{}{}",
+            dir.display(),
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
 }
 
 #[test]
