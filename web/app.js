@@ -41,13 +41,20 @@ function clearError() {
 }
 
 /// Run `f`, showing any error on the page; returns whether it succeeded.
-function guarded(what, f) {
+/// Show `what` failed with `e`.
+function showFailure(what, e) {
+  showError(`${what}: ${e && e.message ? e.message : e}`);
+}
+
+/// Run `f`; an error it throws is shown, and returns false. On success an error shown before is
+/// cleared, unless `keepError` (a slice of work that does not answer the user's last action).
+function guarded(what, f, keepError = false) {
   try {
     f();
-    clearError();
+    if (!keepError) clearError();
     return true;
   } catch (e) {
-    showError(`${what}: ${e && e.message ? e.message : e}`);
+    showFailure(what, e);
     return false;
   }
 }
@@ -126,14 +133,14 @@ function applyPhenotype() {
 function slice(what, look, finish) {
   const start = performance.now();
   let done = false;
-  let ok = true;
-  try {
-    while (!done && performance.now() - start < SETTLE_MS) done = look();
-    if (done) finish();
-  } catch (e) {
-    ok = false;
-    showError(`${what}: ${e && e.message ? e.message : e}`);
-  }
+  const ok = guarded(
+    what,
+    () => {
+      while (!done && performance.now() - start < SETTLE_MS) done = look();
+      if (done) finish();
+    },
+    true,
+  );
   return { over: !ok || done, done: ok && done, ms: performance.now() - start };
 }
 
@@ -225,7 +232,7 @@ async function chooseMotion(value) {
     state.settling = true;
     clearError();
   } catch (e) {
-    showError(`motion ${value}: ${e && e.message ? e.message : e}`);
+    showFailure(`motion ${value}`, e);
   }
 }
 
@@ -236,7 +243,7 @@ async function playBvhFile(file) {
     state.settling = true;
     clearError();
   } catch (e) {
-    showError(`dropped BVH: ${e && e.message ? e.message : e}`);
+    showFailure("dropped BVH", e);
   }
 }
 
@@ -305,7 +312,7 @@ function tick(now) {
     try {
       t.step();
     } catch (e) {
-      showError(`frame: ${e && e.message ? e.message : e}`);
+      showFailure("frame", e);
       stepped = false;
     }
     if (stepped) {
@@ -521,6 +528,6 @@ window.sartor = {
 };
 
 main().catch((e) => {
-  showError(`loading: ${e && e.message ? e.message : e}`);
+  showFailure("loading", e);
   $("status").textContent = "failed to load";
 });
