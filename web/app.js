@@ -1,6 +1,7 @@
 // The try-on page: loads the WebAssembly runtime (pkg/, made by wasm-bindgen), the shipped
-// model (f16 on the wire) and body, then plays a motion on the body chosen with the sliders.
-// Everything it fetches is under this folder.
+// model with the fewest triangles (f16 on the wire; the others when chosen) and the body, then
+// plays a motion on the body chosen with the sliders. Everything it fetches is under this
+// folder.
 
 import init, { AssetFiles, TryOn, kernelProbe, proceduralClips } from "./pkg/sartor_web.js";
 import { Viewer } from "./viewer.js";
@@ -12,8 +13,14 @@ const WINDOW = 60;
 // milliseconds a display frame (a slice ends after the look that passes it).
 const SETTLE_MS = 8;
 
+const GARMENT_COLOR = [0.16, 0.36, 0.7];
+
 const state = {
   tryOn: null,
+  manifest: null,
+  garment: null, // the manifest's entry of the garment model worn
+  modelFiles: new Map(), // the garment models' files fetched so far, by name
+  garmentMs: null, // the last change of garment, milliseconds (fetching not counted)
   playing: true,
   lastStep: 0,
   times: [], // [network, skinning, post, body, draw] per frame, the last WINDOW
@@ -66,6 +73,57 @@ async function fetchBytes(path) {
 }
 
 const MODEL_FILES = ["model.json", "model.safetensors", "binding.json", "binding.safetensors"];
+
+/// The files of the manifest's garment model `model`, fetched once.
+async function modelFiles(model) {
+  if (!state.modelFiles.has(model.name)) {
+    const path = (f) => `models/${model.name}/${f}`;
+    const files = await Promise.all(MODEL_FILES.map((f) => fetchBytes(path(f))));
+    state.modelFiles.set(model.name, files);
+  }
+  return state.modelFiles.get(model.name);
+}
+
+/// `files` (MODEL_FILES' bytes) by the runtime's names, added to `assets` (a new set if none).
+function modelAssets(files, assets = new AssetFiles()) {
+  MODEL_FILES.forEach((f, i) => assets.add(`model/${f}`, files[i]));
+  return assets;
+}
+
+function showGarment() {
+  const g = state.garment;
+  const triangles = g.triangles.toLocaleString("en");
+  $("status").textContent = `${g.garment}, ${triangles} triangles, post-process on`;
+}
+
+/// Wear the manifest's garment model `name` (fetched on first choice) on the shape, motion and
+/// frame shown; the timings start anew. An error keeps the garment worn.
+async function chooseGarment(name) {
+  const select = $("garment");
+  const model = state.manifest.models.find((m) => m.name === name);
+  select.disabled = true;
+  const triangles = model.triangles.toLocaleString("en");
+  $("status").textContent = `loading the ${triangles}-triangle garment…`;
+  try {
+    const files = await modelFiles(model);
+    const t = state.tryOn;
+    const start = performance.now();
+    t.setGarment(modelAssets(files));
+    state.garmentMs = performance.now() - start;
+    state.garment = model;
+    const n = t.garmentVertices().length / 3;
+    state.viewer.setMesh("garment", t.garmentFaces(), n, GARMENT_COLOR);
+    state.times = [];
+    redraw();
+    clearError();
+  } catch (e) {
+    showFailure(`garment ${name}`, e);
+    select.value = state.garment.name;
+  } finally {
+    showGarment();
+    select.disabled = false;
+  }
+}
 const BODY_FILES = ["model.json", "model.safetensors", "phenotype.json", "phenotype.safetensors", "tpose.json"];
 
 function sliders() {
@@ -344,7 +402,7 @@ function transferred() {
   let wasm = 0;
   for (const e of entries) {
     total += e.transferSize;
-    if (e.name.includes("/model/")) model += e.transferSize;
+    if (e.name.includes("/models/")) model += e.transferSize;
     if (e.name.includes("/body/")) body += e.transferSize;
     if (e.name.endsWith(".wasm")) wasm += e.transferSize;
   }
@@ -437,22 +495,26 @@ function medianMs(n, f) {
 
 async function main() {
   state.viewer = new Viewer($("view"));
-  const [manifestBytes, , ...files] = await Promise.all([
-    fetchBytes("manifest.json"),
+  // The garment model's files as soon as the manifest names it, beside the rest.
+  const manifestRead = fetchBytes("manifest.json").then((b) =>
+    JSON.parse(new TextDecoder().decode(b)),
+  );
+  const [manifest, garmentFiles, , ...bodyFiles] = await Promise.all([
+    manifestRead,
+    manifestRead.then((m) => modelFiles(m.models[0])),
     init({ module_or_path: "pkg/sartor_web_bg.wasm" }),
-    ...MODEL_FILES.map((f) => fetchBytes(`model/${f}`)),
     ...BODY_FILES.map((f) => fetchBytes(`body/${f}`)),
   ]);
-  const manifest = JSON.parse(new TextDecoder().decode(manifestBytes));
-  const assets = new AssetFiles();
-  MODEL_FILES.forEach((f, i) => assets.add(`model/${f}`, files[i]));
-  BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, files[MODEL_FILES.length + i]));
+  state.manifest = manifest;
+  state.garment = manifest.models[0];
+  const assets = modelAssets(garmentFiles);
+  BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, bodyFiles[i]));
   // The arms held out of the torso as the model's training motions held them.
   const armClearance = manifest.arm_clearance ? JSON.stringify(manifest.arm_clearance) : undefined;
   const t = TryOn.load(assets, "f32", true, armClearance);
   state.tryOn = t;
   state.viewer.setMesh("body", t.bodyFaces(), t.bodyVertices().length / 3, [0.86, 0.72, 0.62]);
-  state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, [0.16, 0.36, 0.7]);
+  state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, GARMENT_COLOR);
   const body = t.bodyVertices();
   let floorY = Infinity;
   for (let i = 1; i < body.length; i += 3) floorY = Math.min(floorY, body[i]);
@@ -473,6 +535,15 @@ async function main() {
   add("walk", "walk (MakeHuman walk cycle)");
   for (const clip of manifest.clips) add(clip.name, clip.label);
 
+  const mb = (b) => `${(b / 1e6).toFixed(2)} MB`;
+  const garments = $("garment");
+  for (const m of manifest.models) {
+    const option = document.createElement("option");
+    option.value = m.name;
+    option.textContent = `${m.triangles.toLocaleString("en")} triangles (${mb(m.page_bytes)})`;
+    garments.append(option);
+  }
+
   applyPhenotype();
   await chooseMotion(select.value);
 
@@ -483,6 +554,7 @@ async function main() {
   $("apply-betas").addEventListener("click", applyBetas);
   $("fit-measurements").addEventListener("click", fitMeasurements);
   select.addEventListener("change", () => chooseMotion(select.value));
+  garments.addEventListener("change", () => chooseGarment(garments.value));
   $("bvh").addEventListener("change", (e) => {
     if (e.target.files.length > 0) playBvhFile(e.target.files[0]);
   });
@@ -500,17 +572,18 @@ async function main() {
     state.seekSlices = [0, 0];
     $("frame-out").textContent = `${state.seekTarget + 1} / ${t.nFrames} (holding the limbs)`;
   });
+  $("garment-panel").disabled = false;
   $("body-panel").disabled = false;
   $("motion-panel").disabled = false;
 
   state.readyMs = performance.now();
   const bytes = transferred();
-  const mb = (b) => `${(b / 1e6).toFixed(2)} MB`;
+  const g = state.garment;
   $("loaded").textContent =
     `usable ${(state.readyMs / 1000).toFixed(2)} s after navigation; transferred ${mb(bytes.total)} ` +
-    `(model ${mb(bytes.model)} with ${manifest.model.storage}; f32 would be ${mb(manifest.model.f32_bytes)}; ` +
+    `(model ${mb(bytes.model)} with ${g.storage}; f32 would be ${mb(g.f32_bytes)}; ` +
     `body ${mb(bytes.body)}, WebAssembly ${mb(bytes.wasm)})`;
-  $("status").textContent = `${manifest.model.garment}, ${manifest.model.triangles} triangles, post-process on`;
+  showGarment();
   document.body.dataset.ready = "true";
   requestAnimationFrame(tick);
 }
@@ -524,6 +597,7 @@ window.sartor = {
   transferred,
   bench,
   setPlaying,
+  chooseGarment,
   kernelProbe: () => Array.from(kernelProbe()),
 };
 

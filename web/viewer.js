@@ -49,10 +49,18 @@ class Mesh {
     const at = gl.getAttribLocation(program, "position");
     gl.enableVertexAttribArray(at);
     gl.vertexAttribPointer(at, 3, gl.FLOAT, false, 0, 0);
-    const indices = gl.createBuffer();
-    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, indices);
+    this.indices = gl.createBuffer();
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.indices);
     gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, faces, gl.STATIC_DRAW);
     gl.bindVertexArray(null);
+  }
+
+  /// Free the GL objects (the mesh is replaced).
+  dispose() {
+    const gl = this.gl;
+    gl.deleteVertexArray(this.vao);
+    gl.deleteBuffer(this.positions);
+    gl.deleteBuffer(this.indices);
   }
 
   update(vertices) {
@@ -183,6 +191,7 @@ export class Viewer {
 
   /// (Re)create a mesh: `faces` a Uint32Array, `vertexCount` its vertices, `color` [r, g, b].
   setMesh(name, faces, vertexCount, color) {
+    if (this.meshes[name]) this.meshes[name].dispose();
     this.meshes[name] = new Mesh(this.gl, this.program, faces, vertexCount, color);
   }
 

@@ -2,9 +2,10 @@
 //! the WebAssembly target named in `rust-toolchain.toml`, its JavaScript glue from
 //! wasm-bindgen-cli (installed by cargo into `<target>/tools` at the version of the
 //! `wasm-bindgen` crate in `Cargo.lock`, when missing), the page's sources, and the assets it
-//! loads: the shipped model with its weight matrices in f16 (and without the linear baseline,
-//! which the page does not use), the body, the walk cycle and a few CMU clips. `--serve` then
-//! serves the folder on 127.0.0.1.
+//! loads: every shipped model (`datasets/models/*`: the T-shirt at 4,210 and 8,710 triangles)
+//! with its weight matrices in f16 (and without the linear baseline, which the page does not
+//! use), the body, the walk cycle and a few CMU clips. `--serve` then serves the folder on
+//! 127.0.0.1.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -26,9 +27,6 @@ pub const PAGE_CLIPS: [(&str, &str); 4] = [
 /// The procedural clips the page offers (computed in the page, nothing downloaded).
 pub const PAGE_PROCEDURAL: [&str; 3] = ["dance_disco", "jumping_jacks", "walk_normal"];
 
-/// The experiment whose export the page shows (`datasets/models/default`).
-const SHIPPED_CONFIG: &str = "configs/default.json";
-
 /// Arguments of `web`.
 #[derive(clap::Args, Debug)]
 pub struct WebArgs {
@@ -47,11 +45,13 @@ pub struct WebArgs {
 struct Manifest {
     procedural: Vec<String>,
     clips: Vec<ManifestClip>,
-    model: ModelInfo,
-    /// The shipped model's experiment's `simulation.arm_clearance` with the legs held too
-    /// (`sartor_motion::LEG_CLEARANCE_M`, as `sartor demo`): the page holds the arms out of the
-    /// torso as the training motions did, and the legs (`null`: the experiment held nothing,
-    /// neither does the page).
+    /// The garment models the page offers, fewest triangles first (the page loads the first,
+    /// the others when chosen), each in `models/<name>/`.
+    models: Vec<ModelInfo>,
+    /// The shipped models' experiments' `simulation.arm_clearance` (the same in each: checked)
+    /// with the legs held too (`sartor_motion::LEG_CLEARANCE_M`, as `sartor demo`): the page
+    /// holds the arms out of the torso as the training motions did, and the legs (`null`: the
+    /// experiments held nothing, neither does the page).
     arm_clearance: Option<sartor_motion::ClearanceOptions>,
 }
 
@@ -63,6 +63,8 @@ struct ManifestClip {
 
 #[derive(Serialize)]
 struct ModelInfo {
+    /// The shipped model's folder name (`datasets/models/<name>`, `models/<name>/` here).
+    name: String,
     garment: String,
     triangles: usize,
     storage: &'static str,
@@ -237,21 +239,36 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
         .arg(&wasm))?;
     copy_sources(&root.join("web"), dist)?;
 
-    // Assets: the model in f16 without the linear baseline, the body, the motions.
-    let model_dir = root.join("datasets/models/default");
-    let model = GarmentModel::load(&model_dir)?;
-    let (mut header, mut weights) = model.into_parts();
-    header.sizes.linear_baseline = false;
-    weights.lr = None;
-    let page_model = GarmentModel::new(header, weights)?;
-    page_model.save_as(&dist.join("model"), TensorStorage::F16)?;
-    let mut triangles = 0;
-    for file in ["binding.json", "binding.safetensors"] {
-        copy(&model_dir.join(file), &dist.join("model").join(file))?;
+    // Assets: the models in f16 without the linear baseline, the body, the motions.
+    let data = sartor_pipeline::DataDir::new(root)?;
+    let model_dirs = data
+        .shipped_model_dirs()
+        .with_context(|| format!("listing {}", data.models_dir().display()))?;
+    ensure!(
+        !model_dirs.is_empty(),
+        "{} holds no shipped model",
+        data.models_dir().display()
+    );
+    let mut models = Vec::new();
+    let mut arm_clearance = None;
+    for model_dir in &model_dirs {
+        let (info, clearance) = page_model(model_dir, root, dist)?;
+        match &arm_clearance {
+            None => arm_clearance = Some((clearance, model_dir)),
+            Some((first, first_dir)) => ensure!(
+                *first == clearance,
+                "{} and {} were trained with different arm clearances: the page holds the arms \
+                 once for every garment",
+                first_dir.display(),
+                model_dir.display()
+            ),
+        }
+        models.push(info);
     }
-    if let Ok(binding) = sartor_runtime::GarmentBinding::load(&model_dir) {
-        triangles = binding.faces().len();
-    }
+    models.sort_by_key(|m| m.triangles);
+    let arm_clearance = arm_clearance
+        .and_then(|(c, _)| c)
+        .map(sartor_motion::ClearanceOptions::with_player_legs);
     let body_dir = root.join("datasets/body/makehuman");
     for file in [
         "model.json",
@@ -276,16 +293,6 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
             &dist.join("motions/cmu").join(file),
         )?;
     }
-    let size = |p: &Path| std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-    let config_path = root.join(SHIPPED_CONFIG);
-    let config: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&config_path).with_context(|| config_path.display().to_string())?,
-    )
-    .with_context(|| config_path.display().to_string())?;
-    let arm_clearance: Option<sartor_motion::ClearanceOptions> =
-        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
-            .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
-    let arm_clearance = arm_clearance.map(sartor_motion::ClearanceOptions::with_player_legs);
     let manifest = Manifest {
         procedural: PAGE_PROCEDURAL.iter().map(|s| s.to_string()).collect(),
         clips: PAGE_CLIPS
@@ -295,26 +302,90 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
                 label: label.to_string(),
             })
             .collect(),
-        model: ModelInfo {
-            garment: page_model.header().garment.id.clone(),
-            triangles,
-            storage: "f16 weight matrices, f32 vectors",
-            f32_bytes: size(&model_dir.join("model.safetensors")),
-            page_bytes: size(&dist.join("model/model.safetensors")),
-        },
+        models,
         arm_clearance,
     };
     let json = serde_json::to_string_pretty(&manifest)?;
     std::fs::write(dist.join("manifest.json"), json)?;
     let total: u64 = walk(dist)?.iter().map(|p| size(p)).sum();
+    let models: Vec<String> = manifest
+        .models
+        .iter()
+        .map(|m| {
+            format!(
+                "{} {:.1} MB in f16, {:.1} MB in f32",
+                m.garment,
+                m.page_bytes as f64 / 1e6,
+                m.f32_bytes as f64 / 1e6
+            )
+        })
+        .collect();
     println!(
-        "wrote {} ({:.1} MB; model {:.1} MB in f16, {:.1} MB in f32)",
+        "wrote {} ({:.1} MB; models: {})",
         dist.display(),
         total as f64 / 1e6,
-        manifest.model.page_bytes as f64 / 1e6,
-        manifest.model.f32_bytes as f64 / 1e6
+        models.join("; ")
     );
     Ok(())
+}
+
+fn size(path: &Path) -> u64 {
+    std::fs::metadata(path).map(|m| m.len()).unwrap_or(0)
+}
+
+/// The shipped model in `model_dir` as the page loads it, into `<dist>/models/<name>/`: its
+/// weight matrices in f16, without the linear baseline, and its binding. Returns what the
+/// manifest says of it, and the arm clearance of the experiment it came from (its
+/// `pipeline.json`'s config, `simulation.arm_clearance`).
+fn page_model(
+    model_dir: &Path,
+    root: &Path,
+    dist: &Path,
+) -> anyhow::Result<(ModelInfo, Option<sartor_motion::ClearanceOptions>)> {
+    let name = model_dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .with_context(|| format!("{}: not a folder name", model_dir.display()))?
+        .to_string();
+    let out = dist.join("models").join(&name);
+    let model = GarmentModel::load(model_dir)?;
+    let (mut header, mut weights) = model.into_parts();
+    header.sizes.linear_baseline = false;
+    weights.lr = None;
+    let page_model = GarmentModel::new(header, weights)?;
+    page_model.save_as(&out, TensorStorage::F16)?;
+    for file in ["binding.json", "binding.safetensors"] {
+        copy(&model_dir.join(file), &out.join(file))?;
+    }
+    let triangles = sartor_runtime::GarmentBinding::load(model_dir)?
+        .faces()
+        .len();
+    let pipeline_path = model_dir.join("pipeline.json");
+    let pipeline: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&pipeline_path).with_context(|| pipeline_path.display().to_string())?,
+    )
+    .with_context(|| pipeline_path.display().to_string())?;
+    let config_path = root.join(
+        pipeline["config"]
+            .as_str()
+            .with_context(|| format!("{}: no \"config\"", pipeline_path.display()))?,
+    );
+    let config: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&config_path).with_context(|| config_path.display().to_string())?,
+    )
+    .with_context(|| config_path.display().to_string())?;
+    let arm_clearance: Option<sartor_motion::ClearanceOptions> =
+        serde_json::from_value(config["simulation"]["arm_clearance"].clone())
+            .with_context(|| format!("{}: simulation.arm_clearance", config_path.display()))?;
+    let info = ModelInfo {
+        name,
+        garment: page_model.header().garment.id.clone(),
+        triangles,
+        storage: "f16 weight matrices, f32 vectors",
+        f32_bytes: size(&model_dir.join("model.safetensors")),
+        page_bytes: size(&out.join("model.safetensors")),
+    };
+    Ok((info, arm_clearance))
 }
 
 fn walk(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {

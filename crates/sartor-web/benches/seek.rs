@@ -7,11 +7,14 @@
 //! arms' poses are kept from the first seek to each frame (as the page keeps them while the
 //! shape and the clip stay), so this is the garment's part of a jump, not the arms' (see the
 //! README's "The same arms on the try-on page"). `shape/…` is a whole change of shape, arms
-//! included; `shape-preview/…` the same changes as a moving slider previews them.
+//! included; `shape-preview/…` the same changes as a moving slider previews them;
+//! `garment/…` a change of garment model (`TryOn::set_garment`, the page's choice of garment),
+//! the shipped 4,210- and 8,710-triangle models in turn, the files in f32 as shipped (the
+//! page's are f16).
 //!
 //! `cargo bench -p sartor-web --bench seek -- --warm-up-time 1 --measurement-time 3`
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use sartor_web::{PhenotypeSliders, TryOn};
 
 // The integration tests' loaders of the shipped files (the bench uses some of them).
@@ -19,7 +22,7 @@ use sartor_web::{PhenotypeSliders, TryOn};
 #[path = "../tests/it/common.rs"]
 mod common;
 
-use common::playing_02_02;
+use common::{files_of, playing_02_02};
 
 /// The page's session with the arms held, on the body of `phenotype` (`None`: nominal),
 /// playing CMU 02_02.
@@ -95,5 +98,29 @@ fn preview_shape(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, seek, new_shape, preview_shape);
+/// A change of garment model at frame 50 of CMU 02_02 on the nominal body: the shipped models
+/// in turn (their files' copies made outside the timing).
+fn new_garment(c: &mut Criterion) {
+    let mut t = playing(None);
+    t.seek(50).expect("seek");
+    let models = ["default-8710", "default"].map(|name| {
+        files_of(&[(
+            &sartor_web::MODEL_FILES[..],
+            &format!("datasets/models/{name}"),
+        )])
+    });
+    let mut k = 0;
+    c.bench_function("garment/02_02-4210-8710", |b| {
+        b.iter_batched(
+            || {
+                k += 1;
+                models[k % 2].clone()
+            },
+            |files| t.set_garment(files).expect("garment"),
+            BatchSize::PerIteration,
+        )
+    });
+}
+
+criterion_group!(benches, seek, new_shape, preview_shape, new_garment);
 criterion_main!(benches);

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use crate::error::{Error, Result};
 
 /// The model folder's files, as [`FileSet`] names them (`datasets/models/default`, or its
-/// f16 copy in `web/dist/model`).
+/// f16 copy in `web/dist/models/default`; any shipped model's alike).
 pub const MODEL_FILES: [&str; 4] = [
     "model/model.json",
     "model/model.safetensors",

@@ -208,6 +208,13 @@ impl WebTryOn {
         self.inner.begin_motion(motion).map_err(js)
     }
 
+    /// Wear another garment model (`files`: the four `model/…` files of MODEL_FILES, taken
+    /// over), on the shape, motion and frame shown (see `TryOn::set_garment`).
+    #[wasm_bindgen(js_name = setGarment)]
+    pub fn set_garment(&mut self, files: AssetFiles) -> Result<(), JsError> {
+        self.inner.set_garment(files.inner).map_err(js)
+    }
+
     /// Show frame `frame` (scrubbing).
     pub fn seek(&mut self, frame: usize) -> Result<(), JsError> {
         self.inner.seek(frame).map_err(js)

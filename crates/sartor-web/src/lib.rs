@@ -10,7 +10,8 @@
 //! - **Try-on** ([`TryOn`]): one avatar — shape from β or from the phenotype sliders
 //!   ([`PhenotypeSliders`], the command line's rule), a motion (procedural, the walk cycle, a
 //!   stored CMU clip, a dropped BVH: retargeted as `sartor_motion::load_motion` does), play,
-//!   seek, per-frame garment and body vertices and the time of each stage ([`FrameTimes`]).
+//!   seek, another garment model put on (`set_garment`: another resolution), per-frame garment
+//!   and body vertices and the time of each stage ([`FrameTimes`]).
 //!   Sequential only: the browser gives no threads.
 //! - **JavaScript** (`js.rs`): `AssetFiles`, `TryOn` and `proceduralClips` for the page; every
 //!   fault comes back as a JavaScript `Error` naming it.

@@ -1,6 +1,7 @@
-//! [`TryOn`]: one avatar of the shipped garment model on the body, driven by the page — a
+//! [`TryOn`]: one avatar of a shipped garment model on the body, driven by the page — a
 //! body shape (phenotype sliders or β), a motion (procedural, stored mocap, the walk cycle or a
-//! dropped BVH), and a frame to show. Plain Rust, tested natively; `js.rs` only converts types.
+//! dropped BVH), a frame to show, and the garment model worn ([`TryOn::set_garment`]). Plain
+//! Rust, tested natively; `js.rs` only converts types.
 //!
 //! Every frame runs [`GarmentAnimator::frame`] (network, skinning, post-process, sequential:
 //! there are no threads in the browser) and poses the whole body for display with the one
@@ -61,6 +62,62 @@ impl Default for TryOnOptions {
             clock: None,
             arm_clearance: None,
         }
+    }
+}
+
+/// What a garment's animator is built with ([`TryOnOptions`] less the arms): kept, so that
+/// [`TryOn::set_garment`] builds another one alike.
+#[derive(Clone, Copy, Debug)]
+struct GarmentOptions {
+    precision: Precision,
+    post_process: bool,
+    clock: Option<fn() -> f64>,
+}
+
+impl GarmentOptions {
+    /// The animator of the garment model in `files` ([`crate::MODEL_FILES`]) on `body`, at
+    /// β = 0.
+    fn animator(&self, files: &mut FileSet, body: &Arc<BodyModel>) -> Result<GarmentAnimator> {
+        let model_dir = Path::new("model");
+        let model = GarmentModel::from_bytes(
+            model_dir,
+            &files.take("model/model.json")?,
+            files.take("model/model.safetensors")?,
+        )?;
+        let network = GarmentNetwork::with_options(
+            model,
+            NetworkOptions {
+                precision: self.precision,
+                output_rank: None,
+            },
+        )?;
+        let binding = GarmentBinding::from_bytes(
+            model_dir,
+            &files.take("model/binding.json")?,
+            files.take("model/binding.safetensors")?,
+        )?;
+        let animator_options = AnimatorOptions {
+            // Edges stretched beyond 1.5× pulled back first: with the arms up the armpit
+            // otherwise tears open (see `StrainLimit`).
+            strain_limit: self.post_process.then(StrainLimit::default),
+            // The triangles pushed out too: on a raised arm the shoulders otherwise show through
+            // the sleeves between cloth vertices (see `CollisionOptions::faces`).
+            collision: self.post_process.then(|| CollisionOptions {
+                faces: true,
+                ..CollisionOptions::default()
+            }),
+            parallelism: Parallelism::Sequential,
+            ..AnimatorOptions::default()
+        };
+        let rig = Arc::new(GarmentRig::new(
+            Arc::new(network),
+            Arc::new(binding),
+            body.clone(),
+            animator_options,
+        )?);
+        let mut animator = GarmentAnimator::new(rig)?;
+        animator.set_stage_clock(self.clock);
+        Ok(animator)
     }
 }
 
@@ -201,6 +258,8 @@ pub struct TryOn {
     next_motion: Option<(Motion, Option<ClearanceOnDemand>)>,
     frame: usize,
     clock: Option<fn() -> f64>,
+    /// How the garment's animator was built (for [`TryOn::set_garment`]).
+    garment: GarmentOptions,
     times: FrameTimes,
     /// Milliseconds spent on the arms since the last frame shown.
     arms_ms: f64,
@@ -242,24 +301,7 @@ impl TryOn {
     /// and [`crate::BODY_FILES`]), check that they belong together, and show the template body
     /// (β = 0) standing still.
     pub fn load(mut files: FileSet, options: TryOnOptions) -> Result<Self> {
-        let (model_dir, body_dir) = (Path::new("model"), Path::new("body"));
-        let model = GarmentModel::from_bytes(
-            model_dir,
-            &files.take("model/model.json")?,
-            files.take("model/model.safetensors")?,
-        )?;
-        let network = GarmentNetwork::with_options(
-            model,
-            NetworkOptions {
-                precision: options.precision,
-                output_rank: None,
-            },
-        )?;
-        let binding = GarmentBinding::from_bytes(
-            model_dir,
-            &files.take("model/binding.json")?,
-            files.take("model/binding.safetensors")?,
-        )?;
+        let body_dir = Path::new("body");
         let body = Arc::new(BodyModel::from_bytes(
             body_dir,
             &files.take("body/model.json")?,
@@ -278,27 +320,12 @@ impl TryOn {
             .map_err(|e| e.in_file(&tpose_path))?;
         let rest = body.shaped_joints(&vec![0.0; body.n_betas()])?;
         let retarget = RetargetBody::new(body.skeleton().clone(), rest, tpose)?;
-        let animator_options = AnimatorOptions {
-            // Edges stretched beyond 1.5× pulled back first: with the arms up the armpit
-            // otherwise tears open (see `StrainLimit`).
-            strain_limit: options.post_process.then(StrainLimit::default),
-            // The triangles pushed out too: on a raised arm the shoulders otherwise show through
-            // the sleeves between cloth vertices (see `CollisionOptions::faces`).
-            collision: options.post_process.then(|| CollisionOptions {
-                faces: true,
-                ..CollisionOptions::default()
-            }),
-            parallelism: Parallelism::Sequential,
-            ..AnimatorOptions::default()
+        let garment = GarmentOptions {
+            precision: options.precision,
+            post_process: options.post_process,
+            clock: options.clock,
         };
-        let rig = Arc::new(GarmentRig::new(
-            Arc::new(network),
-            Arc::new(binding),
-            body.clone(),
-            animator_options,
-        )?);
-        let mut animator = GarmentAnimator::new(rig)?;
-        animator.set_stage_clock(options.clock);
+        let animator = garment.animator(&mut files, &body)?;
         let betas = vec![0.0; animator.rig().network().n_betas()];
         let posed_body = PosedBody::new(&body, &Self::body_betas(&body, &betas))?;
         let still = Motion::new(
@@ -331,6 +358,7 @@ impl TryOn {
             next_motion: None,
             frame: 0,
             clock: options.clock,
+            garment,
             times: FrameTimes::default(),
             arms_ms: 0.0,
             arm_turn_rad: 0.0,
@@ -338,6 +366,36 @@ impl TryOn {
         try_on.cleared = try_on.clearance_for(&try_on.motion, &try_on.betas)?;
         try_on.seek(0)?;
         Ok(try_on)
+    }
+
+    /// Wear another garment model (the model folder's files, [`crate::MODEL_FILES`]: another
+    /// resolution of the garment, say) on the body shown, built with the options given at load.
+    /// The shape, the motion, its held arms (they belong to the body, not the garment) and the
+    /// frame stay; the new garment's frame is computed as a jump to it ([`TryOn::seek`]). The
+    /// model must take as many β components as the one worn (the body's shape is the model's
+    /// β). An error leaves the garment worn as it was.
+    pub fn set_garment(&mut self, mut files: FileSet) -> Result<()> {
+        let mut animator = self.garment.animator(&mut files, &self.body)?;
+        let n = animator.rig().network().n_betas();
+        if n != self.betas.len() {
+            return Err(Error::invalid(
+                "garment model",
+                format!(
+                    "model/model.json takes {n} shape components, the body shown is set by {}: \
+                     load the page anew with it",
+                    self.betas.len()
+                ),
+            ));
+        }
+        let b32: Vec<f32> = self.betas.iter().map(|&b| b as f32).collect();
+        animator.set_shape(&b32)?;
+        let worn = std::mem::replace(&mut self.animator, animator);
+        if let Err(e) = self.seek(self.frame) {
+            self.animator = worn;
+            self.seek(self.frame)?;
+            return Err(e);
+        }
+        Ok(())
     }
 
     /// The body's β for the model's β (the body's further components are 0).

@@ -260,19 +260,26 @@ impl Drop for Browser {
     }
 }
 
+/// The page's manifest (`cargo xtask web` writes it).
+fn manifest(dist: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(dist.join("manifest.json")).expect("manifest"))
+        .expect("JSON")
+}
+
 /// The frame the browser test asks the page for, computed natively from the page's files
-/// and options (`manifest.json`'s arm clearance): the garment, and the arms' turn in degrees.
-fn native_frame(dist: &Path) -> (Vec<f32>, f64) {
+/// (the garment model `model` of the manifest's) and options (`manifest.json`'s arm
+/// clearance): the garment, and the arms' turn in degrees.
+fn native_frame(dist: &Path, model: &str) -> (Vec<f32>, f64) {
     let mut files = sartor_web::FileSet::new();
-    for name in sartor_web::MODEL_FILES
-        .iter()
-        .chain(&sartor_web::BODY_FILES)
-    {
+    for name in sartor_web::MODEL_FILES {
+        let file = name.strip_prefix("model/").expect("model/…");
+        let path = dist.join("models").join(model).join(file);
+        files.insert(name, std::fs::read(path).expect("page file"));
+    }
+    for name in sartor_web::BODY_FILES {
         files.insert(name, std::fs::read(dist.join(name)).expect("page file"));
     }
-    let manifest: Value =
-        serde_json::from_slice(&std::fs::read(dist.join("manifest.json")).expect("manifest"))
-            .expect("JSON");
+    let manifest = manifest(dist);
     let arm_clearance: Option<sartor_motion::ClearanceOptions> =
         serde_json::from_value(manifest["arm_clearance"].clone())
             .expect("the manifest's arm clearance");
@@ -325,6 +332,44 @@ fn skip(why: &str) {
     );
 }
 
+/// In the page, the frame [`native_frame`] computes (the garment and the arms' turn), then
+/// the motion chosen on the page anew (the body stays as [`native_frame`] sets it until a
+/// slider or the fit sets it).
+const NATIVE_FRAME_SCRIPT: &str = "const t = window.sartor.state.tryOn; \
+     window.sartor.setPlaying(false); \
+     t.setPhenotype(0.2, 1.65, 0.7, 0.4, 40); t.playProcedural('jumping_jacks'); \
+     while (!t.settle(100)); t.seek(30); \
+     const v = Array.from(t.garmentVertices()); const turn = t.armTurnDeg; \
+     document.getElementById('motion').dispatchEvent(new Event('change')); \
+     window.sartor.setPlaying(true); return {v, turn};";
+
+/// The page's garment of [`NATIVE_FRAME_SCRIPT`] with the garment model `model` worn, checked
+/// against [`native_frame`]'s: the arms held as natively (the page read the manifest's
+/// options) and the garment within 0.1 mm (the runtime's kernels are bitwise the same on every
+/// instruction set; tanh and exp come from different maths libraries, hence a tolerance).
+/// Returns it and its largest difference, metres.
+fn frame_against_native(browser: &Browser, dist: &Path, model: &str) -> (Vec<f64>, f64) {
+    let shown = browser.eval(NATIVE_FRAME_SCRIPT);
+    let page = floats(&shown["v"]);
+    let (native, native_turn) = native_frame(dist, model);
+    let page_turn = shown["turn"].as_f64().expect("a number");
+    assert!(
+        (page_turn - native_turn).abs() < 1e-6,
+        "{model}: arms turned {page_turn}° in the page, {native_turn}° natively"
+    );
+    assert_eq!(page.len(), native.len(), "{model}");
+    let most = page
+        .iter()
+        .zip(&native)
+        .map(|(a, b)| (a - f64::from(*b)).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        most < 1e-4,
+        "the page's {model} garment is the native one within 0.1 mm: {most} m"
+    );
+    (page, most)
+}
+
 #[test]
 fn the_page_works_in_headless_chromium() {
     let Some(chromium) = find(&["/usr/bin/chromium", "/usr/bin/chromium-browser"]) else {
@@ -357,38 +402,16 @@ fn the_page_works_in_headless_chromium() {
     );
     assert!(webgl.is_string(), "WebGL2 is available (SwiftShader)");
 
-    // The page computes what the native wrapper computes from the same files (the runtime's
-    // kernels are bitwise the same on every instruction set; tanh and exp come from different
-    // maths libraries, hence a tolerance).
-    let shown = browser.eval(
-        "const t = window.sartor.state.tryOn; window.sartor.setPlaying(false); \
-         t.setPhenotype(0.2, 1.65, 0.7, 0.4, 40); t.playProcedural('jumping_jacks'); \
-         while (!t.settle(100)); t.seek(30); \
-         const v = Array.from(t.garmentVertices()); const turn = t.armTurnDeg; \
-         document.getElementById('motion').dispatchEvent(new Event('change')); \
-         window.sartor.setPlaying(true); return {v, turn};",
-    );
-    let page = floats(&shown["v"]);
-    let (native, native_turn) = native_frame(&dist);
-    // The arms were held as natively (the page read the manifest's options).
-    let page_turn = shown["turn"].as_f64().expect("a number");
-    assert!(
-        (page_turn - native_turn).abs() < 1e-6,
-        "arms turned {page_turn}° in the page, {native_turn}° natively"
-    );
-    let page_vs_native = page
-        .iter()
-        .zip(&native)
-        .map(|(a, b)| (a - f64::from(*b)).abs())
-        .fold(0.0, f64::max);
+    // The page computes what the native wrapper computes from the same files.
+    let models = manifest(&dist)["models"]
+        .as_array()
+        .expect("the manifest's models")
+        .clone();
+    let model_name = |i: usize| models[i]["name"].as_str().expect("a name").to_string();
+    let (page, page_vs_native) = frame_against_native(&browser, &dist, &model_name(0));
     let page_hash = page.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, v| {
         (h ^ u64::from((*v as f32).to_bits())).wrapping_mul(0x0100_0000_01b3)
     });
-    assert_eq!(page.len(), native.len());
-    assert!(
-        page_vs_native < 1e-4,
-        "the page's garment is the native one within 0.1 mm: {page_vs_native} m"
-    );
 
     // The kernels compute in the page bit for bit what they compute natively.
     let probe = floats(&browser.eval("return window.sartor.kernelProbe();"));
@@ -609,6 +632,68 @@ fn the_page_works_in_headless_chromium() {
     let mean = floats(&browser.eval("return window.sartor.meanTimes();"));
     let bench = browser.eval("return window.sartor.bench(150);");
 
+    // Another garment: the model with the most triangles, fetched when chosen and put on the
+    // shape, clip and frame shown; the page computes with it what the native wrapper computes.
+    let fine = model_name(models.len() - 1);
+    let fine_triangles = models[models.len() - 1]["triangles"]
+        .as_u64()
+        .expect("a count");
+    assert!(
+        models.len() > 1,
+        "the page offers another garment: {models:?}"
+    );
+    let worn_before = browser.eval(
+        "window.sartor.setPlaying(false); const t = window.sartor.state.tryOn; \
+         return [t.frame, t.motionName];",
+    );
+    browser.eval(&format!(
+        "const s = document.getElementById('garment'); s.value = '{fine}'; \
+         s.dispatchEvent(new Event('change'));"
+    ));
+    let garment_wall = browser.wait_for(
+        &format!(
+            "window.sartor.state.garment.name === '{fine}' && \
+             !document.getElementById('garment').disabled"
+        ),
+        Duration::from_secs(60),
+    );
+    let worn = browser.eval(
+        "const t = window.sartor.state.tryOn; \
+         return {frame: [t.frame, t.motionName], faces: t.garmentFaces().length, \
+                 shown_error: document.getElementById('error').hidden ? null \
+                   : document.getElementById('error').textContent, \
+                 status: document.getElementById('status').textContent, \
+                 ms: window.sartor.state.garmentMs};",
+    );
+    assert_eq!(
+        worn["frame"], worn_before,
+        "the same clip and frame: {worn}"
+    );
+    assert_eq!(worn["faces"], json!(3 * fine_triangles), "{worn}");
+    assert!(worn["shown_error"].is_null(), "{worn}");
+    let fine_label = format!(
+        "{},{:03} triangles",
+        fine_triangles / 1000,
+        fine_triangles % 1000
+    );
+    assert!(
+        worn["status"]
+            .as_str()
+            .is_some_and(|s| s.contains(&fine_label)),
+        "the page says which garment: {worn}"
+    );
+    let (_, fine_vs_native) = frame_against_native(&browser, &dist, &fine);
+
+    // Back to the sliders' body and CMU 05_06.
+    browser.eval("document.getElementById('weight').dispatchEvent(new Event('change'));");
+    browser.wait_for(
+        "window.sartor.state.tryOn.motionName === 'cmu/05_06' && !window.sartor.state.settling",
+        Duration::from_secs(30),
+    );
+    browser.eval("window.sartor.setPlaying(true);");
+    std::thread::sleep(Duration::from_millis(2500));
+    let bench_fine = browser.eval("return window.sartor.bench(150);");
+
     // The body and the garment are on the canvas.
     let pixels = browser.eval(
         "const v = window.sartor.state.viewer; v.draw(); const gl = v.gl; \
@@ -751,7 +836,10 @@ fn the_page_works_in_headless_chromium() {
          {scrub_wall:?} ([display frames with a slice, ms in them] {}); CMU 05_06 chosen, \
          playing after {clip_wall:?}\n\
          measurements fitted in {} ms: {}\n\
-         back-to-back: {bench}\npixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
+         back-to-back: {bench}\n\
+         {fine} worn after {garment_wall:?} (setGarment {} ms), page vs native garment: max \
+         {fine_vs_native:e} m; back-to-back: {bench_fine}\n\
+         pixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),
         sartor_runtime_isa(),
         release[0],
@@ -759,11 +847,13 @@ fn the_page_works_in_headless_chromium() {
         scrubbed[3],
         fitted["ms"],
         fitted["shown"],
+        worn["ms"],
         shot.display(),
     );
     let _ = writeln!(
         std::io::stderr(),
-        "browser test: usable after {ready_ms} ms; back-to-back {bench}; screenshot {}",
+        "browser test: usable after {ready_ms} ms; back-to-back {bench}; {fine}: {bench_fine}; \
+         screenshot {}",
         shot.display()
     );
     assert_eq!(&screenshot[..4], b"\x89PNG", "a PNG screenshot");
@@ -779,8 +869,10 @@ fn the_page_works_in_headless_chromium() {
         "releaseWhole",
         "preview",
     ] {
-        let ms = bench[key].as_f64().expect("ms");
-        assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
+        for bench in [&bench, &bench_fine] {
+            let ms = bench[key].as_f64().expect("ms");
+            assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
+        }
     }
     let errors: Vec<&Value> = console
         .iter()

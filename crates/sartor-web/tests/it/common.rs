@@ -11,12 +11,17 @@ pub fn repo() -> PathBuf {
 
 /// The shipped model and body, by the page's file names.
 pub fn shipped_files() -> FileSet {
-    let mut files = FileSet::new();
-    for (names, dir) in [
+    files_of(&[
         (&MODEL_FILES[..], "datasets/models/default"),
         (&BODY_FILES[..], "datasets/body/makehuman"),
-    ] {
-        for name in names {
+    ])
+}
+
+/// The files of each pair's folder (relative to the repository), by the page's names.
+pub fn files_of(folders: &[(&[&str], &str)]) -> FileSet {
+    let mut files = FileSet::new();
+    for (names, dir) in folders {
+        for name in names.iter() {
             let (_, file) = name.split_once('/').expect("folder/file");
             let bytes = std::fs::read(repo().join(dir).join(file)).expect("shipped file");
             files.insert(name, bytes);
@@ -53,8 +58,13 @@ pub fn shipped_arm_clearance() -> ClearanceOptions {
 /// The page's session with the limbs held as the page holds them, playing CMU 02_02 (a walk
 /// whose every frame needs the arms held) from its first frame.
 pub fn playing_02_02() -> TryOn {
+    playing_02_02_with(shipped_files())
+}
+
+/// [`playing_02_02`] with the model and body in `files`.
+pub fn playing_02_02_with(files: FileSet) -> TryOn {
     let mut t = TryOn::load(
-        shipped_files(),
+        files,
         TryOnOptions {
             arm_clearance: Some(shipped_arm_clearance()),
             ..TryOnOptions::default()

@@ -6,7 +6,10 @@ use sartor_core::BodyDistance;
 use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
 use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
 
-use crate::common::{load, playing_02_02, repo, shipped_arm_clearance, shipped_files, stored_clip};
+use crate::common::{
+    files_of, load, playing_02_02, playing_02_02_with, repo, shipped_arm_clearance, shipped_files,
+    stored_clip,
+};
 
 use crate::reference::max_abs_diff;
 
@@ -498,4 +501,64 @@ fn a_new_clip_plays_once_its_first_frames_are_held_while_the_last_one_plays_on()
     assert!(e.to_string().contains("another skeleton"), "{e}");
     assert!(t.settle(0).expect("nothing waits"));
     assert_eq!(t.motion_name(), "cmu/02_10");
+}
+
+/// The model files of `datasets/models/<name>` alone, by the page's names.
+fn model_files(name: &str) -> sartor_web::FileSet {
+    files_of(&[(
+        &sartor_web::MODEL_FILES[..],
+        &format!("datasets/models/{name}"),
+    )])
+}
+
+#[test]
+fn another_garment_is_worn_on_the_same_shape_motion_and_frame() {
+    // The page's choice of garment: the shipped 8,710-triangle T-shirt put on at frame 20 of
+    // CMU 02_02 on a wide body is the garment a page loaded with it shows there, bit for bit;
+    // the body, the held arms and the frame do not change, and the first garment comes back.
+    let wide = [0.0, 2.0];
+    let mut t = at_frame_20();
+    t.set_betas(&wide).expect("shape");
+    let (garment, body, turn) = (t.garment_vertices(), t.body_vertices(), t.arm_turn_deg());
+    assert!(turn > 0.0, "frame 20 holds the arms");
+    t.set_garment(model_files("default-8710"))
+        .expect("the 8,710-triangle model");
+    assert_eq!((t.motion_name(), t.frame()), ("cmu/02_02", 20));
+    assert_eq!(t.garment_faces().len(), 3 * 8710);
+    assert_eq!(t.body_vertices(), body);
+    assert_eq!(t.arm_turn_deg(), turn);
+    let fine = t.garment_vertices();
+    assert!(fine.iter().all(|v| v.is_finite()));
+    let mut direct = playing_02_02_with(files_of(&[
+        (&sartor_web::MODEL_FILES[..], "datasets/models/default-8710"),
+        (&sartor_web::BODY_FILES[..], "datasets/body/makehuman"),
+    ]));
+    direct.set_betas(&wide).expect("shape");
+    direct.seek(20).expect("seek");
+    assert_eq!(fine, direct.garment_vertices());
+    // It plays on, and the first garment comes back as it was.
+    t.step().expect("step");
+    direct.step().expect("step");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    t.seek(20).expect("seek");
+    t.set_garment(model_files("default"))
+        .expect("the shipped model");
+    assert_eq!(t.garment_faces().len(), 3 * 4210);
+    assert_eq!(t.garment_vertices(), garment);
+
+    // Bad files lose nothing: the garment worn stays, with its frame.
+    let mut broken = model_files("default-8710");
+    let mut bytes = broken.take("model/model.safetensors").expect("present");
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x55;
+    broken.insert("model/model.safetensors", bytes);
+    let e = t.set_garment(broken).expect_err("a corrupt model");
+    assert!(e.to_string().contains("model/model.safetensors"), "{e}");
+    let mut missing = model_files("default-8710");
+    missing.take("model/binding.json").expect("present");
+    let e = t.set_garment(missing).expect_err("a missing file");
+    assert!(e.to_string().contains("model/binding.json"), "{e}");
+    assert_eq!(t.garment_faces().len(), 3 * 4210);
+    assert_eq!(t.garment_vertices(), garment);
+    assert_eq!(t.frame(), 20);
 }
