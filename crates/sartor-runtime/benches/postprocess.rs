@@ -13,6 +13,8 @@
 //! 1.90 m, heavy" body (beyond the training shapes) dancing CMU 05_06; `-faces` pushes the
 //! triangles out too, as the page does. `strain-limit/…` is the strain limit's own time
 //! ([`sartor_runtime::StrainLimit`], before the post-process) on the walk and on that dance.
+//! `certified-first-frame-faces` is a new avatar's first frame (no face to start any search
+//! from), the triangles pushed out too.
 //!
 //! `cargo bench -p sartor-runtime --bench postprocess -- --warm-up-time 1 --measurement-time 3`
 //!
@@ -213,6 +215,22 @@ fn post_process(c: &mut Criterion) {
             })
         });
     }
+    // An avatar's first frame, the triangles pushed out too (as `demo` and the page do): no
+    // cloth vertex or triangle has a face to start its search from (a new avatar, a sequence
+    // of `eval`, a garment chosen on the page). A new avatar each iteration, built untimed.
+    let first = rig(CollisionQuery::Certified, within, true, seq, Precision::F32);
+    group.bench_function("certified-first-frame-faces", |b| {
+        b.iter_custom(|iters| {
+            let mut total = 0.0;
+            for _ in 0..iters {
+                let mut avatar = GarmentAnimator::new(first.clone()).expect("avatar");
+                avatar.set_stage_clock(Some(clock_ms));
+                avatar.frame(&poses[0]).expect("frame");
+                total += avatar.stage_times().expect("clock").post_process_ms;
+            }
+            Duration::from_secs_f64(total * 1e-3)
+        })
+    });
     // A shopper's body beyond the training shapes on real motion capture: the try-on page's
     // "male, 1.90 m, heavy" dancing CMU 05_06 (arms raised, a cartwheel), the whole clip.
     // With `-faces`, the triangles pushed out too, as the page does.

@@ -1472,7 +1472,8 @@ struct AnswerState<'a> {
 pub(crate) enum Later {
     /// Proven outside and at least the asked distance from the region (the test of the first
     /// pass's certificate on the exact nearest face: in front of every face whose normal
-    /// enters its pseudo-normal, and that face not a crease), with the face nearest to it.
+    /// enters its pseudo-normal, and that face not a crease), with a face to start its next
+    /// search from: the nearest one, or, where the sweep proved it, its warm face.
     Beyond { face: u32 },
     /// The exact closest point.
     Exact(ClosestPoint),

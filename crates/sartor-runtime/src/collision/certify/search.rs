@@ -671,6 +671,58 @@ impl Tree {
 }
 
 impl Tree {
+    /// A face to start the search of a point `x` that has no usable warm face from (the first
+    /// frame of an avatar, a warm face buried this frame): in the group whose box is nearest,
+    /// the cluster whose box is nearest, its usable face (`usable`) of least bound; `None` when
+    /// that cluster has none. Any face serves (its distance bounds the nearest face's, as a
+    /// warm face's does), so the answers do not depend on it; a near one gives the point a
+    /// short reach and its packet (not the sweep: see [`Search::run`]'s loop). Without it the
+    /// search of such a point started unbounded, in the tree's order: an avatar's first frame,
+    /// where no cloth vertex or triangle has a warm face, took the shipped model's post-process
+    /// 34–42 ms, now 6.9–7.0, and the trained 8,710-triangle one's 65–76 ms, now 15.3–15.6
+    /// (`cargo bench -p sartor-runtime --bench postprocess -- first-frame`, two rounds of the
+    /// two builds in turn, AMD EPYC VM); the later frames' work is unchanged (the same garments
+    /// over 200 frames of the walk, 1 % fewer instructions a frame by callgrind).
+    fn seed(&self, frame: &Frame, x: &[f32; 3], usable: impl Fn(u32) -> bool) -> Option<u32> {
+        let nearest = |lb2: [f32; W]| {
+            let mut best = (f32::INFINITY, usize::MAX);
+            for (l, &d2) in lb2.iter().enumerate() {
+                if d2 < best.0 {
+                    best = (d2, l);
+                }
+            }
+            best
+        };
+        let mut group = (f32::INFINITY, usize::MAX);
+        for (top, block) in self.groups.iter().enumerate() {
+            let (d2, g) = nearest(block.distance2(x));
+            if d2 < group.0 {
+                group = (d2, top * W + g);
+            }
+        }
+        if group.1 == usize::MAX {
+            return None;
+        }
+        let (d2, c) = nearest(self.clusters[group.1].distance2(x));
+        if d2 == f32::INFINITY {
+            return None;
+        }
+        let c = group.1 * GROUP + c;
+        let lb2 = self.faces[c].distance2(x);
+        let mut seed: Option<(f32, u32)> = None;
+        for (l, &d2) in lb2.iter().enumerate() {
+            // (The last cluster's padding lanes, at infinity, have no face.)
+            if d2.is_finite()
+                && seed.is_none_or(|(b, _)| d2 < b)
+                && let Some(&f) = frame.cluster_faces.get(c * CLUSTER + l)
+                && usable(f)
+            {
+                seed = Some((d2, f));
+            }
+        }
+        seed.map(|(_, f)| f)
+    }
+
     /// The lanes of `lb2` within `reach2`, as bits (never NaN: a bound at infinity is beyond).
     #[inline(always)]
     fn within(&self, lb2: &[f32; W], reach2: f32) -> u32 {
@@ -750,11 +802,21 @@ impl Search {
             };
             let mut p = [[0.0f32; WARM_LANES]; 3];
             let mut t = [[[0.0f32; WARM_LANES]; 3]; 3];
+            // The warm face, or where it is not usable a seed ([`Tree::seed`]; `u32::MAX`:
+            // none).
+            let mut start = [u32::MAX; WARM_LANES];
             for (l, (x, &w)) in points.iter().zip(warm).enumerate() {
                 for k in 0..3 {
                     p[k][l] = x[k];
                 }
-                if usable(w) {
+                start[l] = if usable(w) {
+                    w
+                } else {
+                    frame.tree.seed(frame, x, usable).unwrap_or(u32::MAX)
+                };
+                let w = start[l];
+                // (A seed is usable.)
+                if w != u32::MAX {
                     for (corner, &v) in t.iter_mut().zip(&frame.faces[w as usize]) {
                         let v = &frame.rel[v as usize];
                         for k in 0..3 {
@@ -766,10 +828,10 @@ impl Search {
             let d2 = distance2_lanes(&p, &t);
             self.best
                 .extend(points.iter().zip(warm).enumerate().map(|(l, (x, &w))| {
-                    if usable(w) {
+                    if start[l] != u32::MAX {
                         // `Near::from_warm`'s answer, from the lanes' distance.
                         let mut near = Near::new(f32::MAX);
-                        near.offer(w, d2[l], true);
+                        near.offer(start[l], d2[l], true);
                         Best::from(&near)
                     } else {
                         Best::from(&Near::from_warm(frame, x, w, f32::MAX))
@@ -780,8 +842,14 @@ impl Search {
         self.range.resize(n, (0, 0));
         self.lists.clear();
         // A point whose warm face lies within `front2` fails the sweep on that face (its bound
-        // is at most its distance), so it is not swept: it goes straight to its search.
-        let sweepable = |best: Best, front2: f32| best.face != u32::MAX && best.best2 >= front2;
+        // is at most its distance), so it is not swept: it goes straight to its search. Nor is
+        // a point started from a seed ([`Tree::seed`]): its search gives it its nearest face as
+        // the warm face of the next frame, where the sweep's reach is the shortest (a seed
+        // kept as the warm face of a swept point cost the shipped model's walk 1.6 % more
+        // instructions a frame, callgrind).
+        let sweepable = |best: Best, front2: f32, warm: u32| {
+            best.face != u32::MAX && best.face == warm && best.best2 >= front2
+        };
         self.sort_by_warm_cluster(frame);
         let order = std::mem::take(&mut self.order);
         let (mut start, n_warm) = (0, self.n_warm);
@@ -798,7 +866,7 @@ impl Search {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
                     if let Some(front2) = sweep
-                        && sweepable(best, front2)
+                        && sweepable(best, front2, warm[i])
                         && frame.tree.sweep_among(
                             &self.packet_clusters,
                             &self.packet_boxes,
@@ -822,7 +890,7 @@ impl Search {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
                     if let Some(front2) = sweep
-                        && sweepable(best, front2)
+                        && sweepable(best, front2, warm[i])
                         && frame.tree.sweep(x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
