@@ -96,8 +96,16 @@ function showGarment() {
   $("status").textContent = `${g.garment}, ${triangles} triangles, post-process on`;
 }
 
+/// The manifest's garment model the page's address names (`?garment=default-8710`, which a
+/// choice of garment writes, so that a link opens the page with it), else its first.
+function linkedGarment(manifest) {
+  const wanted = new URLSearchParams(location.search).get("garment");
+  return manifest.models.find((m) => m.name === wanted) || manifest.models[0];
+}
+
 /// Wear the manifest's garment model `name` (fetched on first choice) on the shape, motion and
-/// frame shown; the timings start anew. An error keeps the garment worn.
+/// frame shown; the timings start anew, and the address names it. An error keeps the garment
+/// worn.
 async function chooseGarment(name) {
   const select = $("garment");
   const model = state.manifest.models.find((m) => m.name === name);
@@ -111,6 +119,9 @@ async function chooseGarment(name) {
     t.setGarment(modelAssets(files));
     state.garmentMs = performance.now() - start;
     state.garment = model;
+    const url = new URL(location.href);
+    url.searchParams.set("garment", name);
+    history.replaceState(null, "", url);
     const n = t.garmentVertices().length / 3;
     state.viewer.setMesh("garment", t.garmentFaces(), n, GARMENT_COLOR);
     state.times = [];
@@ -501,12 +512,13 @@ async function main() {
   );
   const [manifest, garmentFiles, , ...bodyFiles] = await Promise.all([
     manifestRead,
-    manifestRead.then((m) => modelFiles(m.models[0])),
+    manifestRead.then((m) => modelFiles(linkedGarment(m))),
     init({ module_or_path: "pkg/sartor_web_bg.wasm" }),
     ...BODY_FILES.map((f) => fetchBytes(`body/${f}`)),
   ]);
   state.manifest = manifest;
-  state.garment = manifest.models[0];
+  state.garment = linkedGarment(manifest);
+
   const assets = modelAssets(garmentFiles);
   BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, bodyFiles[i]));
   // The arms held out of the torso as the model's training motions held them.
@@ -543,6 +555,7 @@ async function main() {
     option.textContent = `${m.triangles.toLocaleString("en")} triangles (${mb(m.page_bytes)})`;
     garments.append(option);
   }
+  garments.value = state.garment.name;
 
   applyPhenotype();
   await chooseMotion(select.value);
@@ -584,6 +597,12 @@ async function main() {
     `(model ${mb(bytes.model)} with ${g.storage}; f32 would be ${mb(g.f32_bytes)}; ` +
     `body ${mb(bytes.body)}, WebAssembly ${mb(bytes.wasm)})`;
   showGarment();
+  // (After the first motion's load, which clears the error box.)
+  const wanted = new URLSearchParams(location.search).get("garment");
+  if (wanted !== null && wanted !== state.garment.name) {
+    const offered = manifest.models.map((m) => m.name).join(", ");
+    showError(`garment "${wanted}" in the address: no such model (offered: ${offered})`);
+  }
   document.body.dataset.ready = "true";
   requestAnimationFrame(tick);
 }

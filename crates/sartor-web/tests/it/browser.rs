@@ -663,7 +663,12 @@ fn the_page_works_in_headless_chromium() {
                  shown_error: document.getElementById('error').hidden ? null \
                    : document.getElementById('error').textContent, \
                  status: document.getElementById('status').textContent, \
-                 ms: window.sartor.state.garmentMs};",
+                 address: location.search, ms: window.sartor.state.garmentMs};",
+    );
+    assert_eq!(
+        worn["address"],
+        json!(format!("?garment={fine}")),
+        "the address names the garment: {worn}"
     );
     assert_eq!(
         worn["frame"], worn_before,
@@ -821,6 +826,51 @@ fn the_page_works_in_headless_chromium() {
     assert!(
         (g("turned") + 0.4).abs() < 1e-9 && (g("zoom") - 0.5).abs() < 1e-9,
         "gestures: {gesture}"
+    );
+
+    // A link with the garment named opens the page with it, fetching no other model; a name
+    // no model has is said on the page, which opens with the first.
+    let open = |search: &str| {
+        browser.call(
+            "POST",
+            "/url",
+            Some(&json!({"url": format!("{}{search}", server.url())})),
+        );
+        browser.wait_for(
+            "window.sartor && window.sartor.ready()",
+            Duration::from_secs(60),
+        );
+        browser.eval(
+            "return {garment: window.sartor.state.garment.name, \
+                     chosen: document.getElementById('garment').value, \
+                     faces: window.sartor.state.tryOn.garmentFaces().length, \
+                     model_bytes: window.sartor.transferred().model, \
+                     shown_error: document.getElementById('error').hidden ? null \
+                       : document.getElementById('error').textContent};",
+        )
+    };
+    let linked = open(&format!("?garment={fine}"));
+    let fine_bytes = models[models.len() - 1]["page_bytes"]
+        .as_f64()
+        .expect("bytes");
+    let first_bytes = models[0]["page_bytes"].as_f64().expect("bytes");
+    let model_bytes = linked["model_bytes"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        linked["garment"] == json!(fine)
+            && linked["chosen"] == json!(fine)
+            && linked["faces"] == json!(3 * fine_triangles)
+            && linked["shown_error"].is_null()
+            && model_bytes >= fine_bytes
+            && model_bytes < fine_bytes + first_bytes,
+        "the linked garment: {linked}"
+    );
+    let unknown = open("?garment=no-such-model");
+    assert!(
+        unknown["garment"] == json!(model_name(0))
+            && unknown["shown_error"]
+                .as_str()
+                .is_some_and(|e| e.contains("no-such-model") && e.contains(&fine)),
+        "an unknown garment in the address: {unknown}"
     );
 
     let console = browser.console();
