@@ -73,6 +73,7 @@ async function fetchBytes(path) {
 }
 
 const MODEL_FILES = ["model.json", "model.safetensors", "binding.json", "binding.safetensors"];
+const BODY_FILES = ["model.json", "model.safetensors", "phenotype.json", "phenotype.safetensors", "tpose.json"];
 
 /// The files of the manifest's garment model `model`, fetched once.
 async function modelFiles(model) {
@@ -99,8 +100,12 @@ function showGarment() {
 /// The manifest's garment model the page's address names (`?garment=default-8710`, which a
 /// choice of garment writes, so that a link opens the page with it), else its first.
 function linkedGarment(manifest) {
-  const wanted = new URLSearchParams(location.search).get("garment");
-  return manifest.models.find((m) => m.name === wanted) || manifest.models[0];
+  return manifest.models.find((m) => m.name === linkedName()) || manifest.models[0];
+}
+
+/// The garment model's name in the page's address, or null.
+function linkedName() {
+  return new URLSearchParams(location.search).get("garment");
 }
 
 /// Wear the manifest's garment model `name` (fetched on first choice) on the shape, motion and
@@ -135,7 +140,6 @@ async function chooseGarment(name) {
     select.disabled = false;
   }
 }
-const BODY_FILES = ["model.json", "model.safetensors", "phenotype.json", "phenotype.safetensors", "tpose.json"];
 
 function sliders() {
   return {
@@ -598,7 +602,7 @@ async function main() {
     `body ${mb(bytes.body)}, WebAssembly ${mb(bytes.wasm)})`;
   showGarment();
   // (After the first motion's load, which clears the error box.)
-  const wanted = new URLSearchParams(location.search).get("garment");
+  const wanted = linkedName();
   if (wanted !== null && wanted !== state.garment.name) {
     const offered = manifest.models.map((m) => m.name).join(", ");
     showError(`garment "${wanted}" in the address: no such model (offered: ${offered})`);
