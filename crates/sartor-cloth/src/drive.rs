@@ -436,8 +436,11 @@ impl Region {
         margin_m: f64,
     ) -> Result<Self> {
         let template = body.template().positions();
-        let anchors =
-            SurfaceAnchors::new(template, body.faces(), garment.positions().iter().copied())?;
+        let anchors = SurfaceAnchors::on(
+            body.template_proximity()?,
+            body.faces(),
+            garment.positions().iter().copied(),
+        );
         let weights = transfer_skin_weights(
             template,
             body.faces(),

@@ -167,6 +167,18 @@ impl SurfaceAnchors {
         points: impl IntoIterator<Item = Vector3<f64>>,
     ) -> Result<Self> {
         let proximity = MeshProximity::new(positions, faces)?;
+        Ok(Self::on(&proximity, faces, points))
+    }
+
+    /// Anchor `points` to their closest points on a surface whose closest-point structure is
+    /// built already (`proximity`, over `faces`: e.g. [`BodyModel::template_proximity`]).
+    ///
+    /// [`BodyModel::template_proximity`]: crate::BodyModel::template_proximity
+    pub fn on(
+        proximity: &MeshProximity,
+        faces: &[[u32; 3]],
+        points: impl IntoIterator<Item = Vector3<f64>>,
+    ) -> Self {
         let anchors = points
             .into_iter()
             .map(|p| {
@@ -174,7 +186,7 @@ impl SurfaceAnchors {
                 (faces[c.face as usize], c.barycentric)
             })
             .collect();
-        Ok(Self { anchors })
+        Self { anchors }
     }
 
     /// Anchored points.

@@ -2,12 +2,14 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::{Arc, OnceLock};
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::asset::AssetFiles;
 use crate::io::{OwnedTensor, serialize_tensors, sha256_hex};
+use crate::proximity::MeshProximity;
 use crate::skeleton::{Pose, Skeleton};
 use crate::skinning::{BoneTransform, Parallelism, SkinWeights, skin_points, skin_points_at};
 use crate::{Error, Result, TriMesh};
@@ -44,6 +46,20 @@ pub struct BodyModel {
     skeleton: Skeleton,
     skin_weights: SkinWeights,
     provenance: Provenance,
+    /// The template's closest-point structure, built on first use
+    /// ([`BodyModel::template_proximity`]).
+    template_proximity: ProximityCache,
+}
+
+/// A body's [`MeshProximity`] over its template, built once and shared by its clones: a cache,
+/// so two models compare equal whether or not theirs is built yet.
+#[derive(Clone, Debug, Default)]
+struct ProximityCache(OnceLock<Arc<MeshProximity>>);
+
+impl PartialEq for ProximityCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// The JSON header saved next to the tensors.
@@ -132,6 +148,7 @@ impl BodyModel {
             skeleton,
             skin_weights,
             provenance,
+            template_proximity: ProximityCache::default(),
         })
     }
 
@@ -143,6 +160,19 @@ impl BodyModel {
     /// Template mesh `T̄_b` (β = 0, rest pose).
     pub fn template(&self) -> &TriMesh {
         &self.template
+    }
+
+    /// The closest-point structure over the template's faces, built on the first call and kept
+    /// (its clones share it): every garment put on this body anchors its vertices to the
+    /// template through it, so a second garment (a change of garment on the try-on page) does
+    /// not build it again.
+    pub fn template_proximity(&self) -> Result<&MeshProximity> {
+        let cache = &self.template_proximity.0;
+        if let Some(built) = cache.get() {
+            return Ok(built);
+        }
+        let built = MeshProximity::new(self.template.positions(), self.template.faces())?;
+        Ok(cache.get_or_init(|| Arc::new(built)))
     }
 
     /// Triangles of the body mesh.

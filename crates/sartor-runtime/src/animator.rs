@@ -329,12 +329,11 @@ impl GarmentRig {
 /// Each cloth vertex anchored to its closest point on the template body (β = 0, rest pose)
 /// ([`FitMode::Retarget`]).
 fn retarget_binding(body: &BodyModel, template: &[Vector3<f32>]) -> Result<SurfaceAnchors> {
-    let mesh = body.template();
-    Ok(SurfaceAnchors::new(
-        mesh.positions(),
-        mesh.faces(),
+    Ok(SurfaceAnchors::on(
+        body.template_proximity()?,
+        body.faces(),
         template.iter().map(|p| p.cast::<f64>()),
-    )?)
+    ))
 }
 
 /// Add to `fit` (`3V` values) each cloth vertex's displacement with its anchor from the body

@@ -2,7 +2,9 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
-use sartor_core::{BodyModel, Parallelism, Pose, PoseBuffers, skin_points, unskin_points};
+use sartor_core::{
+    BodyModel, Parallelism, Pose, PoseBuffers, SurfaceAnchors, skin_points, unskin_points,
+};
 
 use crate::common::{model, random_pose, random_weights, rng};
 
@@ -285,4 +287,58 @@ fn fuzz_regressions_are_errors() {
         n += 1;
     }
     assert!(n > 0, "no fuzz regressions found in {}", dir.display());
+}
+
+#[test]
+fn the_template_proximity_is_built_once_and_answers_as_a_new_one() {
+    let body = BodyModel::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
+    )
+    .expect("built-in body");
+    let before = body.clone();
+    let cached = body.template_proximity().expect("a closed template");
+    // Built once: the second call and a clone made after it give the same structure.
+    assert!(std::ptr::eq(
+        cached,
+        body.template_proximity().expect("built")
+    ));
+    let clone = body.clone();
+    assert!(std::ptr::eq(
+        cached,
+        clone.template_proximity().expect("shared")
+    ));
+    // A cache only: the model equals one whose structure is not built yet.
+    assert_eq!(body, before);
+    // Anchors through it are those of a structure built from the template's own arrays, on
+    // points around the body (the template's vertices pushed 3 cm along random directions).
+    let mut r = rng(21);
+    let points: Vec<Vector3<f64>> = body
+        .template()
+        .positions()
+        .iter()
+        .step_by(13)
+        .map(|p| {
+            let d = Vector3::new(r.random(), r.random(), r.random()) - Vector3::repeat(0.5);
+            p + d.normalize() * 0.03
+        })
+        .collect();
+    let fresh = SurfaceAnchors::new(
+        body.template().positions(),
+        body.faces(),
+        points.iter().copied(),
+    )
+    .expect("anchors");
+    let on = SurfaceAnchors::on(cached, body.faces(), points.iter().copied());
+    assert_eq!(on.len(), points.len());
+    let (from, to) = (
+        body.template().positions(),
+        body.shaped_vertices(&[1.0; 4]).expect("β"),
+    );
+    for i in 0..points.len() {
+        assert_eq!(
+            on.displacement(i, &to, from),
+            fresh.displacement(i, &to, from),
+            "point {i}"
+        );
+    }
 }
