@@ -5,6 +5,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sartor_core::{BodyModel, Pose, Provenance, Skeleton, SkinWeights, TriMesh};
 
+/// The built-in MakeHuman body (`datasets/body/makehuman`).
+pub fn builtin_body() -> BodyModel {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman");
+    BodyModel::load(&dir).expect("built-in body")
+}
+
 pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }

@@ -6,7 +6,7 @@ use sartor_core::{
     BodyModel, Parallelism, Pose, PoseBuffers, SurfaceAnchors, skin_points, unskin_points,
 };
 
-use crate::common::{model, random_pose, random_weights, rng};
+use crate::common::{builtin_body, model, random_pose, random_weights, rng};
 
 #[test]
 fn rest_pose_skins_to_the_shaped_template() {
@@ -114,10 +114,7 @@ fn parallel_and_sequential_skinning_agree_bitwise() {
 
 #[test]
 fn posing_some_vertices_gives_their_bits_and_leaves_the_rest() {
-    let body = BodyModel::load(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
-    )
-    .expect("built-in body");
+    let body = builtin_body();
     let n = body.n_vertices();
     let mut r = rng(9);
     let betas: Vec<f64> = (0..body.n_betas())
@@ -291,10 +288,7 @@ fn fuzz_regressions_are_errors() {
 
 #[test]
 fn the_template_proximity_is_built_once_and_answers_as_a_new_one() {
-    let body = BodyModel::load(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../datasets/body/makehuman"),
-    )
-    .expect("built-in body");
+    let body = builtin_body();
     let before = body.clone();
     let cached = body.template_proximity().expect("a closed template");
     // Built once: the second call and a clone made after it give the same structure.
