@@ -60,7 +60,8 @@ use rayon::prelude::*;
 use sartor_core::io::sha256_hex;
 use sartor_core::{
     BodyDistance, BodyModel, BodyPoser, MeshProximity, Parallelism, Pose, SurfaceAnchors,
-    compact_faces, faces_near, interpolate_pose, skin_points, split_heading, transfer_skin_weights,
+    compact_faces, faces_near, interpolate_pose, skin_points, split_heading,
+    transfer_skin_weights_on,
 };
 use sartor_motion::{ArmClearance, ClearanceOptions, Motion};
 use serde::{Deserialize, Serialize};
@@ -436,18 +437,10 @@ impl Region {
         margin_m: f64,
     ) -> Result<Self> {
         let template = body.template().positions();
-        let anchors = SurfaceAnchors::on(
-            body.template_proximity()?,
-            body.faces(),
-            garment.positions().iter().copied(),
-        );
-        let weights = transfer_skin_weights(
-            template,
-            body.faces(),
-            body.skin_weights(),
-            garment.positions(),
-            0.0,
-        )?;
+        let proximity = body.template_proximity()?;
+        let anchors = SurfaceAnchors::on(proximity, garment.positions().iter().copied());
+        let weights =
+            transfer_skin_weights_on(proximity, body.skin_weights(), garment.positions(), 0.0)?;
         let mut kept = vec![false; body.faces().len()];
         let mut poser = BodyPoser::new(body);
         let mut body_posed = vec![Vector3::zeros(); body.n_vertices()];

@@ -68,6 +68,19 @@ pub fn transfer_skin_weights(
     points: &[Vector3<f64>],
     min_weight: f32,
 ) -> Result<SkinWeights> {
+    let proximity = MeshProximity::new(positions, faces)?;
+    transfer_skin_weights_on(&proximity, weights, points, min_weight)
+}
+
+/// [`transfer_skin_weights`] from a surface whose closest-point structure is built already
+/// (e.g. [`BodyModel::template_proximity`]): the same weights.
+pub fn transfer_skin_weights_on(
+    proximity: &MeshProximity,
+    weights: &SkinWeights,
+    points: &[Vector3<f64>],
+    min_weight: f32,
+) -> Result<SkinWeights> {
+    let (positions, faces) = (proximity.positions(), proximity.faces());
     if weights.n_points() != positions.len() {
         return Err(Error::invalid(
             "skin-weight transfer",
@@ -90,7 +103,6 @@ pub fn transfer_skin_weights(
             format!("point {i} is not finite"),
         ));
     }
-    let proximity = MeshProximity::new(positions, faces)?;
     let mut offsets = Vec::with_capacity(points.len() + 1);
     offsets.push(0u32);
     let (mut joints, mut values) = (Vec::new(), Vec::new());
@@ -167,18 +179,13 @@ impl SurfaceAnchors {
         points: impl IntoIterator<Item = Vector3<f64>>,
     ) -> Result<Self> {
         let proximity = MeshProximity::new(positions, faces)?;
-        Ok(Self::on(&proximity, faces, points))
+        Ok(Self::on(&proximity, points))
     }
 
     /// Anchor `points` to their closest points on a surface whose closest-point structure is
-    /// built already (`proximity`, over `faces`: e.g. [`BodyModel::template_proximity`]).
-    ///
-    /// [`BodyModel::template_proximity`]: crate::BodyModel::template_proximity
-    pub fn on(
-        proximity: &MeshProximity,
-        faces: &[[u32; 3]],
-        points: impl IntoIterator<Item = Vector3<f64>>,
-    ) -> Self {
+    /// built already (e.g. [`BodyModel::template_proximity`]).
+    pub fn on(proximity: &MeshProximity, points: impl IntoIterator<Item = Vector3<f64>>) -> Self {
+        let faces = proximity.faces();
         let anchors = points
             .into_iter()
             .map(|p| {
@@ -368,9 +375,8 @@ impl GarmentBinding {
         min_weight: f32,
     ) -> Result<Self> {
         let rest = body.template().positions();
-        let skin_weights = transfer_skin_weights(
-            rest,
-            body.faces(),
+        let skin_weights = transfer_skin_weights_on(
+            body.template_proximity()?,
             body.skin_weights(),
             positions,
             min_weight,

@@ -61,6 +61,7 @@ pub mod tree;
 pub use binding::{
     BINDING_FORMAT, BINDING_JSON, BINDING_TENSORS, BINDING_VERSION, BindingHeader,
     DEFAULT_REGION_MARGIN_MM, GarmentBinding, SurfaceAnchors, faces_near, transfer_skin_weights,
+    transfer_skin_weights_on,
 };
 pub use body_distance::{BodyDistance, BodyPoint};
 pub use error::{Error, Result};

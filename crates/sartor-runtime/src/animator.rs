@@ -331,7 +331,6 @@ impl GarmentRig {
 fn retarget_binding(body: &BodyModel, template: &[Vector3<f32>]) -> Result<SurfaceAnchors> {
     Ok(SurfaceAnchors::on(
         body.template_proximity()?,
-        body.faces(),
         template.iter().map(|p| p.cast::<f64>()),
     ))
 }

@@ -3,7 +3,8 @@
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
 use sartor_core::{
-    BodyModel, Parallelism, Pose, PoseBuffers, SurfaceAnchors, skin_points, unskin_points,
+    BodyModel, Parallelism, Pose, PoseBuffers, SurfaceAnchors, skin_points, transfer_skin_weights,
+    transfer_skin_weights_on, unskin_points,
 };
 
 use crate::common::{builtin_body, model, random_pose, random_weights, rng};
@@ -322,7 +323,22 @@ fn the_template_proximity_is_built_once_and_answers_as_a_new_one() {
         points.iter().copied(),
     )
     .expect("anchors");
-    let on = SurfaceAnchors::on(cached, body.faces(), points.iter().copied());
+    let on = SurfaceAnchors::on(cached, points.iter().copied());
+    // And so are the skin weights transferred through it.
+    let weights = |w: sartor_core::SkinWeights| w.to_dense();
+    assert_eq!(
+        weights(transfer_skin_weights_on(cached, body.skin_weights(), &points, 0.01).expect("on")),
+        weights(
+            transfer_skin_weights(
+                body.template().positions(),
+                body.faces(),
+                body.skin_weights(),
+                &points,
+                0.01
+            )
+            .expect("fresh")
+        )
+    );
     assert_eq!(on.len(), points.len());
     let (from, to) = (
         body.template().positions(),
