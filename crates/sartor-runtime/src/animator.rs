@@ -571,7 +571,7 @@ impl Avatar {
             self.strained = edges.limit(
                 &mut self.vertices,
                 &self.edge_limits,
-                limit.rounds,
+                limit,
                 &mut self.limit_scratch,
             );
         }

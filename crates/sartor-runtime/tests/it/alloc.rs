@@ -124,6 +124,7 @@ fn frames_allocate_nothing() {
             strain_limit: Some(StrainLimit {
                 max_stretch: 1.0,
                 rounds: 4,
+                ..StrainLimit::default()
             }),
             ..AnimatorOptions::default()
         };
