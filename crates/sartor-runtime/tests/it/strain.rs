@@ -121,28 +121,19 @@ impl Scene {
 #[test]
 fn the_strain_limit_pulls_back_the_stretched_armpits_of_a_real_dance() {
     // The arms go up over frames 26–39.
-    let Scene {
-        network,
-        binding,
-        body,
-        poses,
-    } = Scene::load("default", "cmu/05_10@0+40");
+    let scene = Scene::load("default", "cmu/05_10@0+40");
+    let (network, binding, body, poses) =
+        (&scene.network, &scene.binding, &scene.body, &scene.poses);
     let space = PhenotypeSpace::load(&crate::common::builtin_model_dir()).expect("phenotypes");
     let request: PhenotypeRequest = "male, 1.90 m, heavy".parse().expect("request");
-    let (_, heavy) = space.betas_for(&body, &request).expect("reachable");
+    let (_, heavy) = space.betas_for(body, &request).expect("reachable");
     let mut heavy: Vec<f32> = heavy.iter().map(|&b| b as f32).collect();
     heavy.resize(network.n_betas(), 0.0);
     let nominal = vec![0.0; network.n_betas()];
 
     let template = binding.template();
-    let edges = MeshTopology::new(template.len(), binding.faces()).edges;
-    let length = |x: &[Vector3<f32>], [a, b]: [u32; 2]| (x[a as usize] - x[b as usize]).norm();
-    let template_rest: Vec<f32> = edges.iter().map(|&e| length(template, e)).collect();
-    let no_pp = |strain_limit| AnimatorOptions {
-        strain_limit,
-        collision: None,
-        ..AnimatorOptions::default()
-    };
+    // The template's own lengths (the rest of `Scene::rest` with the template as the fit).
+    let (edges, template_rest) = scene.rest(template);
     // The projection without over-relaxation, 16 rounds (the default until 2026-12-06).
     let plain = StrainLimit {
         rounds: 16,
@@ -150,23 +141,12 @@ fn the_strain_limit_pulls_back_the_stretched_armpits_of_a_real_dance() {
         ..StrainLimit::default()
     };
     for (name, betas) in [("nominal", &nominal), ("heavy", &heavy)] {
-        let off = run(&network, &binding, &body, no_pp(None), betas, &poses);
-        let on = run(
-            &network,
-            &binding,
-            &body,
-            no_pp(Some(StrainLimit::default())),
-            betas,
-            &poses,
-        );
-        let plain = run(&network, &binding, &body, no_pp(Some(plain)), betas, &poses);
+        let off = scene.run(None, betas);
+        let on = scene.run(Some(StrainLimit::default()), betas);
+        let plain = scene.run(Some(plain), betas);
         assert_eq!(off.strained, 0);
         // Each edge's rest length: the longer of template and fitted garment.
-        let rest: Vec<f32> = edges
-            .iter()
-            .zip(&template_rest)
-            .map(|(&e, &t)| t.max(length(&on.fitted, e)))
-            .collect();
+        let (_, rest) = scene.rest(&on.fitted);
         let worst_off = off.frames.iter().map(|x| worst(&edges, x, &template_rest));
         let worst_off = worst_off.fold(0.0, f32::max);
         // The network and skinning stretch the armpits (not a garment at rest).
@@ -226,7 +206,7 @@ fn the_strain_limit_pulls_back_the_stretched_armpits_of_a_real_dance() {
             let mut avatar = GarmentAnimator::new(rig(with_pp(limit))).expect("avatar");
             avatar.set_shape(betas).expect("finite shape");
             let mut inside = 0;
-            for pose in &poses {
+            for pose in poses {
                 avatar.frame(pose).expect("frame");
                 inside += avatar
                     .collision_count(1e-6)
