@@ -229,11 +229,14 @@ pub(crate) fn widest_level() -> u8 {
 /// ([`LaneMask::at_most`]). Plain Rust builds the mask by shifting each lane's sign into place,
 /// which LLVM compiles to a horizontal OR of the 16 lanes even in an AVX-512 build; where AVX-512
 /// runs ([`widest_level`] 2) one compare into a mask register gives it, where AVX2 runs (1) two
-/// compares read out by `movemask`, and in WebAssembly with SIMD four compares read out by
-/// `bitmask`. The same bits every way for lanes that are not NaN. Before the last two, one lane
-/// at a time: the try-on page's post-process took 4.26–4.39 ms a frame back to back at 4,210
-/// triangles, now 3.26–3.46 (the browser test, the same garments), and the AVX2 build's on the
-/// trained 8,710-triangle walk 0.74–0.75 ms, now 0.70–0.72 (Intel Xeon VM, builds in turn).
+/// compares read out by `movemask`, on any other x86-64 CPU (0) four SSE compares, and in
+/// WebAssembly with SIMD four compares read out by `bitmask`; plain Rust remains for other
+/// targets. The same bits every way for lanes that are not NaN. Before the SIMD compares, one
+/// lane at a time: the try-on page's post-process took 4.26–4.39 ms a frame back to back at
+/// 4,210 triangles, now 3.26–3.46 (the browser test, the same garments), and the AVX2 build's
+/// on the trained 8,710-triangle walk 0.74–0.75 ms, now 0.70–0.72 (Intel Xeon VM, builds in
+/// turn); the build as written (`SARTOR_RUNTIME_ISA=portable`) on the shipped walk 554–567 µs,
+/// now 518–522.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct LaneMask {
     /// [`widest_level`] where it was detected (0, the plain mask, by default).
@@ -258,26 +261,29 @@ impl LaneMask {
     #[inline(always)]
     pub(crate) fn at_most(self, v: &[f32; 16], t: f32) -> u32 {
         #[cfg(target_arch = "x86_64")]
-        match self.level {
+        return match self.level {
             // SAFETY: `level` is only 2 where `widest_level` found AVX-512 on this CPU.
-            2 => return unsafe { at_most_avx512(v, t) },
+            2 => unsafe { at_most_avx512(v, t) },
             // SAFETY: `level` is only 1 where `widest_level` found AVX2 on this CPU.
-            1 => return unsafe { at_most_avx2(v, t) },
-            _ => {}
-        }
+            1 => unsafe { at_most_avx2(v, t) },
+            _ => at_most_sse2(v, t),
+        };
         #[cfg(all(target_arch = "wasm32", target_feature = "simd128"))]
         return at_most_simd128(v, t);
-        #[cfg(not(all(target_arch = "wasm32", target_feature = "simd128")))]
+        #[cfg(not(any(
+            target_arch = "x86_64",
+            all(target_arch = "wasm32", target_feature = "simd128")
+        )))]
         at_most_plain(v, t)
     }
 }
 
-/// [`LaneMask::at_most`] in plain Rust: the sign bit of `t − b` is set exactly when `b > t`
-/// (`b` at infinity included).
-#[cfg_attr(
-    all(target_arch = "wasm32", target_feature = "simd128"),
-    allow(dead_code)
-)]
+/// [`LaneMask::at_most`] in plain Rust (other targets): the sign bit of `t − b` is set exactly
+/// when `b > t` (`b` at infinity included).
+#[cfg(not(any(
+    target_arch = "x86_64",
+    all(target_arch = "wasm32", target_feature = "simd128")
+)))]
 #[inline(always)]
 fn at_most_plain(v: &[f32; 16], t: f32) -> u32 {
     let mut beyond = 0u32;
@@ -306,6 +312,24 @@ fn at_most_avx2(v: &[f32; 16], t: f32) -> u32 {
     let lo = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(lo, t)) as u32;
     let hi = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(hi, t)) as u32;
     lo | (hi << 8)
+}
+
+/// [`LaneMask::at_most`] with SSE2 (every x86-64 CPU): four compares, each read out by
+/// `movemask`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn at_most_sse2(v: &[f32; 16], t: f32) -> u32 {
+    use std::arch::x86_64::{_mm_cmple_ps, _mm_loadu_ps, _mm_movemask_ps, _mm_set1_ps};
+    let mut mask = 0u32;
+    // SAFETY: SSE is part of every x86-64 CPU; the loads read floats `4k..4k + 4` of `v`.
+    unsafe {
+        let t = _mm_set1_ps(t);
+        for k in 0..4 {
+            let lanes = _mm_loadu_ps(v.as_ptr().add(4 * k));
+            mask |= (_mm_movemask_ps(_mm_cmple_ps(lanes, t)) as u32) << (4 * k);
+        }
+    }
+    mask
 }
 
 /// [`LaneMask::at_most`] with WebAssembly SIMD: four compares, each read out by `bitmask`.
