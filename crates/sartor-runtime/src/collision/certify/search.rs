@@ -665,8 +665,15 @@ impl Tree {
     /// (zero plane: height 0) is never clear; a face out of the search (bound at infinity)
     /// never within reach.
     ///
-    /// Natively a boolean, not a mask of bits: it compiles to vector compares and one test.
-    #[cfg(not(target_arch = "wasm32"))]
+    /// Natively a boolean, not a mask of bits: it compiles to vector compares and one test. In
+    /// WebAssembly one difference per lane, at most 0 where the face is within reach and not
+    /// clear (the sign of an IEEE difference is exact, so each test is its difference's
+    /// against 0), read by one mask; a bound exactly at `front2` counts as not clear there (the
+    /// point is then searched instead of swept, with the same answer). The try-on page's
+    /// post-process, back to back in the browser test: 3.36 and 3.46 → 2.88 and 3.01 ms at
+    /// 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two runs of each page in turn,
+    /// Intel Xeon VM, the same garments). Natively the mask measured slower with AVX-512 and
+    /// SSE (the trained 8,710-triangle walk 710–713 → 761–772 µs with AVX-512).
     #[inline(always)]
     fn any_unclear(
         &self,
@@ -676,38 +683,24 @@ impl Tree {
         reach2: f32,
         front2: f32,
     ) -> bool {
-        let mut bad = false;
-        for k in 0..W {
-            let clear = height[k] - crease[k] > GUARD_M && lb2[k] >= front2;
-            bad |= lb2[k] <= reach2 && !clear;
+        #[cfg(not(target_arch = "wasm32"))]
+        {
+            let mut bad = false;
+            for k in 0..W {
+                let clear = height[k] - crease[k] > GUARD_M && lb2[k] >= front2;
+                bad |= lb2[k] <= reach2 && !clear;
+            }
+            bad
         }
-        bad
-    }
-
-    /// [`Tree::any_unclear`] in WebAssembly: one difference per lane, at most 0 where the face
-    /// is within reach and not clear (the sign of an IEEE difference is exact, so each test is
-    /// its difference's against 0), read by one mask. A bound exactly at `front2` counts as
-    /// not clear here: the point is then searched instead of swept, with the same answer. The
-    /// try-on page's post-process, back to back in the browser test: 3.36 and 3.46 → 2.88 and
-    /// 3.01 ms at 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two runs of each
-    /// page in turn, Intel Xeon VM, the same garments). Natively it measured slower with
-    /// AVX-512 and SSE (the trained 8,710-triangle walk 710–713 → 761–772 µs with AVX-512).
-    #[cfg(target_arch = "wasm32")]
-    #[inline(always)]
-    fn any_unclear(
-        &self,
-        lb2: &[f32; W],
-        height: &[f32; W],
-        crease: &[f32; W],
-        reach2: f32,
-        front2: f32,
-    ) -> bool {
-        let mut worst = [0.0f32; W];
-        for k in 0..W {
-            let clear = fmin(height[k] - crease[k] - GUARD_M, lb2[k] - front2);
-            worst[k] = fmax(lb2[k] - reach2, clear);
+        #[cfg(target_arch = "wasm32")]
+        {
+            let mut worst = [0.0f32; W];
+            for k in 0..W {
+                let clear = fmin(height[k] - crease[k] - GUARD_M, lb2[k] - front2);
+                worst[k] = fmax(lb2[k] - reach2, clear);
+            }
+            self.mask.at_most(&worst, 0.0) != 0
         }
-        self.mask.at_most(&worst, 0.0) != 0
     }
 }
 
