@@ -2225,11 +2225,11 @@ mod tests {
     #[test]
     fn the_lane_masks_agree_with_a_plain_comparison() {
         // Random lanes with ties, zeros of both signs and infinities, against positive finite
-        // thresholds among them: the plain mask, and each compare this CPU runs (AVX2's
-        // `movemask`, AVX-512's mask register).
+        // thresholds among them: the mask of every level this CPU runs (on x86-64 SSE's and
+        // AVX2's `movemask`, AVX-512's mask register; elsewhere the plain mask).
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let special = [0.0, -0.0, f32::INFINITY, f32::MAX, 1e-30, 0.25];
-        // Every build this CPU runs (the plain mask first).
+        // Every level this CPU runs (SSE's, level 0, first).
         #[cfg(target_arch = "x86_64")]
         let masks: Vec<LaneMask> = Isa::available()
             .into_iter()
