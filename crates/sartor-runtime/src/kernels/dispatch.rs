@@ -255,6 +255,19 @@ impl LaneMask {
         Self::default()
     }
 
+    /// Whether a test over 16 lanes that ends in one yes or no runs faster as one difference per
+    /// lane read by [`LaneMask::at_most`] than as booleans (the certified sweep's cluster test):
+    /// in WebAssembly and where the AVX2 build runs; not with AVX-512, SSE or plain Rust.
+    #[inline(always)]
+    pub(crate) fn prefers_one_mask(self) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        return self.level == 1;
+        #[cfg(target_arch = "wasm32")]
+        return true;
+        #[cfg(not(any(target_arch = "x86_64", target_arch = "wasm32")))]
+        false
+    }
+
     /// Bit `l` set where `v[l] ≤ t`, for a finite `t ≥ 0` and no NaN lane (the search's reach
     /// is a positive square, the rays' box test compares with 0; bounds at infinity lie
     /// beyond).

@@ -599,7 +599,7 @@ impl Tree {
     /// of its plane by more than the guard and a bound of at least `front2` (see
     /// [`Search::run`]); over the whole tree.
     #[inline(always)]
-    fn sweep(&self, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
+    fn sweep<const ONE_MASK: bool>(&self, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
         for (top, block) in self.groups.iter().enumerate() {
             let mut groups = self.within(&block.distance2(x), reach2);
             while groups != 0 {
@@ -607,7 +607,8 @@ impl Tree {
                 groups &= groups - 1;
                 let group = top * W + g;
                 let cluster = |c: usize| group * GROUP + c;
-                if !self.sweep_block(&self.clusters[group], cluster, x, reach2, front2) {
+                if !self.sweep_block::<ONE_MASK>(&self.clusters[group], cluster, x, reach2, front2)
+                {
                     return false;
                 }
             }
@@ -618,7 +619,7 @@ impl Tree {
     /// [`Tree::sweep`] over the clusters `clusters` (whose boxes `boxes` holds in lanes) only:
     /// every cluster within `reach2` of `x` must be among them.
     #[inline(always)]
-    fn sweep_among(
+    fn sweep_among<const ONE_MASK: bool>(
         &self,
         clusters: &[u32],
         boxes: &[BoxBlock],
@@ -628,7 +629,7 @@ impl Tree {
     ) -> bool {
         for (b, block) in boxes.iter().enumerate() {
             let cluster = |l: usize| clusters[b * W + l] as usize;
-            if !self.sweep_block(block, cluster, x, reach2, front2) {
+            if !self.sweep_block::<ONE_MASK>(block, cluster, x, reach2, front2) {
                 return false;
             }
         }
@@ -637,7 +638,7 @@ impl Tree {
 
     /// [`Tree::sweep`] over the clusters of `block` (lane `l` is cluster `cluster(l)`).
     #[inline(always)]
-    fn sweep_block(
+    fn sweep_block<const ONE_MASK: bool>(
         &self,
         block: &BoxBlock,
         cluster: impl Fn(usize) -> usize,
@@ -653,7 +654,7 @@ impl Tree {
             let (lb2, height) = self.faces[c].bound_and_height(x);
             // No crease face is clear (none when no buried faces are sought).
             let crease = self.crease.get(c).unwrap_or(&[0.0; W]);
-            if self.any_unclear(&lb2, &height, crease, reach2, front2) {
+            if self.any_unclear::<ONE_MASK>(&lb2, &height, crease, reach2, front2) {
                 return false;
             }
         }
@@ -665,17 +666,22 @@ impl Tree {
     /// (zero plane: height 0) is never clear; a face out of the search (bound at infinity)
     /// never within reach.
     ///
-    /// Natively a boolean, not a mask of bits: it compiles to vector compares and one test. In
-    /// WebAssembly one difference per lane, at most 0 where the face is within reach and not
-    /// clear (the sign of an IEEE difference is exact, so each test is its difference's
-    /// against 0), read by one mask; a bound exactly at `front2` counts as not clear there (the
-    /// point is then searched instead of swept, with the same answer). The try-on page's
-    /// post-process, back to back in the browser test: 3.36 and 3.46 → 2.88 and 3.01 ms at
-    /// 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two runs of each page in turn,
-    /// Intel Xeon VM, the same garments). Natively the mask measured slower with AVX-512 and
-    /// SSE (the trained 8,710-triangle walk 710–713 → 761–772 µs with AVX-512).
+    /// Two forms, the same answers, chosen per build by [`LaneMask::prefers_one_mask`] (the
+    /// sweep's callers pick `ONE_MASK` once per run, so each form is its own code: a branch
+    /// between them inside this test took the AVX-512 build's trained 8,710-triangle walk from
+    /// 0.77–0.78 to 1.47 ms). As booleans (`false`), which compile to vector compares and one
+    /// test with AVX-512 and SSE. As one difference per lane (`true`), at most 0 where the face
+    /// is within reach and not clear (the sign of an IEEE difference is exact, so each test is
+    /// its difference's against 0), read by one mask; a bound exactly at `front2` counts as not
+    /// clear there (the point is then searched instead of swept, with the same answer). In
+    /// WebAssembly the try-on page's post-process, back to back in the browser test: 3.36 and
+    /// 3.46 → 2.88 and 3.01 ms at 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two
+    /// runs of each page in turn, Intel Xeon VM, the same garments); with AVX2 the trained
+    /// 8,710-triangle walk 692–744 → 683–694 µs (three rounds of the two builds in turn, same
+    /// VM). With AVX-512 the mask measured slower (the same walk 710–713 → 761–772 µs), and with
+    /// SSE too.
     #[inline(always)]
-    fn any_unclear(
+    fn any_unclear<const ONE_MASK: bool>(
         &self,
         lb2: &[f32; W],
         height: &[f32; W],
@@ -683,24 +689,20 @@ impl Tree {
         reach2: f32,
         front2: f32,
     ) -> bool {
-        #[cfg(not(target_arch = "wasm32"))]
-        {
-            let mut bad = false;
-            for k in 0..W {
-                let clear = height[k] - crease[k] > GUARD_M && lb2[k] >= front2;
-                bad |= lb2[k] <= reach2 && !clear;
-            }
-            bad
-        }
-        #[cfg(target_arch = "wasm32")]
-        {
+        if ONE_MASK {
             let mut worst = [0.0f32; W];
             for k in 0..W {
                 let clear = fmin(height[k] - crease[k] - GUARD_M, lb2[k] - front2);
                 worst[k] = fmax(lb2[k] - reach2, clear);
             }
-            self.mask.at_most(&worst, 0.0) != 0
+            return self.mask.at_most(&worst, 0.0) != 0;
         }
+        let mut bad = false;
+        for k in 0..W {
+            let clear = height[k] - crease[k] > GUARD_M && lb2[k] >= front2;
+            bad |= lb2[k] <= reach2 && !clear;
+        }
+        bad
     }
 }
 
@@ -887,6 +889,8 @@ impl Search {
         self.sort_by_warm_cluster(frame);
         let order = std::mem::take(&mut self.order);
         let (mut start, n_warm) = (0, self.n_warm);
+        // The sweep's cluster test in its faster form for this build (`Tree::any_unclear`).
+        let one_mask = frame.tree.mask.prefers_one_mask();
         while start < n {
             // A packet: points of the same warm cluster, then of the next ones, up to PACKET.
             let end = if start < n_warm {
@@ -901,13 +905,17 @@ impl Search {
                     let x = &points[i];
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && frame.tree.sweep_among(
-                            &self.packet_clusters,
-                            &self.packet_boxes,
-                            x,
-                            best.reach2,
-                            front2,
-                        )
+                        && if one_mask {
+                            let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
+                            frame
+                                .tree
+                                .sweep_among::<true>(clusters, boxes, x, best.reach2, front2)
+                        } else {
+                            let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
+                            frame
+                                .tree
+                                .sweep_among::<false>(clusters, boxes, x, best.reach2, front2)
+                        }
                     {
                         self.range[i] = SWEPT;
                         continue;
@@ -925,7 +933,11 @@ impl Search {
                     let x = &points[i];
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && frame.tree.sweep(x, best.reach2, front2)
+                        && if one_mask {
+                            frame.tree.sweep::<true>(x, best.reach2, front2)
+                        } else {
+                            frame.tree.sweep::<false>(x, best.reach2, front2)
+                        }
                     {
                         self.range[i] = SWEPT;
                         continue;
