@@ -1399,6 +1399,61 @@ mod tests {
     }
 
     #[test]
+    fn both_forms_of_the_sweeps_cluster_test_agree() {
+        // The one-mask form runs in WebAssembly and where the AVX2 build does; this CPU may
+        // run the booleans, so both are compared here, with this CPU's lane masks. They differ
+        // only where a bound lies exactly at `front2`, which the one mask counts as not clear
+        // (the point is then searched, with the same answer).
+        let tree = Tree {
+            mask: LaneMask::detect(),
+            ..Tree::default()
+        };
+        let mut next = uniform(1357);
+        let (mut unclear, mut at_front, mut cases) = (0, 0, 0);
+        for round in 0..20_000 {
+            let (reach2, front2) = (next() * 0.01, next() * 0.01);
+            let (mut lb2, mut height, mut crease) = ([0.0f32; W], [0.0f32; W], [0.0f32; W]);
+            for k in 0..W {
+                lb2[k] = match (round + k) % 23 {
+                    0 => f32::INFINITY, // a face out of the search
+                    1 => front2,
+                    2 => reach2,
+                    _ => next(),
+                };
+                height[k] = match (round * 7 + k) % 19 {
+                    0 => 0.0, // a sliver
+                    1 => GUARD_M,
+                    _ => next() * 0.02 - 0.0002,
+                };
+                if (round * 3 + k) % 41 == 0 {
+                    crease[k] = f32::INFINITY;
+                }
+            }
+            let one = tree.any_unclear::<true>(&lb2, &height, &crease, reach2, front2);
+            let booleans = tree.any_unclear::<false>(&lb2, &height, &crease, reach2, front2);
+            cases += 1;
+            unclear += usize::from(booleans);
+            if one != booleans {
+                assert!(
+                    one,
+                    "round {round}: the one mask proved what the booleans did not"
+                );
+                assert!(
+                    (0..W).any(|k| lb2[k] == front2 && lb2[k] <= reach2),
+                    "round {round}: the forms differ with no bound at front2"
+                );
+                at_front += 1;
+            }
+        }
+        // Both answers occur, and the exact ties too.
+        assert!(
+            unclear > cases / 10 && unclear < cases * 9 / 10,
+            "{unclear} of {cases}"
+        );
+        assert!(at_front > 0, "no tie at front2 in {cases} cases");
+    }
+
+    #[test]
     fn the_lanes_distance_gives_the_bits_of_the_scalar_one() {
         // Random triangles (some with a repeated or collinear corner) and points among them and
         // up to twenty triangle sizes away, sixteen at a time; both near and far points often.
