@@ -903,15 +903,14 @@ impl Search {
                 for &i in packet {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
+                    let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
                         && if one_mask {
-                            let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
                             frame
                                 .tree
                                 .sweep_among::<true>(clusters, boxes, x, best.reach2, front2)
                         } else {
-                            let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
                             frame
                                 .tree
                                 .sweep_among::<false>(clusters, boxes, x, best.reach2, front2)
@@ -921,7 +920,6 @@ impl Search {
                         continue;
                     }
                     let mut near = Near::from_best(best, frame, x, warm[i]);
-                    let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
                     frame
                         .tree
                         .search_among(frame, clusters, boxes, x, &mut near);
