@@ -761,7 +761,8 @@ impl Collider {
             // Certified like the vertices, beyond the trigger: most centroids need no closest
             // point.
             Some(certifier) => {
-                certifier.run_points(&self.proximity, &self.moved_points, trigger, par, |k, o| {
+                let limits = (trigger, FACE_DEPTH_M.max(trigger));
+                certifier.run_points(&self.proximity, &self.moved_points, limits, par, |k, o| {
                     if let Some(Outcome::Exact(c)) = o {
                         visit(k, Some(c));
                     }

@@ -1190,7 +1190,7 @@ impl Certifier {
         margin_m: f64,
         par: Parallelism,
     ) -> CertifyStats {
-        self.certify_into(proximity, cloth, false, margin_m, par)
+        self.certify_into(proximity, cloth, false, (margin_m, None), par)
     }
 
     /// `visit(vertex, outcome)` for every cloth vertex of the last [`Certifier::run`], in a
@@ -1221,7 +1221,7 @@ impl Certifier {
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
         triangles: bool,
-        margin_m: f64,
+        limits: Limits,
         par: Parallelism,
     ) -> CertifyStats {
         let (warm, outcomes) = if triangles {
@@ -1239,7 +1239,7 @@ impl Certifier {
                 scratch: &mut self.scratch,
             };
             let out = (warm, &mut outcomes.kind[..], &mut outcomes.exact, 0);
-            return frame.certify(state, proximity, points, out, margin_m);
+            return frame.certify(state, proximity, points, out, limits);
         }
         let chunk = split(
             &mut self.parts,
@@ -1261,7 +1261,7 @@ impl Certifier {
                 };
                 part.exact.clear();
                 let out = (warm, kind, &mut part.exact, k * chunk);
-                frame.certify(state, proximity, points, out, margin_m)
+                frame.certify(state, proximity, points, out, limits)
             })
             .reduce(CertifyStats::default, CertifyStats::merged);
         for part in &self.parts[..points.len().div_ceil(chunk)] {
@@ -1272,18 +1272,21 @@ impl Certifier {
 
     /// [`Certifier::run`] for other points than the cloth vertices: the cloth triangles'
     /// centroids, `points[k]` that of triangle `k` (each triangle keeps its own warm face from
-    /// frame to frame); `visit(k, outcome)` for each, in order.
+    /// frame to frame); `visit(k, outcome)` for each, in order. A point farther than `far_m`
+    /// from every face of the region (`far_m` at least `margin_m`) is certified whichever side
+    /// of the body it lies on: for a caller that leaves a point that deep inside alone (the
+    /// triangles' pass, [`super::FACE_DEPTH_M`]).
     pub(crate) fn run_points(
         &mut self,
         proximity: &MeshProximity,
         points: &[Vector3<f32>],
-        margin_m: f64,
+        (margin_m, far_m): (f64, f64),
         par: Parallelism,
         visit: impl FnMut(usize, Option<Outcome>),
     ) {
         self.face_warm.resize(points.len(), u32::MAX);
         self.face_outcomes.resize(points.len());
-        self.certify_into(proximity, points, true, margin_m, par);
+        self.certify_into(proximity, points, true, (margin_m, Some(far_m)), par);
         self.face_outcomes.visit(visit);
     }
 
@@ -1391,7 +1394,7 @@ impl Frame {
         proximity: &MeshProximity,
         cloth: &[Vector3<f32>],
         (warm, kinds, exact, offset): PointOutcomes<'_>,
-        margin_m: f64,
+        (margin_m, far_m): Limits,
     ) -> CertifyStats {
         let AnswerState {
             search,
@@ -1401,7 +1404,8 @@ impl Frame {
         points.clear();
         points.extend(cloth.iter().map(|p| self.relative(p)));
         let front2 = (margin_m as f32 + GUARD_M).powi(2);
-        search.run(self, points, warm, Some(front2));
+        let far2 = far_m.map(|f| (f as f32 + GUARD_M).powi(2));
+        search.run(self, points, warm, Some(front2), far2);
         let margin2 = margin_m * margin_m;
         let mut stats = CertifyStats::default();
         for (i, (kind, warm)) in kinds.iter_mut().zip(warm.iter_mut()).enumerate() {
@@ -1450,6 +1454,11 @@ impl Frame {
         }
     }
 }
+
+/// The margin a certified point lies beyond, and the distance beyond which a point needs no
+/// answer whichever side of the body it lies on (`None`: every point within or inside the margin
+/// gets its answer), metres.
+type Limits = (f64, Option<f64>);
 
 /// Where [`Frame::certify`] reads and writes per point: the warm faces, the kinds, the exact
 /// answers, and the first point's index among the run's.
@@ -1511,7 +1520,7 @@ impl Frame {
         rel.extend(points.iter().map(|p| self.relative(p)));
         // The sweep proves points beyond `beyond_m` as the first pass's beyond the margin.
         let sweep = beyond_m.map(|b| (b as f32 + GUARD_M).powi(2));
-        search.run(self, rel, warm, sweep);
+        search.run(self, rel, warm, sweep, None);
         for (k, p) in points.iter().enumerate() {
             if search.swept(k) {
                 visit(
@@ -2184,7 +2193,7 @@ mod tests {
         // Above the apex every cone face ties: the list overflowed and was kept in full.
         let rel = certifier.frame.relative(&points[0]);
         let mut search = Search::default();
-        search.run(&certifier.frame, &[rel], &[u32::MAX], None);
+        search.run(&certifier.frame, &[rel], &[u32::MAX], None, None);
         let mut faces = Vec::new();
         search.faces_into(0, &mut faces);
         assert_eq!(faces.iter().filter(|&&g| g < n).count(), n as usize);

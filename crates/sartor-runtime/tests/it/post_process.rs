@@ -252,11 +252,14 @@ fn the_triangle_pass_moves_only_triangles_whose_centroid_is_within_half_the_marg
     // later passes move after it, belongs to a triangle whose centroid there lies inside the
     // body or within half the margin. Cloth held at the margin sags between its vertices, so
     // many centroids lie between half the margin and the margin: those triangles stay.
+    // And the certified query's pass (which leaves a centroid farther than the pass's depth from
+    // every face without its answer) moves the triangles the exact query's does.
     let (body, network, binding) = shipped();
-    let avatar = |faces| {
+    let avatar = |faces, query| {
         let options = AnimatorOptions {
             collision: Some(CollisionOptions {
                 faces,
+                query,
                 ..CollisionOptions::default()
             }),
             ..AnimatorOptions::default()
@@ -264,7 +267,11 @@ fn the_triangle_pass_moves_only_triangles_whose_centroid_is_within_half_the_marg
         let rig = GarmentRig::new(network.clone(), binding.clone(), body.clone(), options);
         GarmentAnimator::new(Arc::new(rig.expect("rig"))).expect("avatar")
     };
-    let (mut vertices_only, mut with_faces) = (avatar(false), avatar(true));
+    let (mut vertices_only, mut with_faces, mut exact) = (
+        avatar(false, CollisionQuery::Certified),
+        avatar(true, CollisionQuery::Certified),
+        avatar(true, CollisionQuery::EXACT_BVH),
+    );
     let region = sartor_runtime::BodyRegion::new(&body, binding.region_faces()).expect("region");
     let cmu = load_motion("cmu/02_04@60+8", &motion_options()).expect("stored CMU clip");
     let half = 0.5 * sartor_runtime::DEFAULT_MARGIN_M;
@@ -272,6 +279,10 @@ fn the_triangle_pass_moves_only_triangles_whose_centroid_is_within_half_the_marg
     for (k, pose) in cmu.frames().iter().enumerate() {
         let before = vertices_only.frame(pose).expect("frame").to_vec();
         let after = with_faces.frame(pose).expect("frame").to_vec();
+        assert!(
+            exact.frame(pose).expect("frame") == &after[..],
+            "frame {k}: the exact query's triangle pass differs"
+        );
         // The region as the post-process posed it (the nominal shape: no buried faces, so the
         // exact query is the post-process's own).
         let posed = vertices_only

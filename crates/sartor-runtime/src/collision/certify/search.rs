@@ -616,6 +616,36 @@ impl Tree {
         true
     }
 
+    /// [`Tree::sweep`] in this build's form of the cluster test (`one_mask`:
+    /// [`LaneMask::prefers_one_mask`], chosen once per run by the caller).
+    #[inline(always)]
+    fn sweep_any(&self, one_mask: bool, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
+        if one_mask {
+            self.sweep::<true>(x, reach2, front2)
+        } else {
+            self.sweep::<false>(x, reach2, front2)
+        }
+    }
+
+    /// [`Tree::sweep_among`] in this build's form of the cluster test (see
+    /// [`Tree::sweep_any`]).
+    #[inline(always)]
+    fn sweep_packet(
+        &self,
+        one_mask: bool,
+        clusters: &[u32],
+        boxes: &[BoxBlock],
+        x: &[f32; 3],
+        reach2: f32,
+        front2: f32,
+    ) -> bool {
+        if one_mask {
+            self.sweep_among::<true>(clusters, boxes, x, reach2, front2)
+        } else {
+            self.sweep_among::<false>(clusters, boxes, x, reach2, front2)
+        }
+    }
+
     /// [`Tree::sweep`] over the clusters `clusters` (whose boxes `boxes` holds in lanes) only:
     /// every cluster within `reach2` of `x` must be among them.
     #[inline(always)]
@@ -806,14 +836,20 @@ impl Search {
     /// so each face holding the closest point is in front, and the nearest face's bound is
     /// beyond the margin; and no crease face may be in reach (where buried faces are sought),
     /// as the list's certificate asks.
+    ///
+    /// With `far` too (`(far + guard)²`, at least `sweep`), a point whose warm face lies beyond
+    /// it is first tested for no face whose bound lies within `far`: then it is farther than
+    /// `far` from the region, on whichever side, and counts as swept (for a caller that needs
+    /// no answer there, as the triangles' pass beyond its depth).
     pub(crate) fn run(
         &mut self,
         frame: &Frame,
         points: &[[f32; 3]],
         warm: &[u32],
         sweep: Option<f32>,
+        far: Option<f32>,
     ) {
-        search_points(self, frame, points, warm, sweep);
+        search_points(self, frame, points, warm, sweep, far);
     }
 
     /// Whether point `i` of the last [`Search::run`] was proven beyond the margin by the sweep
@@ -823,7 +859,14 @@ impl Search {
     }
 
     #[inline(always)]
-    fn run_impl(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32], sweep: Option<f32>) {
+    fn run_impl(
+        &mut self,
+        frame: &Frame,
+        points: &[[f32; 3]],
+        warm: &[u32],
+        sweep: Option<f32>,
+        far: Option<f32>,
+    ) {
         let n = points.len();
         self.best.clear();
         // Finite: a face at infinity (a buried face, a padding slot) never passes. The warm
@@ -886,6 +929,12 @@ impl Search {
         let sweepable = |best: Best, front2: f32, warm: u32| {
             best.face != u32::MAX && best.face == warm && best.best2 >= front2
         };
+        // A point whose warm face lies beyond `far` is far from the region where no face's
+        // bound lies within `far` (the sweep with nothing clear: `front2` at infinity).
+        let far_from = |best: Best, warm: u32| match far {
+            Some(far2) if sweepable(best, far2, warm) => Some(far2),
+            _ => None,
+        };
         self.sort_by_warm_cluster(frame);
         let order = std::mem::take(&mut self.order);
         let (mut start, n_warm) = (0, self.n_warm);
@@ -904,17 +953,16 @@ impl Search {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
                     let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
+                    let tree = &frame.tree;
+                    if let Some(far2) = far_from(best, warm[i])
+                        && tree.sweep_packet(one_mask, clusters, boxes, x, far2, f32::INFINITY)
+                    {
+                        self.range[i] = SWEPT;
+                        continue;
+                    }
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && if one_mask {
-                            frame
-                                .tree
-                                .sweep_among::<true>(clusters, boxes, x, best.reach2, front2)
-                        } else {
-                            frame
-                                .tree
-                                .sweep_among::<false>(clusters, boxes, x, best.reach2, front2)
-                        }
+                        && tree.sweep_packet(one_mask, clusters, boxes, x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
                         continue;
@@ -929,13 +977,16 @@ impl Search {
                 for &i in packet {
                     let (i, best) = (i as usize, self.best[i as usize]);
                     let x = &points[i];
+                    let tree = &frame.tree;
+                    if let Some(far2) = far_from(best, warm[i])
+                        && tree.sweep_any(one_mask, x, far2, f32::INFINITY)
+                    {
+                        self.range[i] = SWEPT;
+                        continue;
+                    }
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && if one_mask {
-                            frame.tree.sweep::<true>(x, best.reach2, front2)
-                        } else {
-                            frame.tree.sweep::<false>(x, best.reach2, front2)
-                        }
+                        && tree.sweep_any(one_mask, x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
                         continue;
@@ -1066,8 +1117,9 @@ crate::kernels::widest_where_present! {
         points: &[[f32; 3]],
         warm: &[u32],
         sweep: Option<f32>,
+        far: Option<f32>,
     ) {
-        search.run_impl(frame, points, warm, sweep);
+        search.run_impl(frame, points, warm, sweep, far);
     }
 }
 
