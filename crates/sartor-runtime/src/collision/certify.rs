@@ -84,7 +84,7 @@ use rayon::prelude::*;
 use sartor_core::{
     ClosestFeature, ClosestPoint, MeshProximity, MeshTopology, NearestFace, Parallelism,
 };
-use search::Search;
+use search::{Search, Sweeps};
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
@@ -1405,7 +1405,11 @@ impl Frame {
         points.extend(cloth.iter().map(|p| self.relative(p)));
         let front2 = (margin_m as f32 + GUARD_M).powi(2);
         let far2 = far_m.map(|f| (f as f32 + GUARD_M).powi(2));
-        search.run(self, points, warm, Some(front2), far2);
+        let by = Sweeps {
+            sweep: Some(front2),
+            far: far2,
+        };
+        search.run(self, points, warm, by);
         let margin2 = margin_m * margin_m;
         let mut stats = CertifyStats::default();
         for (i, (kind, warm)) in kinds.iter_mut().zip(warm.iter_mut()).enumerate() {
@@ -1520,7 +1524,7 @@ impl Frame {
         rel.extend(points.iter().map(|p| self.relative(p)));
         // The sweep proves points beyond `beyond_m` as the first pass's beyond the margin.
         let sweep = beyond_m.map(|b| (b as f32 + GUARD_M).powi(2));
-        search.run(self, rel, warm, sweep, None);
+        search.run(self, rel, warm, Sweeps { sweep, far: None });
         for (k, p) in points.iter().enumerate() {
             if search.swept(k) {
                 visit(
@@ -2193,7 +2197,7 @@ mod tests {
         // Above the apex every cone face ties: the list overflowed and was kept in full.
         let rel = certifier.frame.relative(&points[0]);
         let mut search = Search::default();
-        search.run(&certifier.frame, &[rel], &[u32::MAX], None, None);
+        search.run(&certifier.frame, &[rel], &[u32::MAX], Sweeps::default());
         let mut faces = Vec::new();
         search.faces_into(0, &mut faces);
         assert_eq!(faces.iter().filter(|&&g| g < n).count(), n as usize);

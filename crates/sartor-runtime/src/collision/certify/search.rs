@@ -597,9 +597,10 @@ impl Tree {
 impl Tree {
     /// The sweep: whether every face whose bound lies within `reach2` of `x` has `x` in front
     /// of its plane by more than the guard and a bound of at least `front2` (see
-    /// [`Search::run`]); over the whole tree.
+    /// [`Search::run`]); over the whole tree. `one_mask`: the form of the cluster test
+    /// ([`Tree::any_unclear`]), [`LaneMask::prefers_one_mask`] read once per run by the caller.
     #[inline(always)]
-    fn sweep<const ONE_MASK: bool>(&self, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
+    fn sweep(&self, one_mask: bool, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
         for (top, block) in self.groups.iter().enumerate() {
             let mut groups = self.within(&block.distance2(x), reach2);
             while groups != 0 {
@@ -607,8 +608,14 @@ impl Tree {
                 groups &= groups - 1;
                 let group = top * W + g;
                 let cluster = |c: usize| group * GROUP + c;
-                if !self.sweep_block::<ONE_MASK>(&self.clusters[group], cluster, x, reach2, front2)
-                {
+                let block = &self.clusters[group];
+                // The form chosen per block, not per cluster (see `Tree::any_unclear`).
+                let clear = if one_mask {
+                    self.sweep_block::<true>(block, cluster, x, reach2, front2)
+                } else {
+                    self.sweep_block::<false>(block, cluster, x, reach2, front2)
+                };
+                if !clear {
                     return false;
                 }
             }
@@ -616,21 +623,10 @@ impl Tree {
         true
     }
 
-    /// [`Tree::sweep`] in this build's form of the cluster test (`one_mask`:
-    /// [`LaneMask::prefers_one_mask`], chosen once per run by the caller).
+    /// [`Tree::sweep`] over the clusters `clusters` (whose boxes `boxes` holds in lanes) only:
+    /// every cluster within `reach2` of `x` must be among them.
     #[inline(always)]
-    fn sweep_any(&self, one_mask: bool, x: &[f32; 3], reach2: f32, front2: f32) -> bool {
-        if one_mask {
-            self.sweep::<true>(x, reach2, front2)
-        } else {
-            self.sweep::<false>(x, reach2, front2)
-        }
-    }
-
-    /// [`Tree::sweep_among`] in this build's form of the cluster test (see
-    /// [`Tree::sweep_any`]).
-    #[inline(always)]
-    fn sweep_packet(
+    fn sweep_among(
         &self,
         one_mask: bool,
         clusters: &[u32],
@@ -639,27 +635,14 @@ impl Tree {
         reach2: f32,
         front2: f32,
     ) -> bool {
-        if one_mask {
-            self.sweep_among::<true>(clusters, boxes, x, reach2, front2)
-        } else {
-            self.sweep_among::<false>(clusters, boxes, x, reach2, front2)
-        }
-    }
-
-    /// [`Tree::sweep`] over the clusters `clusters` (whose boxes `boxes` holds in lanes) only:
-    /// every cluster within `reach2` of `x` must be among them.
-    #[inline(always)]
-    fn sweep_among<const ONE_MASK: bool>(
-        &self,
-        clusters: &[u32],
-        boxes: &[BoxBlock],
-        x: &[f32; 3],
-        reach2: f32,
-        front2: f32,
-    ) -> bool {
         for (b, block) in boxes.iter().enumerate() {
             let cluster = |l: usize| clusters[b * W + l] as usize;
-            if !self.sweep_block::<ONE_MASK>(block, cluster, x, reach2, front2) {
+            let clear = if one_mask {
+                self.sweep_block::<true>(block, cluster, x, reach2, front2)
+            } else {
+                self.sweep_block::<false>(block, cluster, x, reach2, front2)
+            };
+            if !clear {
                 return false;
             }
         }
@@ -803,6 +786,15 @@ fn box2(lo: &[f32; 3], hi: &[f32; 3], x: &[f32; 3]) -> f32 {
     d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }
 
+/// What [`Search::run`] may prove a point by without its list (squared distances, the guard
+/// added as there): beyond the margin by the sweep (`sweep`), and farther than `far` from every
+/// face on whichever side (`far`).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Sweeps {
+    pub(crate) sweep: Option<f32>,
+    pub(crate) far: Option<f32>,
+}
+
 /// The search's state: per-point answers, reused between calls.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Search {
@@ -826,7 +818,7 @@ impl Search {
     /// distance plus the slack, read back with [`Search::faces_into`] and [`Search::best`]; `warm`:
     /// per point, a face to start from (`u32::MAX`: none).
     ///
-    /// With `sweep` (`(margin + guard)²`), a point whose warm face lies within `reach` (and not
+    /// With `by.sweep` (`(margin + guard)²`), a point whose warm face lies within `reach` (and not
     /// within `sweep`, where that face alone fails the test below) is first *swept*: when every
     /// face whose bound ([`FaceBlock::distance2`]) lies within the reach has the point in front
     /// of its plane by more than the guard and a bound of at least `sweep`, the point is proven
@@ -837,19 +829,12 @@ impl Search {
     /// beyond the margin; and no crease face may be in reach (where buried faces are sought),
     /// as the list's certificate asks.
     ///
-    /// With `far` too (`(far + guard)²`, at least `sweep`), a point whose warm face lies beyond
+    /// With `by.far` too (`(far + guard)²`, at least `sweep`), a point whose warm face lies beyond
     /// it is first tested for no face whose bound lies within `far`: then it is farther than
     /// `far` from the region, on whichever side, and counts as swept (for a caller that needs
     /// no answer there, as the triangles' pass beyond its depth).
-    pub(crate) fn run(
-        &mut self,
-        frame: &Frame,
-        points: &[[f32; 3]],
-        warm: &[u32],
-        sweep: Option<f32>,
-        far: Option<f32>,
-    ) {
-        search_points(self, frame, points, warm, sweep, far);
+    pub(crate) fn run(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32], by: Sweeps) {
+        search_points(self, frame, points, warm, by);
     }
 
     /// Whether point `i` of the last [`Search::run`] was proven beyond the margin by the sweep
@@ -859,14 +844,8 @@ impl Search {
     }
 
     #[inline(always)]
-    fn run_impl(
-        &mut self,
-        frame: &Frame,
-        points: &[[f32; 3]],
-        warm: &[u32],
-        sweep: Option<f32>,
-        far: Option<f32>,
-    ) {
+    fn run_impl(&mut self, frame: &Frame, points: &[[f32; 3]], warm: &[u32], by: Sweeps) {
+        let Sweeps { sweep, far } = by;
         let n = points.len();
         self.best.clear();
         // Finite: a face at infinity (a buried face, a padding slot) never passes. The warm
@@ -955,14 +934,14 @@ impl Search {
                     let (clusters, boxes) = (&self.packet_clusters, &self.packet_boxes);
                     let tree = &frame.tree;
                     if let Some(far2) = far_from(best, warm[i])
-                        && tree.sweep_packet(one_mask, clusters, boxes, x, far2, f32::INFINITY)
+                        && tree.sweep_among(one_mask, clusters, boxes, x, far2, f32::INFINITY)
                     {
                         self.range[i] = SWEPT;
                         continue;
                     }
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && tree.sweep_packet(one_mask, clusters, boxes, x, best.reach2, front2)
+                        && tree.sweep_among(one_mask, clusters, boxes, x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
                         continue;
@@ -979,14 +958,14 @@ impl Search {
                     let x = &points[i];
                     let tree = &frame.tree;
                     if let Some(far2) = far_from(best, warm[i])
-                        && tree.sweep_any(one_mask, x, far2, f32::INFINITY)
+                        && tree.sweep(one_mask, x, far2, f32::INFINITY)
                     {
                         self.range[i] = SWEPT;
                         continue;
                     }
                     if let Some(front2) = sweep
                         && sweepable(best, front2, warm[i])
-                        && tree.sweep_any(one_mask, x, best.reach2, front2)
+                        && tree.sweep(one_mask, x, best.reach2, front2)
                     {
                         self.range[i] = SWEPT;
                         continue;
@@ -1116,10 +1095,9 @@ crate::kernels::widest_where_present! {
         frame: &Frame,
         points: &[[f32; 3]],
         warm: &[u32],
-        sweep: Option<f32>,
-        far: Option<f32>,
+        by: Sweeps,
     ) {
-        search.run_impl(frame, points, warm, sweep, far);
+        search.run_impl(frame, points, warm, by);
     }
 }
 
