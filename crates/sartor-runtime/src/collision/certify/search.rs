@@ -679,10 +679,10 @@ impl Tree {
     /// (zero plane: height 0) is never clear; a face out of the search (bound at infinity)
     /// never within reach.
     ///
-    /// Two forms, the same answers, chosen per build by [`LaneMask::prefers_one_mask`] (the
-    /// sweep's callers pick `ONE_MASK` once per run, so each form is its own code: a branch
-    /// between them inside this test took the AVX-512 build's trained 8,710-triangle walk from
-    /// 0.77–0.78 to 1.47 ms). As booleans (`false`), which compile to vector compares and one
+    /// Two forms, the same answers, chosen per build by [`LaneMask::prefers_one_mask`] (read
+    /// once per run; the sweeps pick `ONE_MASK` per block of clusters, so each form is its own
+    /// code: a branch between them inside this test took the AVX-512 build's trained
+    /// 8,710-triangle walk from 0.77–0.78 to 1.47 ms). As booleans (`false`), which compile to vector compares and one
     /// test with AVX-512 and SSE. As one difference per lane (`true`), at most 0 where the face
     /// is within reach and not clear (the sign of an IEEE difference is exact, so each test is
     /// its difference's against 0), read by one mask; a bound exactly at `front2` counts as not
