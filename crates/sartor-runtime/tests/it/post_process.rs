@@ -317,6 +317,7 @@ fn the_triangle_pass_moves_only_triangles_whose_centroid_is_within_half_the_marg
         "centroids lie between half the margin and the margin"
     );
     eprintln!(
-        "triangle pass: {moved} vertex-frames moved, {between} centroids left between half the margin and the margin"
+        "triangle pass: {moved} vertex-frames moved, {between} centroids left between half \
+         the margin and the margin"
     );
 }

@@ -679,20 +679,19 @@ impl Tree {
     /// (zero plane: height 0) is never clear; a face out of the search (bound at infinity)
     /// never within reach.
     ///
-    /// Two forms, the same answers, chosen per build by [`LaneMask::prefers_one_mask`] (read
-    /// once per run; the sweeps pick `ONE_MASK` per block of clusters, so each form is its own
-    /// code: a branch between them inside this test took the AVX-512 build's trained
-    /// 8,710-triangle walk from 0.77–0.78 to 1.47 ms). As booleans (`false`), which compile to vector compares and one
-    /// test with AVX-512 and SSE. As one difference per lane (`true`), at most 0 where the face
-    /// is within reach and not clear (the sign of an IEEE difference is exact, so each test is
-    /// its difference's against 0), read by one mask; a bound exactly at `front2` counts as not
-    /// clear there (the point is then searched instead of swept, with the same answer). In
-    /// WebAssembly the try-on page's post-process, back to back in the browser test: 3.36 and
-    /// 3.46 → 2.88 and 3.01 ms at 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two
-    /// runs of each page in turn, Intel Xeon VM, the same garments); with AVX2 the trained
-    /// 8,710-triangle walk 692–744 → 683–694 µs (three rounds of the two builds in turn, same
-    /// VM). With AVX-512 the mask measured slower (the same walk 710–713 → 761–772 µs), and with
-    /// SSE too.
+    /// Two forms, the same answers, chosen per build by [`LaneMask::prefers_one_mask`] (read once
+    /// per run; the sweeps pick `ONE_MASK` per block of clusters, so each form is its own code: a
+    /// branch between them inside this test took the AVX-512 build's trained 8,710-triangle walk
+    /// from 0.77–0.78 to 1.47 ms). As booleans (`false`), which compile to vector compares and one
+    /// test with AVX-512 and SSE. As one difference per lane (`true`), at most 0 where the face is
+    /// within reach and not clear (the sign of an IEEE difference is exact, so each test is its
+    /// difference's against 0), read by one mask; a bound exactly at `front2` counts as not clear
+    /// there (the point is then searched instead of swept, with the same answer). In WebAssembly
+    /// the try-on page's post-process, back to back in the browser test: 3.36 and 3.46 → 2.88 and
+    /// 3.01 ms at 4,210 triangles, 5.38 and 5.29 → 4.97 and 4.84 at 8,710 (two runs of each page in
+    /// turn, Intel Xeon VM, the same garments); with AVX2 the trained 8,710-triangle walk 692–744 →
+    /// 683–694 µs (three rounds of the two builds in turn, same VM). With AVX-512 the mask measured
+    /// slower (the same walk 710–713 → 761–772 µs), and with SSE too.
     #[inline(always)]
     fn any_unclear<const ONE_MASK: bool>(
         &self,
