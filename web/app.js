@@ -396,7 +396,8 @@ function tick(now) {
     } else {
       setPlaying(false);
     }
-  } else if (!state.playing) {
+  } else if (!state.playing && state.viewer.needsDraw()) {
+    // Paused: drawn only when the camera, a mesh or the canvas's size changed.
     state.viewer.draw();
   }
   requestAnimationFrame(tick);

@@ -132,6 +132,9 @@ export class Viewer {
     this.zoom = 1;
     this.target = null;
     this.floorY = 0;
+    // Whether what is shown changed since the last draw (a mesh, the camera); `needsDraw`.
+    this.stale = true;
+    this.draws = 0;
     this.installControls();
   }
 
@@ -164,6 +167,7 @@ export class Viewer {
       if (!last) return;
       const now = { x: e.clientX, y: e.clientY };
       down.set(e.pointerId, now);
+      this.stale = true;
       if (down.size === 1) {
         this.azimuth -= (now.x - last.x) * 0.01;
         this.elevation = Math.max(-1.2, Math.min(1.2, this.elevation + (now.y - last.y) * 0.01));
@@ -187,12 +191,26 @@ export class Viewer {
   /// The camera's distance times `factor`, within 0.3 to 4 times the framing's.
   zoomBy(factor) {
     this.zoom = Math.max(0.3, Math.min(4, this.zoom * factor));
+    this.stale = true;
+  }
+
+  /// Whether a draw would show something new: a mesh or the camera changed since the last
+  /// one, or the canvas's size on the page did (a paused page draws only then).
+  needsDraw() {
+    const ratio = window.devicePixelRatio || 1;
+    const c = this.canvas;
+    return (
+      this.stale ||
+      c.width !== Math.round(c.clientWidth * ratio) ||
+      c.height !== Math.round(c.clientHeight * ratio)
+    );
   }
 
   /// (Re)create a mesh: `faces` a Uint32Array, `vertexCount` its vertices, `color` [r, g, b].
   setMesh(name, faces, vertexCount, color) {
     if (this.meshes[name]) this.meshes[name].dispose();
     this.meshes[name] = new Mesh(this.gl, this.program, faces, vertexCount, color);
+    this.stale = true;
   }
 
   setFloor(y, centerX, centerZ) {
@@ -207,6 +225,7 @@ export class Viewer {
 
   update(name, vertices) {
     this.meshes[name].update(vertices);
+    this.stale = true;
   }
 
   /// Follow the body: its bounding box centre, eased, and its height for the distance.
@@ -222,6 +241,7 @@ export class Viewer {
     }
     const center = [0, 1, 2].map((c) => 0.5 * (lo[c] + hi[c]));
     const height = Math.max(hi[1] - lo[1], 0.5);
+    this.stale = true;
     if (!this.target) {
       this.target = center;
       this.height = height;
@@ -232,6 +252,8 @@ export class Viewer {
   }
 
   draw() {
+    this.stale = false;
+    this.draws += 1;
     const gl = this.gl;
     const canvas = this.canvas;
     const ratio = window.devicePixelRatio || 1;

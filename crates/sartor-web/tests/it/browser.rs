@@ -436,6 +436,29 @@ fn the_page_works_in_headless_chromium() {
     // Two bodies: the garment differs, and stays finite. A slider's release shows the shape at
     // once and holds the arms anew over the next display frames.
     browser.eval("window.sartor.setPlaying(false);");
+    // A paused page draws only when what it shows changes: none while nothing does, one after
+    // the camera is turned (a drag over the view, and back).
+    let draws = || {
+        browser
+            .eval("return window.sartor.state.viewer.draws;")
+            .as_f64()
+            .expect("a count")
+    };
+    std::thread::sleep(Duration::from_millis(200));
+    let still = draws();
+    std::thread::sleep(Duration::from_millis(600));
+    assert_eq!(draws(), still, "a paused page redraws what it showed");
+    browser.eval(
+        "const c = document.querySelector('canvas'); \
+         const at = (type, x) => c.dispatchEvent(new PointerEvent(type, \
+           {pointerId: 7, clientX: x, clientY: 200, bubbles: true})); \
+         at('pointerdown', 300); at('pointermove', 340); at('pointermove', 300); \
+         at('pointerup', 300);",
+    );
+    browser.wait_for(
+        &format!("window.sartor.state.viewer.draws > {still}"),
+        Duration::from_secs(5),
+    );
     let settled = || browser.wait_for("!window.sartor.state.settling", Duration::from_secs(20));
     let set_body = |weight: f64, height: f64, gender: f64| {
         browser.eval(&format!(
@@ -514,7 +537,7 @@ fn the_page_works_in_headless_chromium() {
             .is_some_and(|s| s.contains("holding the limbs")),
         "and says so: {holding}"
     );
-    settled();
+    let paused_release_wall = settled();
     let released = floats(&browser.eval("return window.sartor.garment();"));
     let direct = floats(&browser.eval(
         "const v = (id) => Number(document.getElementById(id).value); \
@@ -598,8 +621,8 @@ fn the_page_works_in_headless_chromium() {
         "window.sartor.state.tryOn.frame > 5",
         Duration::from_secs(30),
     );
-    // The scrub bar: the jump waits for its frame's held arms, computed over display frames
-    // while the page draws on, then shows what a jump at once shows.
+    // The scrub bar: the jump waits for its frame's held arms, computed over display frames,
+    // then shows what a jump at once shows.
     let scrub = browser.eval(
         "const s = document.getElementById('scrub'); s.value = 150; \
          s.dispatchEvent(new Event('input')); \
@@ -881,10 +904,11 @@ fn the_page_works_in_headless_chromium() {
          kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
-         released while playing: arms held after {release_wall:?} (frames {playing_from} to {}), \
-         longest call of the page's slices {} ms; a scrub to frame 150 of 05_06 shown after \
-         {scrub_wall:?} ([display frames with a slice, ms in them] {}); CMU 05_06 chosen, \
-         playing after {clip_wall:?}\n\
+         released while paused: arms held after {paused_release_wall:?}; released while \
+         playing: after {release_wall:?} (frames {playing_from} to {}), longest call of the \
+         page's slices {} ms; a scrub to frame 150 of 05_06 shown after {scrub_wall:?} \
+         ([display frames with a slice, ms in them] {}); CMU 05_06 chosen, playing after \
+         {clip_wall:?}\n\
          measurements fitted in {} ms: {}\n\
          back-to-back: {bench}\n\
          {fine} worn after {garment_wall:?} (setGarment {} ms), page vs native garment: max \
