@@ -12,6 +12,11 @@ const WINDOW = 60;
 // After a change of shape the arms are held anew for it in slices of at most this many
 // milliseconds a display frame (a slice ends after the look that passes it).
 const SETTLE_MS = 8;
+// Where the display frames come slower (a slow device, or a browser whose drawing holds the
+// main thread), a slice takes up to this share of the interval between them, up to
+// SETTLE_MAX_MS: fewer frames show the old arms.
+const SETTLE_SHARE = 0.25;
+const SETTLE_MAX_MS = 20;
 
 const GARMENT_COLOR = [0.16, 0.36, 0.7];
 
@@ -34,6 +39,8 @@ const state = {
   seekTarget: null, // the frame the scrub bar asks for while its held arms are computed (seekSome)
   seekSlices: [0, 0], // of the last scrub: display frames with a slice, milliseconds in them
   settleLongestMs: 0, // the longest call of the slices so far
+  lastTick: null, // the last display frame's time (tick)
+  frameIntervalMs: 1000 / 60, // the interval between display frames, smoothed
 };
 
 function showError(message) {
@@ -209,7 +216,11 @@ function slice(what, look, finish) {
   const ok = guarded(
     what,
     () => {
-      while (!done && performance.now() - start < SETTLE_MS) done = look();
+      const budget = Math.min(
+        SETTLE_MAX_MS,
+        Math.max(SETTLE_MS, SETTLE_SHARE * state.frameIntervalMs),
+      );
+      while (!done && performance.now() - start < budget) done = look();
       if (done) finish();
     },
     true,
@@ -374,6 +385,10 @@ function redraw() {
 
 function tick(now) {
   const t = state.tryOn;
+  // Smoothed over some ten frames; a gap of a second or more (a hidden tab) is not counted.
+  const interval = state.lastTick === null ? Infinity : now - state.lastTick;
+  if (interval < 1000) state.frameIntervalMs += 0.1 * (interval - state.frameIntervalMs);
+  state.lastTick = now;
   // A display frame whose slice recomputed (and drew) the frame shown steps no further.
   if ((state.seekTarget !== null && seekSome()) || (state.settling && settleSome())) {
     requestAnimationFrame(tick);
