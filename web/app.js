@@ -10,7 +10,8 @@ const $ = (id) => document.getElementById(id);
 const MOTION_FPS = 30;
 const WINDOW = 60;
 // After a change of shape the arms are held anew for it in slices of at most this many
-// milliseconds a display frame (a slice ends after the look that passes it).
+// milliseconds a display frame at 60 frames a second (a slice ends after the look that passes
+// it; `sliceMs`).
 const SETTLE_MS = 8;
 // Where the display frames come slower (a slow device, or a browser whose drawing holds the
 // main thread), a slice takes up to this share of the interval between them, up to
@@ -207,8 +208,14 @@ function applyPhenotype() {
   });
 }
 
+/// A display frame's slice, milliseconds: SETTLE_SHARE of the interval between display frames,
+/// from SETTLE_MS to SETTLE_MAX_MS.
+function sliceMs() {
+  return Math.min(SETTLE_MAX_MS, Math.max(SETTLE_MS, SETTLE_SHARE * state.frameIntervalMs));
+}
+
 /// One display frame's slice of work: `look` (a call that takes at most one look and returns
-/// whether the work is done) until it is done or SETTLE_MS pass, then `finish` if done. Returns
+/// whether the work is done) until it is done or `sliceMs()` pass, then `finish` if done. Returns
 /// whether the work is over: done, or failed (the error is shown; an error shown before stays).
 function slice(what, look, finish) {
   const start = performance.now();
@@ -216,10 +223,7 @@ function slice(what, look, finish) {
   const ok = guarded(
     what,
     () => {
-      const budget = Math.min(
-        SETTLE_MAX_MS,
-        Math.max(SETTLE_MS, SETTLE_SHARE * state.frameIntervalMs),
-      );
+      const budget = sliceMs();
       while (!done && performance.now() - start < budget) done = look();
       if (done) finish();
     },
@@ -469,7 +473,7 @@ function bench(frames = 120) {
   const other = Float64Array.from(betas, (b, i) => (i === 0 ? b + 0.5 : b));
   const shape = medianMs(4, (i) => t.setBetas(i % 2 === 0 ? other : betas));
   // The same changes as a slider's release makes them: the preview, then `settle` a look at a
-  // time (the page spreads these calls over display frames, SETTLE_MS each).
+  // time (the page spreads these calls over display frames, `sliceMs()` each).
   const longest = [];
   const whole = [];
   for (let i = 0; i < 4; i++) {
