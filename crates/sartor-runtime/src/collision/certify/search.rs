@@ -609,7 +609,9 @@ impl Tree {
                 let group = top * W + g;
                 let cluster = |c: usize| group * GROUP + c;
                 let block = &self.clusters[group];
-                // The form chosen per block, not per cluster (see `Tree::any_unclear`).
+                // The form chosen per block, not per cluster (see `Tree::any_unclear`). Written
+                // here and in `Tree::sweep_among`: one `#[inline(always)]` method for the choice
+                // took the trained 8,710-triangle walk 749–760 → 775–781 µs (2026-12-06).
                 let clear = if one_mask {
                     self.sweep_block::<true>(block, cluster, x, reach2, front2)
                 } else {
