@@ -21,6 +21,26 @@ const SETTLE_MAX_MS = 20;
 
 const GARMENT_COLOR = [0.16, 0.36, 0.7];
 
+// The held limbs a release, a scrub or a new clip waits on are computed in a worker
+// (limbs-worker.js) where the browser has them, off the thread that draws the frames; the page
+// takes up its answers (TryOn.absorbArms). Without one, or once it failed, or with
+// `?limbs=page` in the address, the page's own slices compute them (settleSome, seekSome).
+const limbs = {
+  worker: null,
+  ready: false,
+  enabled: true, // cleared, the page's slices compute (window.sartor.useLimbsWorker)
+  busy: false, // the last job posted is not answered yet
+  id: 0, // of the last job posted
+  key: null, // what it was for (`epoch/scrub target`; limbsBusy)
+  epoch: 0, // counts the changes of shape and clip that the page waits on
+  fresh: false, // an answer just taken up: the page's slice takes what is left (a few looks)
+  jobs: 0, // answers taken up
+  stale: 0, // answers of a shape or clip left since
+  ms: 0, // the worker's milliseconds in them
+  pageMs: 0, // the page's milliseconds making the jobs and taking up the answers
+  failure: null, // why the worker is no longer used
+};
+
 const state = {
   tryOn: null,
   manifest: null,
@@ -203,9 +223,16 @@ function applyPhenotype() {
   showSliders(s);
   guarded("body", () => {
     showBetas(state.tryOn.previewPhenotype(s.gender, s.heightM, s.weight, s.muscle, s.ageYears));
-    state.settling = true;
+    settleAnew();
     redraw();
   });
+}
+
+/// The frames shown wait for their held limbs anew (a change of shape or clip): settleSome
+/// takes them from the next display frame.
+function settleAnew() {
+  state.settling = true;
+  limbs.epoch += 1;
 }
 
 /// A display frame's slice, milliseconds: SETTLE_SHARE of the interval between display frames,
@@ -232,10 +259,98 @@ function slice(what, look, finish) {
   return { over: !ok || done, done: ok && done, ms: performance.now() - start };
 }
 
+/// Start the worker for the held limbs (the body's files, the manifest's arm clearance JSON).
+function startLimbsWorker(bodyFiles, armClearance) {
+  const wanted = new URLSearchParams(location.search).get("limbs") !== "page";
+  if (!wanted || !armClearance || typeof Worker === "undefined") return;
+  let worker;
+  try {
+    worker = new Worker("limbs-worker.js", { type: "module" });
+  } catch (e) {
+    limbs.failure = String(e && e.message ? e.message : e);
+    return;
+  }
+  worker.onmessage = (event) => limbsAnswer(event.data);
+  worker.onerror = (event) => limbsFailed(event.message || "the worker failed");
+  const files = BODY_FILES.map((f, i) => [`body/${f}`, bodyFiles[i]]);
+  worker.postMessage({ load: { wasm: "pkg/sartor_web_bg.wasm", files, armClearance } });
+  limbs.worker = worker;
+}
+
+function limbsAnswer(message) {
+  if (message.ready) {
+    limbs.ready = true;
+    return;
+  }
+  if (message.error) {
+    limbsFailed(message.error);
+    return;
+  }
+  // A job is answered only if still in hand when done: an older answer crossed a newer job.
+  if (message.id === limbs.id) limbs.busy = false;
+  limbs.ms += message.ms;
+  const start = performance.now();
+  guarded(
+    "arms",
+    () => {
+      if (state.tryOn.absorbArms(message.progress)) {
+        limbs.jobs += 1;
+        limbs.fresh = message.id === limbs.id;
+      } else {
+        limbs.stale += 1;
+      }
+    },
+    true,
+  );
+  limbs.pageMs += performance.now() - start;
+}
+
+/// The page's slices take over for good.
+function limbsFailed(why) {
+  limbs.failure = why;
+  limbs.ready = false;
+  limbs.busy = false;
+  if (limbs.worker) limbs.worker.terminate();
+  limbs.worker = null;
+}
+
+/// Whether the held limbs the page waits on now (a jump to `target`, a scrub's frame, or null)
+/// are the worker's to compute: a job for them posted now or earlier whose answer is not back
+/// (a job for something the page no longer waits on is replaced). False where there is no
+/// worker or nothing to compute, or where an answer was just taken up (the page's slice then
+/// computes what the frames played meanwhile added).
+function limbsBusy(target) {
+  if (!limbs.ready || !limbs.enabled) return false;
+  const key = `${limbs.epoch}/${target}`;
+  if (limbs.busy && limbs.key === key) return true;
+  if (!limbs.busy && limbs.fresh) {
+    limbs.fresh = false;
+    return false;
+  }
+  const start = performance.now();
+  let job;
+  try {
+    job = state.tryOn.armsJob(target === null ? undefined : target);
+  } catch (e) {
+    limbsFailed(String(e && e.message ? e.message : e));
+    return false;
+  }
+  if (job) {
+    limbs.busy = true;
+    limbs.id += 1;
+    limbs.key = key;
+    limbs.worker.postMessage({ job, id: limbs.id }, [job.buffer]);
+  }
+  limbs.pageMs += performance.now() - start;
+  return Boolean(job);
+}
+
 /// One display frame's slice of holding the arms anew for the shape shown or a clip chosen
 /// (`settle`); when they are held the frame shown is recomputed with them (the frame setting
 /// the shape at once gives; a new clip's first frame) and drawn. Returns whether that happened.
+/// Where the worker computes them, the frame only waits for its answer.
 function settleSome() {
+  if (limbsBusy(null)) return false;
   const t = state.tryOn;
   const look = () => {
     const call = performance.now();
@@ -256,6 +371,7 @@ function settleSome() {
 function seekSome() {
   const t = state.tryOn;
   const target = state.seekTarget;
+  if (limbsBusy(target)) return false;
   const { over, done, ms } = slice("seek", () => t.prepareSeek(target, 1), () => t.seek(target));
   state.seekSlices[0] += 1;
   state.seekSlices[1] += ms;
@@ -273,7 +389,7 @@ function applyBetas() {
   }
   guarded("β", () => {
     showBetas(state.tryOn.previewBetas(new Float64Array(values)));
-    state.settling = true;
+    settleAnew();
     redraw();
   });
 }
@@ -297,7 +413,7 @@ function fitMeasurements() {
   guarded("measurements", () => {
     showBetas(state.tryOn.previewPhenotypeText(parts.join(", ")));
     state.fitMs = performance.now() - start;
-    state.settling = true;
+    settleAnew();
     redraw();
   });
 }
@@ -317,7 +433,7 @@ async function chooseMotion(value) {
       t.playStored(value, json, tensors);
     }
     // It plays once its first frames' arms are held (settleSome).
-    state.settling = true;
+    settleAnew();
     clearError();
   } catch (e) {
     showFailure(`motion ${value}`, e);
@@ -328,7 +444,7 @@ async function playBvhFile(file) {
   try {
     const text = await file.text();
     state.tryOn.playBvh(file.name, text);
-    state.settling = true;
+    settleAnew();
     clearError();
   } catch (e) {
     showFailure("dropped BVH", e);
@@ -549,6 +665,7 @@ async function main() {
   const armClearance = manifest.arm_clearance ? JSON.stringify(manifest.arm_clearance) : undefined;
   const t = TryOn.load(assets, "f32", true, armClearance);
   state.tryOn = t;
+  startLimbsWorker(bodyFiles, armClearance);
   state.viewer.setMesh("body", t.bodyFaces(), t.bodyVertices().length / 3, [0.86, 0.72, 0.62]);
   state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, GARMENT_COLOR);
   const body = t.bodyVertices();
@@ -634,6 +751,11 @@ async function main() {
 // What the browser test (and a curious reader's console) can look at.
 window.sartor = {
   state,
+  limbs,
+  // Whether the worker computes the held limbs (true: where it runs); false: the page's slices.
+  useLimbsWorker: (on) => {
+    limbs.enabled = on;
+  },
   ready: () => state.readyMs !== null,
   garment: () => Array.from(state.tryOn.garmentVertices()),
   meanTimes,

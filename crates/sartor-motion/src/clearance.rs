@@ -50,7 +50,7 @@ use serde::{Deserialize, Serialize};
 
 mod on_demand;
 
-pub use on_demand::ClearanceOnDemand;
+pub use on_demand::{ClearanceJob, ClearanceOnDemand, ClearanceProgress};
 
 /// Options of [`ArmClearance::apply`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -55,8 +55,8 @@ pub use bvh_tpose::{
     detect_tpose_frame, first_performance_frame, max_limb_step_deg,
 };
 pub use clearance::{
-    ArmClearance, ClearanceOnDemand, ClearanceOptions, ClearanceReport, LEG_CLEARANCE_M,
-    UPPER_ARM_MIN_LEVER,
+    ArmClearance, ClearanceJob, ClearanceOnDemand, ClearanceOptions, ClearanceProgress,
+    ClearanceReport, LEG_CLEARANCE_M, UPPER_ARM_MIN_LEVER,
 };
 pub use motion::Motion;
 pub use motion_library::{

@@ -15,7 +15,9 @@ use sartor_runtime::Precision;
 use wasm_bindgen::prelude::{JsError, wasm_bindgen};
 
 use crate::files::FileSet;
+use crate::limbs::LimbsWorker;
 use crate::session::{PhenotypeSliders, TryOn, TryOnOptions, procedural_clip_names};
+use sartor_motion::ClearanceOptions;
 
 fn js(e: crate::Error) -> JsError {
     JsError::new(&e.to_string())
@@ -37,6 +39,12 @@ fn sliders(
         muscle,
         age_years,
     }
+}
+
+/// The arm clearance options' JSON (`manifest.json`'s `arm_clearance`).
+fn clearance_options(json: &str) -> Result<ClearanceOptions, JsError> {
+    serde_json::from_str(json)
+        .map_err(|e| JsError::new(&format!("arm clearance options {json:?}: {e}")))
 }
 
 /// Files fetched by the page, by name (`model/model.json`, `body/tpose.json`, …).
@@ -88,10 +96,7 @@ impl WebTryOn {
             }
         };
         let arm_clearance = arm_clearance
-            .map(|json| {
-                serde_json::from_str(&json)
-                    .map_err(|e| JsError::new(&format!("arm clearance options {json:?}: {e}")))
-            })
+            .map(|json| clearance_options(&json))
             .transpose()?;
         let options = TryOnOptions {
             precision,
@@ -150,6 +155,21 @@ impl WebTryOn {
     #[wasm_bindgen(js_name = prepareSeek)]
     pub fn prepare_seek(&mut self, frame: usize, max_looks: usize) -> Result<bool, JsError> {
         self.inner.prepare_seek(frame, max_looks).map_err(js)
+    }
+
+    /// The held-limb work the page waits on (a clip begun, else a jump to `seek`, else the
+    /// frames shown held for the shape in use), as bytes for a `LimbsWorker`, or `undefined`
+    /// when it waits on none (see `TryOn::arms_job`).
+    #[wasm_bindgen(js_name = armsJob)]
+    pub fn arms_job(&mut self, seek: Option<usize>) -> Result<Option<Vec<u8>>, JsError> {
+        self.inner.arms_job(seek).map_err(js)
+    }
+
+    /// Take up a `LimbsWorker`'s answer: `true` where it is still of use (see
+    /// `TryOn::absorb_arms`); `settle` and `prepareSeek` then find that work done.
+    #[wasm_bindgen(js_name = absorbArms)]
+    pub fn absorb_arms(&mut self, progress: &[u8]) -> Result<bool, JsError> {
+        self.inner.absorb_arms(progress).map_err(js)
     }
 
     /// Shape from a phenotype text such as `female, 1.70 m, heavy`; returns β.
@@ -308,6 +328,39 @@ impl WebTryOn {
     #[wasm_bindgen(getter, js_name = armTurnDeg)]
     pub fn arm_turn_deg(&self) -> f64 {
         self.inner.arm_turn_deg()
+    }
+}
+
+/// The held limbs computed in a Web Worker (see [`LimbsWorker`]).
+#[wasm_bindgen(js_name = LimbsWorker)]
+pub struct WebLimbsWorker {
+    inner: LimbsWorker,
+}
+
+#[wasm_bindgen(js_class = LimbsWorker)]
+impl WebLimbsWorker {
+    /// Load the body (`files`: the `body/…` files) with the page's arm clearance options'
+    /// JSON (`manifest.json`'s `arm_clearance`).
+    pub fn load(files: AssetFiles, arm_clearance: &str) -> Result<WebLimbsWorker, JsError> {
+        let options = clearance_options(arm_clearance)?;
+        Ok(Self {
+            inner: LimbsWorker::load(files.inner, options).map_err(js)?,
+        })
+    }
+
+    /// Take a job (`TryOn.armsJob`'s bytes) in place of any in hand.
+    pub fn begin(&mut self, job: &[u8]) -> Result<(), JsError> {
+        self.inner.begin(job).map_err(js)
+    }
+
+    /// Compute the job in hand, at most `maxLooks` looks: `true` once it is all computed.
+    pub fn work(&mut self, max_looks: usize) -> Result<bool, JsError> {
+        self.inner.work(max_looks).map_err(js)
+    }
+
+    /// Everything computed for the last job's motion and shape, for `TryOn.absorbArms`.
+    pub fn answer(&self) -> Result<Vec<u8>, JsError> {
+        self.inner.answer().map_err(js)
     }
 }
 

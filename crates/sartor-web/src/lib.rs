@@ -12,9 +12,12 @@
 //!   stored CMU clip, a dropped BVH: retargeted as `sartor_motion::load_motion` does), play,
 //!   seek, another garment model put on (`set_garment`: another resolution), per-frame garment
 //!   and body vertices and the time of each stage ([`FrameTimes`]).
-//!   Sequential only: the browser gives no threads.
-//! - **JavaScript** (`js.rs`): `AssetFiles`, `TryOn` and `proceduralClips` for the page; every
-//!   fault comes back as a JavaScript `Error` naming it.
+//!   Sequential: the runtime's threads are not used in the browser.
+//! - **Held limbs in a worker** ([`LimbsWorker`]): what a change of shape, a scrub or a new clip
+//!   waits on, computed in a Web Worker from the try-on's job (`TryOn::arms_job`) and taken up
+//!   by it (`TryOn::absorb_arms`), so that the page's thread keeps drawing and playing.
+//! - **JavaScript** (`js.rs`): `AssetFiles`, `TryOn`, `LimbsWorker` and `proceduralClips` for the
+//!   page; every fault comes back as a JavaScript `Error` naming it.
 //! - **Kernel probe** ([`kernel_probe`]): the runtime's matrix kernels on fixed inputs, for
 //!   the browser test's bitwise comparison of the WebAssembly build with the native one.
 //! - **Serving** (`serve_dir`, native only): the static server of `cargo xtask web --serve`
@@ -48,6 +51,7 @@ mod clock;
 mod error;
 mod files;
 mod js;
+mod limbs;
 mod probe;
 #[cfg(not(target_arch = "wasm32"))]
 mod serve;
@@ -56,7 +60,8 @@ mod session;
 pub use clock::now_ms;
 pub use error::{Error, Result};
 pub use files::{BODY_FILES, FileSet, MODEL_FILES};
-pub use js::{AssetFiles, WebTryOn, kernel_probe_js, procedural_clips};
+pub use js::{AssetFiles, WebLimbsWorker, WebTryOn, kernel_probe_js, procedural_clips};
+pub use limbs::LimbsWorker;
 pub use probe::kernel_probe;
 #[cfg(not(target_arch = "wasm32"))]
 pub use serve::{Server, serve_dir};

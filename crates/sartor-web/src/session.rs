@@ -17,8 +17,8 @@ use sartor_core::{
     Phenotype, PhenotypeRequest, PhenotypeSpace, Pose, skin_points,
 };
 use sartor_motion::{
-    ArmClearance, BvhRetargetOptions, ClearanceOnDemand, ClearanceOptions, Motion, RetargetBody,
-    TPOSE_FILE, procedural, retarget_bvh, stored_clip_from_bytes,
+    ArmClearance, BvhRetargetOptions, ClearanceOnDemand, ClearanceOptions, ClearanceProgress,
+    Motion, RetargetBody, TPOSE_FILE, procedural, retarget_bvh, stored_clip_from_bytes,
 };
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, GarmentAnimator, GarmentBinding, GarmentModel,
@@ -279,9 +279,19 @@ fn prepare_jump(
     frame: usize,
     max_looks: usize,
 ) -> Result<bool> {
-    let first = frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1);
+    prepare_frames(held, body, jump_frames(frame), max_looks)
+}
+
+/// Compute in `held`, taking at most `max_looks` looks, the poses of `frames`: whether all of
+/// them are computed.
+pub(crate) fn prepare_frames(
+    held: &mut ClearanceOnDemand,
+    body: &BodyModel,
+    frames: std::ops::Range<usize>,
+    max_looks: usize,
+) -> Result<bool> {
     let mut left = max_looks;
-    for t in first..=frame {
+    for t in frames {
         let looks = held.looks();
         if !held.prepare(body, t, left)? {
             return Ok(false);
@@ -289,6 +299,21 @@ fn prepare_jump(
         left -= held.looks() - looks;
     }
     Ok(true)
+}
+
+/// The body model of the body folder's files.
+pub(crate) fn load_body(files: &mut FileSet) -> Result<BodyModel> {
+    Ok(BodyModel::from_bytes(
+        Path::new("body"),
+        &files.take("body/model.json")?,
+        files.take("body/model.safetensors")?,
+    )?)
+}
+
+/// The frames [`TryOn::seek`] poses for a jump to `frame`: the frame before the warm-up, the
+/// warm-up frames and `frame`.
+fn jump_frames(frame: usize) -> std::ops::Range<usize> {
+    frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1)..frame + 1
 }
 
 /// Flatten points into `x, y, z, x, y, z, …`.
@@ -302,11 +327,7 @@ impl TryOn {
     /// (β = 0) standing still.
     pub fn load(mut files: FileSet, options: TryOnOptions) -> Result<Self> {
         let body_dir = Path::new("body");
-        let body = Arc::new(BodyModel::from_bytes(
-            body_dir,
-            &files.take("body/model.json")?,
-            files.take("body/model.safetensors")?,
-        )?);
+        let body = Arc::new(load_body(&mut files)?);
         let space = PhenotypeSpace::from_bytes(
             body_dir,
             &files.take("body/phenotype.json")?,
@@ -519,6 +540,62 @@ impl TryOn {
         match &mut self.cleared {
             Some(cleared) => prepare_jump(cleared, &self.body, frame, max_looks),
             None => Ok(true),
+        }
+    }
+
+    /// The held-limb work the page waits on, as bytes for a worker ([`crate::LimbsWorker`]),
+    /// or `None` when it waits on none: the first frames of a motion begun
+    /// ([`TryOn::begin_motion`]), else the frames of a jump to `seek` (a scrub's frame,
+    /// [`TryOn::prepare_seek`]), else the frames shown held for the shape in use after a preview
+    /// ([`TryOn::settle`]; the first call builds the new shape's torso, about 5 ms). Hand the
+    /// worker's answer to [`TryOn::absorb_arms`]; then `settle` or `prepare_seek` finds that
+    /// work done. The job holds the shape and the motion's poses (some 2 kB a frame).
+    pub fn arms_job(&mut self, seek: Option<usize>) -> Result<Option<Vec<u8>>> {
+        let body = &self.body;
+        let (held, frame) = match (&mut self.next_motion, seek) {
+            (Some((_, held)), _) => (held.as_mut(), 0),
+            (None, Some(frame)) => {
+                let frame = frame.min(self.motion.n_frames() - 1);
+                (self.cleared.as_mut(), frame)
+            }
+            (None, None) if self.arms.is_none() || self.held_for == self.betas => (None, 0),
+            (None, None) => {
+                if self.settling.is_none() {
+                    self.settling = self.clearance_for(&self.motion, &self.betas)?;
+                }
+                (self.settling.as_mut(), self.frame)
+            }
+        };
+        let Some(held) = held else {
+            return Ok(None);
+        };
+        if prepare_jump(held, body, frame, 0)? {
+            return Ok(None);
+        }
+        Ok(Some(held.job(jump_frames(frame)).to_bytes()))
+    }
+
+    /// Take up a worker's answer to [`TryOn::arms_job`]: `true` where it is of a motion and
+    /// shape the page holds limbs for (a motion begun, the motion shown for the shape its arms
+    /// are held for, or for the shape in use), `false` where none is any longer (a shape
+    /// previewed or a clip chosen since: nothing changes). An error where the bytes are not an
+    /// answer.
+    pub fn absorb_arms(&mut self, progress: &[u8]) -> Result<bool> {
+        let progress = ClearanceProgress::from_bytes(progress)?;
+        let begun = self
+            .next_motion
+            .as_mut()
+            .and_then(|(_, held)| held.as_mut());
+        let holders = [begun, self.settling.as_mut(), self.cleared.as_mut()].into_iter();
+        match holders
+            .flatten()
+            .find(|h| h.fingerprint() == progress.fingerprint())
+        {
+            Some(held) => {
+                held.absorb(&progress)?;
+                Ok(true)
+            }
+            None => Ok(false),
         }
     }
 

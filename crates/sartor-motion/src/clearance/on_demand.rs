@@ -1,6 +1,8 @@
 //! [`ArmClearance::apply`] frame by frame, for a player.
 
-use nalgebra::Vector3;
+use std::ops::Range;
+
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use sartor_core::{BodyModel, Error, Pose, Result};
 
 use super::{
@@ -64,6 +66,8 @@ pub struct ClearanceOnDemand {
     looks: usize,
     /// Looks the call in progress may still take (`None`: no limit; see [`Self::prepare`]).
     allowance: Option<usize>,
+    /// Of the motion, the body's shape and the options ([`fingerprint`]).
+    fingerprint: u64,
 }
 
 impl ClearanceOnDemand {
@@ -81,7 +85,9 @@ impl ClearanceOnDemand {
         let targets = clearance.targets(body, &mut posing, options)?;
         let passes = options.max_passes.max(1);
         let n = poses.len();
+        let fingerprint = fingerprint(body, betas, &poses, options);
         Ok(Self {
+            fingerprint,
             clearance: clearance.clone(),
             options: options.clone(),
             posing,
@@ -119,6 +125,73 @@ impl ClearanceOnDemand {
     /// so far: the work done.
     pub fn looks(&self) -> usize {
         self.looks
+    }
+
+    /// What was computed so far, for another `ClearanceOnDemand` of the same motion, body shape
+    /// and options to take up ([`Self::absorb`]).
+    pub fn progress(&self) -> ClearanceProgress {
+        ClearanceProgress {
+            fingerprint: self.fingerprint,
+            n_limbs: self.clearance.arms.len(),
+            needed: self.needed.clone(),
+            total: self.total.clone(),
+        }
+    }
+
+    /// Take up what `progress` computed (of another `ClearanceOnDemand`, on another thread, say):
+    /// every look and sum of turns not computed here yet. The poses are then those this one
+    /// would compute, bit for bit, since each depends on the motion, the body and the options
+    /// alone. Returns how many it took up; an error, changing nothing, where `progress` is of
+    /// another motion, shape or options.
+    pub fn absorb(&mut self, progress: &ClearanceProgress) -> Result<usize> {
+        if progress.fingerprint != self.fingerprint
+            || progress.n_limbs != self.clearance.arms.len()
+            || progress.needed.len() != self.needed.len()
+            || progress.needed.iter().any(|p| p.len() != self.poses.len())
+        {
+            return Err(Error::invalid(
+                "arm clearance",
+                "the held limbs handed over are of another motion, body shape or options",
+            ));
+        }
+        let mut taken = 0;
+        let ours = self.needed.iter_mut().chain(self.total.iter_mut());
+        let theirs = progress.needed.iter().chain(progress.total.iter());
+        for (ours, theirs) in ours.zip(theirs) {
+            for (ours, theirs) in ours.iter_mut().zip(theirs) {
+                if ours.is_none() && theirs.is_some() {
+                    ours.clone_from(theirs);
+                    taken += 1;
+                }
+            }
+        }
+        Ok(taken)
+    }
+
+    /// Of the motion, the body's shape and the options: equal for two `ClearanceOnDemand`s that
+    /// compute the same poses (given the same body).
+    pub fn fingerprint(&self) -> u64 {
+        self.fingerprint
+    }
+
+    /// The fingerprint a `ClearanceOnDemand::new` of these would have.
+    pub fn fingerprint_of(
+        body: &BodyModel,
+        betas: &[f64],
+        poses: &[Pose],
+        options: &ClearanceOptions,
+    ) -> u64 {
+        fingerprint(body, betas, poses, options)
+    }
+
+    /// The work of preparing `frames` ([`Self::prepare`]) as another thread would take it up:
+    /// this one's shape and motion ([`ClearanceJob`]).
+    pub fn job(&self, frames: Range<usize>) -> ClearanceJob {
+        ClearanceJob {
+            betas: self.posing.betas.clone(),
+            poses: self.poses.clone(),
+            frames,
+        }
     }
 
     /// Compute what frame `t`'s pose needs, taking at most `max_looks` looks: `true` once all
@@ -213,4 +286,314 @@ impl ClearanceOnDemand {
         );
         Ok(())
     }
+}
+
+/// A hash (FNV-1a over 64-bit words) of what a [`ClearanceOnDemand`]'s poses depend on: the
+/// body's size, the shape, every pose's bits and the options.
+fn fingerprint(body: &BodyModel, betas: &[f64], poses: &[Pose], options: &ClearanceOptions) -> u64 {
+    let mut h = Fnv::default();
+    h.word(body.n_vertices() as u64);
+    h.word(body.skeleton().n_joints() as u64);
+    h.floats(betas);
+    h.word(poses.len() as u64);
+    for pose in poses {
+        h.floats(pose.root_translation_m.as_slice());
+        h.floats(pose.root_orientation.coords.as_slice());
+        h.word(pose.local_rotations.len() as u64);
+        for q in &pose.local_rotations {
+            h.floats(q.coords.as_slice());
+        }
+    }
+    let ClearanceOptions {
+        clearance_m,
+        upper_arm_clearance_m,
+        leg_clearance_m,
+        ramp_frames,
+        max_iterations,
+        max_passes,
+        max_angle_rad,
+    } = options;
+    h.floats(&[*clearance_m, *max_angle_rad]);
+    for m in [upper_arm_clearance_m, leg_clearance_m] {
+        h.floats(&[m.unwrap_or(f64::NAN)]);
+    }
+    for n in [ramp_frames, max_iterations, max_passes] {
+        h.word(*n as u64);
+    }
+    h.0
+}
+
+/// FNV-1a, a 64-bit word at a time.
+struct Fnv(u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    fn word(&mut self, w: u64) {
+        self.0 = (self.0 ^ w).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+
+    fn floats(&mut self, values: &[f64]) {
+        for v in values {
+            self.word(v.to_bits());
+        }
+    }
+}
+
+/// What a [`ClearanceOnDemand`] computed ([`ClearanceOnDemand::progress`]), to be taken up by
+/// another of the same motion, body shape and options ([`ClearanceOnDemand::absorb`]); as bytes
+/// ([`Self::to_bytes`]) it crosses to another thread (the try-on page computes the held limbs
+/// in a worker).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClearanceProgress {
+    fingerprint: u64,
+    n_limbs: usize,
+    needed: Vec<PerFrame>,
+    total: Vec<PerFrame>,
+}
+
+/// The first bytes of [`ClearanceProgress::to_bytes`] (a format version in the last).
+const PROGRESS_MAGIC: [u8; 8] = *b"sartorC1";
+
+impl ClearanceProgress {
+    /// Of the `ClearanceOnDemand` it was taken from ([`ClearanceOnDemand::fingerprint`]).
+    pub fn fingerprint(&self) -> u64 {
+        self.fingerprint
+    }
+
+    /// Little-endian: the magic, the fingerprint, then passes, frames and limbs as `u32`, then
+    /// per pass and frame of the looks and then of the sums of turns, a byte (1: computed) and,
+    /// where computed, three `f64` a limb.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = PROGRESS_MAGIC.to_vec();
+        out.extend(self.fingerprint.to_le_bytes());
+        let frames = self.needed.first().map_or(0, Vec::len);
+        for n in [self.needed.len(), frames, self.n_limbs] {
+            out.extend((n as u32).to_le_bytes());
+        }
+        for entry in self.needed.iter().chain(&self.total).flatten() {
+            match entry {
+                None => out.push(0),
+                Some(turns) => {
+                    out.push(1);
+                    for r in turns {
+                        put_floats(&mut out, r.as_slice());
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Read [`Self::to_bytes`]'s bytes: an error naming the fault where they are cut short,
+    /// too long, of another format or hold a value that is not finite.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
+        let fault = |message: String| Error::invalid("arm clearance progress", message);
+        let mut r = Reader { bytes, at: 0 };
+        if r.take(8).map_err(fault)? != PROGRESS_MAGIC {
+            return Err(fault(
+                "not sartor's held limbs (no `sartorC1` at the start)".into(),
+            ));
+        }
+        let fingerprint = u64::from_le_bytes(r.array().map_err(fault)?);
+        let mut count =
+            || -> Result<usize> { Ok(u32::from_le_bytes(r.array().map_err(fault)?) as usize) };
+        let (passes, frames, n_limbs) = (count()?, count()?, count()?);
+        // Each entry takes at least a byte: no allocation beyond what the bytes can fill.
+        let fits = 2usize
+            .checked_mul(passes)
+            .and_then(|n| n.checked_mul(frames))
+            .is_some_and(|n| n <= bytes.len());
+        if !fits {
+            let n = bytes.len();
+            return Err(fault(format!(
+                "{passes} passes of {frames} frames in {n} bytes"
+            )));
+        }
+        let mut lists: Vec<PerFrame> = Vec::with_capacity(2 * passes);
+        for _ in 0..2 * passes {
+            let mut list: PerFrame = Vec::with_capacity(frames);
+            for _ in 0..frames {
+                let entry = match r.take(1).map_err(fault)?[0] {
+                    0 => None,
+                    1 => {
+                        let mut turns = Vec::with_capacity(n_limbs);
+                        for _ in 0..n_limbs {
+                            let mut v = [0.0; 3];
+                            for x in &mut v {
+                                *x = f64::from_le_bytes(r.array().map_err(fault)?);
+                                if !x.is_finite() {
+                                    return Err(fault(format!(
+                                        "a turn of {x} at byte {}",
+                                        r.at - 8
+                                    )));
+                                }
+                            }
+                            turns.push(Vector3::from(v));
+                        }
+                        Some(turns.into_boxed_slice())
+                    }
+                    flag => return Err(fault(format!("entry flag {flag} at byte {}", r.at - 1))),
+                };
+                list.push(entry);
+            }
+            lists.push(list);
+        }
+        if r.at != bytes.len() {
+            return Err(fault(format!("{} bytes after the end", bytes.len() - r.at)));
+        }
+        let total = lists.split_off(passes);
+        Ok(Self {
+            fingerprint,
+            n_limbs,
+            needed: lists,
+            total,
+        })
+    }
+}
+
+/// The inputs of a [`ClearanceOnDemand`] (with the body and options, which the other side holds)
+/// and the frames to prepare: what a player hands to a worker thread, as bytes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClearanceJob {
+    /// The body's shape.
+    pub betas: Vec<f64>,
+    /// The motion's poses.
+    pub poses: Vec<Pose>,
+    /// The frames to prepare.
+    pub frames: Range<usize>,
+}
+
+/// The first bytes of [`ClearanceJob::to_bytes`].
+const JOB_MAGIC: [u8; 8] = *b"sartorJ1";
+
+impl ClearanceJob {
+    /// Little-endian: the magic, the frames to prepare (start, end), the shape's length and
+    /// values, the poses' count and joints, then per pose the root translation, the root
+    /// orientation and each joint's rotation (quaternions as `i, j, k, w`), all `f64`.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let joints = self.poses.first().map_or(0, |p| p.local_rotations.len());
+        let mut out = JOB_MAGIC.to_vec();
+        for n in [self.frames.start, self.frames.end, self.betas.len()] {
+            out.extend((n as u32).to_le_bytes());
+        }
+        put_floats(&mut out, &self.betas);
+        let counts = [self.poses.len(), joints].map(|n| (n as u32).to_le_bytes());
+        out.extend(counts.concat());
+        for pose in &self.poses {
+            debug_assert_eq!(pose.local_rotations.len(), joints, "one skeleton");
+            put_floats(&mut out, pose.root_translation_m.as_slice());
+            put_floats(&mut out, pose.root_orientation.coords.as_slice());
+            for q in &pose.local_rotations {
+                put_floats(&mut out, q.coords.as_slice());
+            }
+        }
+        out
+    }
+
+    /// Read [`Self::to_bytes`]'s bytes: an error naming the fault where they are cut short, too
+    /// long, of another format, hold a value that is not finite or frames beyond the poses.
+    /// (The poses' joints are the caller's to check against its body: [`Pose::validate`].)
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
+        let fault = job_fault;
+        let mut r = Reader { bytes, at: 0 };
+        if r.take(8).map_err(fault)? != JOB_MAGIC {
+            return Err(fault(
+                "not a held-limbs job (no `sartorJ1` at the start)".into(),
+            ));
+        }
+        let (start, end, n_betas) = (r.count()?, r.count()?, r.count()?);
+        let betas = r.floats(n_betas)?;
+        let (n_poses, joints) = (r.count()?, r.count()?);
+        let per_pose = joints.saturating_mul(4).saturating_add(7);
+        if n_poses.saturating_mul(per_pose).saturating_mul(8) > bytes.len() {
+            let n = bytes.len();
+            return Err(fault(format!(
+                "{n_poses} poses of {joints} joints in {n} bytes"
+            )));
+        }
+        let quaternion =
+            |q: &[f64]| UnitQuaternion::new_unchecked(Quaternion::new(q[3], q[0], q[1], q[2]));
+        let mut poses = Vec::with_capacity(n_poses);
+        for _ in 0..n_poses {
+            let v = r.floats(per_pose)?;
+            poses.push(Pose {
+                root_translation_m: Vector3::new(v[0], v[1], v[2]),
+                root_orientation: quaternion(&v[3..7]),
+                local_rotations: v[7..].chunks_exact(4).map(quaternion).collect(),
+            });
+        }
+        if r.at != bytes.len() {
+            return Err(fault(format!("{} bytes after the end", bytes.len() - r.at)));
+        }
+        if start > end || end > n_poses {
+            return Err(fault(format!("frames {start}..{end} of {n_poses}")));
+        }
+        Ok(Self {
+            betas,
+            poses,
+            frames: start..end,
+        })
+    }
+}
+
+/// Bytes read in order.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize) -> std::result::Result<&[u8], String> {
+        let end = self.at + n;
+        let taken = self
+            .bytes
+            .get(self.at..end)
+            .ok_or_else(|| format!("cut short: {} bytes, {end} needed", self.bytes.len()))?;
+        self.at = end;
+        Ok(taken)
+    }
+
+    fn array<const N: usize>(&mut self) -> std::result::Result<[u8; N], String> {
+        Ok(self.take(N)?.try_into().expect("N bytes"))
+    }
+
+    /// A job's count (`u32`).
+    fn count(&mut self) -> Result<usize> {
+        let bytes = self.array().map_err(job_fault)?;
+        Ok(u32::from_le_bytes(bytes) as usize)
+    }
+
+    /// A job's `n` finite values.
+    fn floats(&mut self, n: usize) -> Result<Vec<f64>> {
+        let at = self.at;
+        let bytes = self.take(n.saturating_mul(8)).map_err(job_fault)?;
+        let values: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+            .collect();
+        match values.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(job_fault(format!(
+                "a value of {} at byte {}",
+                values[i],
+                at + 8 * i
+            ))),
+            None => Ok(values),
+        }
+    }
+}
+
+/// Append `values`, little-endian.
+fn put_floats(out: &mut Vec<u8>, values: &[f64]) {
+    for v in values {
+        out.extend(v.to_le_bytes());
+    }
+}
+
+fn job_fault(message: String) -> Error {
+    Error::invalid("arm clearance job", message)
 }

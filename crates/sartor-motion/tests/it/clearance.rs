@@ -4,8 +4,8 @@
 use nalgebra::Vector3;
 use sartor_core::{BodyDistance, BodyModel, BodyPoser, BoneTransform, Pose, vertex_normals};
 use sartor_motion::{
-    ArmClearance, ClearanceOnDemand, ClearanceOptions, LEG_CLEARANCE_M, UPPER_ARM_MIN_LEVER,
-    load_motion,
+    ArmClearance, ClearanceJob, ClearanceOnDemand, ClearanceOptions, ClearanceProgress,
+    LEG_CLEARANCE_M, UPPER_ARM_MIN_LEVER, load_motion,
 };
 
 use crate::motion_library::library_options;
@@ -370,4 +370,114 @@ fn frames_asked_for_one_at_a_time_are_the_whole_clips_poses_bit_for_bit() {
         assert!(e.to_string().contains("frame"), "{e}");
     }
     assert!(turned > 0, "neither clip was turned: nothing compared");
+}
+
+#[test]
+fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
+    // The try-on page computes a jump's held limbs in a worker and hands them to the page's
+    // own `ClearanceOnDemand` as bytes: that one then computes no look and gives the poses it
+    // would have computed itself.
+    let (body, clearance, _, with_legs) = shipped_limbs();
+    let motion = load_motion("cmu/02_02@8+60", &library_options()).expect("clip");
+    let poses = motion.frames();
+    let betas = [0.0, 2.0];
+    let new = |betas: &[f64], options: &ClearanceOptions| {
+        ClearanceOnDemand::new(&clearance, &body, betas, poses.to_vec(), options)
+            .expect("on demand")
+    };
+    let (mut worker, mut page, mut alone) = (
+        new(&betas, &with_legs),
+        new(&betas, &with_legs),
+        new(&betas, &with_legs),
+    );
+    assert_eq!(worker.fingerprint(), page.fingerprint());
+    // The page's job, as bytes: the worker's own `ClearanceOnDemand` is of the same motion,
+    // shape and options.
+    let job = ClearanceJob::from_bytes(&page.job(30..32).to_bytes()).expect("read back");
+    assert_eq!(job, page.job(30..32));
+    assert_eq!(
+        (job.betas.as_slice(), job.poses.as_slice()),
+        (&betas[..], poses)
+    );
+    assert_eq!(
+        ClearanceOnDemand::fingerprint_of(&body, &job.betas, &job.poses, &with_legs),
+        page.fingerprint()
+    );
+    for t in job.frames {
+        assert!(worker.prepare(&body, t, usize::MAX).expect("prepare"));
+    }
+    let bytes = worker.progress().to_bytes();
+    let progress = ClearanceProgress::from_bytes(&bytes).expect("read back");
+    assert_eq!(progress, worker.progress());
+    let taken = page
+        .absorb(&progress)
+        .expect("the same motion, shape and options");
+    assert!(taken > 30, "{taken} looks and sums taken up");
+    assert_eq!(page.absorb(&progress).expect("again"), 0, "nothing new");
+    for t in [30, 31] {
+        assert!(page.prepare(&body, t, 0).expect("prepared"), "frame {t}");
+        let pose = page.pose(&body, t).expect("pose");
+        assert_eq!(pose, alone.pose(&body, t).expect("pose"), "frame {t}");
+    }
+    assert_eq!(page.looks(), 0, "no look of its own");
+    assert!(alone.looks() > 0);
+
+    // Of another shape, options or motion: refused, and nothing taken.
+    let mut other_shape = new(&[0.0, 1.0], &with_legs);
+    let mut other_options = new(&betas, &ClearanceOptions::default());
+    let mut shorter =
+        ClearanceOnDemand::new(&clearance, &body, &betas, poses[..40].to_vec(), &with_legs)
+            .expect("on demand");
+    for held in [&mut other_shape, &mut other_options, &mut shorter] {
+        assert_ne!(held.fingerprint(), progress.fingerprint());
+        let e = held.absorb(&progress).expect_err("another");
+        assert!(e.to_string().contains("another motion"), "{e}");
+    }
+    assert!(!other_shape.prepare(&body, 30, 0).expect("nothing taken"));
+
+    // Bytes cut short, lengthened, of another format or with a value that is not finite.
+    let mut not_finite = bytes.clone();
+    // After the magic, the fingerprint and three counts, the flags up to the first entry.
+    let first_value = bytes
+        .iter()
+        .skip(28)
+        .position(|&b| b == 1)
+        .expect("an entry")
+        + 29;
+    not_finite[first_value..first_value + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+    let mut flag = bytes.clone();
+    flag[28] = 7;
+    let mut huge = bytes.clone();
+    huge[20..24].copy_from_slice(&u32::MAX.to_le_bytes());
+    for (bad, fault) in [
+        (&bytes[..bytes.len() - 1], "cut short"),
+        (&[bytes.as_slice(), &[0]].concat()[..], "after the end"),
+        (&b"sartorX1"[..], "not sartor's"),
+        (&not_finite[..], "a turn of NaN"),
+        (&flag[..], "entry flag 7"),
+        (&huge[..], "frames in"),
+    ] {
+        let e = ClearanceProgress::from_bytes(bad).expect_err(fault);
+        let message = e.to_string();
+        assert!(message.contains(fault), "{message}");
+        assert!(message.contains("arm clearance progress"), "{message}");
+    }
+    let job = page.job(0..60).to_bytes();
+    let mut not_finite = job.clone();
+    // After the magic and three counts, the shape's first value.
+    not_finite[20..28].copy_from_slice(&f64::INFINITY.to_le_bytes());
+    let mut beyond = job.clone();
+    beyond[12..16].copy_from_slice(&61u32.to_le_bytes());
+    for (bad, fault) in [
+        (&job[..job.len() - 3], "cut short"),
+        (&[job.as_slice(), &[0]].concat()[..], "after the end"),
+        (&b"sartorC1"[..], "not a held-limbs job"),
+        (&not_finite[..], "a value of inf at byte 20"),
+        (&beyond[..], "frames 0..61 of 60"),
+    ] {
+        let e = ClearanceJob::from_bytes(bad).expect_err(fault);
+        let message = e.to_string();
+        assert!(message.contains(fault), "{message}");
+        assert!(message.contains("arm clearance job"), "{message}");
+    }
 }

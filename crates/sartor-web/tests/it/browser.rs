@@ -561,6 +561,47 @@ fn the_page_works_in_headless_chromium() {
          return [window.sartor.state.tryOn.frame, window.sartor.state.settleLongestMs];",
     );
     assert_ne!(release[0], playing_from, "frames advanced while settling");
+    // The worker computed both releases' held limbs (its answers taken up).
+    let limbs = || {
+        browser.eval(
+            "const l = window.sartor.limbs; \
+             return {jobs: l.jobs, stale: l.stale, ms: l.ms, pageMs: l.pageMs, \
+                     failure: l.failure, ready: l.ready};",
+        )
+    };
+    let worker = limbs();
+    assert!(
+        worker["ready"] == json!(true) && worker["failure"].is_null(),
+        "the worker runs: {worker}"
+    );
+    let jobs = |l: &Value| l["jobs"].as_f64().expect("a count");
+    assert!(jobs(&worker) >= 2.0, "one job or more a release: {worker}");
+    // The page's own slices, as where no worker runs: the same releases, paused and playing.
+    browser.eval("window.sartor.useLimbsWorker(false); window.sartor.setPlaying(false);");
+    browser.eval(
+        "const e = document.getElementById('weight'); e.value = 0.6; \
+         e.dispatchEvent(new Event('change'));",
+    );
+    let paused_release_page = settled();
+    let released = floats(&browser.eval("return window.sartor.garment();"));
+    let direct = floats(&browser.eval(
+        "const v = (id) => Number(document.getElementById(id).value); \
+         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
+           v('muscle'), v('age')); \
+         return window.sartor.garment();",
+    ));
+    assert_eq!(released, direct, "the page's slices show the same");
+    browser.eval(
+        "window.sartor.setPlaying(true); const e = document.getElementById('weight'); \
+         e.value = 0.5; e.dispatchEvent(new Event('change'));",
+    );
+    let release_page = settled();
+    browser.eval("window.sartor.setPlaying(false); window.sartor.useLimbsWorker(true);");
+    assert_eq!(
+        jobs(&limbs()),
+        jobs(&worker),
+        "no job while the worker is not used"
+    );
 
     // A shopper's measurements: the page fits the body to them (gender, height and age from
     // the sliders) and says what it reached; a body no shape has is an error on the page.
@@ -639,6 +680,11 @@ fn the_page_works_in_headless_chromium() {
                  document.getElementById('error').hidden, window.sartor.state.seekSlices];",
     );
     assert_eq!(scrubbed[0], json!(150), "{}", scrubbed[2]);
+    let worker_after = limbs();
+    assert!(
+        jobs(&worker_after) >= jobs(&worker) + 2.0 && worker_after["failure"].is_null(),
+        "the clip's first frames and the scrub's from the worker: {worker} then {worker_after}"
+    );
     let direct = floats(
         &browser.eval("window.sartor.state.tryOn.seek(150); return window.sartor.garment();"),
     );
@@ -868,6 +914,7 @@ fn the_page_works_in_headless_chromium() {
                      chosen: document.getElementById('garment').value, \
                      faces: window.sartor.state.tryOn.garmentFaces().length, \
                      model_bytes: window.sartor.transferred().model, \
+                     limbs_worker: window.sartor.limbs.worker !== null, \
                      shown_error: document.getElementById('error').hidden ? null \
                        : document.getElementById('error').textContent};",
         )
@@ -883,13 +930,16 @@ fn the_page_works_in_headless_chromium() {
             && linked["chosen"] == json!(fine)
             && linked["faces"] == json!(3 * fine_triangles)
             && linked["shown_error"].is_null()
+            && linked["limbs_worker"] == json!(true)
             && model_bytes >= fine_bytes
             && model_bytes < fine_bytes + first_bytes,
         "the linked garment: {linked}"
     );
-    let unknown = open("?garment=no-such-model");
+    // (And the held limbs left to the page's slices, as the address asks.)
+    let unknown = open("?garment=no-such-model&limbs=page");
     assert!(
         unknown["garment"] == json!(model_name(0))
+            && unknown["limbs_worker"] == json!(false)
             && unknown["shown_error"]
                 .as_str()
                 .is_some_and(|e| e.contains("no-such-model") && e.contains(&fine)),
@@ -904,9 +954,11 @@ fn the_page_works_in_headless_chromium() {
          kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
-         released while paused: arms held after {paused_release_wall:?}; released while \
-         playing: after {release_wall:?} (frames {playing_from} to {}), longest call of the \
-         page's slices {} ms; a scrub to frame 150 of 05_06 shown after {scrub_wall:?} \
+         released while paused: arms held after {paused_release_wall:?} (the page's slices: \
+         {paused_release_page:?}); released while playing: after {release_wall:?} (frames \
+         {playing_from} to {}; the page's slices: {release_page:?}), longest call of the \
+         page's slices {} ms; held limbs from the worker: {worker_after}; a scrub to frame \
+         150 of 05_06 shown after {scrub_wall:?} \
          ([display frames with a slice, ms in them] {}); CMU 05_06 chosen, playing after \
          {clip_wall:?}\n\
          measurements fitted in {} ms: {}\n\

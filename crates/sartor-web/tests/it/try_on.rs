@@ -4,7 +4,7 @@
 use nalgebra::Vector3;
 use sartor_core::BodyDistance;
 use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
-use sartor_web::{PhenotypeSliders, TryOn, TryOnOptions};
+use sartor_web::{BODY_FILES, LimbsWorker, PhenotypeSliders, TryOn, TryOnOptions};
 
 use crate::common::{
     files_of, load, playing_02_02, playing_02_02_with, repo, shipped_arm_clearance, shipped_files,
@@ -501,6 +501,179 @@ fn a_new_clip_plays_once_its_first_frames_are_held_while_the_last_one_plays_on()
     assert!(e.to_string().contains("another skeleton"), "{e}");
     assert!(t.settle(0).expect("nothing waits"));
     assert_eq!(t.motion_name(), "cmu/02_10");
+}
+
+/// The page's worker for the held limbs: the body alone, the limbs held as the page holds them.
+fn limbs_worker() -> LimbsWorker {
+    let body = files_of(&[(&BODY_FILES[..], "datasets/body/makehuman")]);
+    LimbsWorker::load(body, shipped_arm_clearance()).expect("the body loads")
+}
+
+/// One round of the page's worker: `t`'s job (none: `false`) computed by `worker` and taken up.
+fn worker_round(t: &mut TryOn, worker: &mut LimbsWorker, seek: Option<usize>) -> bool {
+    let Some(job) = t.arms_job(seek).expect("job") else {
+        return false;
+    };
+    let answer = worker.run(&job).expect("computed");
+    assert!(t.absorb_arms(&answer).expect("answer"), "of use");
+    true
+}
+
+#[test]
+fn held_limbs_computed_in_a_worker_show_what_the_page_computes_itself() {
+    // The page hands the held limbs it waits on to a worker and takes up the answer: after a
+    // slider's release, a scrub and a new clip, its own calls then compute no look and show
+    // the frames of a shape, jump or clip set at once.
+    let wide = [0.0, 2.0];
+    let mut worker = limbs_worker();
+    let mut t = at_frame_20();
+    t.preview_betas(&wide).expect("preview");
+    let previewed = t.garment_vertices();
+    let job = t.arms_job(None).expect("job").expect("the arms wait");
+    // A shape previewed since: the answer is of no use, and nothing changes.
+    let mut moved = at_frame_20();
+    moved.preview_betas(&[0.0, 1.0]).expect("preview");
+    let stale = worker.run(&job).expect("computed");
+    assert!(!moved.absorb_arms(&stale).expect("an answer"), "stale");
+    assert!(!moved.settle(0).expect("settle"), "nothing taken up");
+    assert!(t.absorb_arms(&stale).expect("an answer"));
+    assert_eq!(
+        t.garment_vertices(),
+        previewed,
+        "the frame shown waits for settle"
+    );
+    assert!(t.settle(0).expect("settle"), "no look of its own");
+    let mut direct = at_frame_20();
+    direct.set_betas(&wide).expect("shape");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+    assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+    assert_eq!(t.arms_job(None).expect("job"), None, "nothing waits");
+
+    // While the clip plays on: the frames played while the worker computed are a few looks
+    // more, which the page's own slices take.
+    let mut t = at_frame_20();
+    t.preview_betas(&wide).expect("preview");
+    assert!(worker_round(&mut t, &mut worker, None));
+    for _ in 0..5 {
+        t.step().expect("step");
+    }
+    let mut calls = 1;
+    while !t.settle(8).expect("settle") {
+        t.step().expect("step");
+        calls += 1;
+    }
+    assert!(calls <= 3, "{calls} calls of eight looks");
+    let mut direct = at_frame_20();
+    direct.set_betas(&wide).expect("shape");
+    direct.seek(t.frame()).expect("seek");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+
+    // A scrub: the jump's held arms from the worker, then the jump a direct jump shows.
+    let mut t = at_frame_20();
+    let target = t.n_frames() - 10;
+    assert!(worker_round(&mut t, &mut worker, Some(target)));
+    assert!(
+        t.prepare_seek(target, 0).expect("prepared"),
+        "no look of its own"
+    );
+    assert_eq!(t.arms_job(Some(target)).expect("job"), None);
+    t.seek(target).expect("seek");
+    let mut direct = at_frame_20();
+    direct.seek(target).expect("seek");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+
+    // A clip begun: its first frames from the worker, then it plays as if set at once.
+    let mut t = at_frame_20();
+    let clip = stored_clip(&t, "05_06");
+    t.begin_motion(clip.clone()).expect("begin");
+    assert!(worker_round(&mut t, &mut worker, None));
+    assert!(t.settle(0).expect("settle"), "no look of its own");
+    assert_eq!((t.motion_name(), t.frame()), ("cmu/05_06", 0));
+    let mut direct = at_frame_20();
+    direct.set_motion(clip).expect("play");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+
+    // Without held arms the page waits on nothing.
+    let mut plain = load();
+    plain.preview_betas(&wide).expect("preview");
+    assert_eq!(plain.arms_job(None).expect("job"), None);
+    assert_eq!(plain.arms_job(Some(3)).expect("job"), None);
+}
+
+#[test]
+fn a_limbs_worker_computes_a_few_looks_a_step_and_a_newer_job_takes_over() {
+    // The page's worker steps through a job so that a newer one (a scrub that moved on, a clip
+    // chosen) replaces it between steps; the last job's answer is what the page takes up.
+    let mut worker = limbs_worker();
+    let e = worker.answer().expect_err("no job yet");
+    assert!(e.to_string().contains("no job"), "{e}");
+    assert!(worker.work(3).expect("no job: nothing to do"));
+    let mut t = at_frame_20();
+    t.preview_betas(&[0.0, 2.0]).expect("preview");
+    let first = t.arms_job(None).expect("job").expect("the arms wait");
+    worker.begin(&first).expect("a job");
+    for _ in 0..4 {
+        assert!(
+            !worker.work(3).expect("work"),
+            "a window is more than a few looks"
+        );
+    }
+    // The shape is set after all; then a scrub far along the clip.
+    let mut t = at_frame_20();
+    let target = t.n_frames() - 10;
+    let scrub = t
+        .arms_job(Some(target))
+        .expect("job")
+        .expect("the jump waits");
+    worker.begin(&scrub).expect("a job");
+    let mut steps = 1;
+    while !worker.work(3).expect("work") {
+        steps += 1;
+    }
+    assert!(steps > 10, "{steps} steps of three looks");
+    assert!(
+        t.absorb_arms(&worker.answer().expect("answer"))
+            .expect("answer")
+    );
+    assert!(
+        t.prepare_seek(target, 0).expect("prepared"),
+        "no look of its own"
+    );
+    t.seek(target).expect("seek");
+    let mut direct = at_frame_20();
+    direct.seek(target).expect("seek");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
+}
+
+#[test]
+fn a_limbs_worker_refuses_what_is_not_a_job_and_a_page_what_is_not_an_answer() {
+    let mut worker = limbs_worker();
+    let mut t = at_frame_20();
+    t.preview_betas(&[0.0, 2.0]).expect("preview");
+    let job = t.arms_job(None).expect("job").expect("the arms wait");
+    let e = worker.run(&job[..job.len() - 1]).expect_err("cut short");
+    assert!(e.to_string().contains("arm clearance job"), "{e}");
+    let e = t.absorb_arms(&job).expect_err("a job, not an answer");
+    assert!(e.to_string().contains("arm clearance progress"), "{e}");
+    // A job of another skeleton: the poses of a one-joint motion.
+    let one_joint = sartor_motion::ClearanceJob {
+        betas: vec![0.0; 2],
+        poses: vec![sartor_core::Pose::rest(1); 3],
+        frames: 0..3,
+    };
+    let e = worker
+        .run(&one_joint.to_bytes())
+        .expect_err("another skeleton");
+    assert!(e.to_string().contains("frame 0"), "{e}");
+    assert!(e.to_string().contains("joint rotations"), "{e}");
+    // Too many shape components for the body.
+    let mut wide = sartor_motion::ClearanceJob::from_bytes(&job).expect("a job");
+    wide.betas = vec![0.0; 1000];
+    assert!(worker.run(&wide.to_bytes()).is_err());
+    // The worker goes on: the page's job still computes, and the page takes it up.
+    let answer = worker.run(&job).expect("computed");
+    assert!(t.absorb_arms(&answer).expect("answer"));
+    assert!(t.settle(0).expect("settle"));
 }
 
 /// The model files of `datasets/models/<name>` alone, by the page's names.
