@@ -25,6 +25,11 @@ const GARMENT_COLOR = [0.16, 0.36, 0.7];
 // (limbs-worker.js) where the browser has them, off the thread that draws the frames; the page
 // takes up its answers (TryOn.absorbArms). Without one, or once it failed, or with
 // `?limbs=page` in the address, the page's own slices compute them (settleSome, seekSome).
+// While a clip plays the worker also computes the held limbs of the frames ahead, so that the
+// frames played compute none: a job of the next AHEAD_MAX frames whenever one of the next
+// AHEAD_MIN lacks them (half a second and two at 30 frames a second).
+const AHEAD_MIN = 15;
+const AHEAD_MAX = 60;
 const limbs = {
   worker: null,
   ready: false,
@@ -35,6 +40,7 @@ const limbs = {
   epoch: 0, // counts the changes of shape and clip that the page waits on
   fresh: false, // an answer just taken up: the page's slice takes what is left (a few looks)
   jobs: 0, // answers taken up
+  ahead: 0, // of them, of frames ahead
   stale: 0, // answers of a shape or clip left since
   ms: 0, // the worker's milliseconds in them
   pageMs: 0, // the page's milliseconds making the jobs and taking up the answers
@@ -295,7 +301,8 @@ function limbsAnswer(message) {
     () => {
       if (state.tryOn.absorbArms(message.progress)) {
         limbs.jobs += 1;
-        limbs.fresh = message.id === limbs.id;
+        if (message.id === limbs.id && limbs.key === "ahead") limbs.ahead += 1;
+        else limbs.fresh = message.id === limbs.id;
       } else {
         limbs.stale += 1;
       }
@@ -327,10 +334,15 @@ function limbsBusy(target) {
     limbs.fresh = false;
     return false;
   }
+  return postJob(key, () => state.tryOn.armsJob(target === null ? undefined : target));
+}
+
+/// Post the job `makeJob` makes (none: undefined) for `key`; returns whether one was posted.
+function postJob(key, makeJob) {
   const start = performance.now();
   let job;
   try {
-    job = state.tryOn.armsJob(target === null ? undefined : target);
+    job = makeJob();
   } catch (e) {
     limbsFailed(String(e && e.message ? e.message : e));
     return false;
@@ -343,6 +355,13 @@ function limbsBusy(target) {
   }
   limbs.pageMs += performance.now() - start;
   return Boolean(job);
+}
+
+/// While a clip plays and the worker is idle: the held limbs of the frames ahead, where some of
+/// them lack them (TryOn.armsAheadJob).
+function limbsAhead() {
+  if (!limbs.ready || !limbs.enabled || limbs.busy) return;
+  postJob("ahead", () => state.tryOn.armsAheadJob(AHEAD_MIN, AHEAD_MAX));
 }
 
 /// One display frame's slice of holding the arms anew for the shape shown or a clip chosen
@@ -528,6 +547,7 @@ function tick(now) {
       const draw = redraw();
       recordTimes(draw);
       if (state.framesStepped % 10 === 0) showTimes();
+      limbsAhead();
     } else {
       setPlaying(false);
     }

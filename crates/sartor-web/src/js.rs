@@ -165,6 +165,20 @@ impl WebTryOn {
         self.inner.arms_job(seek).map_err(js)
     }
 
+    /// The held limbs the motion playing needs next where a frame among the next `minFrames`
+    /// lacks them: the job of the next `maxFrames` for a `LimbsWorker`, or `undefined` (see
+    /// `TryOn::arms_ahead_job`).
+    #[wasm_bindgen(js_name = armsAheadJob)]
+    pub fn arms_ahead_job(
+        &mut self,
+        min_frames: usize,
+        max_frames: usize,
+    ) -> Result<Option<Vec<u8>>, JsError> {
+        self.inner
+            .arms_ahead_job(min_frames, max_frames)
+            .map_err(js)
+    }
+
     /// Take up a `LimbsWorker`'s answer: `true` where it is still of use (see
     /// `TryOn::absorb_arms`); `settle` and `prepareSeek` then find that work done.
     #[wasm_bindgen(js_name = absorbArms)]
@@ -321,6 +335,13 @@ impl WebTryOn {
             t.body_ms,
             t.arms_ms,
         ]
+    }
+
+    /// Looks the held limbs of the motion playing took on the page's thread so far (see
+    /// `TryOn::arm_looks`).
+    #[wasm_bindgen(getter, js_name = armLooks)]
+    pub fn arm_looks(&self) -> usize {
+        self.inner.arm_looks()
     }
 
     /// The largest shoulder (or, with the legs held, hip) rotation the arm clearance added to

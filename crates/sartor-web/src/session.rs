@@ -575,6 +575,35 @@ impl TryOn {
         Ok(Some(held.job(jump_frames(frame)).to_bytes()))
     }
 
+    /// The held limbs the motion playing will need next, as bytes for a worker (as
+    /// [`TryOn::arms_job`]'s): where nothing waits (no motion begun, the arms held for the
+    /// shape in use) and a frame among the next `min_frames` after the one shown (the motion
+    /// loops) is not computed yet, the job of the next `max_frames` from the first such frame
+    /// (up to the motion's end); else `None`. Its answer, taken up by [`TryOn::absorb_arms`],
+    /// leaves the frames played no look to compute.
+    pub fn arms_ahead_job(
+        &mut self,
+        min_frames: usize,
+        max_frames: usize,
+    ) -> Result<Option<Vec<u8>>> {
+        if self.next_motion.is_some() || self.held_for != self.betas {
+            return Ok(None);
+        }
+        let Some(held) = &mut self.cleared else {
+            return Ok(None);
+        };
+        let n = held.n_frames();
+        let ahead = |k: usize| (self.frame + 1 + k) % n;
+        for k in 0..min_frames.min(n) {
+            if !held.prepare(&self.body, ahead(k), 0)? {
+                let start = ahead(k);
+                let end = (start + max_frames.max(1)).min(n);
+                return Ok(Some(held.job(start..end).to_bytes()));
+            }
+        }
+        Ok(None)
+    }
+
     /// Take up a worker's answer to [`TryOn::arms_job`]: `true` where it is of a motion and
     /// shape the page holds limbs for (a motion begun, the motion shown for the shape its arms
     /// are held for, or for the shape in use), `false` where none is any longer (a shape
@@ -821,6 +850,13 @@ impl TryOn {
         };
         self.frame = frame;
         Ok(())
+    }
+
+    /// Looks (a frame posed and its held limbs measured) the held limbs of the motion playing,
+    /// for the shape they are held for, took on this thread so far (0 without arm clearance):
+    /// what [`TryOn::absorb_arms`] spares it.
+    pub fn arm_looks(&self) -> usize {
+        self.cleared.as_ref().map_or(0, ClearanceOnDemand::looks)
     }
 
     /// The largest shoulder (or, with the legs held, hip) rotation the arm clearance added to

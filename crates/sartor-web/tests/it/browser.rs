@@ -695,8 +695,23 @@ fn the_page_works_in_headless_chromium() {
     );
     browser.eval("window.sartor.setPlaying(true);");
 
-    // Speed: the page's own mean, then a back-to-back run.
+    // Speed: the page's own mean, then a back-to-back run. While it plays, the frames ahead
+    // get their held limbs from the worker: few looks on the page's thread.
+    let playing = || {
+        browser.eval(
+            "return [window.sartor.state.framesStepped, window.sartor.state.tryOn.armLooks, \
+                     window.sartor.limbs.ahead, window.sartor.limbs.pageMs];",
+        )
+    };
+    let played_from = playing();
     std::thread::sleep(Duration::from_millis(2500));
+    let played_to = playing();
+    let stepped = played_to[0].as_f64().unwrap_or(0.0) - played_from[0].as_f64().unwrap_or(0.0);
+    let looked = played_to[1].as_f64().unwrap_or(f64::NAN) - played_from[1].as_f64().unwrap_or(0.0);
+    assert!(
+        stepped > 10.0 && looked < 0.5 * stepped,
+        "{looked} looks on the page's thread in {stepped} frames: {played_from} to {played_to}"
+    );
     let shown = browser.eval("return document.getElementById('t-total').textContent;");
     let mean = floats(&browser.eval("return window.sartor.meanTimes();"));
     let bench = browser.eval("return window.sartor.bench(150);");
@@ -953,7 +968,9 @@ fn the_page_works_in_headless_chromium() {
          transferred: {bytes}\nWebGL2 renderer: {webgl}\n\
          kernel probe: {} outputs bitwise equal to native ({})\n\
          page vs native garment: max {page_vs_native:e} m, hash of the page's {page_hash:016x}\n\
-         ms per frame shown: {shown}; mean [network, skinning, post, body, draw]: {mean:?}\n\
+         ms per frame shown: {shown}; mean [network, skinning, post, body, draw, arms]: \
+         {mean:?}; [frames stepped, looks on the page's thread, jobs ahead, the page's ms on \
+         jobs] from {played_from} to {played_to}\n\
          released while paused: arms held after {paused_release_wall:?} (the page's slices: \
          {paused_release_page:?}); released while playing: after {release_wall:?} (frames \
          {playing_from} to {}; the page's slices: {release_page:?}), longest call of the \

@@ -601,6 +601,64 @@ fn held_limbs_computed_in_a_worker_show_what_the_page_computes_itself() {
 }
 
 #[test]
+fn frames_played_take_their_held_limbs_from_a_worker_that_computed_them_ahead() {
+    // While a clip plays, the page's worker computes the held limbs of the frames ahead: the
+    // frames then played compute no look of their own and are the frames played without it.
+    let mut worker = limbs_worker();
+    let mut t = at_frame_20();
+    let mut direct = at_frame_20();
+    let job = t
+        .arms_ahead_job(15, 60)
+        .expect("job")
+        .expect("frames ahead lack them");
+    assert!(
+        t.absorb_arms(&worker.run(&job).expect("computed"))
+            .expect("answer")
+    );
+    assert_eq!(
+        t.arms_ahead_job(15, 60).expect("job"),
+        None,
+        "computed ahead"
+    );
+    let looks = t.arm_looks();
+    for _ in 0..45 {
+        t.step().expect("step");
+        direct.step().expect("step");
+        assert_eq!(t.garment_vertices(), direct.garment_vertices());
+        assert_eq!(t.arm_turn_deg(), direct.arm_turn_deg());
+    }
+    assert_eq!(t.arm_looks(), looks, "no look of its own for 45 frames");
+    assert!(direct.arm_looks() > looks, "the frames need looks");
+    // Near the end the frames ahead run to it, then from the start, where the clip loops (on
+    // a new shape, whose held arms of the clip's start are not computed yet).
+    t.set_betas(&[0.0, 2.0]).expect("shape");
+    let n = t.n_frames();
+    t.seek(n - 5).expect("seek");
+    let mut rounds = 0;
+    while let Some(job) = t.arms_ahead_job(15, 60).expect("job") {
+        assert!(
+            t.absorb_arms(&worker.run(&job).expect("computed"))
+                .expect("answer")
+        );
+        rounds += 1;
+        assert!(rounds <= 2, "{rounds} jobs");
+    }
+    assert!(rounds >= 1, "the clip's start lacked them");
+    let looks = t.arm_looks();
+    for _ in 0..10 {
+        t.step().expect("step");
+    }
+    assert_eq!(t.frame(), 5, "looped");
+    assert_eq!(t.arm_looks(), looks, "no look of its own over the loop");
+    // Nothing ahead while a shape waits for its held arms, nor without arm clearance.
+    let mut t = at_frame_20();
+    assert!(t.arms_ahead_job(15, 60).expect("job").is_some(), "as above");
+    t.preview_betas(&[0.0, 1.0]).expect("preview");
+    assert_eq!(t.arms_ahead_job(15, 60).expect("job"), None);
+    assert_eq!(load().arms_ahead_job(15, 60).expect("job"), None);
+}
+
+#[test]
 fn a_limbs_worker_computes_a_few_looks_a_step_and_a_newer_job_takes_over() {
     // The page's worker steps through a job so that a newer one (a scrub that moved on, a clip
     // chosen) replaces it between steps; the last job's answer is what the page takes up.
