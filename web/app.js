@@ -38,7 +38,7 @@ const limbs = {
   id: 0, // of the last job posted
   key: null, // what it was for (`epoch/scrub target`; limbsBusy)
   epoch: 0, // counts the changes of shape and clip that the page waits on
-  fresh: false, // an answer just taken up: the page's slice takes what is left (a few looks)
+  fresh: null, // the key of the job just answered: the page's slice takes what is left of it
   jobs: 0, // answers taken up
   ahead: 0, // of them, of frames ahead
   stale: 0, // answers of a shape or clip left since
@@ -302,7 +302,7 @@ function limbsAnswer(message) {
       if (state.tryOn.absorbArms(message.progress)) {
         limbs.jobs += 1;
         if (message.id === limbs.id && limbs.key === "ahead") limbs.ahead += 1;
-        else limbs.fresh = message.id === limbs.id;
+        else if (message.id === limbs.id) limbs.fresh = limbs.key;
       } else {
         limbs.stale += 1;
       }
@@ -330,8 +330,8 @@ function limbsBusy(target) {
   if (!limbs.ready || !limbs.enabled) return false;
   const key = `${limbs.epoch}/${target}`;
   if (limbs.busy && limbs.key === key) return true;
-  if (!limbs.busy && limbs.fresh) {
-    limbs.fresh = false;
+  if (!limbs.busy && limbs.fresh === key) {
+    limbs.fresh = null;
     return false;
   }
   return postJob(key, () => state.tryOn.armsJob(target === null ? undefined : target));

@@ -31,6 +31,8 @@ pub struct LimbsWorker {
     held: Option<ClearanceOnDemand>,
     /// The frames the job in hand asks for (empty: none).
     frames: Range<usize>,
+    /// What the job's asker holds already ([`ClearanceJob::known`]).
+    known: Vec<bool>,
 }
 
 impl LimbsWorker {
@@ -46,33 +48,71 @@ impl LimbsWorker {
             options,
             held: None,
             frames: 0..0,
+            known: Vec::new(),
         })
     }
 
     /// Take the job `job` ([`TryOn::arms_job`]'s bytes), in place of any in hand: its poses
-    /// must be of the body's skeleton and its shape within the body's components (an error
-    /// leaves no job in hand). What was computed for the same motion and shape is kept.
+    /// (given, or named as those of the last job that gave them) must be of the body's skeleton,
+    /// its frames within them and its shape within the body's components (an error leaves no
+    /// job in hand). What was computed for the same motion and shape is kept.
     pub fn begin(&mut self, job: &[u8]) -> Result<()> {
         self.frames = 0..0;
         let job = ClearanceJob::from_bytes(job)?;
-        let joints = self.body.skeleton().n_joints();
-        for (t, pose) in job.poses.iter().enumerate() {
-            pose.validate(joints)
-                .map_err(|e| Error::invalid("arm clearance job", format!("frame {t}: {e}")))?;
-        }
+        let fault = |message: String| Error::invalid("arm clearance job", message);
         self.body.check_betas(&job.betas)?;
+        let held_motion = self
+            .held
+            .as_ref()
+            .map(ClearanceOnDemand::motion_fingerprint);
+        let poses = match job.poses {
+            Some(poses) => {
+                let joints = self.body.skeleton().n_joints();
+                for (t, pose) in poses.iter().enumerate() {
+                    pose.validate(joints)
+                        .map_err(|e| fault(format!("frame {t}: {e}")))?;
+                }
+                Some(poses)
+            }
+            None if held_motion == Some(job.motion) => None,
+            None => {
+                return Err(fault(format!(
+                    "the job names the poses of fingerprint {:016x}, which no job gave",
+                    job.motion
+                )));
+            }
+        };
         let fingerprint =
-            ClearanceOnDemand::fingerprint_of(&self.body, &job.betas, &job.poses, &self.options);
-        if self.held.as_ref().map(ClearanceOnDemand::fingerprint) != Some(fingerprint) {
-            self.held = Some(ClearanceOnDemand::new(
-                &self.clearance,
-                &self.body,
-                &job.betas,
-                job.poses,
-                &self.options,
-            )?);
+            ClearanceOnDemand::fingerprint_of(&self.body, &job.betas, job.motion, &self.options);
+        let held = match self.held.take() {
+            Some(held) if held.fingerprint() == fingerprint => held,
+            held => {
+                let poses = match (poses, held) {
+                    (Some(poses), _) => poses,
+                    (None, Some(held)) => held.poses().to_vec(),
+                    (None, None) => unreachable!("poses named only where held"),
+                };
+                ClearanceOnDemand::new(
+                    &self.clearance,
+                    &self.body,
+                    &job.betas,
+                    poses,
+                    &self.options,
+                )?
+            }
+        };
+        let n = held.n_frames();
+        let entries = 2 * self.options.max_passes.max(1) * n;
+        if job.frames.end > n || !(job.known.is_empty() || job.known.len() == entries) {
+            let (frames, known) = (job.frames, job.known.len());
+            self.held = Some(held);
+            return Err(fault(format!(
+                "frames {frames:?} and {known} entries known of a motion of {n} frames"
+            )));
         }
+        self.held = Some(held);
         self.frames = job.frames;
+        self.known = job.known;
         Ok(())
     }
 
@@ -85,11 +125,11 @@ impl LimbsWorker {
         }
     }
 
-    /// Everything computed for the last job's motion and shape, as bytes for
-    /// [`TryOn::absorb_arms`]; an error where no job was taken.
+    /// Everything computed for the last job's motion and shape that its asker does not hold
+    /// already, as bytes for [`TryOn::absorb_arms`]; an error where no job was taken.
     pub fn answer(&self) -> Result<Vec<u8>> {
         match &self.held {
-            Some(held) => Ok(held.progress().to_bytes()),
+            Some(held) => Ok(held.progress_beyond(&self.known).to_bytes()),
             None => Err(Error::invalid("arm clearance job", "no job was taken")),
         }
     }

@@ -268,6 +268,10 @@ pub struct TryOn {
     /// The body's measurer (`None` where the body has no arms or midline to measure by: then
     /// [`Self::measurements`] says why).
     measurer: Option<BodyMeasurer>,
+    /// The fingerprint of the poses the last job given with poses carried
+    /// ([`TryOn::arms_job`]): a worker that took every job holds them, so a job of the same
+    /// motion names them instead.
+    worker_motion: Option<u64>,
 }
 
 /// Compute in `held`, taking at most `max_looks` looks, the poses [`TryOn::seek`] asks of a
@@ -299,6 +303,19 @@ pub(crate) fn prepare_frames(
         left -= held.looks() - looks;
     }
     Ok(true)
+}
+
+/// `held`'s job of preparing `frames` for a worker, as bytes: with the poses unless the last job
+/// that carried poses (`worker_motion`, updated) carried these.
+fn job_for(
+    held: &ClearanceOnDemand,
+    frames: std::ops::Range<usize>,
+    worker_motion: &mut Option<u64>,
+) -> Vec<u8> {
+    let motion = held.motion_fingerprint();
+    let job = held.job(frames, *worker_motion != Some(motion));
+    *worker_motion = Some(motion);
+    job.to_bytes()
 }
 
 /// The body model of the body folder's files.
@@ -383,6 +400,7 @@ impl TryOn {
             times: FrameTimes::default(),
             arms_ms: 0.0,
             arm_turn_rad: 0.0,
+            worker_motion: None,
         };
         try_on.cleared = try_on.clearance_for(&try_on.motion, &try_on.betas)?;
         try_on.seek(0)?;
@@ -549,7 +567,10 @@ impl TryOn {
     /// [`TryOn::prepare_seek`]), else the frames shown held for the shape in use after a preview
     /// ([`TryOn::settle`]; the first call builds the new shape's torso, about 5 ms). Hand the
     /// worker's answer to [`TryOn::absorb_arms`]; then `settle` or `prepare_seek` finds that
-    /// work done. The job holds the shape and the motion's poses (some 2 kB a frame).
+    /// work done. The job holds the shape, the motion's poses (some 1 kB a frame; only their
+    /// fingerprint where the last job that carried poses carried these: give the worker every
+    /// job, in order) and a bit for each look and sum of turns computed here (the answer leaves
+    /// those out).
     pub fn arms_job(&mut self, seek: Option<usize>) -> Result<Option<Vec<u8>>> {
         let body = &self.body;
         let (held, frame) = match (&mut self.next_motion, seek) {
@@ -572,7 +593,11 @@ impl TryOn {
         if prepare_jump(held, body, frame, 0)? {
             return Ok(None);
         }
-        Ok(Some(held.job(jump_frames(frame)).to_bytes()))
+        Ok(Some(job_for(
+            held,
+            jump_frames(frame),
+            &mut self.worker_motion,
+        )))
     }
 
     /// The held limbs the motion playing will need next, as bytes for a worker (as
@@ -598,7 +623,7 @@ impl TryOn {
             if !held.prepare(&self.body, ahead(k), 0)? {
                 let start = ahead(k);
                 let end = (start + max_frames.max(1)).min(n);
-                return Ok(Some(held.job(start..end).to_bytes()));
+                return Ok(Some(job_for(held, start..end, &mut self.worker_motion)));
             }
         }
         Ok(None)

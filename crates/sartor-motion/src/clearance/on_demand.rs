@@ -66,6 +66,8 @@ pub struct ClearanceOnDemand {
     looks: usize,
     /// Looks the call in progress may still take (`None`: no limit; see [`Self::prepare`]).
     allowance: Option<usize>,
+    /// Of the poses alone ([`motion_fingerprint`]).
+    motion: u64,
     /// Of the motion, the body's shape and the options ([`fingerprint`]).
     fingerprint: u64,
 }
@@ -85,8 +87,10 @@ impl ClearanceOnDemand {
         let targets = clearance.targets(body, &mut posing, options)?;
         let passes = options.max_passes.max(1);
         let n = poses.len();
-        let fingerprint = fingerprint(body, betas, &poses, options);
+        let motion = motion_fingerprint(&poses);
+        let fingerprint = fingerprint(body, betas, motion, options);
         Ok(Self {
+            motion,
             fingerprint,
             clearance: clearance.clone(),
             options: options.clone(),
@@ -127,14 +131,41 @@ impl ClearanceOnDemand {
         self.looks
     }
 
+    /// The motion's poses, as given.
+    pub fn poses(&self) -> &[Pose] {
+        &self.poses
+    }
+
     /// What was computed so far, for another `ClearanceOnDemand` of the same motion, body shape
     /// and options to take up ([`Self::absorb`]).
     pub fn progress(&self) -> ClearanceProgress {
+        self.progress_beyond(&[])
+    }
+
+    /// [`Self::progress`] without the entries `known` marks (a [`ClearanceJob`]'s: what the
+    /// asker holds already; shorter than the entries, the rest count as not known).
+    pub fn progress_beyond(&self, known: &[bool]) -> ClearanceProgress {
+        let mut entries = self.needed.iter().chain(&self.total).flatten();
+        let lists = (0..2 * self.needed.len()).map(|list| {
+            (0..self.poses.len())
+                .map(|t| {
+                    let entry = entries.next().expect("an entry per pass and frame");
+                    let i = list * self.poses.len() + t;
+                    if known.get(i).copied().unwrap_or(false) {
+                        None
+                    } else {
+                        entry.clone()
+                    }
+                })
+                .collect()
+        });
+        let mut needed: Vec<PerFrame> = lists.collect();
+        let total = needed.split_off(self.needed.len());
         ClearanceProgress {
             fingerprint: self.fingerprint,
             n_limbs: self.clearance.arms.len(),
-            needed: self.needed.clone(),
-            total: self.total.clone(),
+            needed,
+            total,
         }
     }
 
@@ -174,23 +205,39 @@ impl ClearanceOnDemand {
         self.fingerprint
     }
 
-    /// The fingerprint a `ClearanceOnDemand::new` of these would have.
+    /// Of the motion's poses alone ([`Self::motion_fingerprint_of`]).
+    pub fn motion_fingerprint(&self) -> u64 {
+        self.motion
+    }
+
+    /// The fingerprint of a motion's poses, every bit of them.
+    pub fn motion_fingerprint_of(poses: &[Pose]) -> u64 {
+        motion_fingerprint(poses)
+    }
+
+    /// The fingerprint a `ClearanceOnDemand::new` of these would have (`motion`: the poses',
+    /// [`Self::motion_fingerprint_of`]).
     pub fn fingerprint_of(
         body: &BodyModel,
         betas: &[f64],
-        poses: &[Pose],
+        motion: u64,
         options: &ClearanceOptions,
     ) -> u64 {
-        fingerprint(body, betas, poses, options)
+        fingerprint(body, betas, motion, options)
     }
 
     /// The work of preparing `frames` ([`Self::prepare`]) as another thread would take it up:
-    /// this one's shape and motion ([`ClearanceJob`]).
-    pub fn job(&self, frames: Range<usize>) -> ClearanceJob {
+    /// this one's shape and motion (the poses where `with_poses`, else only their fingerprint,
+    /// for a thread that holds them from an earlier job) and what it computed already
+    /// ([`ClearanceJob`]).
+    pub fn job(&self, frames: Range<usize>, with_poses: bool) -> ClearanceJob {
+        let known = self.needed.iter().chain(&self.total).flatten();
         ClearanceJob {
             betas: self.posing.betas.clone(),
-            poses: self.poses.clone(),
+            motion: self.motion,
+            poses: with_poses.then(|| self.poses.clone()),
             frames,
+            known: known.map(Option::is_some).collect(),
         }
     }
 
@@ -288,13 +335,9 @@ impl ClearanceOnDemand {
     }
 }
 
-/// A hash (FNV-1a over 64-bit words) of what a [`ClearanceOnDemand`]'s poses depend on: the
-/// body's size, the shape, every pose's bits and the options.
-fn fingerprint(body: &BodyModel, betas: &[f64], poses: &[Pose], options: &ClearanceOptions) -> u64 {
+/// A hash (FNV-1a over 64-bit words) of every bit of a motion's poses.
+fn motion_fingerprint(poses: &[Pose]) -> u64 {
     let mut h = Fnv::default();
-    h.word(body.n_vertices() as u64);
-    h.word(body.skeleton().n_joints() as u64);
-    h.floats(betas);
     h.word(poses.len() as u64);
     for pose in poses {
         h.floats(pose.root_translation_m.as_slice());
@@ -304,6 +347,17 @@ fn fingerprint(body: &BodyModel, betas: &[f64], poses: &[Pose], options: &Cleara
             h.floats(q.coords.as_slice());
         }
     }
+    h.0
+}
+
+/// A hash of what a [`ClearanceOnDemand`]'s poses depend on: the body's size, the shape, the
+/// motion ([`motion_fingerprint`]) and the options.
+fn fingerprint(body: &BodyModel, betas: &[f64], motion: u64, options: &ClearanceOptions) -> u64 {
+    let mut h = Fnv::default();
+    h.word(body.n_vertices() as u64);
+    h.word(body.skeleton().n_joints() as u64);
+    h.floats(betas);
+    h.word(motion);
     let ClearanceOptions {
         clearance_m,
         upper_arm_clearance_m,
@@ -357,7 +411,7 @@ pub struct ClearanceProgress {
 }
 
 /// The first bytes of [`ClearanceProgress::to_bytes`] (a format version in the last).
-const PROGRESS_MAGIC: [u8; 8] = *b"sartorC1";
+const PROGRESS_MAGIC: [u8; 8] = *b"sartorC2";
 
 impl ClearanceProgress {
     /// Of the `ClearanceOnDemand` it was taken from ([`ClearanceOnDemand::fingerprint`]).
@@ -365,25 +419,37 @@ impl ClearanceProgress {
         self.fingerprint
     }
 
+    /// How many looks and sums of turns it holds.
+    pub fn len(&self) -> usize {
+        self.entries().filter(|e| e.is_some()).count()
+    }
+
+    /// Whether it holds none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Per look and sum of turns, in the order of [`ClearanceJob::known`], whether it holds it.
+    pub fn held(&self) -> impl Iterator<Item = bool> + '_ {
+        self.entries().map(Option::is_some)
+    }
+
+    fn entries(&self) -> impl Iterator<Item = &Option<Box<[Vector3<f64>]>>> {
+        self.needed.iter().chain(&self.total).flatten()
+    }
+
     /// Little-endian: the magic, the fingerprint, then passes, frames and limbs as `u32`, then
-    /// per pass and frame of the looks and then of the sums of turns, a byte (1: computed) and,
-    /// where computed, three `f64` a limb.
+    /// a bit per pass and frame of the looks and then of the sums of turns (1: held; bytes
+    /// filled from their lowest bit), then the held ones' three `f64` a limb, in that order.
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = PROGRESS_MAGIC.to_vec();
         out.extend(self.fingerprint.to_le_bytes());
         let frames = self.needed.first().map_or(0, Vec::len);
-        for n in [self.needed.len(), frames, self.n_limbs] {
-            out.extend((n as u32).to_le_bytes());
-        }
-        for entry in self.needed.iter().chain(&self.total).flatten() {
-            match entry {
-                None => out.push(0),
-                Some(turns) => {
-                    out.push(1);
-                    for r in turns {
-                        put_floats(&mut out, r.as_slice());
-                    }
-                }
+        put_counts(&mut out, &[self.needed.len(), frames, self.n_limbs]);
+        put_bits(&mut out, self.entries().map(Option::is_some));
+        for turns in self.entries().flatten() {
+            for r in turns {
+                put_floats(&mut out, r.as_slice());
             }
         }
         out
@@ -393,59 +459,39 @@ impl ClearanceProgress {
     /// too long, of another format or hold a value that is not finite.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
         let fault = |message: String| Error::invalid("arm clearance progress", message);
-        let mut r = Reader { bytes, at: 0 };
-        if r.take(8).map_err(fault)? != PROGRESS_MAGIC {
+        let mut r = Reader {
+            bytes,
+            at: 0,
+            what: "arm clearance progress",
+        };
+        if r.take(8)? != PROGRESS_MAGIC {
             return Err(fault(
-                "not sartor's held limbs (no `sartorC1` at the start)".into(),
+                "not sartor's held limbs (no `sartorC2` at the start)".into(),
             ));
         }
-        let fingerprint = u64::from_le_bytes(r.array().map_err(fault)?);
-        let mut count =
-            || -> Result<usize> { Ok(u32::from_le_bytes(r.array().map_err(fault)?) as usize) };
-        let (passes, frames, n_limbs) = (count()?, count()?, count()?);
-        // Each entry takes at least a byte: no allocation beyond what the bytes can fill.
-        let fits = 2usize
-            .checked_mul(passes)
-            .and_then(|n| n.checked_mul(frames))
-            .is_some_and(|n| n <= bytes.len());
-        if !fits {
-            let n = bytes.len();
-            return Err(fault(format!(
-                "{passes} passes of {frames} frames in {n} bytes"
-            )));
+        let fingerprint = u64::from_le_bytes(r.array()?);
+        let (passes, frames, n_limbs) = (r.count()?, r.count()?, r.count()?);
+        if passes == 0 || frames == 0 {
+            return Err(fault(format!("{passes} passes of {frames} frames")));
         }
+        // (A bit an entry: no more entries than the bytes can mark.)
+        let held = r.bits(2usize.saturating_mul(passes).saturating_mul(frames))?;
+        let mut held = held.into_iter();
         let mut lists: Vec<PerFrame> = Vec::with_capacity(2 * passes);
         for _ in 0..2 * passes {
             let mut list: PerFrame = Vec::with_capacity(frames);
             for _ in 0..frames {
-                let entry = match r.take(1).map_err(fault)?[0] {
-                    0 => None,
-                    1 => {
-                        let mut turns = Vec::with_capacity(n_limbs);
-                        for _ in 0..n_limbs {
-                            let mut v = [0.0; 3];
-                            for x in &mut v {
-                                *x = f64::from_le_bytes(r.array().map_err(fault)?);
-                                if !x.is_finite() {
-                                    return Err(fault(format!(
-                                        "a turn of {x} at byte {}",
-                                        r.at - 8
-                                    )));
-                                }
-                            }
-                            turns.push(Vector3::from(v));
-                        }
-                        Some(turns.into_boxed_slice())
-                    }
-                    flag => return Err(fault(format!("entry flag {flag} at byte {}", r.at - 1))),
+                let entry = if held.next().expect("a bit an entry") {
+                    let v = r.floats(n_limbs.saturating_mul(3))?;
+                    Some(v.chunks_exact(3).map(Vector3::from_column_slice).collect())
+                } else {
+                    None
                 };
                 list.push(entry);
             }
             lists.push(list);
         }
-        if r.at != bytes.len() {
-            return Err(fault(format!("{} bytes after the end", bytes.len() - r.at)));
-        }
+        r.end()?;
         let total = lists.split_off(passes);
         Ok(Self {
             fingerprint,
@@ -462,127 +508,190 @@ impl ClearanceProgress {
 pub struct ClearanceJob {
     /// The body's shape.
     pub betas: Vec<f64>,
-    /// The motion's poses.
-    pub poses: Vec<Pose>,
+    /// The fingerprint of the motion's poses ([`ClearanceOnDemand::motion_fingerprint_of`]).
+    pub motion: u64,
+    /// The motion's poses, or `None` where the other side holds them from an earlier job
+    /// (`motion` names them).
+    pub poses: Option<Vec<Pose>>,
     /// The frames to prepare.
     pub frames: Range<usize>,
+    /// Per look and sum of turns (each pass's looks, then each pass's sums, frame by frame),
+    /// whether the asker holds it already: the answer leaves those out
+    /// ([`ClearanceOnDemand::progress_beyond`]).
+    pub known: Vec<bool>,
 }
 
 /// The first bytes of [`ClearanceJob::to_bytes`].
-const JOB_MAGIC: [u8; 8] = *b"sartorJ1";
+const JOB_MAGIC: [u8; 8] = *b"sartorJ2";
 
 impl ClearanceJob {
     /// Little-endian: the magic, the frames to prepare (start, end), the shape's length and
-    /// values, the poses' count and joints, then per pose the root translation, the root
-    /// orientation and each joint's rotation (quaternions as `i, j, k, w`), all `f64`.
+    /// values, the motion's fingerprint, a byte (1: the poses follow), then where they do the
+    /// poses' count and joints and per pose the root translation, the root orientation and
+    /// each joint's rotation (quaternions as `i, j, k, w`), all `f64`; then the count of
+    /// `known` and its bits (bytes filled from their lowest bit).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let joints = self.poses.first().map_or(0, |p| p.local_rotations.len());
         let mut out = JOB_MAGIC.to_vec();
-        for n in [self.frames.start, self.frames.end, self.betas.len()] {
-            out.extend((n as u32).to_le_bytes());
-        }
+        put_counts(
+            &mut out,
+            &[self.frames.start, self.frames.end, self.betas.len()],
+        );
         put_floats(&mut out, &self.betas);
-        let counts = [self.poses.len(), joints].map(|n| (n as u32).to_le_bytes());
-        out.extend(counts.concat());
-        for pose in &self.poses {
-            debug_assert_eq!(pose.local_rotations.len(), joints, "one skeleton");
-            put_floats(&mut out, pose.root_translation_m.as_slice());
-            put_floats(&mut out, pose.root_orientation.coords.as_slice());
-            for q in &pose.local_rotations {
-                put_floats(&mut out, q.coords.as_slice());
+        out.extend(self.motion.to_le_bytes());
+        match &self.poses {
+            None => out.push(0),
+            Some(poses) => {
+                out.push(1);
+                let joints = poses.first().map_or(0, |p| p.local_rotations.len());
+                put_counts(&mut out, &[poses.len(), joints]);
+                for pose in poses {
+                    debug_assert_eq!(pose.local_rotations.len(), joints, "one skeleton");
+                    put_floats(&mut out, pose.root_translation_m.as_slice());
+                    put_floats(&mut out, pose.root_orientation.coords.as_slice());
+                    for q in &pose.local_rotations {
+                        put_floats(&mut out, q.coords.as_slice());
+                    }
+                }
             }
         }
+        put_counts(&mut out, &[self.known.len()]);
+        put_bits(&mut out, self.known.iter().copied());
         out
     }
 
     /// Read [`Self::to_bytes`]'s bytes: an error naming the fault where they are cut short, too
-    /// long, of another format, hold a value that is not finite or frames beyond the poses.
-    /// (The poses' joints are the caller's to check against its body: [`Pose::validate`].)
+    /// long, of another format, hold a value that is not finite, poses whose fingerprint is not
+    /// the one named, or frames beyond the poses given. (The poses' joints are the caller's to
+    /// check against its body, [`Pose::validate`]; and where no poses are given, the frames
+    /// against those it holds.)
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let fault = job_fault;
-        let mut r = Reader { bytes, at: 0 };
-        if r.take(8).map_err(fault)? != JOB_MAGIC {
-            return Err(fault(
-                "not a held-limbs job (no `sartorJ1` at the start)".into(),
+        let mut r = Reader {
+            bytes,
+            at: 0,
+            what: "arm clearance job",
+        };
+        if r.take(8)? != JOB_MAGIC {
+            return Err(job_fault(
+                "not a held-limbs job (no `sartorJ2` at the start)".into(),
             ));
         }
         let (start, end, n_betas) = (r.count()?, r.count()?, r.count()?);
         let betas = r.floats(n_betas)?;
-        let (n_poses, joints) = (r.count()?, r.count()?);
+        let motion = u64::from_le_bytes(r.array()?);
+        let poses = match r.take(1)?[0] {
+            0 => None,
+            1 => Some(r.poses()?),
+            flag => return Err(job_fault(format!("poses flag {flag} at byte {}", r.at - 1))),
+        };
+        let n_known = r.count()?;
+        let known = r.bits(n_known)?;
+        r.end()?;
+        if start > end {
+            return Err(job_fault(format!("frames {start}..{end}")));
+        }
+        if let Some(poses) = &poses {
+            if end > poses.len() {
+                return Err(job_fault(format!(
+                    "frames {start}..{end} of {}",
+                    poses.len()
+                )));
+            }
+            let got = motion_fingerprint(poses);
+            if got != motion {
+                return Err(job_fault(format!(
+                    "poses of fingerprint {got:016x}, named {motion:016x}"
+                )));
+            }
+        }
+        Ok(Self {
+            betas,
+            motion,
+            poses,
+            frames: start..end,
+            known,
+        })
+    }
+}
+
+/// Bytes read in order; a fault names `what`.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    what: &'static str,
+}
+
+impl Reader<'_> {
+    fn fault(&self, message: String) -> Error {
+        Error::invalid(self.what, message)
+    }
+
+    fn take(&mut self, n: usize) -> Result<&[u8]> {
+        let end = self.at.saturating_add(n);
+        if end > self.bytes.len() {
+            let have = self.bytes.len();
+            return Err(self.fault(format!("cut short: {have} bytes, {end} needed")));
+        }
+        let taken = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(taken)
+    }
+
+    fn array<const N: usize>(&mut self) -> Result<[u8; N]> {
+        Ok(self.take(N)?.try_into().expect("N bytes"))
+    }
+
+    /// A count (`u32`).
+    fn count(&mut self) -> Result<usize> {
+        Ok(u32::from_le_bytes(self.array()?) as usize)
+    }
+
+    /// `n` finite values.
+    fn floats(&mut self, n: usize) -> Result<Vec<f64>> {
+        let at = self.at;
+        let bytes = self.take(n.saturating_mul(8))?;
+        let values: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+            .collect();
+        match values.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(self.fault(format!("a value of {} at byte {}", values[i], at + 8 * i))),
+            None => Ok(values),
+        }
+    }
+
+    /// `n` bits ([`put_bits`]).
+    fn bits(&mut self, n: usize) -> Result<Vec<bool>> {
+        let bytes = self.take(n.div_ceil(8))?;
+        Ok((0..n).map(|i| bytes[i / 8] >> (i % 8) & 1 == 1).collect())
+    }
+
+    /// A job's poses: count, joints, values ([`ClearanceJob::to_bytes`]).
+    fn poses(&mut self) -> Result<Vec<Pose>> {
+        let (n_poses, joints) = (self.count()?, self.count()?);
         let per_pose = joints.saturating_mul(4).saturating_add(7);
-        if n_poses.saturating_mul(per_pose).saturating_mul(8) > bytes.len() {
-            let n = bytes.len();
-            return Err(fault(format!(
-                "{n_poses} poses of {joints} joints in {n} bytes"
-            )));
+        if n_poses.saturating_mul(per_pose).saturating_mul(8) > self.bytes.len() {
+            let n = self.bytes.len();
+            return Err(self.fault(format!("{n_poses} poses of {joints} joints in {n} bytes")));
         }
         let quaternion =
             |q: &[f64]| UnitQuaternion::new_unchecked(Quaternion::new(q[3], q[0], q[1], q[2]));
         let mut poses = Vec::with_capacity(n_poses);
         for _ in 0..n_poses {
-            let v = r.floats(per_pose)?;
+            let v = self.floats(per_pose)?;
             poses.push(Pose {
                 root_translation_m: Vector3::new(v[0], v[1], v[2]),
                 root_orientation: quaternion(&v[3..7]),
                 local_rotations: v[7..].chunks_exact(4).map(quaternion).collect(),
             });
         }
-        if r.at != bytes.len() {
-            return Err(fault(format!("{} bytes after the end", bytes.len() - r.at)));
-        }
-        if start > end || end > n_poses {
-            return Err(fault(format!("frames {start}..{end} of {n_poses}")));
-        }
-        Ok(Self {
-            betas,
-            poses,
-            frames: start..end,
-        })
-    }
-}
-
-/// Bytes read in order.
-struct Reader<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl Reader<'_> {
-    fn take(&mut self, n: usize) -> std::result::Result<&[u8], String> {
-        let end = self.at + n;
-        let taken = self
-            .bytes
-            .get(self.at..end)
-            .ok_or_else(|| format!("cut short: {} bytes, {end} needed", self.bytes.len()))?;
-        self.at = end;
-        Ok(taken)
+        Ok(poses)
     }
 
-    fn array<const N: usize>(&mut self) -> std::result::Result<[u8; N], String> {
-        Ok(self.take(N)?.try_into().expect("N bytes"))
-    }
-
-    /// A job's count (`u32`).
-    fn count(&mut self) -> Result<usize> {
-        let bytes = self.array().map_err(job_fault)?;
-        Ok(u32::from_le_bytes(bytes) as usize)
-    }
-
-    /// A job's `n` finite values.
-    fn floats(&mut self, n: usize) -> Result<Vec<f64>> {
-        let at = self.at;
-        let bytes = self.take(n.saturating_mul(8)).map_err(job_fault)?;
-        let values: Vec<f64> = bytes
-            .chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .collect();
-        match values.iter().position(|v| !v.is_finite()) {
-            Some(i) => Err(job_fault(format!(
-                "a value of {} at byte {}",
-                values[i],
-                at + 8 * i
-            ))),
-            None => Ok(values),
+    /// Every byte read.
+    fn end(&self) -> Result<()> {
+        match self.bytes.len() - self.at {
+            0 => Ok(()),
+            n => Err(self.fault(format!("{n} bytes after the end"))),
         }
     }
 }
@@ -591,6 +700,29 @@ impl Reader<'_> {
 fn put_floats(out: &mut Vec<u8>, values: &[f64]) {
     for v in values {
         out.extend(v.to_le_bytes());
+    }
+}
+
+/// Append `counts` as `u32`, little-endian.
+fn put_counts(out: &mut Vec<u8>, counts: &[usize]) {
+    for &n in counts {
+        out.extend((n as u32).to_le_bytes());
+    }
+}
+
+/// Append `bits`, eight a byte, each byte filled from its lowest bit.
+fn put_bits(out: &mut Vec<u8>, bits: impl Iterator<Item = bool>) {
+    let (mut byte, mut n) = (0u8, 0);
+    for bit in bits {
+        byte |= u8::from(bit) << n;
+        n += 1;
+        if n == 8 {
+            out.push(byte);
+            (byte, n) = (0, 0);
+        }
+    }
+    if n > 0 {
+        out.push(byte);
     }
 }
 

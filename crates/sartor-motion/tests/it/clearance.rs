@@ -393,15 +393,31 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     assert_eq!(worker.fingerprint(), page.fingerprint());
     // The page's job, as bytes: the worker's own `ClearanceOnDemand` is of the same motion,
     // shape and options.
-    let job = ClearanceJob::from_bytes(&page.job(30..32).to_bytes()).expect("read back");
-    assert_eq!(job, page.job(30..32));
-    assert_eq!(
-        (job.betas.as_slice(), job.poses.as_slice()),
-        (&betas[..], poses)
+    let job = ClearanceJob::from_bytes(&page.job(30..32, true).to_bytes()).expect("read back");
+    assert_eq!(job, page.job(30..32, true));
+    assert_eq!(job.betas, betas);
+    assert_eq!(job.poses.as_deref(), Some(poses));
+    assert_eq!(job.motion, ClearanceOnDemand::motion_fingerprint_of(poses));
+    assert!(
+        job.known.iter().all(|k| !k),
+        "the page computed nothing yet"
     );
     assert_eq!(
-        ClearanceOnDemand::fingerprint_of(&body, &job.betas, &job.poses, &with_legs),
+        ClearanceOnDemand::fingerprint_of(&body, &job.betas, job.motion, &with_legs),
         page.fingerprint()
+    );
+    // A later job of the same motion names the poses by their fingerprint alone.
+    let named = page.job(30..32, false);
+    assert_eq!(named.poses, None);
+    let named_bytes = named.to_bytes();
+    assert_eq!(
+        ClearanceJob::from_bytes(&named_bytes).expect("read back"),
+        named
+    );
+    assert!(
+        20 * named_bytes.len() < job.to_bytes().len(),
+        "{} bytes without the poses",
+        named_bytes.len()
     );
     for t in job.frames {
         assert!(worker.prepare(&body, t, usize::MAX).expect("prepare"));
@@ -409,18 +425,24 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     let bytes = worker.progress().to_bytes();
     let progress = ClearanceProgress::from_bytes(&bytes).expect("read back");
     assert_eq!(progress, worker.progress());
+    // What the page computed meanwhile is left out of the answer.
+    assert!(!page.prepare(&body, 30, 5).expect("five looks"));
+    let known = page.job(30..32, false).known;
+    assert!(known.iter().any(|&k| k), "the page computed some");
+    let beyond = worker.progress_beyond(&known);
+    assert!(!beyond.is_empty() && beyond.len() < progress.len());
     let taken = page
-        .absorb(&progress)
+        .absorb(&ClearanceProgress::from_bytes(&beyond.to_bytes()).expect("read back"))
         .expect("the same motion, shape and options");
-    assert!(taken > 30, "{taken} looks and sums taken up");
+    assert_eq!(taken, beyond.len(), "every entry the answer holds");
     assert_eq!(page.absorb(&progress).expect("again"), 0, "nothing new");
     for t in [30, 31] {
         assert!(page.prepare(&body, t, 0).expect("prepared"), "frame {t}");
         let pose = page.pose(&body, t).expect("pose");
         assert_eq!(pose, alone.pose(&body, t).expect("pose"), "frame {t}");
     }
-    assert_eq!(page.looks(), 0, "no look of its own");
-    assert!(alone.looks() > 0);
+    assert_eq!(page.looks(), 5, "no look of its own but the five");
+    assert!(alone.looks() > 5);
 
     // Of another shape, options or motion: refused, and nothing taken.
     let mut other_shape = new(&[0.0, 1.0], &with_legs);
@@ -437,43 +459,47 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
 
     // Bytes cut short, lengthened, of another format or with a value that is not finite.
     let mut not_finite = bytes.clone();
-    // After the magic, the fingerprint and three counts, the flags up to the first entry.
-    let first_value = bytes
-        .iter()
-        .skip(28)
-        .position(|&b| b == 1)
-        .expect("an entry")
-        + 29;
+    // After the magic, the fingerprint, three counts and a bit an entry (3 passes of 60
+    // frames, twice), the first value.
+    let first_value = 28 + (2 * 3 * 60_usize).div_ceil(8);
     not_finite[first_value..first_value + 8].copy_from_slice(&f64::NAN.to_le_bytes());
-    let mut flag = bytes.clone();
-    flag[28] = 7;
+    let nan_fault = format!("a value of NaN at byte {first_value}");
+    let mut no_frames = bytes.clone();
+    no_frames[20..24].copy_from_slice(&0u32.to_le_bytes());
     let mut huge = bytes.clone();
     huge[20..24].copy_from_slice(&u32::MAX.to_le_bytes());
     for (bad, fault) in [
         (&bytes[..bytes.len() - 1], "cut short"),
         (&[bytes.as_slice(), &[0]].concat()[..], "after the end"),
         (&b"sartorX1"[..], "not sartor's"),
-        (&not_finite[..], "a turn of NaN"),
-        (&flag[..], "entry flag 7"),
-        (&huge[..], "frames in"),
+        (&not_finite[..], nan_fault.as_str()),
+        (&no_frames[..], "3 passes of 0 frames"),
+        (&huge[..], "cut short"),
     ] {
         let e = ClearanceProgress::from_bytes(bad).expect_err(fault);
         let message = e.to_string();
         assert!(message.contains(fault), "{message}");
         assert!(message.contains("arm clearance progress"), "{message}");
     }
-    let job = page.job(0..60).to_bytes();
+    let job = page.job(0..60, true).to_bytes();
+    // After the magic and three counts, the shape's two values, the motion's fingerprint and
+    // the poses' flag.
     let mut not_finite = job.clone();
-    // After the magic and three counts, the shape's first value.
     not_finite[20..28].copy_from_slice(&f64::INFINITY.to_le_bytes());
     let mut beyond = job.clone();
     beyond[12..16].copy_from_slice(&61u32.to_le_bytes());
+    let mut named_wrong = job.clone();
+    named_wrong[36] ^= 1;
+    let mut flag = job.clone();
+    flag[44] = 7;
     for (bad, fault) in [
         (&job[..job.len() - 3], "cut short"),
         (&[job.as_slice(), &[0]].concat()[..], "after the end"),
-        (&b"sartorC1"[..], "not a held-limbs job"),
+        (&b"sartorC2"[..], "not a held-limbs job"),
         (&not_finite[..], "a value of inf at byte 20"),
         (&beyond[..], "frames 0..61 of 60"),
+        (&named_wrong[..], "poses of fingerprint"),
+        (&flag[..], "poses flag 7 at byte 44"),
     ] {
         let e = ClearanceJob::from_bytes(bad).expect_err(fault);
         let message = e.to_string();

@@ -3,7 +3,10 @@
 
 use nalgebra::Vector3;
 use sartor_core::BodyDistance;
-use sartor_motion::{ClearanceOptions, MotionSourceOptions, RetargetBody, load_motion};
+use sartor_motion::{
+    ClearanceJob, ClearanceOptions, ClearanceProgress, MotionSourceOptions, RetargetBody,
+    load_motion,
+};
 use sartor_web::{BODY_FILES, LimbsWorker, PhenotypeSliders, TryOn, TryOnOptions};
 
 use crate::common::{
@@ -659,6 +662,69 @@ fn frames_played_take_their_held_limbs_from_a_worker_that_computed_them_ahead() 
 }
 
 #[test]
+fn a_long_clips_jobs_name_its_poses_and_the_answers_carry_only_what_the_page_lacks() {
+    // A shopper's long capture: 20 times CMU 02_02 in a row. The first job carries the poses,
+    // the next ones their fingerprint; each answer leaves out what the page computed.
+    let mut worker = limbs_worker();
+    let mut t = at_frame_20();
+    let clip = stored_clip(&t, "02_02");
+    let frames: Vec<_> = (0..20)
+        .flat_map(|_| clip.frames().iter().cloned())
+        .collect();
+    let n = frames.len();
+    let names = clip.joint_names().to_vec();
+    let long = sartor_motion::Motion::new("long".into(), clip.fps(), names, frames).expect("clip");
+    t.set_motion(long).expect("play");
+    let first = t
+        .arms_ahead_job(15, 60)
+        .expect("job")
+        .expect("frames ahead lack them");
+    let job = ClearanceJob::from_bytes(&first).expect("a job");
+    assert_eq!(job.poses.as_ref().map(Vec::len), Some(n), "the poses, once");
+    assert!(job.known.iter().any(|&k| k), "the page's own first frames");
+    let answer = worker.run(&first).expect("computed");
+    let progress = ClearanceProgress::from_bytes(&answer).expect("an answer");
+    assert!(!progress.is_empty());
+    assert!(
+        !progress.held().zip(&job.known).any(|(h, &k)| h && k),
+        "only what it lacks"
+    );
+    assert!(t.absorb_arms(&answer).expect("answer"));
+    for _ in 0..50 {
+        t.step().expect("step");
+    }
+    let second = t
+        .arms_ahead_job(15, 60)
+        .expect("job")
+        .expect("frames ahead lack them");
+    let job = ClearanceJob::from_bytes(&second).expect("a job");
+    assert_eq!(job.poses, None, "named by their fingerprint");
+    assert!(
+        100 * second.len() < first.len(),
+        "{} bytes, the first {}",
+        second.len(),
+        first.len()
+    );
+    let answer = worker.run(&second).expect("computed");
+    let progress = ClearanceProgress::from_bytes(&answer).expect("an answer");
+    assert!(
+        !progress.held().zip(&job.known).any(|(h, &k)| h && k),
+        "only what it lacks"
+    );
+    assert!(t.absorb_arms(&answer).expect("answer"));
+    let looks = t.arm_looks();
+    for _ in 0..20 {
+        t.step().expect("step");
+    }
+    assert_eq!(t.arm_looks(), looks, "the frames ahead from the worker");
+    // A worker that was never given the poses refuses a job that names them.
+    let e = limbs_worker()
+        .begin(&second)
+        .expect_err("poses never given");
+    assert!(e.to_string().contains("which no job gave"), "{e}");
+}
+
+#[test]
 fn a_limbs_worker_computes_a_few_looks_a_step_and_a_newer_job_takes_over() {
     // The page's worker steps through a job so that a newer one (a scrub that moved on, a clip
     // chosen) replaces it between steps; the last job's answer is what the page takes up.
@@ -714,10 +780,13 @@ fn a_limbs_worker_refuses_what_is_not_a_job_and_a_page_what_is_not_an_answer() {
     let e = t.absorb_arms(&job).expect_err("a job, not an answer");
     assert!(e.to_string().contains("arm clearance progress"), "{e}");
     // A job of another skeleton: the poses of a one-joint motion.
-    let one_joint = sartor_motion::ClearanceJob {
+    let poses = vec![sartor_core::Pose::rest(1); 3];
+    let one_joint = ClearanceJob {
         betas: vec![0.0; 2],
-        poses: vec![sartor_core::Pose::rest(1); 3],
+        motion: sartor_motion::ClearanceOnDemand::motion_fingerprint_of(&poses),
+        poses: Some(poses),
         frames: 0..3,
+        known: Vec::new(),
     };
     let e = worker
         .run(&one_joint.to_bytes())
@@ -725,7 +794,7 @@ fn a_limbs_worker_refuses_what_is_not_a_job_and_a_page_what_is_not_an_answer() {
     assert!(e.to_string().contains("frame 0"), "{e}");
     assert!(e.to_string().contains("joint rotations"), "{e}");
     // Too many shape components for the body.
-    let mut wide = sartor_motion::ClearanceJob::from_bytes(&job).expect("a job");
+    let mut wide = ClearanceJob::from_bytes(&job).expect("a job");
     wide.betas = vec![0.0; 1000];
     assert!(worker.run(&wide.to_bytes()).is_err());
     // The worker goes on: the page's job still computes, and the page takes it up.
