@@ -950,6 +950,42 @@ fn the_page_works_in_headless_chromium() {
             && model_bytes < fine_bytes + first_bytes,
         "the linked garment: {linked}"
     );
+    // A worker that fails (here: given bytes that are no job) leaves the held limbs to the
+    // page's slices, which hold them as the shape set at once does; the page shows no error.
+    browser.wait_for("window.sartor.limbs.ready", Duration::from_secs(20));
+    browser.eval(
+        "window.sartor.setPlaying(false); \
+         window.sartor.limbs.worker.postMessage({job: new Uint8Array([1, 2, 3]), id: -1});",
+    );
+    browser.wait_for(
+        "window.sartor.limbs.failure !== null",
+        Duration::from_secs(20),
+    );
+    browser.eval(
+        "const e = document.getElementById('weight'); e.value = 0.3; \
+         e.dispatchEvent(new Event('change'));",
+    );
+    settled();
+    let after_failure = browser.eval(
+        "const l = window.sartor.limbs; \
+         const shown = window.sartor.garment(); \
+         const v = (id) => Number(document.getElementById(id).value); \
+         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
+           v('muscle'), v('age')); \
+         return {failure: l.failure, worker: l.worker !== null, \
+                 same: JSON.stringify(shown) === JSON.stringify(window.sartor.garment()), \
+                 shown_error: document.getElementById('error').hidden ? null \
+                   : document.getElementById('error').textContent};",
+    );
+    assert!(
+        after_failure["failure"]
+            .as_str()
+            .is_some_and(|f| f.contains("arm clearance job: cut short"))
+            && after_failure["worker"] == json!(false)
+            && after_failure["same"] == json!(true)
+            && after_failure["shown_error"].is_null(),
+        "after the worker failed: {after_failure}"
+    );
     // (And the held limbs left to the page's slices, as the address asks.)
     let unknown = open("?garment=no-such-model&limbs=page");
     assert!(
