@@ -370,6 +370,11 @@ fn frame_against_native(browser: &Browser, dist: &Path, model: &str) -> (Vec<f64
     (page, most)
 }
 
+/// Script: the shape of the page's sliders set at once on its try-on (`setPhenotype`).
+const SET_SLIDERS_SHAPE: &str = "const v = (id) => Number(document.getElementById(id).value); \
+     window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
+     v('muscle'), v('age'));";
+
 #[test]
 fn the_page_works_in_headless_chromium() {
     let Some(chromium) = find(&["/usr/bin/chromium", "/usr/bin/chromium-browser"]) else {
@@ -539,12 +544,13 @@ fn the_page_works_in_headless_chromium() {
     );
     let paused_release_wall = settled();
     let released = floats(&browser.eval("return window.sartor.garment();"));
-    let direct = floats(&browser.eval(
-        "const v = (id) => Number(document.getElementById(id).value); \
-         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
-           v('muscle'), v('age')); \
-         return window.sartor.garment();",
-    ));
+    // The garment of the sliders' shape set at once (`setPhenotype`).
+    let set_at_once = || {
+        floats(&browser.eval(&format!(
+            "{SET_SLIDERS_SHAPE} return window.sartor.garment();"
+        )))
+    };
+    let direct = set_at_once();
     assert_eq!(
         released, direct,
         "the release shows what setting the shape shows"
@@ -584,12 +590,7 @@ fn the_page_works_in_headless_chromium() {
     );
     let paused_release_page = settled();
     let released = floats(&browser.eval("return window.sartor.garment();"));
-    let direct = floats(&browser.eval(
-        "const v = (id) => Number(document.getElementById(id).value); \
-         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
-           v('muscle'), v('age')); \
-         return window.sartor.garment();",
-    ));
+    let direct = set_at_once();
     assert_eq!(released, direct, "the page's slices show the same");
     browser.eval(
         "window.sartor.setPlaying(true); const e = document.getElementById('weight'); \
@@ -966,17 +967,15 @@ fn the_page_works_in_headless_chromium() {
          e.dispatchEvent(new Event('change'));",
     );
     settled();
-    let after_failure = browser.eval(
+    let after_failure = browser.eval(&format!(
         "const l = window.sartor.limbs; \
          const shown = window.sartor.garment(); \
-         const v = (id) => Number(document.getElementById(id).value); \
-         window.sartor.state.tryOn.setPhenotype(v('gender'), v('height'), v('weight'), \
-           v('muscle'), v('age')); \
-         return {failure: l.failure, worker: l.worker !== null, \
+         {SET_SLIDERS_SHAPE} \
+         return {{failure: l.failure, worker: l.worker !== null, \
                  same: JSON.stringify(shown) === JSON.stringify(window.sartor.garment()), \
                  shown_error: document.getElementById('error').hidden ? null \
-                   : document.getElementById('error').textContent};",
-    );
+                   : document.getElementById('error').textContent}};"
+    ));
     assert!(
         after_failure["failure"]
             .as_str()
