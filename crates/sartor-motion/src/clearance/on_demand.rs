@@ -458,21 +458,11 @@ impl ClearanceProgress {
     /// Read [`Self::to_bytes`]'s bytes: an error naming the fault where they are cut short,
     /// too long, of another format or hold a value that is not finite.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let fault = |message: String| Error::invalid("arm clearance progress", message);
-        let mut r = Reader {
-            bytes,
-            at: 0,
-            what: "arm clearance progress",
-        };
-        if r.take(8)? != PROGRESS_MAGIC {
-            return Err(fault(
-                "not sartor's held limbs (no `sartorC2` at the start)".into(),
-            ));
-        }
+        let mut r = Reader::open(bytes, "arm clearance progress", PROGRESS_MAGIC)?;
         let fingerprint = u64::from_le_bytes(r.array()?);
         let (passes, frames, n_limbs) = (r.count()?, r.count()?, r.count()?);
         if passes == 0 || frames == 0 {
-            return Err(fault(format!("{passes} passes of {frames} frames")));
+            return Err(r.fault(format!("{passes} passes of {frames} frames")));
         }
         // (A bit an entry: no more entries than the bytes can mark.)
         let held = r.bits(2usize.saturating_mul(passes).saturating_mul(frames))?;
@@ -565,40 +555,28 @@ impl ClearanceJob {
     /// check against its body, [`Pose::validate`]; and where no poses are given, the frames
     /// against those it holds.)
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
-        let mut r = Reader {
-            bytes,
-            at: 0,
-            what: "arm clearance job",
-        };
-        if r.take(8)? != JOB_MAGIC {
-            return Err(job_fault(
-                "not a held-limbs job (no `sartorJ2` at the start)".into(),
-            ));
-        }
+        let mut r = Reader::open(bytes, "arm clearance job", JOB_MAGIC)?;
         let (start, end, n_betas) = (r.count()?, r.count()?, r.count()?);
         let betas = r.floats(n_betas)?;
         let motion = u64::from_le_bytes(r.array()?);
         let poses = match r.take(1)?[0] {
             0 => None,
             1 => Some(r.poses()?),
-            flag => return Err(job_fault(format!("poses flag {flag} at byte {}", r.at - 1))),
+            flag => return Err(r.fault(format!("poses flag {flag} at byte {}", r.at - 1))),
         };
         let n_known = r.count()?;
         let known = r.bits(n_known)?;
         r.end()?;
         if start > end {
-            return Err(job_fault(format!("frames {start}..{end}")));
+            return Err(r.fault(format!("frames {start}..{end}")));
         }
         if let Some(poses) = &poses {
             if end > poses.len() {
-                return Err(job_fault(format!(
-                    "frames {start}..{end} of {}",
-                    poses.len()
-                )));
+                return Err(r.fault(format!("frames {start}..{end} of {}", poses.len())));
             }
             let got = motion_fingerprint(poses);
             if got != motion {
-                return Err(job_fault(format!(
+                return Err(r.fault(format!(
                     "poses of fingerprint {got:016x}, named {motion:016x}"
                 )));
             }
@@ -620,7 +598,17 @@ struct Reader<'a> {
     what: &'static str,
 }
 
-impl Reader<'_> {
+impl<'a> Reader<'a> {
+    /// A reader of `bytes`, which must start with `magic`; a fault names `what`.
+    fn open(bytes: &'a [u8], what: &'static str, magic: [u8; 8]) -> Result<Self> {
+        let mut r = Self { bytes, at: 0, what };
+        if r.take(8)? != magic {
+            let magic = String::from_utf8_lossy(&magic);
+            return Err(r.fault(format!("not one of sartor's (no `{magic}` at the start)")));
+        }
+        Ok(r)
+    }
+
     fn fault(&self, message: String) -> Error {
         Error::invalid(self.what, message)
     }
@@ -724,8 +712,4 @@ fn put_bits(out: &mut Vec<u8>, bits: impl Iterator<Item = bool>) {
     if n > 0 {
         out.push(byte);
     }
-}
-
-fn job_fault(message: String) -> Error {
-    Error::invalid("arm clearance job", message)
 }

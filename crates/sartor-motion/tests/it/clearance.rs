@@ -468,19 +468,19 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     no_frames[20..24].copy_from_slice(&0u32.to_le_bytes());
     let mut huge = bytes.clone();
     huge[20..24].copy_from_slice(&u32::MAX.to_le_bytes());
-    for (bad, fault) in [
-        (&bytes[..bytes.len() - 1], "cut short"),
-        (&[bytes.as_slice(), &[0]].concat()[..], "after the end"),
-        (&b"sartorX1"[..], "not sartor's"),
-        (&not_finite[..], nan_fault.as_str()),
-        (&no_frames[..], "3 passes of 0 frames"),
-        (&huge[..], "cut short"),
-    ] {
-        let e = ClearanceProgress::from_bytes(bad).expect_err(fault);
-        let message = e.to_string();
-        assert!(message.contains(fault), "{message}");
-        assert!(message.contains("arm clearance progress"), "{message}");
-    }
+    let longer = [bytes.as_slice(), &[0]].concat();
+    assert_refused(
+        ClearanceProgress::from_bytes,
+        "arm clearance progress",
+        &[
+            (&bytes[..bytes.len() - 1], "cut short"),
+            (&longer, "after the end"),
+            (b"sartorX1", "not one of sartor's (no `sartorC2`"),
+            (&not_finite, &nan_fault),
+            (&no_frames, "3 passes of 0 frames"),
+            (&huge, "cut short"),
+        ],
+    );
     let job = page.job(0..60, true).to_bytes();
     // After the magic and three counts, the shape's two values, the motion's fingerprint and
     // the poses' flag.
@@ -492,18 +492,31 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     named_wrong[36] ^= 1;
     let mut flag = job.clone();
     flag[44] = 7;
-    for (bad, fault) in [
-        (&job[..job.len() - 3], "cut short"),
-        (&[job.as_slice(), &[0]].concat()[..], "after the end"),
-        (&b"sartorC2"[..], "not a held-limbs job"),
-        (&not_finite[..], "a value of inf at byte 20"),
-        (&beyond[..], "frames 0..61 of 60"),
-        (&named_wrong[..], "poses of fingerprint"),
-        (&flag[..], "poses flag 7 at byte 44"),
-    ] {
-        let e = ClearanceJob::from_bytes(bad).expect_err(fault);
-        let message = e.to_string();
+    let longer = [job.as_slice(), &[0]].concat();
+    assert_refused(
+        ClearanceJob::from_bytes,
+        "arm clearance job",
+        &[
+            (&job[..job.len() - 3], "cut short"),
+            (&longer, "after the end"),
+            (b"sartorC2", "not one of sartor's (no `sartorJ2`"),
+            (&not_finite, "a value of inf at byte 20"),
+            (&beyond, "frames 0..61 of 60"),
+            (&named_wrong, "poses of fingerprint"),
+            (&flag, "poses flag 7 at byte 44"),
+        ],
+    );
+}
+
+/// Each case's bytes refused by `read` with a message naming its fault and `what`.
+fn assert_refused<T: std::fmt::Debug>(
+    read: impl Fn(&[u8]) -> sartor_core::Result<T>,
+    what: &str,
+    cases: &[(&[u8], &str)],
+) {
+    for (bad, fault) in cases {
+        let message = read(bad).expect_err(fault).to_string();
         assert!(message.contains(fault), "{message}");
-        assert!(message.contains("arm clearance job"), "{message}");
+        assert!(message.contains(what), "{message}");
     }
 }
