@@ -502,6 +502,17 @@ function showTimes() {
   $("t-body").textContent = ms(body);
   $("t-draw").textContent = ms(draw);
   $("t-arms").textContent = ms(arms);
+  $("t-limbs").textContent = limbsStatus();
+}
+
+/// What the held limbs' worker did so far, or why there is none.
+function limbsStatus() {
+  if (limbs.ready && limbs.enabled) {
+    return `${limbs.jobs} answers, ${(limbs.ms / 1000).toFixed(2)} s of work`;
+  }
+  if (limbs.failure !== null) return `none: ${limbs.failure}`;
+  if (limbs.worker !== null && !limbs.ready) return "starting";
+  return "none: the page computes it";
 }
 
 /// Upload the frame shown and draw it.

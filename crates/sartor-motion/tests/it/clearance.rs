@@ -414,6 +414,18 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
         ClearanceJob::from_bytes(&named_bytes).expect("read back"),
         named
     );
+    // (Bits that do not fill their last byte.)
+    let odd = ClearanceJob {
+        known: [
+            true, false, true, true, false, false, false, false, true, false, true,
+        ]
+        .to_vec(),
+        ..named.clone()
+    };
+    assert_eq!(
+        ClearanceJob::from_bytes(&odd.to_bytes()).expect("read back"),
+        odd
+    );
     assert!(
         20 * named_bytes.len() < job.to_bytes().len(),
         "{} bytes without the poses",

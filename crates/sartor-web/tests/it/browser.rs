@@ -714,6 +714,11 @@ fn the_page_works_in_headless_chromium() {
         "{looked} looks on the page's thread in {stepped} frames: {played_from} to {played_to}"
     );
     let shown = browser.eval("return document.getElementById('t-total').textContent;");
+    let worker_shown = browser.eval("return document.getElementById('t-limbs').textContent;");
+    assert!(
+        worker_shown.as_str().is_some_and(|s| s.contains("answers")),
+        "the page says what its worker did: {worker_shown}"
+    );
     let mean = floats(&browser.eval("return window.sartor.meanTimes();"));
     let bench = browser.eval("return window.sartor.bench(150);");
 
