@@ -2,9 +2,10 @@
 //! the page waits for the held limbs of the frames it shows (`TryOn::settle`, some 150 ms of
 //! looks in the browser); computed on the page's thread, a slice each display frame, they
 //! share it with the frames that play on. [`LimbsWorker`] runs in a Web Worker with the body
-//! alone: the page hands it [`TryOn::arms_job`]'s bytes (the shape, the motion's poses and the
-//! frames the page waits on) and takes up its answer with [`TryOn::absorb_arms`], after which
-//! the page's own `ClearanceOnDemand` has nothing left to compute for those frames. Both run
+//! alone: the page hands it [`TryOn::arms_job`]'s bytes (the shape, the motion's poses or,
+//! once given, their fingerprint, the frames the page waits on and what it holds already) and
+//! takes up its answer with [`TryOn::absorb_arms`], after which the page's own
+//! `ClearanceOnDemand` has nothing left to compute for those frames. Both run
 //! the same code on the same inputs, so the poses are those the page would compute, bit for
 //! bit.
 
