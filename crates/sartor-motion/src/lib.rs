@@ -31,6 +31,7 @@ mod bvh;
 mod bvh_map;
 mod bvh_tpose;
 mod clearance;
+mod fnv;
 mod motion;
 mod motion_library;
 pub mod npz;

@@ -5,6 +5,8 @@ use std::ops::Range;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use sartor_core::{BodyModel, Error, Pose, Result};
 
+use crate::fnv::Fnv;
+
 use super::{
     ArmClearance, ClearanceOptions, Posing, Targets, compose, dilated_at, eased_at, window,
 };
@@ -375,27 +377,6 @@ fn fingerprint(body: &BodyModel, betas: &[f64], motion: u64, options: &Clearance
         h.word(*n as u64);
     }
     h.0
-}
-
-/// FNV-1a, a 64-bit word at a time.
-struct Fnv(u64);
-
-impl Default for Fnv {
-    fn default() -> Self {
-        Self(0xcbf2_9ce4_8422_2325)
-    }
-}
-
-impl Fnv {
-    fn word(&mut self, w: u64) {
-        self.0 = (self.0 ^ w).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-
-    fn floats(&mut self, values: &[f64]) {
-        for v in values {
-            self.word(v.to_bits());
-        }
-    }
 }
 
 /// What a [`ClearanceOnDemand`] computed ([`ClearanceOnDemand::progress`]), to be taken up by

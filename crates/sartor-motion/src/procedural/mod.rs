@@ -49,6 +49,7 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use sartor_core::{FPS, Pose, canonical, split_heading};
 
+use crate::fnv::Fnv;
 use crate::{CMU_MB_JOINTS, Error, Motion, Result};
 
 pub use clips::HELD_OUT_CLIPS;
@@ -336,9 +337,9 @@ pub fn clip_names() -> Vec<String> {
 
 /// The default seed of a clip: a hash of its name (FNV-1a), so renaming reorders nothing else.
 fn default_seed(name: &str) -> u64 {
-    name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-    })
+    let mut h = Fnv::default();
+    h.bytes(name.as_bytes());
+    h.0
 }
 
 /// The clip `name` with its default seed.
