@@ -619,8 +619,9 @@ impl TryOn {
         };
         let n = held.n_frames();
         let ahead = |k: usize| (self.frame + 1 + k) % n;
+        // (Asked every frame played: a check that allocates nothing.)
         for k in 0..min_frames.min(n) {
-            if !held.prepare(&self.body, ahead(k), 0)? {
+            if !held.is_computed(ahead(k)) {
                 let start = ahead(k);
                 let end = (start + max_frames.max(1)).min(n);
                 return Ok(Some(job_for(held, start..end, &mut self.worker_motion)));

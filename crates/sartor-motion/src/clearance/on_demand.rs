@@ -127,6 +127,15 @@ impl ClearanceOnDemand {
             .fold(0.0, f64::max))
     }
 
+    /// Whether frame `t`'s pose is computed ([`Self::pose`] of it then looks at no frame and
+    /// composes nothing): a check that allocates nothing, for a player that asks every frame.
+    pub fn is_computed(&self, t: usize) -> bool {
+        self.total
+            .last()
+            .and_then(|totals| totals.get(t))
+            .is_some_and(Option::is_some)
+    }
+
     /// How many times a frame was looked at (the body posed and the held vertices measured)
     /// so far: the work done.
     pub fn looks(&self) -> usize {

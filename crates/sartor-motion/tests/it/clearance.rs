@@ -437,6 +437,7 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     let bytes = worker.progress().to_bytes();
     let progress = ClearanceProgress::from_bytes(&bytes).expect("read back");
     assert_eq!(progress, worker.progress());
+    assert!(!page.is_computed(30), "not yet");
     // What the page computed meanwhile is left out of the answer.
     assert!(!page.prepare(&body, 30, 5).expect("five looks"));
     let known = page.job(30..32, false).known;
@@ -449,6 +450,7 @@ fn held_limbs_computed_elsewhere_are_taken_up_bit_for_bit() {
     assert_eq!(taken, beyond.len(), "every entry the answer holds");
     assert_eq!(page.absorb(&progress).expect("again"), 0, "nothing new");
     for t in [30, 31] {
+        assert!(worker.is_computed(t) && page.is_computed(t), "frame {t}");
         assert!(page.prepare(&body, t, 0).expect("prepared"), "frame {t}");
         let pose = page.pose(&body, t).expect("pose");
         assert_eq!(pose, alone.pose(&body, t).expect("pose"), "frame {t}");
