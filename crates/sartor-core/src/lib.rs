@@ -43,6 +43,7 @@ pub mod asset;
 pub mod awake;
 mod binding;
 mod body_distance;
+pub mod bytes;
 mod error;
 mod features;
 pub mod io;

@@ -2,7 +2,8 @@
 
 use std::ops::Range;
 
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
+use sartor_core::bytes::{Reader, put_bits, put_counts, put_floats, put_poses};
 use sartor_core::{BodyModel, Error, Pose, Result};
 
 use crate::fnv::Fnv;
@@ -449,7 +450,7 @@ impl ClearanceProgress {
     /// too long, of another format or hold a value that is not finite.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
         let mut r = Reader::open(bytes, "arm clearance progress", PROGRESS_MAGIC)?;
-        let fingerprint = u64::from_le_bytes(r.array()?);
+        let fingerprint = r.u64()?;
         let (passes, frames, n_limbs) = (r.count()?, r.count()?, r.count()?);
         if passes == 0 || frames == 0 {
             return Err(r.fault(format!("{passes} passes of {frames} frames")));
@@ -522,16 +523,7 @@ impl ClearanceJob {
             None => out.push(0),
             Some(poses) => {
                 out.push(1);
-                let joints = poses.first().map_or(0, |p| p.local_rotations.len());
-                put_counts(&mut out, &[poses.len(), joints]);
-                for pose in poses {
-                    debug_assert_eq!(pose.local_rotations.len(), joints, "one skeleton");
-                    put_floats(&mut out, pose.root_translation_m.as_slice());
-                    put_floats(&mut out, pose.root_orientation.coords.as_slice());
-                    for q in &pose.local_rotations {
-                        put_floats(&mut out, q.coords.as_slice());
-                    }
-                }
+                put_poses(&mut out, poses);
             }
         }
         put_counts(&mut out, &[self.known.len()]);
@@ -548,11 +540,14 @@ impl ClearanceJob {
         let mut r = Reader::open(bytes, "arm clearance job", JOB_MAGIC)?;
         let (start, end, n_betas) = (r.count()?, r.count()?, r.count()?);
         let betas = r.floats(n_betas)?;
-        let motion = u64::from_le_bytes(r.array()?);
+        let motion = r.u64()?;
         let poses = match r.take(1)?[0] {
             0 => None,
             1 => Some(r.poses()?),
-            flag => return Err(r.fault(format!("poses flag {flag} at byte {}", r.at - 1))),
+            flag => {
+                let at = r.position() - 1;
+                return Err(r.fault(format!("poses flag {flag} at byte {at}")));
+            }
         };
         let n_known = r.count()?;
         let known = r.bits(n_known)?;
@@ -578,128 +573,5 @@ impl ClearanceJob {
             frames: start..end,
             known,
         })
-    }
-}
-
-/// Bytes read in order; a fault names `what`.
-struct Reader<'a> {
-    bytes: &'a [u8],
-    at: usize,
-    what: &'static str,
-}
-
-impl<'a> Reader<'a> {
-    /// A reader of `bytes`, which must start with `magic`; a fault names `what`.
-    fn open(bytes: &'a [u8], what: &'static str, magic: [u8; 8]) -> Result<Self> {
-        let mut r = Self { bytes, at: 0, what };
-        if r.take(8)? != magic {
-            let magic = String::from_utf8_lossy(&magic);
-            return Err(r.fault(format!("not one of sartor's (no `{magic}` at the start)")));
-        }
-        Ok(r)
-    }
-
-    fn fault(&self, message: String) -> Error {
-        Error::invalid(self.what, message)
-    }
-
-    fn take(&mut self, n: usize) -> Result<&[u8]> {
-        let end = self.at.saturating_add(n);
-        if end > self.bytes.len() {
-            let have = self.bytes.len();
-            return Err(self.fault(format!("cut short: {have} bytes, {end} needed")));
-        }
-        let taken = &self.bytes[self.at..end];
-        self.at = end;
-        Ok(taken)
-    }
-
-    fn array<const N: usize>(&mut self) -> Result<[u8; N]> {
-        Ok(self.take(N)?.try_into().expect("N bytes"))
-    }
-
-    /// A count (`u32`).
-    fn count(&mut self) -> Result<usize> {
-        Ok(u32::from_le_bytes(self.array()?) as usize)
-    }
-
-    /// `n` finite values.
-    fn floats(&mut self, n: usize) -> Result<Vec<f64>> {
-        let at = self.at;
-        let bytes = self.take(n.saturating_mul(8))?;
-        let values: Vec<f64> = bytes
-            .chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .collect();
-        match values.iter().position(|v| !v.is_finite()) {
-            Some(i) => Err(self.fault(format!("a value of {} at byte {}", values[i], at + 8 * i))),
-            None => Ok(values),
-        }
-    }
-
-    /// `n` bits ([`put_bits`]).
-    fn bits(&mut self, n: usize) -> Result<Vec<bool>> {
-        let bytes = self.take(n.div_ceil(8))?;
-        Ok((0..n).map(|i| bytes[i / 8] >> (i % 8) & 1 == 1).collect())
-    }
-
-    /// A job's poses: count, joints, values ([`ClearanceJob::to_bytes`]).
-    fn poses(&mut self) -> Result<Vec<Pose>> {
-        let (n_poses, joints) = (self.count()?, self.count()?);
-        let per_pose = joints.saturating_mul(4).saturating_add(7);
-        if n_poses.saturating_mul(per_pose).saturating_mul(8) > self.bytes.len() {
-            let n = self.bytes.len();
-            return Err(self.fault(format!("{n_poses} poses of {joints} joints in {n} bytes")));
-        }
-        let quaternion =
-            |q: &[f64]| UnitQuaternion::new_unchecked(Quaternion::new(q[3], q[0], q[1], q[2]));
-        let mut poses = Vec::with_capacity(n_poses);
-        for _ in 0..n_poses {
-            let v = self.floats(per_pose)?;
-            poses.push(Pose {
-                root_translation_m: Vector3::new(v[0], v[1], v[2]),
-                root_orientation: quaternion(&v[3..7]),
-                local_rotations: v[7..].chunks_exact(4).map(quaternion).collect(),
-            });
-        }
-        Ok(poses)
-    }
-
-    /// Every byte read.
-    fn end(&self) -> Result<()> {
-        match self.bytes.len() - self.at {
-            0 => Ok(()),
-            n => Err(self.fault(format!("{n} bytes after the end"))),
-        }
-    }
-}
-
-/// Append `values`, little-endian.
-fn put_floats(out: &mut Vec<u8>, values: &[f64]) {
-    for v in values {
-        out.extend(v.to_le_bytes());
-    }
-}
-
-/// Append `counts` as `u32`, little-endian.
-fn put_counts(out: &mut Vec<u8>, counts: &[usize]) {
-    for &n in counts {
-        out.extend((n as u32).to_le_bytes());
-    }
-}
-
-/// Append `bits`, eight a byte, each byte filled from its lowest bit.
-fn put_bits(out: &mut Vec<u8>, bits: impl Iterator<Item = bool>) {
-    let (mut byte, mut n) = (0u8, 0);
-    for bit in bits {
-        byte |= u8::from(bit) << n;
-        n += 1;
-        if n == 8 {
-            out.push(byte);
-            (byte, n) = (0, 0);
-        }
-    }
-    if n > 0 {
-        out.push(byte);
     }
 }
