@@ -28,7 +28,7 @@ use sartor_core::{
 };
 
 use crate::collision::{BodyRegion, CertifyStats, Collider, CollisionOptions};
-use crate::error::{Error, Result, check_finite, check_len};
+use crate::error::{Error, Result, check_finite, check_finite_points, check_len};
 use crate::format::Feature;
 use crate::kernels::Precision;
 use crate::network::{GarmentNetwork, NetworkOptions, Workspace};
@@ -528,20 +528,18 @@ impl Avatar {
     }
 
     /// Compose, skin and post-process one frame; `wrinkle` is `Δ_L` (`None`: zero).
+    /// `resolve`: whether the post-process runs (else it is left to
+    /// [`GarmentAnimator::post_process`], elsewhere).
     fn finish(
         &mut self,
         rig: &GarmentRig,
         pose: &Pose,
         wrinkle: Option<&[f32]>,
         par: Parallelism,
+        resolve: bool,
     ) -> Result<()> {
         let start = self.now();
-        rig.body.skeleton().forward_kinematics_into(
-            &self.rest_joints,
-            pose,
-            &mut self.posed_joints,
-            &mut self.transforms,
-        )?;
+        self.pose_bones(rig, pose)?;
         for (t32, t) in self.transforms_f32.iter_mut().zip(&self.transforms) {
             *t32 = t.to_f32();
         }
@@ -577,7 +575,7 @@ impl Avatar {
         }
         let limited = self.now();
         self.pushed = 0;
-        if let Some(collider) = &mut self.collider {
+        if resolve && let Some(collider) = &mut self.collider {
             collider.pose(&rig.region, &self.transforms, par)?;
             self.pushed = collider.resolve(&mut self.vertices, rig.binding.faces(), par);
         }
@@ -587,6 +585,16 @@ impl Avatar {
         self.times.post_process_ms = done - limited;
         self.remember(pose);
         Ok(())
+    }
+
+    /// The joints and skinning transforms of `pose` at this shape.
+    fn pose_bones(&mut self, rig: &GarmentRig, pose: &Pose) -> Result<()> {
+        Ok(rig.body.skeleton().forward_kinematics_into(
+            &self.rest_joints,
+            pose,
+            &mut self.posed_joints,
+            &mut self.transforms,
+        )?)
     }
 
     /// Keep `pose` as the pose before the next frame (validated against the skeleton).
@@ -715,13 +723,89 @@ impl GarmentAnimator {
     /// model's frame with post-process no faster than one (a thread woken for the
     /// post-process's split first pass joined it some 90 µs late). The same bits either way.
     pub fn frame(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
+        self.frame_with(pose, true)
+    }
+
+    /// [`GarmentAnimator::frame`] without its collision post-process: the garment skinned (and
+    /// strain-limited) for `pose`, to be post-processed elsewhere by
+    /// [`GarmentAnimator::post_process`] of an animator of the same rig at the same shape (the
+    /// try-on page's worker thread), whose answer [`GarmentAnimator::take_post_processed`] then
+    /// makes this frame's garment. Until then [`GarmentAnimator::vertices`] are these and
+    /// [`GarmentAnimator::last_frame_pushed`] is 0. The same as `frame` where the rig has no
+    /// post-process. Errors as `frame`. Allocation-free.
+    pub fn frame_deferred(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
+        self.frame_with(pose, false)
+    }
+
+    /// [`GarmentAnimator::frame`], the post-process run only where `resolve`.
+    fn frame_with(&mut self, pose: &Pose, resolve: bool) -> Result<&[Vector3<f32>]> {
         match self.rig.options.parallelism {
-            Parallelism::Sequential => self.frame_now(pose)?,
+            Parallelism::Sequential => self.frame_now(pose, resolve)?,
             Parallelism::Rayon => {
-                sartor_core::awake::with_workers_awake(|| self.frame_now(pose))?;
+                sartor_core::awake::with_workers_awake(|| self.frame_now(pose, resolve))?;
             }
         }
         Ok(&self.avatar.vertices)
+    }
+
+    /// The collision post-process of [`GarmentAnimator::frame`] on `vertices`, a garment that
+    /// [`GarmentAnimator::frame_deferred`] of an animator of the same rig at the same shape made
+    /// for `pose`: pushes them out of the body region posed by `pose` at this animator's shape
+    /// and returns how many it moved. The result is that frame's garment bit for bit (the
+    /// post-process's state across frames only warm-starts its search; the runtime's tests
+    /// compare them over a real clip, jumps included). Nothing else of this animator changes
+    /// (its GRU state, previous pose and [`GarmentAnimator::vertices`] stay); its
+    /// [`GarmentAnimator::stage_times`] hold this post-process alone. Errors, moving nothing, on
+    /// a pose not of the body's skeleton, on vertices of another count or not finite, or where
+    /// the rig has no post-process.
+    pub fn post_process(&mut self, pose: &Pose, vertices: &mut [Vector3<f32>]) -> Result<usize> {
+        let rig = &*self.rig;
+        pose.validate(rig.body.skeleton().n_joints())?;
+        check_len("garment vertices", vertices.len(), rig.n_vertices())?;
+        check_finite_points("garment vertices", vertices)?;
+        if self.avatar.collider.is_none() {
+            return Err(Error::invalid(
+                "post-process",
+                "the rig has no collision post-process (AnimatorOptions::collision is None)",
+            ));
+        }
+        let avatar = &mut self.avatar;
+        let par = rig.options.parallelism;
+        let mut run = || -> Result<usize> {
+            let start = avatar.now();
+            avatar.pose_bones(rig, pose)?;
+            let collider = avatar.collider.as_mut().expect("checked above");
+            collider.pose(&rig.region, &avatar.transforms, par)?;
+            let pushed = collider.resolve(vertices, rig.binding.faces(), par);
+            avatar.times = StageTimes {
+                post_process_ms: avatar.now() - start,
+                ..StageTimes::default()
+            };
+            Ok(pushed)
+        };
+        match par {
+            Parallelism::Sequential => run(),
+            Parallelism::Rayon => sartor_core::awake::with_workers_awake(run),
+        }
+    }
+
+    /// Make `vertices`, the answer of [`GarmentAnimator::post_process`] (elsewhere) to the
+    /// garment of the last [`GarmentAnimator::frame_deferred`], this frame's garment, with the
+    /// `pushed` count and the post-process's `post_process_ms` it reported: afterwards the
+    /// animator is as after `frame`. Errors, changing nothing, on vertices of another count or
+    /// not finite.
+    pub fn take_post_processed(
+        &mut self,
+        vertices: &[Vector3<f32>],
+        pushed: usize,
+        post_process_ms: f64,
+    ) -> Result<()> {
+        check_len("garment vertices", vertices.len(), self.rig.n_vertices())?;
+        check_finite_points("garment vertices", vertices)?;
+        self.avatar.vertices.copy_from_slice(vertices);
+        self.avatar.pushed = pushed;
+        self.avatar.times.post_process_ms = post_process_ms;
+        Ok(())
     }
 
     /// Step the sequence by `pose` without making its garment: the wrinkle network's state and
@@ -748,14 +832,14 @@ impl GarmentAnimator {
         }
     }
 
-    /// [`GarmentAnimator::frame`] on this thread.
-    fn frame_now(&mut self, pose: &Pose) -> Result<()> {
+    /// [`GarmentAnimator::frame_with`] on this thread.
+    fn frame_now(&mut self, pose: &Pose, resolve: bool) -> Result<()> {
         pose.validate(self.rig.body.skeleton().n_joints())?;
         let wrinkle = self.network_step(pose)?;
         let rig = &*self.rig;
         let wrinkle = wrinkle.then_some(&self.wrinkle[..]);
         self.avatar
-            .finish(rig, pose, wrinkle, rig.options.parallelism)
+            .finish(rig, pose, wrinkle, rig.options.parallelism, resolve)
     }
 
     /// The wrinkle network's step for `pose` (validated) into `self.wrinkle`, timed; whether
@@ -1022,7 +1106,7 @@ impl GarmentCrowd {
         }
         let par = rig.options.parallelism;
         let finish = |((a, pose), w): ((&mut Avatar, &Pose), &[f32])| {
-            a.finish(rig, pose, wrinkles.then_some(w), par)
+            a.finish(rig, pose, wrinkles.then_some(w), par, true)
         };
         match rig.options.parallelism {
             Parallelism::Sequential => self

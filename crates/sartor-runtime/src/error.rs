@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+use nalgebra::Vector3;
+
 /// Everything that can go wrong in `sartor-runtime`. File faults name the file; call faults name
 /// the argument.
 #[derive(Debug, thiserror::Error)]
@@ -108,6 +110,19 @@ crate::kernels::widest_where_present! {
             .max()
             .unwrap_or(0)
     }
+}
+
+/// Check that every coordinate of `points` is finite (`index`: into `x, y, z, x, …`).
+pub(crate) fn check_finite_points(what: &'static str, points: &[Vector3<f32>]) -> Result<()> {
+    for (i, p) in points.iter().enumerate() {
+        if let Some(k) = p.iter().position(|v| !v.is_finite()) {
+            return Err(Error::NonFinite {
+                what,
+                index: 3 * i + k,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Check that every value is finite.

@@ -207,6 +207,87 @@ fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
 }
 
 #[test]
+fn a_post_process_run_by_another_animator_gives_the_frames_garment_bit_for_bit() {
+    let (rig, n_betas) = page_rig();
+    let cmu = load_motion("cmu/05_06@30+16", &motion_options()).expect("stored CMU clip");
+    let poses = cmu.frames();
+    // The nominal shape, and a heavy one beyond the training shapes (the buried faces sought).
+    let mut heavy = vec![0.0f32; n_betas];
+    heavy[0] = 3.0;
+    heavy[1] = -3.0;
+    let mut pushed = 0;
+    for betas in [vec![0.0f32; n_betas], heavy] {
+        let mut whole = GarmentAnimator::new(rig.clone()).expect("avatar");
+        let mut page = GarmentAnimator::new(rig.clone()).expect("avatar");
+        // The worker sees the frames in another order than they are made (a jump back, one
+        // skipped): its state across frames only warm-starts the search.
+        let mut worker = GarmentAnimator::new(rig.clone()).expect("avatar");
+        for a in [&mut whole, &mut page, &mut worker] {
+            a.set_shape(&betas).expect("shape");
+        }
+        let order: Vec<usize> = (0..8).chain([3, 4]).chain(10..poses.len()).collect();
+        for &t in &order {
+            if t == 3 || t == 10 {
+                whole.reset();
+                page.reset();
+            }
+            let expected = whole.frame(&poses[t]).expect("frame").to_vec();
+            let mut garment = page.frame_deferred(&poses[t]).expect("frame").to_vec();
+            assert_eq!(page.last_frame_pushed(), 0, "nothing pushed yet");
+            let state = worker.state().to_vec();
+            let moved = worker
+                .post_process(&poses[t], &mut garment)
+                .expect("post-process");
+            assert_eq!(
+                worker.state(),
+                &state[..],
+                "the worker's network does not step"
+            );
+            assert!(
+                garment == expected,
+                "β {betas:?}, frame {t}: not the frame's garment"
+            );
+            assert_eq!(moved, whole.last_frame_pushed());
+            pushed += moved;
+            let ms = 0.25;
+            page.take_post_processed(&garment, moved, ms)
+                .expect("taken");
+            assert_eq!(page.vertices(), whole.vertices());
+            assert_eq!(page.last_frame_pushed(), moved);
+        }
+    }
+    assert!(pushed > 0, "the clip collides");
+
+    // Refused, changing nothing: a pose of another skeleton, vertices of another count or not
+    // finite, and a rig without a post-process.
+    let mut worker = GarmentAnimator::new(rig.clone()).expect("avatar");
+    worker.set_shape(&vec![0.0f32; n_betas]).expect("shape");
+    let mut garment = worker.frame_deferred(&poses[0]).expect("frame").to_vec();
+    let kept = garment.clone();
+    let mut wrong = poses[0].clone();
+    wrong.local_rotations.pop();
+    assert!(worker.post_process(&wrong, &mut garment).is_err());
+    assert!(worker.post_process(&poses[0], &mut garment[1..]).is_err());
+    garment[5].y = f32::NAN;
+    let e = worker.post_process(&poses[0], &mut garment).unwrap_err();
+    assert!(e.to_string().contains("garment vertices"), "{e}");
+    assert!(worker.take_post_processed(&garment, 0, 0.0).is_err());
+    assert!(worker.take_post_processed(&kept[1..], 0, 0.0).is_err());
+    assert_eq!(worker.vertices(), &kept[..], "nothing taken");
+    let (body, network, binding) = shipped();
+    let options = AnimatorOptions {
+        collision: None,
+        ..AnimatorOptions::default()
+    };
+    let bare = GarmentRig::new(network, binding, body, options).expect("rig");
+    let mut bare = GarmentAnimator::new(Arc::new(bare)).expect("avatar");
+    let mut garment = kept.clone();
+    let e = bare.post_process(&poses[0], &mut garment).unwrap_err();
+    assert!(e.to_string().contains("no collision post-process"), "{e}");
+    assert_eq!(garment, kept);
+}
+
+#[test]
 fn a_new_shape_starts_from_the_last_shapes_faces_and_gives_a_fresh_avatars_garment() {
     let (rig, n) = page_rig();
     let cmu = load_motion("cmu/02_04@60+12", &motion_options()).expect("stored CMU clip");
