@@ -47,6 +47,28 @@ const limbs = {
   failure: null, // why the worker is no longer used
 };
 
+// The garment's post-process, most of a frame's work, is computed in a worker
+// (post-worker.js) while a clip plays, where the browser has one: the page makes each frame up
+// to it (TryOn.stepDeferred: the network, the skinning, the body), posts the job, and draws the
+// frame when the answer comes back (TryOn.absorbPost; the page's own post-process's garment,
+// bit for bit), within the display frame after at most. A frame shown otherwise (a scrub, a
+// change of shape or garment, the clip's start again) is post-processed on the page, as every
+// frame is without a worker, once it failed, or with `?post=page` in the address.
+const PRECISION = "f32";
+const post = {
+  worker: null,
+  ready: false, // loaded with the garment worn
+  enabled: true, // cleared, the page post-processes (window.sartor.usePostWorker)
+  busy: false, // the last job posted is not answered yet
+  id: 0, // of the last job posted
+  jobPageMs: 0, // the page's milliseconds making that job
+  answers: 0, // answers taken up (frames shown)
+  stale: 0, // answers of a frame left since
+  ms: 0, // the worker's milliseconds in its jobs
+  failure: null, // why the worker is no longer used
+  bodyFiles: [], // the body's files it was loaded with, by the runtime's names
+};
+
 const state = {
   tryOn: null,
   manifest: null,
@@ -55,7 +77,7 @@ const state = {
   garmentMs: null, // the last change of garment, milliseconds (fetching not counted)
   playing: true,
   lastStep: 0,
-  times: [], // [network, skinning, post, body, draw] per frame, the last WINDOW
+  times: [], // [network, skinning, post, body, draw, arms, page] per frame, the last WINDOW
   framesStepped: 0,
   readyMs: null,
   errors: 0,
@@ -158,6 +180,7 @@ async function chooseGarment(name) {
     t.setGarment(modelAssets(files));
     state.garmentMs = performance.now() - start;
     state.garment = model;
+    loadPostWorker(model, files);
     const url = new URL(location.href);
     url.searchParams.set("garment", name);
     history.replaceState(null, "", url);
@@ -265,19 +288,29 @@ function slice(what, look, finish) {
   return { over: !ok || done, done: ok && done, ms: performance.now() - start };
 }
 
-/// Start the worker for the held limbs (the body's files, the manifest's arm clearance JSON).
-function startLimbsWorker(bodyFiles, armClearance) {
-  const wanted = new URLSearchParams(location.search).get("limbs") !== "page";
-  if (!wanted || !armClearance || typeof Worker === "undefined") return;
+/// The module worker `script`, its messages to `answer` and its failure to `failed`; null where
+/// the address says `?<param>=page`, the browser has no workers, or it could not start
+/// (`record.failure` then says why).
+function startWorker(script, param, record, answer, failed) {
+  const wanted = new URLSearchParams(location.search).get(param) !== "page";
+  if (!wanted || typeof Worker === "undefined") return null;
   let worker;
   try {
-    worker = new Worker("limbs-worker.js", { type: "module" });
+    worker = new Worker(script, { type: "module" });
   } catch (e) {
-    limbs.failure = String(e && e.message ? e.message : e);
-    return;
+    record.failure = String(e && e.message ? e.message : e);
+    return null;
   }
-  worker.onmessage = (event) => limbsAnswer(event.data);
-  worker.onerror = (event) => limbsFailed(event.message || "the worker failed");
+  worker.onmessage = (event) => answer(event.data);
+  worker.onerror = (event) => failed(event.message || "the worker failed");
+  return worker;
+}
+
+/// Start the worker for the held limbs (the body's files, the manifest's arm clearance JSON).
+function startLimbsWorker(bodyFiles, armClearance) {
+  if (!armClearance) return;
+  const worker = startWorker("limbs-worker.js", "limbs", limbs, limbsAnswer, limbsFailed);
+  if (!worker) return;
   const files = BODY_FILES.map((f, i) => [`body/${f}`, bodyFiles[i]]);
   worker.postMessage({ load: { wasm: "pkg/sartor_web_bg.wasm", files, armClearance } });
   limbs.worker = worker;
@@ -478,31 +511,45 @@ function motionChanged() {
   redraw();
 }
 
-function recordTimes(draw) {
-  const [network, skinning, post, body, arms] = state.tryOn.times();
-  state.times.push([network, skinning, post, body, draw, arms]);
+/// The times of the frame shown, with the drawing's and the page's own (`page`: what the frame
+/// took on the page's thread, drawing included; not the worker's post-process).
+function recordTimes(draw, page) {
+  const [network, skinning, postMs, body, arms] = state.tryOn.times();
+  state.times.push([network, skinning, postMs, body, draw, arms, page]);
   if (state.times.length > WINDOW) state.times.shift();
 }
 
 function meanTimes() {
   const n = state.times.length;
-  const sum = [0, 0, 0, 0, 0, 0];
-  for (const t of state.times) for (let i = 0; i < 6; i++) sum[i] += t[i];
+  const sum = [0, 0, 0, 0, 0, 0, 0];
+  for (const t of state.times) for (let i = 0; i < 7; i++) sum[i] += t[i];
   return sum.map((s) => (n ? s / n : NaN));
 }
 
 function showTimes() {
-  const [network, skinning, post, body, draw, arms] = meanTimes();
+  const [network, skinning, postMs, body, draw, arms, page] = meanTimes();
   const ms = (v) => (Number.isFinite(v) ? `${v.toFixed(2)} ms` : "–");
   $("t-network").textContent = ms(network);
   $("t-skinning").textContent = ms(skinning);
-  $("t-post").textContent = ms(post);
-  const total = network + skinning + post;
+  $("t-post").textContent = ms(postMs) + (post.ready && post.enabled ? " (in its worker)" : "");
+  const total = network + skinning + postMs;
   $("t-total").textContent = Number.isFinite(total) ? `${total.toFixed(2)} ms (${(1000 / total).toFixed(0)} frames/s)` : "–";
   $("t-body").textContent = ms(body);
   $("t-draw").textContent = ms(draw);
   $("t-arms").textContent = ms(arms);
   $("t-limbs").textContent = limbsStatus();
+  $("t-page").textContent = ms(page);
+  $("t-post-worker").textContent = postStatus();
+}
+
+/// What the post-process's worker did so far, or why there is none.
+function postStatus() {
+  if (post.ready && post.enabled) {
+    return `${post.answers} frames, ${(post.ms / 1000).toFixed(2)} s of work`;
+  }
+  if (post.failure !== null) return `none: ${post.failure}`;
+  if (post.worker !== null && !post.ready) return "loading";
+  return "none: the page post-processes";
 }
 
 /// What the held limbs' worker did so far, or why there is none.
@@ -544,29 +591,116 @@ function tick(now) {
     requestAnimationFrame(tick);
     return;
   }
-  if (state.playing && now - state.lastStep >= 1000 / MOTION_FPS - 1) {
+  // While the worker post-processes the frame stepped, the clip waits for it.
+  if (state.playing && !post.busy && now - state.lastStep >= 1000 / MOTION_FPS - 1) {
     state.lastStep = now;
-    let stepped = true;
-    try {
-      t.step();
-    } catch (e) {
-      showFailure("frame", e);
-      stepped = false;
-    }
-    if (stepped) {
-      state.framesStepped += 1;
-      const draw = redraw();
-      recordTimes(draw);
-      if (state.framesStepped % 10 === 0) showTimes();
-      limbsAhead();
-    } else {
-      setPlaying(false);
-    }
+    stepFrame();
   } else if (!state.playing && state.viewer.needsDraw()) {
     // Paused: drawn only when the camera, a mesh or the canvas's size changed.
     state.viewer.draw();
   }
   requestAnimationFrame(tick);
+}
+
+/// Step the clip playing: the frame shown now, or once the worker's post-process answers.
+function stepFrame() {
+  const t = state.tryOn;
+  const start = performance.now();
+  let job;
+  try {
+    if (post.ready && post.enabled) job = t.stepDeferred();
+    else t.step();
+  } catch (e) {
+    showFailure("frame", e);
+    setPlaying(false);
+    return;
+  }
+  const ms = performance.now() - start;
+  if (job) {
+    post.busy = true;
+    post.id += 1;
+    post.worker.postMessage({ job, id: post.id }, [job.buffer]);
+    post.jobPageMs = performance.now() - start;
+  } else {
+    frameShown(ms);
+  }
+}
+
+/// A frame stepped is shown, after `pageMs` of the page's own work on it.
+function frameShown(pageMs) {
+  state.framesStepped += 1;
+  const start = performance.now();
+  const draw = redraw();
+  recordTimes(draw, pageMs + performance.now() - start);
+  if (state.framesStepped % 10 === 0) showTimes();
+  // (A frame the worker answers after a pause asks for none.)
+  if (state.playing) limbsAhead();
+}
+
+/// Start the worker for the post-process: the garment model's files (`garment`: the manifest's
+/// entry), the body's.
+function startPostWorker(garment, garmentFiles, bodyFiles) {
+  post.worker = startWorker("post-worker.js", "post", post, postAnswer, postFailed);
+  loadPostWorker(garment, garmentFiles, bodyFiles);
+}
+
+/// Load the garment `garment` (its files `garmentFiles`) into the worker, with the body's
+/// files (the first load) or those it holds: until it is loaded the page post-processes.
+function loadPostWorker(garment, garmentFiles, bodyFiles = null) {
+  if (!post.worker) return;
+  post.ready = false;
+  const files = MODEL_FILES.map((f, i) => [`model/${f}`, garmentFiles[i]]);
+  if (bodyFiles) BODY_FILES.forEach((f, i) => files.push([`body/${f}`, bodyFiles[i]]));
+  else files.push(...post.bodyFiles);
+  post.bodyFiles = files.filter(([name]) => name.startsWith("body/"));
+  post.worker.postMessage({
+    load: { wasm: "pkg/sartor_web_bg.wasm", files, precision: PRECISION, garment: garment.name },
+  });
+}
+
+function postAnswer(message) {
+  if (message.ready) {
+    // A load answered after a later change of garment is not the garment worn.
+    post.ready = message.garment === state.garment.name;
+    return;
+  }
+  if (message.error) {
+    postFailed(message.error);
+    return;
+  }
+  if (message.id === post.id) post.busy = false;
+  post.ms += message.ms;
+  const start = performance.now();
+  let shown = false;
+  guarded(
+    "frame",
+    () => {
+      shown = state.tryOn.absorbPost(message.answer);
+    },
+    true,
+  );
+  if (shown) {
+    post.answers += 1;
+    frameShown(post.jobPageMs + performance.now() - start);
+  } else {
+    post.stale += 1;
+  }
+}
+
+/// The page post-processes for good; a frame that waited on the worker is made anew.
+function postFailed(why) {
+  post.failure = why;
+  post.ready = false;
+  if (post.worker) post.worker.terminate();
+  post.worker = null;
+  if (post.busy) {
+    post.busy = false;
+    const t = state.tryOn;
+    guarded("frame", () => {
+      t.seek(t.frame);
+      redraw();
+    });
+  }
 }
 
 function setPlaying(playing) {
@@ -694,9 +828,10 @@ async function main() {
   BODY_FILES.forEach((f, i) => assets.add(`body/${f}`, bodyFiles[i]));
   // The arms held out of the torso as the model's training motions held them.
   const armClearance = manifest.arm_clearance ? JSON.stringify(manifest.arm_clearance) : undefined;
-  const t = TryOn.load(assets, "f32", true, armClearance);
+  const t = TryOn.load(assets, PRECISION, true, armClearance);
   state.tryOn = t;
   startLimbsWorker(bodyFiles, armClearance);
+  startPostWorker(state.garment, garmentFiles, bodyFiles);
   state.viewer.setMesh("body", t.bodyFaces(), t.bodyVertices().length / 3, [0.86, 0.72, 0.62]);
   state.viewer.setMesh("garment", t.garmentFaces(), t.garmentVertices().length / 3, GARMENT_COLOR);
   const body = t.bodyVertices();
@@ -786,6 +921,14 @@ window.sartor = {
   // Whether the worker computes the held limbs (true: where it runs); false: the page's slices.
   useLimbsWorker: (on) => {
     limbs.enabled = on;
+  },
+  post,
+  stepFrame,
+  // Whether the worker post-processes the frames played (true: where it runs); false: the page.
+  // The timings start anew.
+  usePostWorker: (on) => {
+    post.enabled = on;
+    state.times = [];
   },
   ready: () => state.readyMs !== null,
   garment: () => Array.from(state.tryOn.garmentVertices()),

@@ -16,6 +16,7 @@ use wasm_bindgen::prelude::{JsError, wasm_bindgen};
 
 use crate::files::FileSet;
 use crate::limbs::LimbsWorker;
+use crate::post::PostWorker;
 use crate::session::{PhenotypeSliders, TryOn, TryOnOptions, procedural_clip_names};
 use sartor_motion::ClearanceOptions;
 
@@ -45,6 +46,18 @@ fn sliders(
 fn clearance_options(json: &str) -> Result<ClearanceOptions, JsError> {
     serde_json::from_str(json)
         .map_err(|e| JsError::new(&format!("arm clearance options {json:?}: {e}")))
+}
+
+/// The precision named `f32`, `f16` or `int8`.
+fn precision_of(name: &str) -> Result<Precision, JsError> {
+    match name {
+        "f32" => Ok(Precision::F32),
+        "f16" => Ok(Precision::F16),
+        "int8" => Ok(Precision::Int8),
+        other => Err(JsError::new(&format!(
+            "precision {other:?}: expected f32, f16 or int8"
+        ))),
+    }
 }
 
 /// Files fetched by the page, by name (`model/model.json`, `body/tpose.json`, …).
@@ -85,16 +98,7 @@ impl WebTryOn {
         post_process: bool,
         arm_clearance: Option<String>,
     ) -> Result<WebTryOn, JsError> {
-        let precision = match precision {
-            "f32" => Precision::F32,
-            "f16" => Precision::F16,
-            "int8" => Precision::Int8,
-            other => {
-                return Err(JsError::new(&format!(
-                    "precision {other:?}: expected f32, f16 or int8"
-                )));
-            }
-        };
+        let precision = precision_of(precision)?;
         let arm_clearance = arm_clearance
             .map(|json| clearance_options(&json))
             .transpose()?;
@@ -259,6 +263,21 @@ impl WebTryOn {
         self.inner.step().map_err(js)
     }
 
+    /// `step` with the garment's post-process left to a `PostWorker`: the job's bytes, or
+    /// `undefined` where the frame was shown whole (see `TryOn::step_deferred`); the frame is
+    /// shown once `absorbPost` takes up the answer.
+    #[wasm_bindgen(js_name = stepDeferred)]
+    pub fn step_deferred(&mut self) -> Result<Option<Vec<u8>>, JsError> {
+        self.inner.step_deferred().map_err(js)
+    }
+
+    /// Take up a `PostWorker`'s answer (its bytes): `true` where it makes the frame shown,
+    /// `false` where it is stale (see `TryOn::absorb_post`).
+    #[wasm_bindgen(js_name = absorbPost)]
+    pub fn absorb_post(&mut self, answer: &[u8]) -> Result<bool, JsError> {
+        self.inner.absorb_post(answer).map_err(js)
+    }
+
     /// The frame shown.
     #[wasm_bindgen(getter)]
     pub fn frame(&self) -> usize {
@@ -382,6 +401,31 @@ impl WebLimbsWorker {
     /// Everything computed for the last job's motion and shape, for `TryOn.absorbArms`.
     pub fn answer(&self) -> Result<Vec<u8>, JsError> {
         self.inner.answer().map_err(js)
+    }
+}
+
+/// The garment's post-process computed in a Web Worker (see [`PostWorker`]).
+#[wasm_bindgen(js_name = PostWorker)]
+pub struct WebPostWorker {
+    inner: PostWorker,
+}
+
+#[wasm_bindgen(js_class = PostWorker)]
+impl WebPostWorker {
+    /// Load the garment model and the body (`files`: the `model/…` and `body/…` files) with
+    /// the precision the page's `TryOn` was loaded with (`f32`, `f16` or `int8`).
+    pub fn load(files: AssetFiles, precision: &str) -> Result<WebPostWorker, JsError> {
+        let precision = precision_of(precision)?;
+        let clock = Some(crate::clock::now_ms as fn() -> f64);
+        Ok(Self {
+            inner: PostWorker::load(files.inner, precision, clock).map_err(js)?,
+        })
+    }
+
+    /// Post-process a job (`TryOn.stepDeferred`'s bytes): the answer's bytes, for
+    /// `TryOn.absorbPost`.
+    pub fn run(&mut self, job: &[u8]) -> Result<Vec<u8>, JsError> {
+        self.inner.run(job).map_err(js)
     }
 }
 

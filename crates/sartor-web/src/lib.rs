@@ -52,6 +52,7 @@ mod error;
 mod files;
 mod js;
 mod limbs;
+mod post;
 mod probe;
 #[cfg(not(target_arch = "wasm32"))]
 mod serve;
@@ -60,8 +61,11 @@ mod session;
 pub use clock::now_ms;
 pub use error::{Error, Result};
 pub use files::{BODY_FILES, FileSet, MODEL_FILES};
-pub use js::{AssetFiles, WebLimbsWorker, WebTryOn, kernel_probe_js, procedural_clips};
+pub use js::{
+    AssetFiles, WebLimbsWorker, WebPostWorker, WebTryOn, kernel_probe_js, procedural_clips,
+};
 pub use limbs::LimbsWorker;
+pub use post::PostWorker;
 pub use probe::kernel_probe;
 #[cfg(not(target_arch = "wasm32"))]
 pub use serve::{Server, serve_dir};

@@ -27,6 +27,7 @@ use sartor_runtime::{
 
 use crate::error::{Error, Result};
 use crate::files::FileSet;
+use crate::post::{PostAnswer, PostJob};
 
 /// Frames run before the shown one after a jump (scrubbing, a new shape): the GRU starts from
 /// a zero state at the jump, as a training sequence does, and these frames let its wrinkles
@@ -68,16 +69,20 @@ impl Default for TryOnOptions {
 /// What a garment's animator is built with ([`TryOnOptions`] less the arms): kept, so that
 /// [`TryOn::set_garment`] builds another one alike.
 #[derive(Clone, Copy, Debug)]
-struct GarmentOptions {
-    precision: Precision,
-    post_process: bool,
-    clock: Option<fn() -> f64>,
+pub(crate) struct GarmentOptions {
+    pub(crate) precision: Precision,
+    pub(crate) post_process: bool,
+    pub(crate) clock: Option<fn() -> f64>,
 }
 
 impl GarmentOptions {
     /// The animator of the garment model in `files` ([`crate::MODEL_FILES`]) on `body`, at
     /// β = 0.
-    fn animator(&self, files: &mut FileSet, body: &Arc<BodyModel>) -> Result<GarmentAnimator> {
+    pub(crate) fn animator(
+        &self,
+        files: &mut FileSet,
+        body: &Arc<BodyModel>,
+    ) -> Result<GarmentAnimator> {
         let model_dir = Path::new("model");
         let model = GarmentModel::from_bytes(
             model_dir,
@@ -272,6 +277,10 @@ pub struct TryOn {
     /// ([`TryOn::arms_job`]): a worker that took every job holds them, so a job of the same
     /// motion names them instead.
     worker_motion: Option<u64>,
+    /// Post-process jobs handed out ([`TryOn::step_deferred`]).
+    post_jobs: u64,
+    /// The id of the job whose answer makes the frame shown, while none was taken up.
+    post_pending: Option<u64>,
 }
 
 /// Compute in `held`, taking at most `max_looks` looks, the poses [`TryOn::seek`] asks of a
@@ -331,6 +340,11 @@ pub(crate) fn load_body(files: &mut FileSet) -> Result<BodyModel> {
 /// warm-up frames and `frame`.
 fn jump_frames(frame: usize) -> std::ops::Range<usize> {
     frame.saturating_sub(WARMUP_FRAMES).saturating_sub(1)..frame + 1
+}
+
+/// The model's β as its animator is set to them.
+fn shape32(betas: &[f64]) -> Vec<f32> {
+    betas.iter().map(|&b| b as f32).collect()
 }
 
 /// Flatten points into `x, y, z, x, y, z, …`.
@@ -401,6 +415,8 @@ impl TryOn {
             arms_ms: 0.0,
             arm_turn_rad: 0.0,
             worker_motion: None,
+            post_jobs: 0,
+            post_pending: None,
         };
         try_on.cleared = try_on.clearance_for(&try_on.motion, &try_on.betas)?;
         try_on.seek(0)?;
@@ -426,8 +442,7 @@ impl TryOn {
                 ),
             ));
         }
-        let b32: Vec<f32> = self.betas.iter().map(|&b| b as f32).collect();
-        animator.set_shape(&b32)?;
+        animator.set_shape(&shape32(&self.betas))?;
         let worn = std::mem::replace(&mut self.animator, animator);
         if let Err(e) = self.seek(self.frame) {
             self.animator = worn;
@@ -672,8 +687,7 @@ impl TryOn {
             None => None,
         };
         let posed_body = PosedBody::new(&self.body, &Self::body_betas(&self.body, &model_betas))?;
-        let b32: Vec<f32> = model_betas.iter().map(|&b| b as f32).collect();
-        self.animator.set_shape(&b32)?;
+        self.animator.set_shape(&shape32(&model_betas))?;
         self.posed_body = posed_body;
         if let Some(cleared) = cleared {
             self.cleared = cleared;
@@ -857,8 +871,49 @@ impl TryOn {
         Ok(self.frame)
     }
 
+    /// [`TryOn::step`] with the garment's post-process left to a [`crate::PostWorker`]: the
+    /// next frame made up to it (the network, the skinning, the strain limit; the body posed),
+    /// and the job's bytes for the worker: the shape, the frame's pose and its garment. The frame
+    /// is shown once [`TryOn::absorb_post`] takes up the worker's answer; until then
+    /// [`TryOn::garment_vertices`] are the garment before the post-process. `None` where the
+    /// frame was shown whole, on this thread: after the motion's last frame (it starts again,
+    /// a jump), or without a post-process ([`TryOnOptions::post_process`]). Any other frame
+    /// shown meanwhile (a scrub, a shape, a garment, [`TryOn::step`]) makes the answer stale.
+    pub fn step_deferred(&mut self) -> Result<Option<Vec<u8>>> {
+        if !self.garment.post_process || self.frame + 1 >= self.motion.n_frames() {
+            self.step()?;
+            return Ok(None);
+        }
+        self.arms_ms = 0.0;
+        self.show_with(self.frame + 1, false)
+    }
+
+    /// Take up a [`crate::PostWorker`]'s answer to the job of [`TryOn::step_deferred`]: where it
+    /// answers the job of the frame shown (none shown since), the frame's garment is the
+    /// answer's (the page's own post-process's, bit for bit) and its post-process time the
+    /// worker's; `true`. A stale answer changes nothing (`false`). An error names the fault of
+    /// bytes that are not an answer or a garment of another vertex count.
+    pub fn absorb_post(&mut self, answer: &[u8]) -> Result<bool> {
+        let answer = PostAnswer::from_bytes(answer)?;
+        if self.post_pending != Some(answer.id) {
+            return Ok(false);
+        }
+        self.animator
+            .take_post_processed(&answer.vertices, answer.pushed, answer.ms)?;
+        self.times.garment.post_process_ms = answer.ms;
+        self.post_pending = None;
+        Ok(true)
+    }
+
     /// Compute frame `frame` (the animator is at the frame before it) and pose the body.
     fn show(&mut self, frame: usize) -> Result<()> {
+        self.show_with(frame, true).map(|_| ())
+    }
+
+    /// [`TryOn::show`]; where not `resolve`, without the garment's post-process: the job's
+    /// bytes for the worker ([`TryOn::step_deferred`]).
+    fn show_with(&mut self, frame: usize, resolve: bool) -> Result<Option<Vec<u8>>> {
+        self.post_pending = None;
         let held = self.held_pose(frame)?;
         self.arm_turn_rad = match &mut self.cleared {
             // Kept from computing the pose.
@@ -866,7 +921,21 @@ impl TryOn {
             None => 0.0,
         };
         let pose = held.as_ref().unwrap_or(&self.motion.frames()[frame]);
-        self.animator.frame(pose)?;
+        let job = if resolve {
+            self.animator.frame(pose)?;
+            None
+        } else {
+            let vertices = self.animator.frame_deferred(pose)?.to_vec();
+            self.post_jobs += 1;
+            self.post_pending = Some(self.post_jobs);
+            let job = PostJob {
+                id: self.post_jobs,
+                betas: shape32(&self.betas),
+                pose: pose.clone(),
+                vertices,
+            };
+            Some(job.to_bytes())
+        };
         let start = now(self.clock);
         self.posed_body.pose(&self.body, pose)?;
         self.times = FrameTimes {
@@ -875,7 +944,7 @@ impl TryOn {
             arms_ms: std::mem::take(&mut self.arms_ms),
         };
         self.frame = frame;
-        Ok(())
+        Ok(job)
     }
 
     /// Looks (a frame posed and its held limbs measured) the held limbs of the motion playing,

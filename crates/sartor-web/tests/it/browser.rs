@@ -575,6 +575,11 @@ fn the_page_works_in_headless_chromium() {
                      failure: l.failure, ready: l.ready};",
         )
     };
+    // (Paused: a job for the frames ahead, or a frame's post-process, may still be in hand.)
+    browser.wait_for(
+        "!window.sartor.limbs.busy && !window.sartor.post.busy",
+        Duration::from_secs(10),
+    );
     let worker = limbs();
     assert!(
         worker["ready"] == json!(true) && worker["failure"].is_null(),
@@ -720,6 +725,55 @@ fn the_page_works_in_headless_chromium() {
         "the page says what its worker did: {worker_shown}"
     );
     let mean = floats(&browser.eval("return window.sartor.meanTimes();"));
+
+    // The post-process in its worker while the clip plays: each frame costs the page's own
+    // thread less than where the page post-processes it (the same clip, body and garment, in
+    // turn). And a frame post-processed in the worker is the one the page makes itself.
+    // The worker's record, then whether it is used from now on (in one call: frames play on
+    // between calls).
+    let post = |use_it: bool| {
+        browser.eval(&format!(
+            "const p = window.sartor.post; \
+             const r = {{answers: p.answers, stale: p.stale, ms: p.ms, failure: p.failure, \
+                        ready: p.ready, mean: window.sartor.meanTimes(), \
+                        shown: document.getElementById('t-post-worker').textContent}}; \
+             window.sartor.usePostWorker({use_it}); return r;"
+        ))
+    };
+    let answers = |p: &Value| p["answers"].as_f64().expect("a count");
+    let post_from = post(true);
+    std::thread::sleep(Duration::from_millis(2500));
+    let post_to = post(false);
+    std::thread::sleep(Duration::from_millis(2500));
+    let post_after = post(true);
+    let (with_worker, without_worker) = (floats(&post_to["mean"]), floats(&post_after["mean"]));
+    assert!(
+        post_to["failure"].is_null() && answers(&post_to) - answers(&post_from) > 20.0,
+        "the worker post-processes the frames played: {post_from} to {post_to}"
+    );
+    assert!(
+        answers(&post_after) - answers(&post_to) <= 1.0,
+        "none while not used: {post_to} to {post_after}"
+    );
+    assert!(
+        with_worker[6] < without_worker[6],
+        "the page's thread a frame with the worker {with_worker:?}, without {without_worker:?}"
+    );
+    browser.eval("window.sartor.setPlaying(false);");
+    browser.wait_for("!window.sartor.post.busy", Duration::from_secs(10));
+    let before = answers(&post(true));
+    browser.eval("window.sartor.state.tryOn.seek(100); window.sartor.stepFrame();");
+    browser.wait_for(
+        &format!("window.sartor.post.answers > {before}"),
+        Duration::from_secs(10),
+    );
+    let from_worker = floats(&browser.eval("return window.sartor.garment();"));
+    let on_page = floats(&browser.eval(
+        "const t = window.sartor.state.tryOn; t.seek(100); t.step(); \
+         return window.sartor.garment();",
+    ));
+    assert_eq!(from_worker, on_page, "the worker's frame is the page's own");
+    browser.eval("window.sartor.setPlaying(true);");
     let bench = browser.eval("return window.sartor.bench(150);");
 
     // Another garment: the model with the most triangles, fetched when chosen and put on the
@@ -936,6 +990,7 @@ fn the_page_works_in_headless_chromium() {
                      faces: window.sartor.state.tryOn.garmentFaces().length, \
                      model_bytes: window.sartor.transferred().model, \
                      limbs_worker: window.sartor.limbs.worker !== null, \
+                     post_worker: window.sartor.post.worker !== null, \
                      shown_error: document.getElementById('error').hidden ? null \
                        : document.getElementById('error').textContent};",
         )
@@ -952,6 +1007,7 @@ fn the_page_works_in_headless_chromium() {
             && linked["faces"] == json!(3 * fine_triangles)
             && linked["shown_error"].is_null()
             && linked["limbs_worker"] == json!(true)
+            && linked["post_worker"] == json!(true)
             && model_bytes >= fine_bytes
             && model_bytes < fine_bytes + first_bytes,
         "the linked garment: {linked}"
@@ -990,11 +1046,43 @@ fn the_page_works_in_headless_chromium() {
             && after_failure["shown_error"].is_null(),
         "after the worker failed: {after_failure}"
     );
-    // (And the held limbs left to the page's slices, as the address asks.)
-    let unknown = open("?garment=no-such-model&limbs=page");
+    // A post-process worker that fails (bytes that are no job) leaves the frames to the page,
+    // which plays on with no error shown. Loaded with the garment of the address first.
+    browser.wait_for("window.sartor.post.ready", Duration::from_secs(20));
+    browser.eval(
+        "window.sartor.setPlaying(true); \
+         window.sartor.post.worker.postMessage({job: new Uint8Array([1, 2, 3]), id: -1});",
+    );
+    browser.wait_for(
+        "window.sartor.post.failure !== null",
+        Duration::from_secs(20),
+    );
+    let stepped = browser.eval("return window.sartor.state.framesStepped;");
+    browser.wait_for(
+        &format!("window.sartor.state.framesStepped > {stepped} + 5"),
+        Duration::from_secs(20),
+    );
+    let post_failed = browser.eval(
+        "const p = window.sartor.post; \
+         return {failure: p.failure, worker: p.worker !== null, busy: p.busy, \
+                 shown: document.getElementById('t-post-worker').textContent, \
+                 shown_error: document.getElementById('error').hidden ? null \
+                   : document.getElementById('error').textContent};",
+    );
+    assert!(
+        post_failed["failure"]
+            .as_str()
+            .is_some_and(|f| f.contains("post-process job: cut short"))
+            && post_failed["worker"] == json!(false)
+            && post_failed["shown_error"].is_null(),
+        "after the post-process worker failed: {post_failed}"
+    );
+    // (And the held limbs and the post-process left to the page, as the address asks.)
+    let unknown = open("?garment=no-such-model&limbs=page&post=page");
     assert!(
         unknown["garment"] == json!(model_name(0))
             && unknown["limbs_worker"] == json!(false)
+            && unknown["post_worker"] == json!(false)
             && unknown["shown_error"]
                 .as_str()
                 .is_some_and(|e| e.contains("no-such-model") && e.contains(&fine)),
@@ -1011,6 +1099,9 @@ fn the_page_works_in_headless_chromium() {
          ms per frame shown: {shown}; mean [network, skinning, post, body, draw, arms]: \
          {mean:?}; [frames stepped, looks on the page's thread, jobs ahead, the page's ms on \
          jobs] from {played_from} to {played_to}\n\
+         post-process in its worker: the page's thread {:.2} ms a frame (the strain limit and \
+         the worker's post-process {:.2} ms), {post_to}; the page post-processing: {:.2} ms a \
+         frame (its strain limit and post-process {:.2} ms), mean times {without_worker:?}\n\
          released while paused: arms held after {paused_release_wall:?} (the page's slices: \
          {paused_release_page:?}); released while playing: after {release_wall:?} (frames \
          {playing_from} to {}; the page's slices: {release_page:?}), longest call of the \
@@ -1025,6 +1116,10 @@ fn the_page_works_in_headless_chromium() {
          pixels [all, skin, cloth]: {pixels:?}\nscreenshot: {}",
         probe.len(),
         sartor_runtime_isa(),
+        with_worker[6],
+        with_worker[2],
+        without_worker[6],
+        without_worker[2],
         release[0],
         release[1],
         scrubbed[3],

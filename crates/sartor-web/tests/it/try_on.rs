@@ -7,7 +7,8 @@ use sartor_motion::{
     ClearanceJob, ClearanceOptions, ClearanceProgress, MotionSourceOptions, RetargetBody,
     load_motion,
 };
-use sartor_web::{BODY_FILES, LimbsWorker, PhenotypeSliders, TryOn, TryOnOptions};
+use sartor_runtime::Precision;
+use sartor_web::{BODY_FILES, LimbsWorker, PhenotypeSliders, PostWorker, TryOn, TryOnOptions};
 
 use crate::common::{
     files_of, load, playing_02_02, playing_02_02_with, repo, shipped_arm_clearance, shipped_files,
@@ -861,4 +862,145 @@ fn another_garment_is_worn_on_the_same_shape_motion_and_frame() {
     assert_eq!(t.garment_faces().len(), 3 * 4210);
     assert_eq!(t.garment_vertices(), garment);
     assert_eq!(t.frame(), 20);
+}
+
+/// The page's worker for the post-process: the shipped model and the body, as the page loads
+/// its try-on (f32).
+fn post_worker(model: &str) -> PostWorker {
+    let files = files_of(&[
+        (
+            &sartor_web::MODEL_FILES[..],
+            &format!("datasets/models/{model}"),
+        ),
+        (&BODY_FILES[..], "datasets/body/makehuman"),
+    ]);
+    PostWorker::load(files, Precision::F32, Some(sartor_web::now_ms)).expect("the model loads")
+}
+
+#[test]
+fn frames_post_processed_in_a_worker_are_the_frames_the_page_makes_itself() {
+    // CMU 02_02 with the arms held, at the nominal shape and on a wide body (β₂ = 2; the
+    // triangles pushed too, as on the page): each frame stepped with its post-process in the
+    // worker is the frame the page makes itself, bit for bit, through a change of shape, a
+    // scrub, the clip's end and another garment.
+    let wide = [0.0, 2.0];
+    let (mut page, mut direct) = (at_frame_20(), at_frame_20());
+    let mut worker = post_worker("default");
+    let mut deferred = 0;
+    let mut step = |page: &mut TryOn, direct: &mut TryOn, worker: &mut PostWorker| {
+        let job = page.step_deferred().expect("step");
+        direct.step().expect("step");
+        if let Some(job) = job {
+            let answer = worker.run(&job).expect("post-processed");
+            assert!(
+                page.absorb_post(&answer).expect("answer"),
+                "the frame's answer"
+            );
+            deferred += 1;
+        }
+        assert_eq!(page.frame(), direct.frame());
+        assert_eq!(page.garment_vertices(), direct.garment_vertices());
+        assert_eq!(page.body_vertices(), direct.body_vertices());
+        assert_eq!(page.pushed(), direct.pushed());
+    };
+    for _ in 0..3 {
+        step(&mut page, &mut direct, &mut worker);
+    }
+    for t in [&mut page, &mut direct] {
+        t.set_betas(&wide).expect("shape");
+    }
+    for _ in 0..3 {
+        step(&mut page, &mut direct, &mut worker);
+    }
+    assert!(page.pushed() > 0, "the frames collide");
+    assert!(
+        page.times().garment.post_process_ms > 0.0,
+        "the worker's time"
+    );
+    // The end of the clip: its last frame deferred, the first again shown whole (a jump).
+    let last = page.n_frames() - 1;
+    for t in [&mut page, &mut direct] {
+        t.seek(last - 1).expect("seek");
+    }
+    step(&mut page, &mut direct, &mut worker);
+    let job = page.step_deferred().expect("step");
+    direct.step().expect("step");
+    assert!(job.is_none(), "a jump back to the start is shown whole");
+    assert_eq!(
+        (page.frame(), page.garment_vertices()),
+        (0, direct.garment_vertices())
+    );
+    for t in [&mut page, &mut direct] {
+        t.set_garment(model_files("default-8710"))
+            .expect("8,710 triangles");
+    }
+    let mut fine = post_worker("default-8710");
+    for _ in 0..2 {
+        step(&mut page, &mut direct, &mut fine);
+    }
+    assert_eq!(deferred, 9);
+}
+
+#[test]
+fn a_stale_post_process_answer_changes_nothing() {
+    let mut t = at_frame_20();
+    let mut worker = post_worker("default");
+    let job = t.step_deferred().expect("step").expect("deferred");
+    let answer = worker.run(&job).expect("post-processed");
+    // A scrub shows another frame whole before the answer comes: the answer is stale.
+    t.seek(5).expect("scrub");
+    let shown = t.garment_vertices();
+    assert!(!t.absorb_post(&answer).expect("an answer"), "stale");
+    assert_eq!(t.garment_vertices(), shown);
+    // A later job's answer is taken; the earlier one, crossing it, is not.
+    let first = t.step_deferred().expect("step").expect("deferred");
+    let second = t.step_deferred().expect("step").expect("deferred");
+    let unprocessed = t.garment_vertices();
+    let (a, b) = (worker.run(&first).unwrap(), worker.run(&second).unwrap());
+    assert!(!t.absorb_post(&a).expect("an answer"));
+    assert_eq!(t.garment_vertices(), unprocessed);
+    assert!(t.absorb_post(&b).expect("an answer"));
+    assert!(t.pushed() > 0, "the frame collides");
+    assert_ne!(
+        t.garment_vertices(),
+        unprocessed,
+        "the answer's garment shown"
+    );
+    assert!(!t.absorb_post(&b).expect("an answer"), "taken once");
+}
+
+#[test]
+fn a_post_worker_refuses_what_is_not_a_job_and_a_page_what_is_not_an_answer() {
+    let mut t = at_frame_20();
+    let mut worker = post_worker("default");
+    let job = t.step_deferred().expect("step").expect("deferred");
+    let e = worker.run(&job[..job.len() - 1]).expect_err("cut short");
+    assert!(e.to_string().contains("post-process job"), "{e}");
+    assert!(e.to_string().contains("cut short"), "{e}");
+    let mut longer = job.clone();
+    longer.push(0);
+    let e = worker.run(&longer).expect_err("too long");
+    assert!(e.to_string().contains("1 bytes after the end"), "{e}");
+    let e = t.absorb_post(&job).expect_err("a job, not an answer");
+    assert!(e.to_string().contains("post-process answer"), "{e}");
+    // A coordinate that is not finite (the garment's last one), a garment of the other model,
+    // a shape of another component count.
+    let mut nan = job.clone();
+    let at = nan.len() - 4;
+    nan[at..].copy_from_slice(&f32::NAN.to_le_bytes());
+    let e = worker.run(&nan).expect_err("NaN");
+    assert!(e.to_string().contains("NaN"), "{e}");
+    let mut fine = post_worker("default-8710");
+    let e = fine.run(&job).expect_err("another garment");
+    assert!(e.to_string().contains("garment vertices"), "{e}");
+    // The worker goes on: the page's job post-processes, and the page takes it up.
+    let answer = worker.run(&job).expect("post-processed");
+    let e = t
+        .absorb_post(&answer[..answer.len() - 2])
+        .expect_err("cut short");
+    assert!(e.to_string().contains("post-process answer"), "{e}");
+    assert!(t.absorb_post(&answer).expect("answer"));
+    let mut direct = at_frame_20();
+    direct.step().expect("step");
+    assert_eq!(t.garment_vertices(), direct.garment_vertices());
 }
