@@ -727,7 +727,9 @@ function transferred() {
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
 /// milliseconds of each stage (what the page can sustain, independent of the display rate), of
-/// a jump's garment (`jump`), of a whole change of shape (`shape`), of the same change as a
+/// the page's part of a frame whose post-process the worker computes (`deferredFrame`: the
+/// network, the skinning, the strain limit, the body posed, the job's bytes), of a jump's
+/// garment (`jump`), of a whole change of shape (`shape`), of the same change as a
 /// slider's release makes it in slices (`releaseLongest`, the longest call of the preview and
 /// the `settle(1)` calls, and `releaseWhole`, all of them) and of a preview while a slider
 /// moves (`preview`).
@@ -741,6 +743,10 @@ function bench(frames = 120) {
     t.step();
     rows.push(t.times());
   }
+  // The page's part of a frame whose post-process its worker computes (the job made, not
+  // posted), over frames stepped above (their held limbs computed).
+  t.seek(0);
+  const deferred = medianMs(Math.min(30, frames), () => t.stepDeferred());
   // A jump's garment: seeks alternating between two frames the steps above went through (so
   // the arms' poses are kept), each running the GRU's warm-up and the frame shown.
   const targets = [Math.floor(frames / 3), Math.floor((2 * frames) / 3)].map((f) =>
@@ -789,6 +795,7 @@ function bench(frames = 120) {
     body: median(3),
     arms: median(4),
     garmentFrame: totals[Math.floor(totals.length / 2)],
+    deferredFrame: deferred,
     jump,
     shape,
     releaseLongest: middle(longest),

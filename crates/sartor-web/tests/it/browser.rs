@@ -1141,6 +1141,7 @@ fn the_page_works_in_headless_chromium() {
     );
     for key in [
         "garmentFrame",
+        "deferredFrame",
         "jump",
         "shape",
         "releaseLongest",
@@ -1151,6 +1152,14 @@ fn the_page_works_in_headless_chromium() {
             let ms = bench[key].as_f64().expect("ms");
             assert!(ms.is_finite() && ms > 0.0, "{key}: {bench}");
         }
+    }
+    // With the post-process in the worker, the page's part of a frame (the body posed too) is
+    // less than the garment's whole frame.
+    for bench in [&bench, &bench_fine] {
+        assert!(
+            bench["deferredFrame"].as_f64() < bench["garmentFrame"].as_f64(),
+            "{bench}"
+        );
     }
     let errors: Vec<&Value> = console
         .iter()
