@@ -101,10 +101,21 @@ impl<'a> Reader<'a> {
 
     /// `n` points of finite `f32` coordinates ([`put_points`]).
     pub fn points(&mut self, n: usize) -> Result<Vec<Vector3<f32>>> {
-        let v = self.floats32(n.saturating_mul(3))?;
-        Ok(v.chunks_exact(3)
-            .map(|p| Vector3::new(p[0], p[1], p[2]))
-            .collect())
+        let at = self.at;
+        let bytes = self.take(n.saturating_mul(12))?;
+        let value = |b: &[u8]| f32::from_le_bytes(b.try_into().expect("4 bytes"));
+        let points: Vec<Vector3<f32>> = bytes
+            .chunks_exact(12)
+            .map(|p| Vector3::new(value(&p[..4]), value(&p[4..8]), value(&p[8..])))
+            .collect();
+        let bad = points.iter().enumerate().find_map(|(i, p)| {
+            let k = p.iter().position(|v| !v.is_finite())?;
+            Some((p[k], at + 12 * i + 4 * k))
+        });
+        match bad {
+            Some((v, byte)) => Err(self.fault(format!("a value of {v} at byte {byte}"))),
+            None => Ok(points),
+        }
     }
 
     /// A pose of `joints` joints ([`put_pose`]; its rotations are the caller's to check,
@@ -200,5 +211,51 @@ pub fn put_poses(out: &mut Vec<u8>, poses: &[Pose]) {
     for pose in poses {
         debug_assert_eq!(pose.local_rotations.len(), joints, "one skeleton");
         put_pose(out, pose);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_points_and_poses_come_back_and_faults_are_named() {
+        let mut pose = Pose::rest(2);
+        pose.root_translation_m = Vector3::new(0.1, 0.9, -0.2);
+        pose.local_rotations[1] = UnitQuaternion::from_euler_angles(0.3, -0.2, 0.1);
+        let points = [
+            Vector3::new(1.0f32, -2.5, 3.25),
+            Vector3::new(0.0, 1e-3, -7.0),
+        ];
+        let mut out = b"sartorT1".to_vec();
+        put_counts(&mut out, &[2]);
+        put_floats32(&mut out, &[0.5, -1.5]);
+        put_points(&mut out, &points);
+        put_poses(&mut out, std::slice::from_ref(&pose));
+        put_bits(&mut out, [true, false, true].into_iter());
+        let mut r = Reader::open(&out, "test bytes", *b"sartorT1").expect("magic");
+        assert_eq!(r.count().unwrap(), 2);
+        assert_eq!(r.floats32(2).unwrap(), [0.5, -1.5]);
+        assert_eq!(r.points(2).unwrap(), points);
+        assert_eq!(r.poses().unwrap(), [pose]);
+        assert_eq!(r.bits(3).unwrap(), [true, false, true]);
+        r.end().expect("every byte read");
+
+        // A coordinate that is not finite, named with its byte; bytes cut short; another magic.
+        let mut nan = b"sartorT1".to_vec();
+        put_points(&mut nan, &[Vector3::new(0.0, f32::NAN, 1.0)]);
+        let e = Reader::open(&nan, "test bytes", *b"sartorT1")
+            .and_then(|mut r| r.points(1))
+            .unwrap_err();
+        assert!(e.to_string().contains("a value of NaN at byte 12"), "{e}");
+        let e = Reader::open(&nan[..15], "test bytes", *b"sartorT1")
+            .and_then(|mut r| r.points(1))
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("cut short: 15 bytes, 20 needed"),
+            "{e}"
+        );
+        let e = Reader::open(&nan, "test bytes", *b"sartorX1").unwrap_err();
+        assert!(e.to_string().contains("test bytes"), "{e}");
     }
 }

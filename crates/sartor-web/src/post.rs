@@ -22,7 +22,7 @@ use crate::files::FileSet;
 use crate::session::TryOn;
 use crate::session::{GarmentOptions, load_body};
 
-/// The first bytes of [`PostJob::to_bytes`].
+/// The first bytes of [`PostJob::bytes`].
 const JOB_MAGIC: [u8; 8] = *b"sartorP1";
 /// The first bytes of [`PostAnswer::to_bytes`].
 const ANSWER_MAGIC: [u8; 8] = *b"sartorQ1";
@@ -41,24 +41,26 @@ pub(crate) struct PostJob {
 }
 
 impl PostJob {
-    /// Little-endian: the magic, the id (`u64`), the counts of β, joints and vertices (`u32`),
-    /// β (`f32`), the pose (`f64`: the root translation, orientation and each joint's rotation,
-    /// quaternions `i, j, k, w`) and the vertices (`f32`, `x, y, z, …`).
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let joints = self.pose.local_rotations.len();
-        let n = 8 + 8 + 12 + 4 * self.betas.len() + 8 * (7 + 4 * joints);
-        let mut out = Vec::with_capacity(n + 12 * self.vertices.len());
+    /// The bytes of the job `id` of shape `betas`, pose `pose` and garment `vertices`, written
+    /// from them (the one allocation is the message). Little-endian: the magic, the id
+    /// (`u64`), the counts of β, joints and vertices (`u32`), β (`f32`), the pose (`f64`: the
+    /// root translation, orientation and each joint's rotation, quaternions `i, j, k, w`) and
+    /// the vertices (`f32`, `x, y, z, …`).
+    pub fn bytes(id: u64, betas: &[f32], pose: &Pose, vertices: &[Vector3<f32>]) -> Vec<u8> {
+        let joints = pose.local_rotations.len();
+        let n = 8 + 8 + 12 + 4 * betas.len() + 8 * (7 + 4 * joints);
+        let mut out = Vec::with_capacity(n + 12 * vertices.len());
         out.extend(JOB_MAGIC);
-        out.extend(self.id.to_le_bytes());
-        put_counts(&mut out, &[self.betas.len(), joints, self.vertices.len()]);
-        put_floats32(&mut out, &self.betas);
-        put_pose(&mut out, &self.pose);
-        put_points(&mut out, &self.vertices);
+        out.extend(id.to_le_bytes());
+        put_counts(&mut out, &[betas.len(), joints, vertices.len()]);
+        put_floats32(&mut out, betas);
+        put_pose(&mut out, pose);
+        put_points(&mut out, vertices);
         out
     }
 
-    /// Read [`Self::to_bytes`]'s bytes: an error naming the fault where they are cut short, too
-    /// long, of another format or hold a value that is not finite.
+    /// Read [`Self::bytes`]: an error naming the fault where they are cut short, too long, of
+    /// another format or hold a value that is not finite.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
         let mut r = Reader::open(bytes, "post-process job", JOB_MAGIC)?;
         let id = r.u64()?;

@@ -925,16 +925,11 @@ impl TryOn {
             self.animator.frame(pose)?;
             None
         } else {
-            let vertices = self.animator.frame_deferred(pose)?.to_vec();
+            let vertices = self.animator.frame_deferred(pose)?;
             self.post_jobs += 1;
             self.post_pending = Some(self.post_jobs);
-            let job = PostJob {
-                id: self.post_jobs,
-                betas: shape32(&self.betas),
-                pose: pose.clone(),
-                vertices,
-            };
-            Some(job.to_bytes())
+            let betas = shape32(&self.betas);
+            Some(PostJob::bytes(self.post_jobs, &betas, pose, vertices))
         };
         let start = now(self.clock);
         self.posed_body.pose(&self.body, pose)?;
