@@ -47,11 +47,11 @@ const limbs = {
   failure: null, // why the worker is no longer used
 };
 
-// The garment's post-process, most of a frame's work, is computed in a worker
-// (post-worker.js) while a clip plays, where the browser has one: the page makes each frame up
-// to it (TryOn.stepDeferred: the network, the skinning, the body), posts the job, and draws the
-// frame when the answer comes back (TryOn.absorbPost; the page's own post-process's garment,
-// bit for bit), within the display frame after at most. A frame shown otherwise (a scrub, a
+// The garment's post-processing (the strain limit and the collision post-process), most of a
+// frame's work, is computed in a worker (post-worker.js) while a clip plays, where the browser
+// has one: the page makes each frame up to it (TryOn.stepDeferred: the network, the skinning,
+// the body), posts the job, and draws the frame when the answer comes back (TryOn.absorbPost;
+// the page's own post-processing's garment, bit for bit), within the display frame after at most. A frame shown otherwise (a scrub, a
 // change of shape or garment, the clip's start again) is post-processed on the page, as every
 // frame is without a worker, once it failed, or with `?post=page` in the address.
 const PRECISION = "f32";
@@ -727,8 +727,8 @@ function transferred() {
 
 /// Step `frames` frames back to back (the motion shown, from its start) and return the median
 /// milliseconds of each stage (what the page can sustain, independent of the display rate), of
-/// the page's part of a frame whose post-process the worker computes (`deferredFrame`: the
-/// network, the skinning, the strain limit, the body posed, the job's bytes), of a jump's
+/// the page's part of a frame whose post-processing the worker computes (`deferredFrame`: the
+/// network, the skinning, the body posed, the job's bytes), of a jump's
 /// garment (`jump`), of a whole change of shape (`shape`), of the same change as a
 /// slider's release makes it in slices (`releaseLongest`, the longest call of the preview and
 /// the `settle(1)` calls, and `releaseWhole`, all of them) and of a preview while a slider

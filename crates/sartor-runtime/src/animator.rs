@@ -374,6 +374,20 @@ pub struct StageTimes {
     pub post_process_ms: f64,
 }
 
+/// What a garment's post-processing did ([`GarmentAnimator::post_process`]): the strain limit,
+/// then the collision post-process, each where the rig has it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PostProcessReport {
+    /// Edge projections of the strain limit.
+    pub strained: usize,
+    /// Garment vertices the collision post-process moved.
+    pub pushed: usize,
+    /// The strain limit's time, ms of the animator's stage clock (0 without one).
+    pub strain_limit_ms: f64,
+    /// The collision post-process's time, ms of the stage clock (0 without one).
+    pub post_process_ms: f64,
+}
+
 /// One avatar's state, everything but the network buffers (which a crowd batches).
 #[derive(Clone, Debug)]
 struct Avatar {
@@ -564,27 +578,49 @@ impl Avatar {
             par,
         )?;
         let skinned = self.now();
-        self.strained = 0;
-        if let (Some(edges), Some(limit)) = (&rig.edges, &rig.options.strain_limit) {
-            self.strained = edges.limit(
-                &mut self.vertices,
-                &self.edge_limits,
-                limit,
-                &mut self.limit_scratch,
-            );
-        }
-        let limited = self.now();
-        self.pushed = 0;
-        if resolve && let Some(collider) = &mut self.collider {
-            collider.pose(&rig.region, &self.transforms, par)?;
-            self.pushed = collider.resolve(&mut self.vertices, rig.binding.faces(), par);
-        }
-        let done = self.now();
+        let report = if resolve {
+            // (Taken out and put back: no allocation.)
+            let mut vertices = std::mem::take(&mut self.vertices);
+            let report = self.post_process(rig, &mut vertices, par);
+            self.vertices = vertices;
+            report?
+        } else {
+            PostProcessReport::default()
+        };
+        self.strained = report.strained;
+        self.pushed = report.pushed;
         self.times.skinning_ms = skinned - start;
-        self.times.strain_limit_ms = limited - skinned;
-        self.times.post_process_ms = done - limited;
+        self.times.strain_limit_ms = report.strain_limit_ms;
+        self.times.post_process_ms = report.post_process_ms;
         self.remember(pose);
         Ok(())
+    }
+
+    /// The strain limit and the collision post-process of `vertices`, skinned by this
+    /// avatar's transforms (posed for the frame), each where the rig has it.
+    fn post_process(
+        &mut self,
+        rig: &GarmentRig,
+        vertices: &mut [Vector3<f32>],
+        par: Parallelism,
+    ) -> Result<PostProcessReport> {
+        let start = self.now();
+        let mut strained = 0;
+        if let (Some(edges), Some(limit)) = (&rig.edges, &rig.options.strain_limit) {
+            strained = edges.limit(vertices, &self.edge_limits, limit, &mut self.limit_scratch);
+        }
+        let limited = self.now();
+        let mut pushed = 0;
+        if let Some(collider) = &mut self.collider {
+            collider.pose(&rig.region, &self.transforms, par)?;
+            pushed = collider.resolve(vertices, rig.binding.faces(), par);
+        }
+        Ok(PostProcessReport {
+            strained,
+            pushed,
+            strain_limit_ms: limited - start,
+            post_process_ms: self.now() - limited,
+        })
     }
 
     /// The joints and skinning transforms of `pose` at this shape.
@@ -726,18 +762,18 @@ impl GarmentAnimator {
         self.frame_with(pose, true)
     }
 
-    /// [`GarmentAnimator::frame`] without its collision post-process: the garment skinned (and
-    /// strain-limited) for `pose`, to be post-processed elsewhere by
-    /// [`GarmentAnimator::post_process`] of an animator of the same rig at the same shape (the
-    /// try-on page's worker thread), whose answer [`GarmentAnimator::take_post_processed`] then
-    /// makes this frame's garment. Until then [`GarmentAnimator::vertices`] are these and
+    /// [`GarmentAnimator::frame`] without its post-processing (the strain limit and the
+    /// collision post-process): the garment skinned for `pose`, to be post-processed elsewhere
+    /// by [`GarmentAnimator::post_process`] of an animator of the same rig at the same shape
+    /// (the try-on page's worker thread), whose answer [`GarmentAnimator::take_post_processed`]
+    /// then makes this frame's garment. Until then [`GarmentAnimator::vertices`] are these and
     /// [`GarmentAnimator::last_frame_pushed`] is 0. The same as `frame` where the rig has no
-    /// post-process. Errors as `frame`. Allocation-free.
+    /// post-processing. Errors as `frame`. Allocation-free.
     pub fn frame_deferred(&mut self, pose: &Pose) -> Result<&[Vector3<f32>]> {
         self.frame_with(pose, false)
     }
 
-    /// [`GarmentAnimator::frame`], the post-process run only where `resolve`.
+    /// [`GarmentAnimator::frame`], the post-processing run only where `resolve`.
     fn frame_with(&mut self, pose: &Pose, resolve: bool) -> Result<&[Vector3<f32>]> {
         match self.rig.options.parallelism {
             Parallelism::Sequential => self.frame_now(pose, resolve)?,
@@ -748,40 +784,43 @@ impl GarmentAnimator {
         Ok(&self.avatar.vertices)
     }
 
-    /// The collision post-process of [`GarmentAnimator::frame`] on `vertices`, a garment that
+    /// The post-processing of [`GarmentAnimator::frame`] (the strain limit, then the collision
+    /// post-process, each where the rig has it) on `vertices`, a garment that
     /// [`GarmentAnimator::frame_deferred`] of an animator of the same rig at the same shape made
-    /// for `pose`: pushes them out of the body region posed by `pose` at this animator's shape
-    /// and returns how many it moved. The result is that frame's garment bit for bit (the
-    /// post-process's state across frames only warm-starts its search; the runtime's tests
-    /// compare them over a real clip, jumps included). Nothing else of this animator changes
-    /// (its GRU state, previous pose and [`GarmentAnimator::vertices`] stay); its
-    /// [`GarmentAnimator::stage_times`] hold this post-process alone. Errors, moving nothing, on
-    /// a pose not of the body's skeleton, on vertices of another count or not finite, or where
-    /// the rig has no post-process.
-    pub fn post_process(&mut self, pose: &Pose, vertices: &mut [Vector3<f32>]) -> Result<usize> {
+    /// for `pose`: the body region posed by `pose` at this animator's shape. The result is that
+    /// frame's garment bit for bit (the post-process's state across frames only warm-starts
+    /// its search; the runtime's tests compare them over a real clip, jumps included). Nothing
+    /// else of this animator changes (its GRU state, previous pose and
+    /// [`GarmentAnimator::vertices`] stay); its [`GarmentAnimator::stage_times`] hold this
+    /// post-processing alone. Errors, moving nothing, on a pose not of the body's skeleton, on
+    /// vertices of another count or not finite, or where the rig has neither.
+    pub fn post_process(
+        &mut self,
+        pose: &Pose,
+        vertices: &mut [Vector3<f32>],
+    ) -> Result<PostProcessReport> {
         let rig = &*self.rig;
         pose.validate(rig.body.skeleton().n_joints())?;
         check_len("garment vertices", vertices.len(), rig.n_vertices())?;
         check_finite_points("garment vertices", vertices)?;
-        if self.avatar.collider.is_none() {
+        let strain_limit = rig.edges.is_some() && rig.options.strain_limit.is_some();
+        if self.avatar.collider.is_none() && !strain_limit {
             return Err(Error::invalid(
                 "post-process",
-                "the rig has no collision post-process (AnimatorOptions::collision is None)",
+                "the rig has neither a strain limit nor a collision post-process",
             ));
         }
         let avatar = &mut self.avatar;
         let par = rig.options.parallelism;
-        let mut run = || -> Result<usize> {
-            let start = avatar.now();
+        let mut run = || -> Result<PostProcessReport> {
             avatar.pose_bones(rig, pose)?;
-            let collider = avatar.collider.as_mut().expect("checked above");
-            collider.pose(&rig.region, &avatar.transforms, par)?;
-            let pushed = collider.resolve(vertices, rig.binding.faces(), par);
+            let report = avatar.post_process(rig, vertices, par)?;
             avatar.times = StageTimes {
-                post_process_ms: avatar.now() - start,
+                strain_limit_ms: report.strain_limit_ms,
+                post_process_ms: report.post_process_ms,
                 ..StageTimes::default()
             };
-            Ok(pushed)
+            Ok(report)
         };
         match par {
             Parallelism::Sequential => run(),
@@ -790,21 +829,21 @@ impl GarmentAnimator {
     }
 
     /// Make `vertices`, the answer of [`GarmentAnimator::post_process`] (elsewhere) to the
-    /// garment of the last [`GarmentAnimator::frame_deferred`], this frame's garment, with the
-    /// `pushed` count and the post-process's `post_process_ms` it reported: afterwards the
-    /// animator is as after `frame`. Errors, changing nothing, on vertices of another count or
-    /// not finite.
+    /// garment of the last [`GarmentAnimator::frame_deferred`], this frame's garment, with what
+    /// it reported: afterwards the animator is as after `frame`. Errors, changing nothing, on
+    /// vertices of another count or not finite.
     pub fn take_post_processed(
         &mut self,
         vertices: &[Vector3<f32>],
-        pushed: usize,
-        post_process_ms: f64,
+        report: &PostProcessReport,
     ) -> Result<()> {
         check_len("garment vertices", vertices.len(), self.rig.n_vertices())?;
         check_finite_points("garment vertices", vertices)?;
         self.avatar.vertices.copy_from_slice(vertices);
-        self.avatar.pushed = pushed;
-        self.avatar.times.post_process_ms = post_process_ms;
+        self.avatar.strained = report.strained;
+        self.avatar.pushed = report.pushed;
+        self.avatar.times.strain_limit_ms = report.strain_limit_ms;
+        self.avatar.times.post_process_ms = report.post_process_ms;
         Ok(())
     }
 

@@ -69,7 +69,7 @@ mod writers;
 
 pub use animator::{
     AnimatorOptions, BetaOutOfRange, CollisionCount, FitMode, GarmentAnimator, GarmentCrowd,
-    GarmentRig, LevelOfDetail, StageTimes, WrinkleMode,
+    GarmentRig, LevelOfDetail, PostProcessReport, StageTimes, WrinkleMode,
 };
 pub use collision::{
     BodyRegion, CertifyStats, CollisionOptions, CollisionQuery, DEFAULT_MARGIN_M, Interpenetration,

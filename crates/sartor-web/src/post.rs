@@ -3,9 +3,10 @@
 //! the triangles pushed too), which a playing clip spends on the thread that draws the page and
 //! answers its sliders. [`PostWorker`] runs in a Web Worker with a garment animator of its own
 //! (the same model, body and options): the page makes each frame up to its post-process
-//! ([`TryOn::step_deferred`]: the network, the skinning, the strain limit, the body posed) and
-//! hands over the job's bytes (the shape, the frame's pose and its garment), and shows the
-//! frame once it takes up the answer ([`TryOn::absorb_post`]). The post-process's state across
+//! ([`TryOn::step_deferred`]: the network, the skinning, the body posed) and hands over the
+//! job's bytes (the shape, the frame's pose and its garment); the worker runs the strain limit
+//! and the collision post-process, and the page shows the frame once it takes up the answer
+//! ([`TryOn::absorb_post`]). The post-process's state across
 //! frames only warm-starts its search, so the worker's answer is the garment the page's own
 //! post-process would have made, bit for bit, whatever frames the worker saw before.
 
@@ -14,7 +15,7 @@ use std::sync::Arc;
 use nalgebra::Vector3;
 use sartor_core::Pose;
 use sartor_core::bytes::{Reader, put_counts, put_floats, put_floats32, put_points, put_pose};
-use sartor_runtime::{GarmentAnimator, Precision};
+use sartor_runtime::{GarmentAnimator, PostProcessReport, Precision};
 
 use crate::error::{Error, Result};
 use crate::files::FileSet;
@@ -83,23 +84,23 @@ impl PostJob {
 pub(crate) struct PostAnswer {
     /// The job's id.
     pub id: u64,
-    /// Garment vertices the post-process moved.
-    pub pushed: usize,
-    /// The post-process's time by the worker's clock, ms (0 without one).
-    pub ms: f64,
-    /// The garment after the post-process.
+    /// What the post-processing did, its times by the worker's clock.
+    pub report: PostProcessReport,
+    /// The garment after the post-processing.
     pub vertices: Vec<Vector3<f32>>,
 }
 
 impl PostAnswer {
-    /// Little-endian: the magic, the id (`u64`), the vertices pushed and the vertex count
-    /// (`u32`), the time (`f64`) and the vertices (`f32`, `x, y, z, …`).
+    /// Little-endian: the magic, the id (`u64`), the edges strain-limited, the vertices pushed
+    /// and the vertex count (`u32`), the strain limit's and the collisions' times (`f64`, ms)
+    /// and the vertices (`f32`, `x, y, z, …`).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(8 + 8 + 8 + 8 + 12 * self.vertices.len());
+        let mut out = Vec::with_capacity(8 + 8 + 12 + 16 + 12 * self.vertices.len());
         out.extend(ANSWER_MAGIC);
         out.extend(self.id.to_le_bytes());
-        put_counts(&mut out, &[self.pushed, self.vertices.len()]);
-        put_floats(&mut out, &[self.ms]);
+        let r = &self.report;
+        put_counts(&mut out, &[r.strained, r.pushed, self.vertices.len()]);
+        put_floats(&mut out, &[r.strain_limit_ms, r.post_process_ms]);
         put_points(&mut out, &self.vertices);
         out
     }
@@ -108,14 +109,19 @@ impl PostAnswer {
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
         let mut r = Reader::open(bytes, "post-process answer", ANSWER_MAGIC)?;
         let id = r.u64()?;
-        let (pushed, n_vertices) = (r.count()?, r.count()?);
-        let ms = r.floats(1)?[0];
+        let (strained, pushed, n_vertices) = (r.count()?, r.count()?, r.count()?);
+        let ms = r.floats(2)?;
         let vertices = r.points(n_vertices)?;
         r.end()?;
+        let report = PostProcessReport {
+            strained,
+            pushed,
+            strain_limit_ms: ms[0],
+            post_process_ms: ms[1],
+        };
         Ok(Self {
             id,
-            pushed,
-            ms,
+            report,
             vertices,
         })
     }
@@ -165,18 +171,13 @@ impl PostWorker {
             self.betas = Some(job.betas);
         }
         let mut vertices = job.vertices;
-        let pushed = self
+        let report = self
             .animator
             .post_process(&job.pose, &mut vertices)
             .map_err(|e| Error::invalid("post-process job", e.to_string()))?;
-        let ms = self
-            .animator
-            .stage_times()
-            .map_or(0.0, |t| t.post_process_ms);
         Ok(PostAnswer {
             id: job.id,
-            pushed,
-            ms,
+            report,
             vertices,
         }
         .to_bytes())

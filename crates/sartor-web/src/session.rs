@@ -871,9 +871,9 @@ impl TryOn {
         Ok(self.frame)
     }
 
-    /// [`TryOn::step`] with the garment's post-process left to a [`crate::PostWorker`]: the
-    /// next frame made up to it (the network, the skinning, the strain limit; the body posed),
-    /// and the job's bytes for the worker: the shape, the frame's pose and its garment. The frame
+    /// [`TryOn::step`] with the garment's post-processing (the strain limit and the collision
+    /// post-process) left to a [`crate::PostWorker`]: the next frame made up to it (the network,
+    /// the skinning; the body posed), and the job's bytes for the worker: the shape, the frame's pose and its garment. The frame
     /// is shown once [`TryOn::absorb_post`] takes up the worker's answer; until then
     /// [`TryOn::garment_vertices`] are the garment before the post-process. `None` where the
     /// frame was shown whole, on this thread: after the motion's last frame (it starts again,
@@ -890,8 +890,8 @@ impl TryOn {
 
     /// Take up a [`crate::PostWorker`]'s answer to the job of [`TryOn::step_deferred`]: where it
     /// answers the job of the frame shown (none shown since), the frame's garment is the
-    /// answer's (the page's own post-process's, bit for bit) and its post-process time the
-    /// worker's; `true`. A stale answer changes nothing (`false`). An error names the fault of
+    /// answer's (the page's own post-processing's, bit for bit) and its strain limit's and
+    /// post-process's times the worker's; `true`. A stale answer changes nothing (`false`). An error names the fault of
     /// bytes that are not an answer or a garment of another vertex count.
     pub fn absorb_post(&mut self, answer: &[u8]) -> Result<bool> {
         let answer = PostAnswer::from_bytes(answer)?;
@@ -899,8 +899,9 @@ impl TryOn {
             return Ok(false);
         }
         self.animator
-            .take_post_processed(&answer.vertices, answer.pushed, answer.ms)?;
-        self.times.garment.post_process_ms = answer.ms;
+            .take_post_processed(&answer.vertices, &answer.report)?;
+        self.times.garment.strain_limit_ms = answer.report.strain_limit_ms;
+        self.times.garment.post_process_ms = answer.report.post_process_ms;
         self.post_pending = None;
         Ok(true)
     }

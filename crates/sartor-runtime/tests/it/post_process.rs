@@ -11,7 +11,8 @@ use sartor_core::{BodyModel, Pose};
 use sartor_motion::{MotionSourceOptions, RetargetBody, load_motion};
 use sartor_runtime::{
     AnimatorOptions, CollisionOptions, CollisionQuery, GarmentAnimator, GarmentBinding,
-    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism,
+    GarmentNetwork, GarmentRig, Interpenetration, NetworkOptions, Parallelism, PostProcessReport,
+    StrainLimit,
 };
 
 fn data(path: &str) -> PathBuf {
@@ -208,19 +209,30 @@ fn frames_advanced_without_their_garment_leave_the_next_frame_bit_for_bit() {
 
 #[test]
 fn a_post_process_run_by_another_animator_gives_the_frames_garment_bit_for_bit() {
-    let (rig, n_betas) = page_rig();
+    // The try-on page's options: the strain limit, then the collisions with the triangles.
+    let (body, network, binding) = shipped();
+    let options = AnimatorOptions {
+        strain_limit: Some(StrainLimit::default()),
+        collision: Some(CollisionOptions {
+            faces: true,
+            ..CollisionOptions::default()
+        }),
+        ..AnimatorOptions::default()
+    };
+    let n_betas = network.header().sizes.n_betas;
+    let rig = Arc::new(GarmentRig::new(network, binding, body, options).expect("rig"));
     let cmu = load_motion("cmu/05_06@30+16", &motion_options()).expect("stored CMU clip");
     let poses = cmu.frames();
     // The nominal shape, and a heavy one beyond the training shapes (the buried faces sought).
     let mut heavy = vec![0.0f32; n_betas];
     heavy[0] = 3.0;
     heavy[1] = -3.0;
-    let mut pushed = 0;
+    let (mut pushed, mut strained) = (0, 0);
     for betas in [vec![0.0f32; n_betas], heavy] {
         let mut whole = GarmentAnimator::new(rig.clone()).expect("avatar");
         let mut page = GarmentAnimator::new(rig.clone()).expect("avatar");
         // The worker sees the frames in another order than they are made (a jump back, one
-        // skipped): its state across frames only warm-starts the search.
+        // skipped): the post-process's state across frames only warm-starts its search.
         let mut worker = GarmentAnimator::new(rig.clone()).expect("avatar");
         for a in [&mut whole, &mut page, &mut worker] {
             a.set_shape(&betas).expect("shape");
@@ -233,33 +245,31 @@ fn a_post_process_run_by_another_animator_gives_the_frames_garment_bit_for_bit()
             }
             let expected = whole.frame(&poses[t]).expect("frame").to_vec();
             let mut garment = page.frame_deferred(&poses[t]).expect("frame").to_vec();
-            assert_eq!(page.last_frame_pushed(), 0, "nothing pushed yet");
+            let nothing_yet = (page.last_frame_pushed(), page.last_frame_strained());
+            assert_eq!(nothing_yet, (0, 0), "nothing limited or pushed yet");
             let state = worker.state().to_vec();
-            let moved = worker
-                .post_process(&poses[t], &mut garment)
-                .expect("post-process");
-            assert_eq!(
-                worker.state(),
-                &state[..],
-                "the worker's network does not step"
-            );
+            let report = worker.post_process(&poses[t], &mut garment);
+            let report = report.expect("post-process");
+            assert_eq!(worker.state(), &state[..], "the network does not step");
             assert!(
                 garment == expected,
-                "β {betas:?}, frame {t}: not the frame's garment"
+                "β {betas:?}, frame {t}: not the frame's"
             );
-            assert_eq!(moved, whole.last_frame_pushed());
-            pushed += moved;
-            let ms = 0.25;
-            page.take_post_processed(&garment, moved, ms)
-                .expect("taken");
+            assert_eq!(report.pushed, whole.last_frame_pushed());
+            assert_eq!(report.strained, whole.last_frame_strained());
+            pushed += report.pushed;
+            strained += report.strained;
+            page.take_post_processed(&garment, &report).expect("taken");
             assert_eq!(page.vertices(), whole.vertices());
-            assert_eq!(page.last_frame_pushed(), moved);
+            let counts = (page.last_frame_pushed(), page.last_frame_strained());
+            assert_eq!(counts, (report.pushed, report.strained));
         }
     }
     assert!(pushed > 0, "the clip collides");
+    assert!(strained > 0, "and stretches edges beyond the limit");
 
     // Refused, changing nothing: a pose of another skeleton, vertices of another count or not
-    // finite, and a rig without a post-process.
+    // finite, and a rig with neither a strain limit nor a post-process.
     let mut worker = GarmentAnimator::new(rig.clone()).expect("avatar");
     worker.set_shape(&vec![0.0f32; n_betas]).expect("shape");
     let mut garment = worker.frame_deferred(&poses[0]).expect("frame").to_vec();
@@ -271,11 +281,13 @@ fn a_post_process_run_by_another_animator_gives_the_frames_garment_bit_for_bit()
     garment[5].y = f32::NAN;
     let e = worker.post_process(&poses[0], &mut garment).unwrap_err();
     assert!(e.to_string().contains("garment vertices"), "{e}");
-    assert!(worker.take_post_processed(&garment, 0, 0.0).is_err());
-    assert!(worker.take_post_processed(&kept[1..], 0, 0.0).is_err());
+    let none = PostProcessReport::default();
+    assert!(worker.take_post_processed(&garment, &none).is_err());
+    assert!(worker.take_post_processed(&kept[1..], &none).is_err());
     assert_eq!(worker.vertices(), &kept[..], "nothing taken");
     let (body, network, binding) = shipped();
     let options = AnimatorOptions {
+        strain_limit: None,
         collision: None,
         ..AnimatorOptions::default()
     };
@@ -283,7 +295,7 @@ fn a_post_process_run_by_another_animator_gives_the_frames_garment_bit_for_bit()
     let mut bare = GarmentAnimator::new(Arc::new(bare)).expect("avatar");
     let mut garment = kept.clone();
     let e = bare.post_process(&poses[0], &mut garment).unwrap_err();
-    assert!(e.to_string().contains("no collision post-process"), "{e}");
+    assert!(e.to_string().contains("neither a strain limit nor"), "{e}");
     assert_eq!(garment, kept);
 }
 

@@ -1012,17 +1012,25 @@ fn the_page_works_in_headless_chromium() {
             && model_bytes < fine_bytes + first_bytes,
         "the linked garment: {linked}"
     );
-    // A worker that fails (here: given bytes that are no job) leaves the held limbs to the
-    // page's slices, which hold them as the shape set at once does; the page shows no error.
-    browser.wait_for("window.sartor.limbs.ready", Duration::from_secs(20));
-    browser.eval(
-        "window.sartor.setPlaying(false); \
-         window.sartor.limbs.worker.postMessage({job: new Uint8Array([1, 2, 3]), id: -1});",
-    );
-    browser.wait_for(
-        "window.sartor.limbs.failure !== null",
-        Duration::from_secs(20),
-    );
+    // A worker (`limbs` or `post`) given bytes that are no job fails, the clip paused or
+    // playing.
+    let break_worker = |worker: &str, playing: bool| {
+        browser.wait_for(
+            &format!("window.sartor.{worker}.ready"),
+            Duration::from_secs(20),
+        );
+        browser.eval(&format!(
+            "window.sartor.setPlaying({playing}); window.sartor.{worker}.worker.postMessage(\
+             {{job: new Uint8Array([1, 2, 3]), id: -1}});"
+        ));
+        browser.wait_for(
+            &format!("window.sartor.{worker}.failure !== null"),
+            Duration::from_secs(20),
+        );
+    };
+    // The held limbs' worker that fails leaves them to the page's slices, which hold them as
+    // the shape set at once does; the page shows no error.
+    break_worker("limbs", false);
     browser.eval(
         "const e = document.getElementById('weight'); e.value = 0.3; \
          e.dispatchEvent(new Event('change'));",
@@ -1046,17 +1054,9 @@ fn the_page_works_in_headless_chromium() {
             && after_failure["shown_error"].is_null(),
         "after the worker failed: {after_failure}"
     );
-    // A post-process worker that fails (bytes that are no job) leaves the frames to the page,
-    // which plays on with no error shown. Loaded with the garment of the address first.
-    browser.wait_for("window.sartor.post.ready", Duration::from_secs(20));
-    browser.eval(
-        "window.sartor.setPlaying(true); \
-         window.sartor.post.worker.postMessage({job: new Uint8Array([1, 2, 3]), id: -1});",
-    );
-    browser.wait_for(
-        "window.sartor.post.failure !== null",
-        Duration::from_secs(20),
-    );
+    // The post-process's worker that fails (once loaded with the garment of the address)
+    // leaves the frames to the page, which plays on with no error shown.
+    break_worker("post", true);
     let stepped = browser.eval("return window.sartor.state.framesStepped;");
     browser.wait_for(
         &format!("window.sartor.state.framesStepped > {stepped} + 5"),
