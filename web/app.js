@@ -51,9 +51,10 @@ const limbs = {
 // frame's work, is computed in a worker (post-worker.js) while a clip plays, where the browser
 // has one: the page makes each frame up to it (TryOn.stepDeferred: the network, the skinning,
 // the body), posts the job, and draws the frame when the answer comes back (TryOn.absorbPost;
-// the page's own post-processing's garment, bit for bit), within the display frame after at most. A frame shown otherwise (a scrub, a
-// change of shape or garment, the clip's start again) is post-processed on the page, as every
-// frame is without a worker, once it failed, or with `?post=page` in the address.
+// the page's own post-processing's garment, bit for bit), within the display frame after at
+// most. A frame shown otherwise (a scrub, a change of shape or garment, the clip's start
+// again) is post-processed on the page, as every frame is without a worker, once it failed,
+// or with `?post=page` in the address.
 const PRECISION = "f32";
 const post = {
   worker: null,

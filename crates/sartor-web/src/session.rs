@@ -872,13 +872,14 @@ impl TryOn {
     }
 
     /// [`TryOn::step`] with the garment's post-processing (the strain limit and the collision
-    /// post-process) left to a [`crate::PostWorker`]: the next frame made up to it (the network,
-    /// the skinning; the body posed), and the job's bytes for the worker: the shape, the frame's pose and its garment. The frame
-    /// is shown once [`TryOn::absorb_post`] takes up the worker's answer; until then
-    /// [`TryOn::garment_vertices`] are the garment before the post-process. `None` where the
-    /// frame was shown whole, on this thread: after the motion's last frame (it starts again,
-    /// a jump), or without a post-process ([`TryOnOptions::post_process`]). Any other frame
-    /// shown meanwhile (a scrub, a shape, a garment, [`TryOn::step`]) makes the answer stale.
+    /// post-process) left to a [`crate::PostWorker`]: the next frame made up to it (the
+    /// network, the skinning; the body posed), and the job's bytes for the worker: the shape,
+    /// the frame's pose and its garment. The frame is shown once [`TryOn::absorb_post`] takes
+    /// up the worker's answer; until then [`TryOn::garment_vertices`] are the garment before
+    /// the post-processing. `None` where the frame was shown whole, on this thread: after the
+    /// motion's last frame (it starts again, a jump), or without a post-process
+    /// ([`TryOnOptions::post_process`]). Any other frame shown meanwhile (a scrub, a shape, a
+    /// garment, [`TryOn::step`]) makes the answer stale.
     pub fn step_deferred(&mut self) -> Result<Option<Vec<u8>>> {
         if !self.garment.post_process || self.frame + 1 >= self.motion.n_frames() {
             self.step()?;
@@ -891,8 +892,9 @@ impl TryOn {
     /// Take up a [`crate::PostWorker`]'s answer to the job of [`TryOn::step_deferred`]: where it
     /// answers the job of the frame shown (none shown since), the frame's garment is the
     /// answer's (the page's own post-processing's, bit for bit) and its strain limit's and
-    /// post-process's times the worker's; `true`. A stale answer changes nothing (`false`). An error names the fault of
-    /// bytes that are not an answer or a garment of another vertex count.
+    /// post-process's times the worker's; `true`. A stale answer changes nothing (`false`). An
+    /// error names the fault of bytes that are not an answer or a garment of another vertex
+    /// count.
     pub fn absorb_post(&mut self, answer: &[u8]) -> Result<bool> {
         let answer = PostAnswer::from_bytes(answer)?;
         if self.post_pending != Some(answer.id) {
