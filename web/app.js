@@ -538,29 +538,22 @@ function showTimes() {
   $("t-body").textContent = ms(body);
   $("t-draw").textContent = ms(draw);
   $("t-arms").textContent = ms(arms);
-  $("t-limbs").textContent = limbsStatus();
+  $("t-limbs").textContent = workerStatus(
+    limbs, `${limbs.jobs} answers`, "starting", "the page computes it");
   $("t-page").textContent = ms(page);
-  $("t-post-worker").textContent = postStatus();
+  $("t-post-worker").textContent = workerStatus(
+    post, `${post.answers} frames`, "loading", "the page post-processes");
 }
 
-/// What the post-process's worker did so far, or why there is none.
-function postStatus() {
-  if (post.ready && post.enabled) {
-    return `${post.answers} frames, ${(post.ms / 1000).toFixed(2)} s of work`;
+/// What a worker (`record`: `post` or `limbs`) did so far (`done`: its count of answers, named),
+/// or why there is none (`none`: where the page does its work).
+function workerStatus(record, done, starting, none) {
+  if (record.ready && record.enabled) {
+    return `${done}, ${(record.ms / 1000).toFixed(2)} s of work`;
   }
-  if (post.failure !== null) return `none: ${post.failure}`;
-  if (post.worker !== null && !post.ready) return "loading";
-  return "none: the page post-processes";
-}
-
-/// What the held limbs' worker did so far, or why there is none.
-function limbsStatus() {
-  if (limbs.ready && limbs.enabled) {
-    return `${limbs.jobs} answers, ${(limbs.ms / 1000).toFixed(2)} s of work`;
-  }
-  if (limbs.failure !== null) return `none: ${limbs.failure}`;
-  if (limbs.worker !== null && !limbs.ready) return "starting";
-  return "none: the page computes it";
+  if (record.failure !== null) return `none: ${record.failure}`;
+  if (record.worker !== null && !record.ready) return starting;
+  return `none: ${none}`;
 }
 
 /// Upload the frame shown and draw it.
