@@ -376,6 +376,7 @@ fn variant(
         device: device("flex")?,
         resume: dir.exists(),
         stop,
+        contact: None,
     };
     let mut bar = TrainBar::new();
     let r: ModelReport = train_model(kind, data, config, &options, &mut bar)

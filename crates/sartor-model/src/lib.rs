@@ -31,6 +31,7 @@
 //!     device: Device::flex().autodiff(),
 //!     resume: true,
 //!     stop: &stop,
+//!     contact: None,
 //! };
 //! let report = train_model(ModelKind::Wrinkle, &data, &config, &options, &mut Silent)?;
 //! println!("{:?} mm", report.best_val_error_mm);
@@ -40,6 +41,7 @@
 
 #![warn(missing_docs)]
 
+mod contact;
 mod data;
 mod error;
 mod inference;
@@ -47,6 +49,7 @@ mod model;
 mod ridge;
 mod training;
 
+pub use contact::RestContact;
 pub use data::{to_vec, vertex_error_mm};
 pub use error::{Error, Result};
 pub use inference::{Predictor, export_model};
@@ -55,9 +58,9 @@ pub use model::{
     WrinkleRegressor, WrinkleRegressorConfig,
 };
 pub use training::{
-    AnyModel, BEST_FILE, CONFIG_FILE, EpochRecord, MODEL_NAMES, ModelKind, ModelReport, Progress,
-    STATE_FILE, Silent, StageConfig, TrainOptions, TrainingConfig, load_trained, load_weights,
-    save_weights, seeded, train_model,
+    AnyModel, BEST_FILE, CONFIG_FILE, DEFAULT_CONTACT_MARGIN_M, EpochRecord, MODEL_NAMES,
+    ModelKind, ModelReport, Progress, STATE_FILE, Silent, StageConfig, TrainOptions,
+    TrainingConfig, load_trained, load_weights, save_weights, seeded, train_model,
 };
 
 /// burn itself, so callers name devices and tensors with the same version.

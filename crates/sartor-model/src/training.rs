@@ -33,6 +33,7 @@ use sartor_dataset::{
 use serde::{Deserialize, Serialize};
 
 use crate::Error;
+use crate::contact::{ContactTerm, RestContact};
 use crate::data::{PcaTensors, frames_of, tensor, to_vec, vertex_error_mm};
 use crate::model::{
     FitRegressor, FitRegressorConfig, LinearRegressor, LinearRegressorConfig, WrinkleRegressor,
@@ -175,7 +176,19 @@ pub struct TrainingConfig {
     /// Seed of the weights and of the shuffles.
     #[config(default = 2019)]
     pub seed: u64,
+    /// Weight of the wrinkle GRU's contact term ([`RestContact`]: a prediction deeper into the
+    /// body, in the rest pose, than the ground truth and the margin is penalised); `None` or 0,
+    /// the default, trains on the paper's loss alone.
+    #[config(default = "None")]
+    pub contact_weight: Option<f64>,
+    /// The margin above the body the contact term asks of the garment, metres (`None`: the
+    /// post-process's, [`DEFAULT_CONTACT_MARGIN_M`]).
+    #[config(default = "None")]
+    pub contact_margin_m: Option<f64>,
 }
+
+/// The contact term's margin where the config names none, metres: the post-process's.
+pub const DEFAULT_CONTACT_MARGIN_M: f64 = 0.002;
 
 impl TrainingConfig {
     /// The fit MLP's config for `data`.
@@ -209,6 +222,16 @@ impl TrainingConfig {
         LinearRegressorConfig::new(data.n_inputs(), data.n_outputs())
     }
 
+    /// The contact term's weight (0: off, the paper's loss).
+    pub fn contact_weight(&self) -> f64 {
+        self.contact_weight.unwrap_or(0.0)
+    }
+
+    /// The contact term's margin, metres.
+    pub fn contact_margin_m(&self) -> f64 {
+        self.contact_margin_m.unwrap_or(DEFAULT_CONTACT_MARGIN_M)
+    }
+
     /// The optimisation of `kind`.
     pub fn stage(&self, kind: ModelKind) -> &StageConfig {
         match kind {
@@ -240,6 +263,17 @@ impl TrainingConfig {
                         format!("{}.{field} {rate} is not positive", kind.name()),
                     ));
                 }
+            }
+        }
+        for (field, value) in [
+            ("contact_weight", self.contact_weight()),
+            ("contact_margin_m", self.contact_margin_m()),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(Error::invalid(
+                    "training",
+                    format!("{field} {value} is not a finite value of at least 0"),
+                ));
             }
         }
         if self.fit_hidden == 0 || self.gru_hidden == 0 || self.window_frames == 0 {
@@ -370,6 +404,9 @@ pub struct TrainOptions<'a> {
     pub resume: bool,
     /// Set (e.g. on Ctrl-C) to checkpoint after the current batch and return.
     pub stop: &'a AtomicBool,
+    /// The body under the training shapes' garments, for the wrinkle GRU's contact term
+    /// (needed where [`TrainingConfig::contact_weight`] is above 0; unread otherwise).
+    pub contact: Option<&'a RestContact>,
 }
 
 /// The three modules, for code that handles any of them.
@@ -430,6 +467,7 @@ fn masked_mse(
 /// window `x` (`[B, L, I]`, targets `y` `[B·L, O]`, `mask` `[B·L, 1]`) from `state`, and the
 /// state to carry into the next window, detached: the next window starts from its value, but
 /// its gradient stops at the boundary.
+#[cfg(test)]
 pub(crate) fn window_loss(
     model: &WrinkleRegressor,
     x: Tensor<3>,
@@ -438,11 +476,56 @@ pub(crate) fn window_loss(
     state: Tensor<2>,
     denominator: f64,
 ) -> (Tensor<1>, Tensor<2>) {
+    let (loss, _, last) = window_losses(model, (x, y, mask), state, denominator, None);
+    (loss, last)
+}
+
+/// The contact term of one window ([`ContactTerm::window`]'s `a` `[B·L, 3V]` and floors
+/// `[B·L, V]` as tensors), its weight, and the PCA basis that takes the network's output to
+/// the displacements (`None`: dense output).
+pub(crate) struct ContactWindow<'a> {
+    a: Tensor<2>,
+    floor: Tensor<2>,
+    weight: f64,
+    pca: Option<&'a PcaTensors>,
+}
+
+/// [`window_loss`], and with `contact` the contact term added: the loss, the contact term's
+/// value (0 without it) and the state carried.
+fn window_losses(
+    model: &WrinkleRegressor,
+    (x, y, mask): (Tensor<3>, Tensor<2>, Tensor<2>),
+    state: Tensor<2>,
+    denominator: f64,
+    contact: Option<ContactWindow<'_>>,
+) -> (Tensor<1>, f64, Tensor<2>) {
     let [b, l, _] = x.dims();
+    let rows = b * l;
     let (pred, last) = model.forward(x, state);
     let width = pred.dims()[2];
-    let loss = masked_mse(pred.reshape([b * l, width]), y, Some(mask), denominator);
-    (loss, last.detach())
+    let pred = pred.reshape([rows, width]);
+    let mut loss = masked_mse(pred.clone(), y, Some(mask), denominator);
+    let mut term = 0.0;
+    if let Some(c) = contact {
+        let p = match c.pca {
+            Some(pca) => pca.reconstruct(pred),
+            None => pred,
+        };
+        let n = c.floor.dims()[1];
+        // Each vertex's prediction along the body's normal, and its depth below the floor.
+        let along = (p * c.a)
+            .reshape([rows, n, 3])
+            .sum_dim(2)
+            .reshape([rows, n]);
+        let depth = (c.floor - along).clamp_min(0.0);
+        // Per vertex of the real frames (the MSE's denominator is per component).
+        let contact = (depth.clone() * depth)
+            .sum()
+            .mul_scalar(c.weight * 3.0 / denominator);
+        term = f64::from(contact.clone().into_scalar::<f32>());
+        loss = loss + contact;
+    }
+    (loss, term, last.detach())
 }
 
 /// One optimiser step of a frame-wise regressor on inputs `x` (`[N, n_in]`) and targets `y`
@@ -623,6 +706,8 @@ struct WrinkleTask<'a> {
     /// The split `val` comes from.
     split: Split,
     pca: Option<PcaTensors>,
+    /// The contact term, where its weight is above 0.
+    contact: Option<ContactTerm>,
     device: Device,
 }
 
@@ -667,12 +752,26 @@ impl Task for WrinkleTask<'_> {
             let rows = b * w.len;
             let real: f32 = w.mask.iter().sum();
             let x = tensor(w.inputs, [b, w.len, n_in], &self.device);
+            let contact = self.contact.as_ref().map(|term| {
+                let (a, floor) = term.window(self.data, batch, w.len, &w.targets, &w.mask);
+                ContactWindow {
+                    a: tensor(a, [rows, n3], &self.device),
+                    floor: tensor(floor, [rows, n3 / 3], &self.device),
+                    weight: term.weight,
+                    pca: self.pca.as_ref(),
+                }
+            });
             let y = self.targets(w.targets, rows, &self.device);
             let mask = tensor(w.mask, [rows, 1], &self.device);
             // The mean squared error per displacement component: with a PCA output this is the
             // full-space MSE less the constant truncation residual (the basis is orthonormal).
-            let (loss, carried) =
-                window_loss(&model, x, y, mask, state, f64::from(real) * n3 as f64);
+            let (loss, _, carried) = window_losses(
+                &model,
+                (x, y, mask),
+                state,
+                f64::from(real) * n3 as f64,
+                contact,
+            );
             let value;
             (model, value) = backward_step(model, loss, optim, lr);
             state = carried;
@@ -785,6 +884,17 @@ fn fingerprint(
         data.sequences().len(),
         frames_of(data, &data.sequence_indices(Split::Train)),
     );
+    // The contact term changes the wrinkle GRU's loss only (and the fingerprints of runs
+    // without it stay as they were).
+    let text = if kind == ModelKind::Wrinkle && config.contact_weight() > 0.0 {
+        format!(
+            "{text}|contact {}|{}",
+            config.contact_weight(),
+            config.contact_margin_m()
+        )
+    } else {
+        text
+    };
     sha256_hex(text.as_bytes())
 }
 
@@ -869,8 +979,36 @@ pub fn train_model(
                 (Some(k), Some(basis)) => Some(PcaTensors::new(basis, k, &device)),
                 _ => None,
             };
+            let contact = if config.contact_weight() > 0.0 {
+                let rest = options.contact.ok_or_else(|| {
+                    Error::invalid(
+                        "training.contact_weight",
+                        "the contact term needs the body and the garment's template \
+                         (TrainOptions::contact)",
+                    )
+                })?;
+                if rest.n_vertices() != data.n_vertices() {
+                    return Err(Error::invalid(
+                        "contact term",
+                        format!(
+                            "{} garment vertices, the training data {}",
+                            rest.n_vertices(),
+                            data.n_vertices()
+                        ),
+                    ));
+                }
+                Some(ContactTerm::new(
+                    rest,
+                    data,
+                    config.contact_weight(),
+                    config.contact_margin_m(),
+                ))
+            } else {
+                None
+            };
             let task = WrinkleTask {
                 data,
+                contact,
                 batch_size: stage.batch_size,
                 window_frames: config.window_frames,
                 seed: config.seed,

@@ -712,6 +712,7 @@ mod tests {
             "default",
             "default-8710",
             "default-implicit-friction",
+            "default-contact",
             "procedural",
             "paper",
         ] {
@@ -779,6 +780,21 @@ mod tests {
         assert_eq!(
             c.simulation.sim.friction_model,
             sartor_cloth::FrictionModel::Implicit
+        );
+        // The reference experiment with the GRU's contact term: the same but for its weight.
+        let d = config("default-contact");
+        assert_eq!(ids(&a), ids(&d));
+        assert_eq!((&a.garment, &a.simulation), (&d.garment, &d.simulation));
+        let weight = |e: &Experiment| e.training().expect("training").contact_weight();
+        assert_eq!(weight(&a), 0.0);
+        assert!(weight(&d) > 0.0);
+        let mut paper = d.training.clone();
+        if let Some(t) = &mut paper {
+            t.contact_weight = None;
+        }
+        assert_eq!(
+            serde_json::to_value(&a.training).expect("json"),
+            serde_json::to_value(&paper).expect("json")
         );
         let mut back = c.simulation.clone();
         back.sim.friction_model = sartor_cloth::FrictionModel::Impulse;

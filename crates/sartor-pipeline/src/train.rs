@@ -9,10 +9,12 @@ use std::collections::BTreeMap;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
+use sartor_core::BodyModel;
 use sartor_eval::{Chart, Machine, Series, write_charts, write_json};
 use sartor_model::burn::tensor::Device;
 use sartor_model::{
-    EpochRecord, ModelKind, ModelReport, Progress, TrainOptions, TrainingConfig, train_model,
+    EpochRecord, ModelKind, ModelReport, Progress, RestContact, TrainOptions, TrainingConfig,
+    train_model,
 };
 use serde::Serialize;
 
@@ -126,6 +128,19 @@ pub fn train(
         )
     })?;
     let device = device(&args.backend)?;
+    // The body under the garments, for the wrinkle GRU's contact term (where it is on).
+    let contact = if config.contact_weight() > 0.0 && kinds.contains(&ModelKind::Wrinkle) {
+        let body = BodyModel::load(&e.body)
+            .with_context(|| format!("loading the body model from {}", e.body.display()))?;
+        let binding = sartor_dataset::read_binding(&data_dir, &body)
+            .with_context(|| format!("reading the garment binding in {}", data_dir.display()))?;
+        Some(
+            RestContact::new(&data, binding.template(), &body)
+                .context("the contact term's body normals")?,
+        )
+    } else {
+        None
+    };
     let dir = e.train_dir();
     let mut models = BTreeMap::new();
     let report_path = dir.join("train.json");
@@ -144,6 +159,7 @@ pub fn train(
             device: device.clone(),
             resume: args.resume,
             stop,
+            contact: contact.as_ref(),
         };
         let report = train_model(kind, &data, &config, &options, progress)
             .with_context(|| format!("training {} of {}", kind.name(), e.name))?;

@@ -40,6 +40,7 @@ pub fn train(
         device: Device::flex().autodiff(),
         resume,
         stop: &stop,
+        contact: None,
     };
     train_model(kind, data, config, &options, &mut Silent)
 }

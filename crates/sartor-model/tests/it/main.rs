@@ -1,5 +1,6 @@
 //! sartor-model's integration tests (one binary).
 
+mod contact;
 mod export;
 mod learn;
 /// Reference arithmetic shared with the runtime's tests.

@@ -27,16 +27,35 @@ pub fn dataset_with_validation(memory: f32, nonlinear: bool, pca: Option<usize>)
     build(memory, nonlinear, pca, true)
 }
 
-fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> TrainingData {
-    let layout = InputLayout {
+/// The inputs' layout: `N_BETAS` betas, one joint, one root feature.
+fn layout() -> InputLayout {
+    InputLayout {
         n_betas: N_BETAS,
         pose: PoseFeatureSpec {
             joints: vec!["Spine".into()],
             encoding: RotationEncoding::Rot6d,
             root: vec![RootFeature::VelX],
         },
-    };
-    let n_in = layout.width();
+    }
+}
+
+/// Motion `m`'s inputs over `FRAMES` frames at shape `betas`: the betas, then sinusoids of the
+/// frame of a frequency and phase per input and motion.
+pub fn inputs(betas: &[f32], m: usize) -> Vec<f32> {
+    let n_in = layout().width();
+    let mut inputs = Vec::with_capacity(FRAMES * n_in);
+    for t in 0..FRAMES {
+        inputs.extend_from_slice(betas);
+        for k in 0..n_in - N_BETAS {
+            let w = 0.3 + 0.11 * (k + m) as f32;
+            inputs.push((w * t as f32 + 0.7 * k as f32 + m as f32).sin());
+        }
+    }
+    inputs
+}
+
+fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> TrainingData {
+    let n_in = layout().width();
     let n3 = 3 * N_VERTICES;
     let train_betas = [[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]];
     let mut shapes: Vec<ShapeSample> = train_betas
@@ -70,14 +89,7 @@ fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> 
                 (_, 2) if validation => Split::Validation,
                 _ => Split::Train,
             };
-            let mut inputs = Vec::with_capacity(FRAMES * n_in);
-            for t in 0..FRAMES {
-                inputs.extend_from_slice(&shape.betas);
-                for k in 0..n_in - N_BETAS {
-                    let w = 0.3 + 0.11 * (k + m) as f32;
-                    inputs.push((w * t as f32 + 0.7 * k as f32 + m as f32).sin());
-                }
-            }
+            let inputs = inputs(&shape.betas, m);
             let mut delta = Vec::with_capacity(FRAMES * n3);
             for t in 0..FRAMES {
                 for o in 0..n3 {
@@ -104,6 +116,19 @@ fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> 
             });
         }
     }
+    training_data(N_VERTICES, shapes, sequences, pca)
+}
+
+/// The training data of `shapes` and `sequences` (of [`layout`]'s inputs) of a garment of
+/// `n_vertices`: statistics and `pca` components from their training split.
+pub fn training_data(
+    n_vertices: usize,
+    shapes: Vec<ShapeSample>,
+    sequences: Vec<SequenceSample>,
+    pca: Option<usize>,
+) -> TrainingData {
+    let layout = layout();
+    let (n_in, n3) = (layout.width(), 3 * n_vertices);
     let train_shapes: Vec<&ShapeSample> =
         shapes.iter().filter(|s| s.split == Split::Train).collect();
     let train_seqs: Vec<&SequenceSample> = sequences
@@ -134,7 +159,7 @@ fn build(memory: f32, nonlinear: bool, pca: Option<usize>, validation: bool) -> 
                 sha256: "b".repeat(64),
             },
         },
-        N_VERTICES,
+        n_vertices,
         layout,
         shapes,
         sequences,
