@@ -463,10 +463,7 @@ fn masked_mse(
     sq.sum().div_scalar(denominator)
 }
 
-/// One window of truncated backpropagation through time: the masked loss of `model` on the
-/// window `x` (`[B, L, I]`, targets `y` `[B·L, O]`, `mask` `[B·L, 1]`) from `state`, and the
-/// state to carry into the next window, detached: the next window starts from its value, but
-/// its gradient stops at the boundary.
+/// [`window_losses`] without the contact term.
 #[cfg(test)]
 pub(crate) fn window_loss(
     model: &WrinkleRegressor,
@@ -476,8 +473,7 @@ pub(crate) fn window_loss(
     state: Tensor<2>,
     denominator: f64,
 ) -> (Tensor<1>, Tensor<2>) {
-    let (loss, _, last) = window_losses(model, (x, y, mask), state, denominator, None);
-    (loss, last)
+    window_losses(model, (x, y, mask), state, denominator, None)
 }
 
 /// The contact term of one window ([`ContactTerm::window`]'s `a` `[B·L, 3V]` and floors
@@ -490,22 +486,23 @@ pub(crate) struct ContactWindow<'a> {
     pca: Option<&'a PcaTensors>,
 }
 
-/// [`window_loss`], and with `contact` the contact term added: the loss, the contact term's
-/// value (0 without it) and the state carried.
+/// One window of truncated backpropagation through time: the masked loss of `model` on the
+/// window `x` (`[B, L, I]`, targets `y` `[B·L, O]`, `mask` `[B·L, 1]`) from `state`, with
+/// `contact` the contact term added, and the state to carry into the next window, detached:
+/// the next window starts from its value, but its gradient stops at the boundary.
 fn window_losses(
     model: &WrinkleRegressor,
     (x, y, mask): (Tensor<3>, Tensor<2>, Tensor<2>),
     state: Tensor<2>,
     denominator: f64,
     contact: Option<ContactWindow<'_>>,
-) -> (Tensor<1>, f64, Tensor<2>) {
+) -> (Tensor<1>, Tensor<2>) {
     let [b, l, _] = x.dims();
     let rows = b * l;
     let (pred, last) = model.forward(x, state);
     let width = pred.dims()[2];
     let pred = pred.reshape([rows, width]);
     let mut loss = masked_mse(pred.clone(), y, Some(mask), denominator);
-    let mut term = 0.0;
     if let Some(c) = contact {
         let p = match c.pca {
             Some(pca) => pca.reconstruct(pred),
@@ -519,13 +516,12 @@ fn window_losses(
             .reshape([rows, n]);
         let depth = (c.floor - along).clamp_min(0.0);
         // Per vertex of the real frames (the MSE's denominator is per component).
-        let contact = (depth.clone() * depth)
-            .sum()
-            .mul_scalar(c.weight * 3.0 / denominator);
-        term = f64::from(contact.clone().into_scalar::<f32>());
-        loss = loss + contact;
+        loss = loss
+            + (depth.clone() * depth)
+                .sum()
+                .mul_scalar(c.weight * 3.0 / denominator);
     }
-    (loss, term, last.detach())
+    (loss, last.detach())
 }
 
 /// One optimiser step of a frame-wise regressor on inputs `x` (`[N, n_in]`) and targets `y`
@@ -765,7 +761,7 @@ impl Task for WrinkleTask<'_> {
             let mask = tensor(w.mask, [rows, 1], &self.device);
             // The mean squared error per displacement component: with a PCA output this is the
             // full-space MSE less the constant truncation residual (the basis is orthonormal).
-            let (loss, _, carried) = window_losses(
+            let (loss, carried) = window_losses(
                 &model,
                 (x, y, mask),
                 state,
