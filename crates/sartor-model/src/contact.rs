@@ -81,6 +81,11 @@ impl RestContact {
         self.n_vertices
     }
 
+    /// The training data's shapes it was made for.
+    pub fn n_shapes(&self) -> usize {
+        self.heights.len() / self.n_vertices.max(1)
+    }
+
     /// Shape `shape`'s normals, one per vertex.
     pub fn normals(&self, shape: usize) -> &[[f32; 3]] {
         &self.normals[shape * self.n_vertices..(shape + 1) * self.n_vertices]

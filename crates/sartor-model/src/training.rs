@@ -983,13 +983,17 @@ pub fn train_model(
                          (TrainOptions::contact)",
                     )
                 })?;
-                if rest.n_vertices() != data.n_vertices() {
+                if (rest.n_vertices(), rest.n_shapes()) != (data.n_vertices(), data.shapes().len())
+                {
                     return Err(Error::invalid(
                         "contact term",
                         format!(
-                            "{} garment vertices, the training data {}",
+                            "made for {} garment vertices and {} shapes, the training data has \
+                             {} and {}",
                             rest.n_vertices(),
-                            data.n_vertices()
+                            rest.n_shapes(),
+                            data.n_vertices(),
+                            data.shapes().len()
                         ),
                     ));
                 }

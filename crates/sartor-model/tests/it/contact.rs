@@ -251,6 +251,27 @@ fn the_contact_term_needs_the_body_and_a_valid_weight() {
         .expect_err("a bad weight or margin");
         assert!(e.to_string().contains("contact_"), "{e}");
     }
+    // The contact of other data (here: the patch without its last shape) is refused.
+    let mut fewer = data.shapes().to_vec();
+    fewer.pop();
+    let kept = data
+        .sequences()
+        .iter()
+        .filter(|q| q.shape < fewer.len())
+        .cloned()
+        .collect();
+    let other = crate::synthetic::training_data(N_VERTICES, fewer, kept, None);
+    let e = train_model(
+        ModelKind::Wrinkle,
+        &data,
+        &with,
+        &options(Some(
+            &RestContact::new(&other, &template, &body).expect("contact"),
+        )),
+        &mut Silent,
+    )
+    .expect_err("another dataset's contact");
+    assert!(e.to_string().contains("shapes"), "{e}");
     // Another garment's template.
     let e = RestContact::new(&data, &template[1..], &body).expect_err("a shorter template");
     assert!(e.to_string().contains("template"), "{e}");
