@@ -427,14 +427,36 @@ pub(crate) use widest_where_present;
 #[cfg(target_arch = "x86_64")]
 const STREAM_AHEAD: usize = 2048;
 
-/// Whether the CPU is Intel's (the vendor string of `cpuid` leaf 0).
+/// Whether the CPU's vendor string (`cpuid` leaf 0) is `vendor`.
 #[cfg(target_arch = "x86_64")]
-fn genuine_intel() -> bool {
+fn vendor_is(vendor: &[u8; 12]) -> bool {
     let id = std::arch::x86_64::__cpuid(0);
     [id.ebx, id.edx, id.ecx]
         .iter()
         .flat_map(|r| r.to_le_bytes())
-        .eq(*b"GenuineIntel")
+        .eq(*vendor)
+}
+
+/// Whether the CPU is Intel's.
+#[cfg(target_arch = "x86_64")]
+fn genuine_intel() -> bool {
+    vendor_is(b"GenuineIntel")
+}
+
+/// The family of an AMD CPU (`cpuid` leaf 1: the base family, plus the extended family where
+/// the base is 15): 0x19 for Zen 3 and Zen 4, 0x1A for Zen 5. `None` for other vendors.
+#[cfg(target_arch = "x86_64")]
+fn amd_family() -> Option<u32> {
+    if !vendor_is(b"AuthenticAMD") {
+        return None;
+    }
+    let eax = std::arch::x86_64::__cpuid(1).eax;
+    let base = (eax >> 8) & 0xF;
+    Some(if base == 0xF {
+        base + ((eax >> 20) & 0xFF)
+    } else {
+        base
+    })
 }
 
 /// `default()`, unless the environment variable `var` is `0` or `1` (for benchmarking: the
@@ -453,11 +475,14 @@ fn overridable(var: &str, default: impl FnOnce() -> bool) -> bool {
 /// alternating builds): on the 2-core Intel Xeon VM (Sapphire Rapids family) one thread
 /// 4.80–5.53 → 4.21–4.74 ms, two 2.53 → 2.13–2.22 (one core of this Xeon keeps too few lines
 /// in flight on its own); on the AMD EPYC (Zen 5) VM every distance and hint tried was 3–10 %
-/// slower (its own prefetch keeps up with eight f32 streams). `SARTOR_RUNTIME_F32_PREFETCH`
-/// (`0` or `1`) overrides the choice, for benchmarking. Prefetching changes no result. On
-/// other CPUs `Matrix` stores f32 rows of that length interleaved ([`interleave_long_rows`]),
-/// read as one stream per panel and always prefetched, so there this choice only concerns
-/// row-major blocks passed to the row kernels directly (the tests).
+/// slower (its own prefetch keeps up with eight f32 streams), and on the AMD EPYC Zen 3 VM
+/// the row-major 13,272 × 1,500 and 4,500 × 1,500 products took 1.2–1.3× as long prefetched
+/// (medians 6.60–6.91 against 5.09–5.56 ms for ten frames, three runs of each in turn).
+/// `SARTOR_RUNTIME_F32_PREFETCH` (`0` or `1`) overrides the choice, for benchmarking.
+/// Prefetching changes no result. Where `Matrix` stores f32 rows of that length interleaved
+/// ([`interleave_long_rows`]: Zen 5 and later), they are read as one stream per panel and
+/// always prefetched, and there this choice only concerns row-major blocks passed to the row
+/// kernels directly (the tests).
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn prefetch_f32_rows() -> bool {
     static CHOICE: OnceLock<bool> = OnceLock::new();
@@ -465,20 +490,29 @@ pub(crate) fn prefetch_f32_rows() -> bool {
 }
 
 /// Whether `Matrix` stores f32 and f16 rows of `EIGHT_ROWS_FROM` columns or more interleaved
-/// (`interleaved.rs`): everywhere but on Intel CPUs, where the row-major rows, eight prefetched
-/// streams, read faster. Measured on the paper-size GRU + dense step (109 MB in f32), a
-/// throwaway harness alternating the two layouts in one process (ten rounds of 50 frames each,
-/// the median per round): on the 2-core AMD EPYC VM interleaved took 0.73–0.77× the row-major
-/// time in f32 on one thread and 0.87–0.97× on two (`interleaved.rs`); on the 2-core Intel
-/// Xeon VM (Sapphire Rapids, 2026-12-02) **0.90–1.72×** on one thread (above 1.0 in 16 of 20
-/// rounds over two runs) and 0.88–1.11× on two (above in 15 of 20), and in f16 0.90–1.03× and
-/// 0.99–1.09×. Prefetching the panels 2, 4 or 16 KiB ahead instead of 8, or into the L2 only,
-/// did not close the gap there. `SARTOR_RUNTIME_INTERLEAVE` (`0` or `1`) overrides the choice,
-/// for benchmarking; either layout gives the same bits.
+/// (`interleaved.rs`): on AMD CPUs from Zen 5 on (family 0x1A) and on targets other than
+/// x86-64; elsewhere the row-major rows, eight streams, read faster. Measured on the paper-size
+/// GRU + dense step (109 MB in f32), a throwaway harness alternating the two layouts in one
+/// process (ten rounds of 50 frames each, the median per round): on the 2-core AMD EPYC Zen 5
+/// VM interleaved took 0.73–0.77× the row-major time in f32 on one thread and 0.87–0.97× on
+/// two (`interleaved.rs`); on the 2-core Intel Xeon VM (Sapphire Rapids, 2026-12-02)
+/// **0.90–1.72×** on one thread (above 1.0 in 16 of 20 rounds over two runs) and 0.88–1.11× on
+/// two (above in 15 of 20), and in f16 0.90–1.03× and 0.99–1.09×. Prefetching the panels 2, 4
+/// or 16 KiB ahead instead of 8, or into the L2 only, did not close the gap there. On the
+/// 2-core AMD EPYC Zen 3 VM (family 0x19, AVX2 only, 32 MiB of L3; 2026-12-07), the 13,272 ×
+/// 1,500 and 4,500 × 1,500 products of that step alternated in one process (38 rounds of ten
+/// frames; the ratio's 10th, 50th and 90th percentiles over the rounds): interleaved
+/// **1.18 / 1.46 / 1.59×** the row-major time in f32 on one thread, 1.04 / 1.20 / 1.30× on
+/// two, f16 1.09 / 1.27 / 1.40× and 1.01 / 1.10 / 1.34×; without its prefetch still 1.11 /
+/// 1.27 / 1.43× in f32 (one panel is one stream, and one stream per core did not fetch as fast
+/// there as eight). So the AMD CPUs before Zen 5 keep the rows row-major: the paper-size f32
+/// step in `cargo xtask bench runtime --anchors` on that VM took 7.08 ms on one thread with
+/// the panels (2.0× the memory floor, 1.20× ONNX Runtime's time). `SARTOR_RUNTIME_INTERLEAVE`
+/// (`0` or `1`) overrides the choice, for benchmarking; either layout gives the same bits.
 pub(crate) fn interleave_long_rows() -> bool {
     static CHOICE: OnceLock<bool> = OnceLock::new();
     #[cfg(target_arch = "x86_64")]
-    let default = || !genuine_intel();
+    let default = || amd_family().is_some_and(|family| family >= 0x1A);
     #[cfg(not(target_arch = "x86_64"))]
     let default = || true;
     *CHOICE.get_or_init(|| overridable("SARTOR_RUNTIME_INTERLEAVE", default))

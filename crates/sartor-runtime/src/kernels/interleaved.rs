@@ -15,11 +15,13 @@
 //! batch size and thread split). The batched path gathers a row's column block into a buffer
 //! and runs the row-major tile.
 //!
-//! **Not on Intel CPUs**: there the eight prefetched row-major streams read faster
-//! (`dispatch::interleave_long_rows` has the measurements), so `Matrix` keeps such rows
+//! **Only on AMD's Zen 5 and later** (and off x86-64): on Intel CPUs the eight prefetched
+//! row-major streams read faster, and on the AMD EPYC Zen 3 VM the eight plain ones (one panel,
+//! one stream, fetched more slowly there: 1.46× the row-major time in f32 on one thread;
+//! `dispatch::interleave_long_rows` has the measurements), so `Matrix` keeps such rows
 //! row-major on them.
 //!
-//! Measured on the 2-core AMD EPYC VM (throwaway harnesses, each call or frame timed in turn
+//! Measured on the 2-core AMD EPYC Zen 5 VM (throwaway harnesses, each call or frame timed in turn
 //! with the row-major layout; the VM's speed drifted by a third within minutes):
 //!
 //! - the paper-size dense output layer, 13,272 × 1,500 f32 (80 MB), one thread: row-major

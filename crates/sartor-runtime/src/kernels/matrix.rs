@@ -131,7 +131,7 @@ impl Layout {
     /// panels: its row-major rows multiply integers at every width); panels for f32
     /// matrices of at most `THIN_COLS` columns and at least `PANEL` rows; interleaved rows for
     /// f32 and f16 matrices of `EIGHT_ROWS_FROM` columns or more and at least `IL_ROWS` rows
-    /// where `interleave_long_rows` says (not on Intel CPUs); rows otherwise.
+    /// where `interleave_long_rows` says (AMD's Zen 5 and later); rows otherwise.
     fn for_shape(rows: usize, cols: usize, precision: Precision) -> Self {
         if precision == Precision::Int8 && int8::quads_apply(rows, cols) {
             Self::Quads
@@ -153,8 +153,8 @@ impl Layout {
 /// f32 matrix (at most 8 columns, such as a PCA basis at a low rank) in panels of 8 rows
 /// stored column by column (`panels.rs`), for int8 rows of up to 511 columns in quad panels
 /// (`int8.rs`), for f32 and f16 rows of 512 columns or more in panels of 8 rows stored 32
-/// columns of each at a time (`interleaved.rs`; not on Intel CPUs, where row-major rows read
-/// faster); each the same results bit for bit, faster.
+/// columns of each at a time (`interleaved.rs`; on AMD's Zen 5 and later: elsewhere row-major
+/// rows read faster); each the same results bit for bit, faster.
 /// Built only from finite f32 values; immutable after construction.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Matrix {
@@ -999,7 +999,7 @@ mod tests {
             .is_err()
         );
         // Rows of 512 columns or more from 8 rows on are stored interleaved in f32 and f16
-        // (except on Intel CPUs); narrower rows, fewer rows and int8 are not.
+        // where `interleave_long_rows` says; narrower rows, fewer rows and int8 are not.
         let long = if interleave_long_rows() {
             Layout::Interleaved
         } else {
