@@ -711,6 +711,15 @@ fn the_page_works_in_headless_chromium() {
     };
     let played_from = playing();
     std::thread::sleep(Duration::from_millis(2500));
+    // At least 11 frames, waited for as the post worker's answers are below (a loaded 2-core
+    // machine can play slowly).
+    browser.wait_for(
+        &format!(
+            "window.sartor.state.framesStepped > {}",
+            played_from[0].as_f64().unwrap_or(0.0) + 10.0
+        ),
+        Duration::from_secs(30),
+    );
     let played_to = playing();
     let stepped = played_to[0].as_f64().unwrap_or(0.0) - played_from[0].as_f64().unwrap_or(0.0);
     let looked = played_to[1].as_f64().unwrap_or(f64::NAN) - played_from[1].as_f64().unwrap_or(0.0);
