@@ -427,10 +427,10 @@ pub(crate) use widest_where_present;
 ///
 /// One prefetch per row and cache line: the int8 rows' steps read 16 bytes of a row (AVX2) or
 /// 32 (AVX-512), and until 2026-12-07 each step asked for its line again. On the AMD EPYC Zen
-/// 3 VM (AVX2) the 13,272 × 1,500 and 4,500 × 1,500 int8 products, the two rules of
-/// prefetch alternated in one process (120 rounds of ten, three runs), read 0.90–0.93× the
-/// time on two threads and 0.99–1.02× on one in a slow hour of the VM's memory (0.93–0.96×
-/// in a faster one); the AVX-512 build's half of the saving was not measured.
+/// 3 VM (AVX2) the 13,272 × 1,500 and 4,500 × 1,500 int8 products, the two rules alternated
+/// in one process (three runs each), read 0.90–0.93× the time on two threads (median over the
+/// rounds) and 0.99–1.02× on one in a slow hour of the VM's memory (0.93–0.96× in a faster
+/// one; docs/speed-log.md); the AVX-512 build's half of the saving was not measured.
 #[cfg(target_arch = "x86_64")]
 const STREAM_AHEAD: usize = 2048;
 
