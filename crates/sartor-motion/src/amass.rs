@@ -45,10 +45,12 @@
 //! in metres, multiplied by [`AmassOptions::translation_scale`] (1 by default) and taken
 //! relative to the first frame.
 
+#[cfg(feature = "npz")]
 use std::path::Path;
 
 use nalgebra::{UnitQuaternion, Vector3};
 
+#[cfg(feature = "npz")]
 use crate::npz::NpzFile;
 use crate::rest_pose::SourceRest;
 use crate::retarget::RetargetBody;
@@ -191,6 +193,7 @@ impl AmassData {
     }
 
     /// Read and check an AMASS-style `.npz`.
+    #[cfg(feature = "npz")]
     pub fn read(path: &Path) -> Result<Self> {
         let mut npz = NpzFile::open(path)?;
         let (shape, poses) = npz.array_f64("poses")?;
@@ -324,6 +327,7 @@ pub fn retarget_amass(
 }
 
 /// Read an AMASS-style `.npz`, retarget it onto `body` and resample to [`sartor_core::FPS`].
+#[cfg(feature = "npz")]
 pub fn load_amass(path: &Path, body: &RetargetBody, options: &AmassOptions) -> Result<Motion> {
     let data = AmassData::read(path)?;
     let name = path

@@ -34,6 +34,7 @@ mod clearance;
 mod fnv;
 mod motion;
 mod motion_library;
+#[cfg(feature = "npz")]
 pub mod npz;
 pub mod procedural;
 mod rest_pose;
@@ -42,8 +43,10 @@ mod retarget_check;
 mod rig;
 mod sources;
 
+#[cfg(feature = "npz")]
+pub use amass::load_amass;
 pub use amass::{
-    AmassData, AmassOptions, SMPL_BODY_PARENTS, SMPL_TO_RIG, UpAxis, load_amass, retarget_amass,
+    AmassData, AmassOptions, SMPL_BODY_PARENTS, SMPL_TO_RIG, UpAxis, retarget_amass,
     retarget_amass_native_rate,
 };
 pub use bvh::{

@@ -1,5 +1,6 @@
 //! Reading numeric arrays from NumPy `.npz` archives (SMPL models, AMASS motions), converting
-//! any float or integer dtype to f64 and naming the file and array in every error.
+//! any float or integer dtype to f64 and naming the file and array in every error. An archive
+//! is a zip of `<name>.npy` files, stored or deflated (`np.savez`, `np.savez_compressed`).
 
 use std::path::{Path, PathBuf};
 
@@ -10,7 +11,7 @@ use crate::{Error, Result};
 /// An open `.npz` archive.
 pub struct NpzFile {
     path: PathBuf,
-    archive: npyz::npz::NpzArchive<std::io::Cursor<Vec<u8>>>,
+    archive: zip::ZipArchive<std::io::Cursor<Vec<u8>>>,
 }
 
 impl NpzFile {
@@ -21,7 +22,7 @@ impl NpzFile {
 
     /// Parse an archive already read from `path` (used in error messages only).
     pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self> {
-        let archive = npyz::npz::NpzArchive::new(std::io::Cursor::new(bytes))
+        let archive = zip::ZipArchive::new(std::io::Cursor::new(bytes))
             .map_err(|e| Error::format(path, format!("not a readable .npz archive: {e}")))?;
         Ok(Self {
             path: path.to_path_buf(),
@@ -34,16 +35,23 @@ impl NpzFile {
         &self.path
     }
 
+    /// The arrays' names, as the archive lists them.
+    fn array_names(&self) -> impl Iterator<Item = &str> {
+        self.archive
+            .file_names()
+            .filter_map(npyz::npz::array_name_from_file_name)
+    }
+
     /// Names of the arrays, sorted.
     pub fn names(&self) -> Vec<String> {
-        let mut n: Vec<String> = self.archive.array_names().map(str::to_string).collect();
+        let mut n: Vec<String> = self.array_names().map(str::to_string).collect();
         n.sort();
         n
     }
 
     /// Whether an array exists.
     pub fn contains(&self, name: &str) -> bool {
-        self.archive.array_names().any(|n| n == name)
+        self.array_names().any(|n| n == name)
     }
 
     /// An array as f64 in C order, with its shape. Accepts little- or big-endian f2/f4/f8, signed
@@ -52,11 +60,17 @@ impl NpzFile {
     pub fn array_f64(&mut self, name: &str) -> Result<(Vec<usize>, Vec<f64>)> {
         let path = self.path.clone();
         let fault = |m: String| Error::format(&path, format!("array {name:?}: {m}"));
-        let npy = self
+        let entry = match self
             .archive
-            .by_name(name)
-            .map_err(|e| fault(format!("cannot read: {e}")))?
-            .ok_or_else(|| Error::format(&path, format!("missing array {name:?}")))?;
+            .by_name(&npyz::npz::file_name_from_array_name(name))
+        {
+            Ok(entry) => entry,
+            Err(zip::result::ZipError::FileNotFound) => {
+                return Err(Error::format(&path, format!("missing array {name:?}")));
+            }
+            Err(e) => return Err(fault(format!("cannot read: {e}"))),
+        };
+        let npy = npyz::NpyFile::new(entry).map_err(|e| fault(format!("cannot read: {e}")))?;
         let shape: Vec<usize> = npy.shape().iter().map(|&s| s as usize).collect();
         if npy.order() == npyz::Order::Fortran && shape.len() > 1 {
             return Err(fault(

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use sartor_core::FPS;
 
-use crate::amass::{AmassOptions, UpAxis, load_amass};
+use crate::amass::UpAxis;
 use crate::bvh::{BvhRetargetOptions, load_bvh_motion, retarget_bvh};
 use crate::motion_library::{MotionWindow, is_stored_clip, load_stored_clip};
 use crate::retarget::RetargetBody;
@@ -73,12 +73,7 @@ pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> 
         };
         load_bvh_motion(Path::new(spec), body, &opts)?.0
     } else if lower.ends_with(".npz") {
-        let body = need_body("AMASS")?;
-        let opts = AmassOptions {
-            up_axis: options.up_axis,
-            ..AmassOptions::default()
-        };
-        load_amass(Path::new(spec), body, &opts)?
+        load_npz(Path::new(spec), need_body("AMASS"), options.up_axis)?
     } else if lower.ends_with(".json") {
         Motion::load_json(Path::new(spec))?
     } else if spec == WALK_NAME {
@@ -115,9 +110,37 @@ pub fn load_motion(spec: &str, options: &MotionSourceOptions) -> Result<Motion> 
     }
 }
 
+/// An AMASS `.npz` motion retargeted onto `body` (an error when the spec came without one).
+#[cfg(feature = "npz")]
+fn load_npz(path: &Path, body: Result<&RetargetBody>, up_axis: UpAxis) -> Result<Motion> {
+    let body = body?;
+    let options = crate::AmassOptions {
+        up_axis,
+        ..crate::AmassOptions::default()
+    };
+    crate::load_amass(path, body, &options)
+}
+
+/// Without the `npz` feature (the try-on page's build), an `.npz` path is refused.
+#[cfg(not(feature = "npz"))]
+fn load_npz(path: &Path, _body: Result<&RetargetBody>, _up_axis: UpAxis) -> Result<Motion> {
+    Err(Error::format(
+        path,
+        "this build reads no .npz motions (sartor-motion's `npz` feature is off)",
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    #[cfg(not(feature = "npz"))]
+    fn without_the_npz_feature_an_npz_path_is_refused_by_name() {
+        let err = load_motion("clip.npz", &MotionSourceOptions::default()).expect_err("refused");
+        let msg = err.to_string();
+        assert!(msg.contains("clip.npz") && msg.contains("`npz`"), "{msg}");
+    }
 
     #[test]
     fn unknown_spec_lists_clips() {

@@ -18,31 +18,31 @@ impl Arrays {
         self.entries.push((name.into(), shape.to_vec(), data));
     }
     fn write(&self, path: &Path, as_f32: &[&str]) {
-        let mut npz = npyz::npz::NpzWriter::create(path).expect("create");
+        let mut zip = zip::ZipWriter::new(std::fs::File::create(path).expect("create"));
         for (name, shape, data) in &self.entries {
-            let opts = npyz::zip::write::FileOptions::default();
+            zip.start_file(format!("{name}.npy"), zip::write::FileOptions::default())
+                .expect("entry");
             if as_f32.contains(&name.as_str()) {
-                let mut w = npz
-                    .array::<f32>(name, opts)
-                    .expect("entry")
+                let mut w = npyz::WriteOptions::<f32>::new()
                     .default_dtype()
                     .shape(shape)
+                    .writer(&mut zip)
                     .begin_nd()
                     .expect("begin");
                 w.extend(data.iter().map(|&x| x as f32)).expect("write");
                 w.finish().expect("finish");
             } else {
-                let mut w = npz
-                    .array::<f64>(name, opts)
-                    .expect("entry")
+                let mut w = npyz::WriteOptions::<f64>::new()
                     .default_dtype()
                     .shape(shape)
+                    .writer(&mut zip)
                     .begin_nd()
                     .expect("begin");
                 w.extend(data.iter().copied()).expect("write");
                 w.finish().expect("finish");
             }
         }
+        zip.finish().expect("the archive's directory");
     }
 }
 

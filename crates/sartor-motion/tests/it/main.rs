@@ -6,3 +6,4 @@ mod clearance;
 mod cmu_excerpts;
 mod motion_library;
 mod motion_sources;
+mod numpy_archives;

@@ -522,18 +522,20 @@ fn bvh_facing_minus_z_is_turned_around() {
 type NpzArrays = Vec<(&'static str, Vec<u64>, Vec<f64>)>;
 
 pub fn write_npz(path: &Path, arrays: &[(&str, Vec<u64>, Vec<f64>)]) {
-    let mut npz = npyz::npz::NpzWriter::create(path).expect("create");
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).expect("create"));
     for (name, shape, values) in arrays {
-        let mut w = npz
-            .array::<f64>(name, npyz::zip::write::FileOptions::default())
-            .expect("entry")
+        zip.start_file(format!("{name}.npy"), zip::write::FileOptions::default())
+            .expect("entry");
+        let mut w = npyz::WriteOptions::<f64>::new()
             .default_dtype()
             .shape(shape)
+            .writer(&mut zip)
             .begin_nd()
             .expect("begin");
         w.extend(values.iter().copied()).expect("write");
         w.finish().expect("finish");
     }
+    zip.finish().expect("the archive's directory");
 }
 
 /// Three SMPL frames: T-pose; left elbow bent 90° forward + translation; a turned root.
