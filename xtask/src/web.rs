@@ -1,7 +1,7 @@
 //! `cargo xtask web [--serve]`: the try-on page into `web/dist/` — the sartor-web module for
 //! the WebAssembly target named in `rust-toolchain.toml`, its JavaScript glue from
-//! wasm-bindgen-cli (installed by cargo into `<target>/tools` at the version of the
-//! `wasm-bindgen` crate in `Cargo.lock`, when missing), the page's sources, and the assets it
+//! wasm-bindgen's own generator (`wasm-bindgen-cli-support`, pinned in the workspace to the
+//! `wasm-bindgen` crate's version, as the glue must be), the page's sources, and the assets it
 //! loads: every shipped model (`datasets/models/*`: the T-shirt at 4,210 and 8,710 triangles)
 //! with its weight matrices in f16 (and without the linear baseline, which the page does not
 //! use), the body, the walk cycle and a few CMU clips. `--serve` then serves the folder on
@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use anyhow::{Context, bail, ensure};
+use anyhow::{Context, ensure};
 use sartor_runtime::{GarmentModel, TensorStorage};
 use serde::Serialize;
 
@@ -113,23 +113,6 @@ fn wasm_target(root: &Path) -> anyhow::Result<String> {
         .with_context(|| format!("{} lists no wasm32 target in `targets`", path.display()))
 }
 
-/// The version of `package` in `Cargo.lock`.
-fn locked_version(root: &Path, package: &str) -> anyhow::Result<String> {
-    let path = root.join("Cargo.lock");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("{}", path.display()))?;
-    let mut lines = text.lines();
-    while let Some(line) = lines.next() {
-        if line.trim() == format!("name = \"{package}\"")
-            && let Some(v) = lines
-                .next()
-                .and_then(|l| l.trim().strip_prefix("version = "))
-        {
-            return Ok(v.trim_matches('"').to_string());
-        }
-    }
-    bail!("{package} is not in {}", path.display())
-}
-
 fn target_dir(root: &Path) -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), PathBuf::from)
 }
@@ -142,50 +125,37 @@ fn run(command: &mut Command) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `<target>/tools/bin/wasm-bindgen` at `version`, installed by cargo when missing. It is
-/// built without optimisation (`--debug`): that halves the install on a fresh machine (91 s
-/// against 176 s on the 2-core development machine), and the glue it then writes for our 13 MB
-/// module is byte for byte the same, in 1.4 s instead of 0.3 s. Only that binary, without
-/// debug info and without the TLS stack the crate's test runner downloads browsers with
-/// (`--no-default-features`: ring and rustls): 92 s against 137 s on the 2-core AMD EPYC Zen 3
-/// VM, each from a fresh target folder.
-fn wasm_bindgen_cli(root: &Path, version: &str) -> anyhow::Result<PathBuf> {
-    let tools = target_dir(root).join("tools");
-    let exe = tools.join("bin").join("wasm-bindgen");
-    let current = Command::new(&exe)
-        .arg("--version")
-        .output()
-        .ok()
-        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string());
-    if current.as_deref() != Some(&format!("wasm-bindgen {version}")) {
-        println!(
-            "installing wasm-bindgen-cli {version} into {}",
-            tools.display()
-        );
-        let start = Instant::now();
-        run(
-            Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-                .args([
-                    "install",
-                    "wasm-bindgen-cli",
-                    "--locked",
-                    "--debug",
-                    "--no-default-features",
-                    "--bin",
-                    "wasm-bindgen",
-                    "--version",
-                ])
-                .arg(format!("={version}"))
-                .arg("--root")
-                .arg(&tools)
-                .env("CARGO_PROFILE_DEV_DEBUG", "0"),
-        )?;
-        println!(
-            "installed wasm-bindgen-cli in {:.0} s",
-            start.elapsed().as_secs_f64()
-        );
-    }
-    Ok(exe)
+/// The page's JavaScript glue and final module from the module cargo built, into `out`: what
+/// `wasm-bindgen --target web --no-typescript --out-dir <out> <wasm>` of the same version
+/// writes (the same options; byte for byte the same files with walrus at 0.27.2, as the
+/// command's own lock has it: the module's producers section names walrus's version), from the
+/// generator that command wraps. It is built with xtask instead of installed with `cargo install wasm-bindgen-cli`,
+/// which compiled the command's other needs too (its test runner's server and downloads, its
+/// arguments, logging): 92 to 110 s on the 2-core AMD EPYC Zen 3 VM, on every fresh machine.
+fn bindgen(wasm: &Path, out: &Path) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let mut b = wasm_bindgen_cli_support::Bindgen::new();
+    b.web(true)?;
+    // The command's defaults where they differ from the library's: a default module path in
+    // the glue's `init` (the page calls it without one), and no externref unless the module
+    // asks (the command passes its deprecated flag's `false`, over the environment's).
+    #[allow(deprecated)]
+    b.input_path(wasm)
+        .typescript(false)
+        .omit_default_module_path(false)
+        .reference_types(false);
+    b.generate(out).with_context(|| {
+        format!(
+            "generating the glue of {} into {}",
+            wasm.display(),
+            out.display()
+        )
+    })?;
+    println!(
+        "generated the page's glue in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn copy(from: &Path, to: &Path) -> anyhow::Result<u64> {
@@ -214,8 +184,6 @@ fn copy_sources(from: &Path, to: &Path) -> anyhow::Result<()> {
 
 fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
     let target = wasm_target(root)?;
-    let version = locked_version(root, "wasm-bindgen")?;
-    let bindgen = wasm_bindgen_cli(root, &version)?;
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let start = Instant::now();
     run(Command::new(&cargo)
@@ -240,10 +208,7 @@ fn build(root: &Path, dist: &Path) -> anyhow::Result<()> {
         .join(&target)
         .join("release")
         .join("sartor_web.wasm");
-    run(Command::new(&bindgen)
-        .args(["--target", "web", "--no-typescript", "--out-dir"])
-        .arg(dist.join("pkg"))
-        .arg(&wasm))?;
+    bindgen(&wasm, &dist.join("pkg"))?;
     copy_sources(&root.join("web"), dist)?;
 
     // Assets: the models in f16 without the linear baseline, the body, the motions.
