@@ -129,9 +129,10 @@ fn run(command: &mut Command) -> anyhow::Result<()> {
 /// `wasm-bindgen --target web --no-typescript --out-dir <out> <wasm>` of the same version
 /// writes (the same options; byte for byte the same files with walrus at 0.27.2, as the
 /// command's own lock has it: the module's producers section names walrus's version), from the
-/// generator that command wraps. It is built with xtask instead of installed with `cargo install wasm-bindgen-cli`,
-/// which compiled the command's other needs too (its test runner's server and downloads, its
-/// arguments, logging): 92 to 110 s on the 2-core AMD EPYC Zen 3 VM, on every fresh machine.
+/// generator that command wraps. It is built with xtask instead of installed with `cargo
+/// install wasm-bindgen-cli`, which compiled the command's other needs too (its test runner's
+/// server and downloads, its arguments, logging): 92 to 110 s on the 2-core AMD EPYC Zen 3 VM,
+/// on every fresh machine.
 fn bindgen(wasm: &Path, out: &Path) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut b = wasm_bindgen_cli_support::Bindgen::new();
