@@ -175,8 +175,12 @@ pub(crate) struct Scratch {
     vertex_stamp: Vec<u32>,
     stamp: u32,
     candidates: Vec<u32>,
-    /// [`Frame::settle`]'s exits to try: each face's nearest point.
+    /// [`Frame::settle`]'s exits to try: each face's nearest point; the faces met beyond the
+    /// ball tried so far; per face, the stamp of the last vertex that met it (apart from
+    /// `face_stamp`, which the rays that check each exit mark).
     exits: Vec<NearestFace>,
+    pending: Vec<NearestFace>,
+    exit_stamp: Vec<u32>,
 }
 
 impl Scratch {
@@ -192,6 +196,8 @@ impl Scratch {
             stamp: 0,
             candidates: Vec::with_capacity(n_faces),
             exits: Vec::with_capacity(n_faces),
+            pending: Vec::with_capacity(n_faces),
+            exit_stamp: vec![0; n_faces],
         }
     }
 
@@ -201,6 +207,7 @@ impl Scratch {
         if self.stamp == 0 {
             self.face_stamp.fill(0);
             self.vertex_stamp.fill(0);
+            self.exit_stamp.fill(0);
             self.stamp = 1;
         }
         self.stamp
@@ -631,10 +638,18 @@ impl Frame {
         grid.start.clear();
         grid.start.resize(n_cells + 1, 0);
         let mut total = 0usize;
-        for f in 0..self.faces.len() {
-            let (a, b) = grid.range(&data.lo[f], &data.hi[f]);
-            let (a, b) = (a.map(|v| v as u32), b.map(|v| v as u32));
-            grid.ranges[f] = (a, b);
+        // Each face's cell range first, in one pass (the clamps in f32, each truncation one
+        // conversion: the same cells as `Grid::range`), then the counts.
+        let inv = 1.0 / grid.cell_m;
+        let top = grid.dims.map(|n| (n - 1) as f32);
+        let cell = |x: f32, k: usize| (x * inv).max(0.0).min(top[k]) as u32;
+        for ((lo, hi), range) in data.lo.iter().zip(&data.hi).zip(&mut grid.ranges) {
+            *range = (
+                [cell(lo[0], 0), cell(lo[1], 1), cell(lo[2], 2)],
+                [cell(hi[0], 0), cell(hi[1], 1), cell(hi[2], 2)],
+            );
+        }
+        for &(a, b) in &grid.ranges {
             total += ((b[0] - a[0] + 1) * (b[1] - a[1] + 1) * (b[2] - a[2] + 1)) as usize;
             for z in a[2]..=b[2] {
                 for y in a[1]..=b[1] {
@@ -671,15 +686,19 @@ impl Frame {
                 }
             }
         }
-        fn gather(out: &mut Vec<f32>, faces: &[u32], value: impl Fn(usize) -> f32, pad: f32) {
-            out.clear();
-            out.extend(faces.iter().map(|&f| value(f as usize)));
-            out.extend([pad; LANES]);
-        }
         let faces = &grid.entries[..total];
-        for k in 0..3 {
-            gather(&mut grid.lo[k], faces, |f| data.lo[f][k], f32::INFINITY);
-            gather(&mut grid.hi[k], faces, |f| data.hi[f][k], f32::INFINITY);
+        // One pass over the entries: each face's box read once for its six values.
+        for v in grid.lo.iter_mut().chain(&mut grid.hi) {
+            v.clear();
+            v.resize(total + LANES, f32::INFINITY);
+        }
+        let [lx, ly, lz] = &mut grid.lo;
+        let [hx, hy, hz] = &mut grid.hi;
+        let boxes = lx.iter_mut().zip(ly.iter_mut()).zip(lz.iter_mut());
+        let boxes = boxes.zip(hx.iter_mut().zip(hy.iter_mut()).zip(hz.iter_mut()));
+        for (&f, (((lx, ly), lz), ((hx, hy), hz))) in faces.iter().zip(boxes) {
+            let (lo, hi) = (data.lo[f as usize], data.hi[f as usize]);
+            (*lx, *ly, *lz, *hx, *hy, *hz) = (lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
         }
         for c in (1..=n_cells).rev() {
             grid.start[c] = grid.start[c - 1];
@@ -1121,21 +1140,36 @@ impl Frame {
         }
         // Growing balls: most such vertices are within a few centimetres of the way out. The
         // exposed faces within `reach`, nearest first; the first whose landing point is outside.
+        // Each face's nearest point is computed once (one stamp for all the balls): a face
+        // beyond one ball waits in `pending` for the ball that reaches it. A face `q` lies in
+        // front of is no way out, and gets none: its nearest point `p` has `(p − q)·n ≤ −h`
+        // for `h` the plane's distance (its corners' least), and past `GUARD_M` the f32 exit
+        // test below reads that sign whatever the rounding (at most 8 cm away, `−h / dist`
+        // is below −1e-4; `x`, the corners and the test are rounded by under 1e-6).
         let mut reach = SETTLE_M / 8.0;
-        let mut tested = 0.0f32;
+        let stamp = s.next();
+        s.pending.clear();
         loop {
-            let stamp = s.next();
-            s.exits.clear();
             self.scan(&x, reach, |f, _| {
-                if s.face_stamp[f as usize] != stamp && !self.buried[f as usize] {
-                    s.face_stamp[f as usize] = stamp;
-                    if let Some(near) = proximity.nearest_among(q, &[f])
-                        && near.distance_sq.sqrt() <= f64::from(reach)
-                        && near.distance_sq.sqrt() >= f64::from(tested)
-                    {
-                        s.exits.push(near);
-                    }
+                let g = f as usize;
+                if s.exit_stamp[g] == stamp || self.buried[g] {
+                    return;
                 }
+                s.exit_stamp[g] = stamp;
+                if !self.in_front(f, &x, GUARD_M)
+                    && let Some(near) = proximity.nearest_among(q, &[f])
+                {
+                    s.pending.push(near);
+                }
+            });
+            let (pending, exits) = (&mut s.pending, &mut s.exits);
+            exits.clear();
+            pending.retain(|near| {
+                let within = near.distance_sq.sqrt() <= f64::from(reach);
+                if within {
+                    exits.push(*near);
+                }
+                !within
             });
             s.exits.sort_unstable_by(|a, b| {
                 a.distance_sq
@@ -1172,7 +1206,6 @@ impl Frame {
             if reach >= SETTLE_M {
                 return c;
             }
-            tested = reach;
             reach = (reach * 2.0).min(SETTLE_M);
         }
     }
