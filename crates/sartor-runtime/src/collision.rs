@@ -658,8 +658,8 @@ impl Collider {
         )?;
         match &mut self.certifier {
             Some(certifier) => {
-                // The certified query finds its candidate faces in its own grid and asks
-                // `closest_among` only: no tree refit, normals on demand.
+                // The certified query finds its candidate faces in its own search tree and asks
+                // `closest_among` only: no refit of the proximity's tree, normals on demand.
                 self.proximity.update_positions_lazy(&self.posed)?;
                 certifier.update(&self.posed);
             }

@@ -29,13 +29,13 @@
 //!
 //! The region the proof and the answers read is the *exposed* surface: per frame, a face whose
 //! centroid lies inside another part (the winding number along an axis ray on its normal's side,
-//! walked through the grid) is taken out of the search, so no candidate list holds it, while the
-//! pseudo-normals stay those of the whole region. A closest point on an edge or a corner of a
-//! buried face also lies on an exposed face that shares a vertex with it (a crease face), and a
-//! vertex with a crease face among its candidates is never certified: the proof above needs every
-//! face holding the closest point on the list. Its answer is checked by the same ray test
-//! (`Frame::settle`): inside, it gets the nearest way out whose landing point the ray test reads as
-//! outside.
+//! walked through the search's tree) is taken out of the search, so no candidate list holds it,
+//! while the pseudo-normals stay those of the whole region. A closest point on an edge or a corner
+//! of a buried face also lies on an exposed face that shares a vertex with it (a crease face), and
+//! a vertex with a crease face among its candidates is never certified: the proof above needs
+//! every face holding the closest point on the list. Its answer is checked by the same ray test
+//! (`Frame::settle`): inside, it gets the nearest way out whose landing point the ray test reads
+//! as outside.
 //!
 //! The region is open where the garment's body region is cut (neck, waist, arms); for the ray
 //! tests each cut is closed by a fan of triangles from its boundary loop to the loop's centre,
@@ -44,7 +44,7 @@
 //! # The work
 //!
 //! Per frame, the posed region's faces get f32 planes and corners relative to a corner of its box
-//! (boxes and centroids too where buried faces are sought: the grid and the rays read them), and
+//! (boxes and centroids too where buried faces are sought: the rays read them), and
 //! a three-level tree of boxes over its spatial clusters of 16 faces (`search.rs`),
 //! both in one pass over the clusters, lane by lane (`search::build`; face by face and then the
 //! tree, the same bits, took 74 µs of the shipped model's 556 µs post-process, and the one pass
@@ -57,9 +57,10 @@
 //! a warm face is *swept* (`search.rs`): the same certificate over every face whose bound lies
 //! within the warm face's distance, tested in the search's lanes without a list, which proves most
 //! vertices at a fraction of the cost (never one with a crease face in reach). The later passes and
-//! the reports search the points they ask about the same way. Only where buried faces are sought is
-//! the region also put in a uniform grid (each face in every cell its box overlaps; a counting
-//! sort): the rays and the way out of a part walk it.
+//! the reports search the points they ask about the same way. Only where buried faces are sought
+//! does the tree also keep each face's box, 16 to a block: the rays and the way out of a part walk
+//! it (until 2026-12-08 they walked a uniform grid of the faces, rebuilt per frame for them alone:
+//! see [`Frame::axis_winding`]).
 //!
 //! The f32 arithmetic is covered by a 10 µm guard on every comparison (coordinates relative to
 //! the region's box, within metres; f32 rounding of the planes and distances is below a
@@ -78,7 +79,6 @@
 
 mod search;
 
-use crate::kernels::LaneMask;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use sartor_core::{
@@ -88,30 +88,14 @@ use search::{Search, Sweeps};
 
 /// Slack on every f32 comparison of the certificates, metres.
 const GUARD_M: f32 = 1e-5;
-/// Grid cell edge, metres (a body triangle and a half, about the typical cloth–body
-/// distance). 2 cm until 2026-12-04; 3 cm walks fewer cells a ray for a few more entries a
-/// cell: at two bodies beyond the training shapes (the try-on page's heavy 1.90 m and a light
-/// one) on CMU 05_06, 02_02 and 06_06 the post-process took 2.52–2.59 → 2.39–2.41 ms a frame
-/// (4 cm: 2.37–2.43; AMD EPYC VM, four runs each), the same bits ([`ORIGIN_PAD_M`]).
-const CELL_M: f32 = 0.03;
 /// The region's relative coordinates start this far below its box, metres: the f32 rounding of
-/// every plane, box and ray is that of this corner, whatever the cell.
+/// every plane, box and ray is that of this corner.
 const ORIGIN_PAD_M: f32 = 0.02;
-/// At most this many grid cells (the cell grows for a very large region or pose).
-const MAX_CELLS: usize = 1 << 18;
-/// Face–cell entries allowed per face on average before the cell grows.
-const ENTRIES_PER_FACE: usize = 32;
 /// A face whose normal is less reliable than this (|e1 × e2| below this fraction of
 /// |e1| |e2|: an angle under 3°, a sliver) never passes the plane test.
 const MIN_SINE: f32 = 0.05;
-/// Lanes of the entry scan: the 16 of [`LaneMask::at_most`]. Eight lanes tested with `&` of
-/// five comparisons each compiled to scalar compares per lane; the largest of the five
-/// differences, 16 lanes at once and one mask, took the post-process of bodies beyond the
-/// training shapes 5–8 % faster (`cargo bench -p sartor-runtime --bench postprocess`,
-/// `certified-buried` 1.86 → 1.70–1.73 ms, two rounds in turn; the same bits).
-const LANES: usize = 16;
-/// How far the winding tests' rays run, metres: unbounded, i.e. to the grid's edge (the
-/// region's box and a cell more), which every ray reaches outside the closed region. A cap of
+/// How far the winding tests' rays run, metres: unbounded (every face ahead of the ray's start
+/// is tested), which takes every ray out of the closed region. A cap of
 /// 0.5 m cut short the rays that run the length of a limb or the torso inside it: over the
 /// 272 frames of extreme bodies in the runtime's tests it missed 90 buried faces (12,963
 /// found), each of which reads inside along all six axis directions; without the cap, rays
@@ -131,47 +115,18 @@ const CAP_BOX_PAD_M: f32 = 1e-6;
 /// face itself).
 const BURIED_START_M: f32 = 1e-4;
 
-/// The region as a uniform grid of faces, rebuilt per frame.
-#[derive(Clone, Debug)]
-struct Grid {
-    origin: Vector3<f64>,
-    cell_m: f32,
-    dims: [usize; 3],
-    /// Per cell (x fastest), its entries `[start[c], start[c + 1])`.
-    start: Vec<u32>,
-    /// Per entry: the face and its box (copied in cell order, so a row of cells is one
-    /// contiguous run to scan; the face's plane is read from the face data where needed).
-    entries: Vec<u32>,
-    lo: [Vec<f32>; 3],
-    hi: [Vec<f32>; 3],
-    /// How the rays' lane tests make their masks on this CPU.
-    mask: LaneMask,
-    /// Per face, its cell range (lower and upper corner), computed once per frame.
-    ranges: Vec<([u32; 3], [u32; 3])>,
-    /// Per axis `k`, per row of cells along it (the other two indices, in order, the lower
-    /// fastest), the first and last cell along `k` that holds an entry (first past last:
-    /// none): an axis ray ([`Frame::axis_winding`]) stops past its row's last. Built with the
-    /// grid where buried faces are sought.
-    first: [Vec<u16>; 3],
-    last: [Vec<u16>; 3],
-}
-
-/// The posed region's faces relative to the grid corner, in f32.
+/// The posed region's faces relative to the region's corner ([`Frame`]'s `origin`), in f32.
 #[derive(Clone, Debug, Default)]
 struct Faces {
-    /// Boxes and centroids: written only where the grid is built (buried faces sought);
-    /// elsewhere [`Frame::face_box`] reads a box from the corners.
-    lo: Vec<[f32; 3]>,
-    hi: Vec<[f32; 3]>,
     /// `(n, o)`: `n·x − o = min_j (x − v_j)·n` over the corners, `o = +∞` for a sliver.
     plane: Vec<[f32; 4]>,
+    /// Written only where buried faces are sought (the rays start there).
     centroid: Vec<[f32; 3]>,
 }
 
 /// Per-task scratch: dedup stamps and the candidate list.
 #[derive(Clone, Debug)]
 pub(crate) struct Scratch {
-    face_stamp: Vec<u32>,
     vertex_stamp: Vec<u32>,
     stamp: u32,
     candidates: Vec<u32>,
@@ -191,7 +146,6 @@ impl Scratch {
 
     fn new(n_faces: usize, n_vertices: usize) -> Self {
         Self {
-            face_stamp: vec![0; n_faces],
             vertex_stamp: vec![0; n_vertices],
             stamp: 0,
             candidates: Vec::with_capacity(n_faces),
@@ -205,7 +159,6 @@ impl Scratch {
     fn next(&mut self) -> u32 {
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
-            self.face_stamp.fill(0);
             self.vertex_stamp.fill(0);
             self.exit_stamp.fill(0);
             self.stamp = 1;
@@ -293,7 +246,7 @@ impl CertifyStats {
     }
 }
 
-/// The region as posed this frame: faces, fans, grid.
+/// The region as posed this frame: faces, fans, the search's tree.
 #[derive(Clone, Debug)]
 pub(crate) struct Frame {
     faces: Vec<[u32; 3]>,
@@ -308,9 +261,11 @@ pub(crate) struct Frame {
     /// Per region vertex, the faces around it (CSR).
     fan_offsets: Vec<u32>,
     fan: Vec<u32>,
+    /// The corner the relative coordinates start from (f64), and the region's vertices
+    /// relative to it.
+    origin: Vector3<f64>,
     rel: Vec<[f32; 3]>,
     data: Faces,
-    grid: Grid,
     /// Whether [`Frame::mark_buried`] runs.
     find_buried: bool,
     /// Per face, buried inside another body part this frame (see [`Frame::mark_buried`]).
@@ -318,9 +273,7 @@ pub(crate) struct Frame {
     n_buried: usize,
     /// Per face, exposed but sharing a vertex with a buried face (see [`Frame::settle`]).
     crease: Vec<bool>,
-    /// Scratch of [`Frame::mark_buried`]: per face, the last ray that tested it; per vertex,
-    /// whether a buried face uses it.
-    ray_seen: Vec<u32>,
+    /// Scratch of [`Frame::mark_buried`]: per vertex, whether a buried face uses it.
     vertex_touches_buried: Vec<bool>,
     /// The region's cuts closed for the ray tests: per boundary edge `(a, b, loop)`, the cap
     /// triangle `(b, a, centre of loop)` (oriented as the face it borders).
@@ -472,36 +425,16 @@ impl Certifier {
                 tree: search::Tree::default(),
                 fan_offsets,
                 fan,
+                origin: Vector3::zeros(),
                 rel: vec![[0.0; 3]; n_vertices],
                 data: Faces {
-                    lo: vec![[0.0; 3]; n_f],
-                    hi: vec![[0.0; 3]; n_f],
                     plane: vec![[0.0; 4]; n_f],
                     centroid: vec![[0.0; 3]; n_f],
-                },
-                grid: Grid {
-                    origin: Vector3::zeros(),
-                    cell_m: CELL_M,
-                    dims: [1; 3],
-                    start: Vec::with_capacity(MAX_CELLS + 1),
-                    entries: Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES),
-                    lo: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
-                    hi: std::array::from_fn(|_| Vec::with_capacity(n_f * ENTRIES_PER_FACE + LANES)),
-                    mask: LaneMask::detect(),
-                    ranges: vec![([0; 3], [0; 3]); n_f],
-                    // A dimension is at least 3 cells, so a row count at most a third of them.
-                    first: std::array::from_fn(|_| {
-                        Vec::with_capacity(if buried { MAX_CELLS / 3 } else { 0 })
-                    }),
-                    last: std::array::from_fn(|_| {
-                        Vec::with_capacity(if buried { MAX_CELLS / 3 } else { 0 })
-                    }),
                 },
                 find_buried: buried,
                 buried: vec![false; n_f],
                 n_buried: 0,
                 crease: vec![false; n_f],
-                ray_seen: vec![0; n_f],
                 vertex_touches_buried: vec![false; n_vertices],
                 caps,
                 loop_offsets,
@@ -536,14 +469,10 @@ impl Certifier {
         }
     }
 
-    /// Rebuild the face data and the grid from the posed region. Allocation-free.
+    /// Rebuild the face data and the search's tree from the posed region, and find the buried
+    /// faces where they are sought. Allocation-free.
     pub(crate) fn update(&mut self, posed: &[Vector3<f64>]) {
-        let mut cell = CELL_M;
-        // The grid serves the buried-face rays and the way out of a part (`settle`) only.
-        let with_grid = self.frame.find_buried;
-        while !self.frame.try_update(posed, cell, with_grid) {
-            cell *= 1.5;
-        }
+        self.frame.update(posed);
     }
 
     /// The posed region.
@@ -554,10 +483,8 @@ impl Certifier {
 }
 
 impl Frame {
-    /// [`Certifier::update`] with cells of `cell` metres; `false` (and nothing usable) when the
-    /// grid would need more cells or entries than it has room for.
-    /// Without `with_grid` only the face data (the search's input) is rebuilt.
-    fn try_update(&mut self, posed: &[Vector3<f64>], cell: f32, with_grid: bool) -> bool {
+    /// [`Certifier::update`].
+    fn update(&mut self, posed: &[Vector3<f64>]) {
         let (mut lo, mut hi) = (
             Vector3::repeat(f64::INFINITY),
             Vector3::repeat(f64::NEG_INFINITY),
@@ -566,17 +493,9 @@ impl Frame {
             lo = lo.inf(p);
             hi = hi.sup(p);
         }
-        let dims = (hi - lo).map(|e| (e / f64::from(cell)).floor() as usize + 3);
-        let n_cells = dims.x * dims.y * dims.z;
-        if n_cells > MAX_CELLS {
-            return false;
-        }
-        let grid = &mut self.grid;
-        grid.cell_m = cell;
-        grid.dims = [dims.x, dims.y, dims.z];
-        grid.origin = lo - Vector3::repeat(f64::from(ORIGIN_PAD_M));
+        self.origin = lo - Vector3::repeat(f64::from(ORIGIN_PAD_M));
         for (r, p) in self.rel.iter_mut().zip(posed) {
-            let d = p - grid.origin;
+            let d = p - self.origin;
             *r = [d.x as f32, d.y as f32, d.z as f32];
         }
         // The cuts' caps serve the ray tests of buried faces only.
@@ -626,81 +545,9 @@ impl Frame {
             posed,
             &mut self.data,
             &mut self.cluster_box,
-            // Boxes and centroids for the grid and the rays only.
-            with_grid,
+            // The faces' boxes and centroids for the rays and the ways out only.
+            self.find_buried,
         );
-        let data = &self.data;
-        if !with_grid {
-            return true;
-        }
-        // Counting sort of the face–cell entries.
-        let [nx, ny, _] = grid.dims;
-        grid.start.clear();
-        grid.start.resize(n_cells + 1, 0);
-        let mut total = 0usize;
-        // Each face's cell range first, in one pass, then the counts.
-        for f in 0..self.faces.len() {
-            let (a, b) = grid.range(&data.lo[f], &data.hi[f]);
-            grid.ranges[f] = (a.map(|v| v as u32), b.map(|v| v as u32));
-        }
-        for &(a, b) in &grid.ranges {
-            total += ((b[0] - a[0] + 1) * (b[1] - a[1] + 1) * (b[2] - a[2] + 1)) as usize;
-            for z in a[2]..=b[2] {
-                for y in a[1]..=b[1] {
-                    let row = (z as usize * ny + y as usize) * nx + 1;
-                    for c in &mut grid.start[row + a[0] as usize..=row + b[0] as usize] {
-                        *c += 1;
-                    }
-                }
-            }
-        }
-        if total + LANES > grid.entries.capacity() {
-            return false;
-        }
-        for c in 0..n_cells {
-            grid.start[c + 1] += grid.start[c];
-        }
-        // The faces into their cells' entries (`LANES` padding entries at the end: far away,
-        // never a hit), then each entry's box gathered in entry order: each array written in
-        // sequence, not scattered (the scatter of the boxes and planes, eleven arrays, was most
-        // of the update's time in `perf`; the planes, which only the rare ways out read, are no
-        // longer copied).
-        grid.entries.clear();
-        grid.entries.resize(total + LANES, 0);
-        let start = grid.start.as_mut_slice();
-        for (f, &(a, b)) in grid.ranges.iter().enumerate() {
-            for z in a[2]..=b[2] {
-                for y in a[1]..=b[1] {
-                    let row = (z as usize * ny + y as usize) * nx;
-                    for cursor in &mut start[row + a[0] as usize..=row + b[0] as usize] {
-                        // `start[c]` is the fill cursor here, shifted back below.
-                        grid.entries[*cursor as usize] = f as u32;
-                        *cursor += 1;
-                    }
-                }
-            }
-        }
-        let faces = &grid.entries[..total];
-        // One pass over the entries: each face's box read once for its six values.
-        for v in grid.lo.iter_mut().chain(&mut grid.hi) {
-            v.clear();
-            v.resize(total + LANES, f32::INFINITY);
-        }
-        let [lx, ly, lz] = &mut grid.lo;
-        let [hx, hy, hz] = &mut grid.hi;
-        let boxes = lx.iter_mut().zip(ly.iter_mut()).zip(lz.iter_mut());
-        let boxes = boxes.zip(hx.iter_mut().zip(hy.iter_mut()).zip(hz.iter_mut()));
-        for (&f, (((lx, ly), lz), ((hx, hy), hz))) in faces.iter().zip(boxes) {
-            let (lo, hi) = (data.lo[f as usize], data.hi[f as usize]);
-            (*lx, *ly, *lz, *hx, *hy, *hz) = (lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
-        }
-        for c in (1..=n_cells).rev() {
-            grid.start[c] = grid.start[c - 1];
-        }
-        grid.start[0] = 0;
-        if self.find_buried {
-            grid.fill_occupied();
-        }
         if self.find_buried {
             self.mark_buried();
             // The search never reaches a buried face, and the sweep proves no point near a
@@ -715,35 +562,29 @@ impl Frame {
                 }
             }
         }
-        true
     }
 
-    /// Find the faces buried inside another body part, and take them out of the grid (their
-    /// entries get an empty box, which no scan reaches): the query then answers from the exposed
-    /// surface only. Where body parts interpenetrate (an arm sunk into the torso of a heavy
-    /// body, two thighs), the closest region face of a cloth vertex inside one part can be a
-    /// face of the other part buried in the first, whose pseudo-normal reads the vertex as
-    /// outside: it would never be pushed.
+    /// Find the faces buried inside another body part (the caller takes them out of the
+    /// search's tree): the query then answers from the exposed surface only. Where body parts
+    /// interpenetrate (an arm sunk into the torso of a heavy body, two thighs), the closest
+    /// region face of a cloth vertex inside one part can be a face of the other part buried in
+    /// the first, whose pseudo-normal reads the vertex as outside: it would never be pushed.
     ///
     /// A face is buried when the ray from just in front of its centroid, along the axis nearest
     /// its outward normal, leaves the region through more faces than it enters it by
     /// ([`Frame::ray_starts_inside`]): it started inside a part. The region's cuts are closed
     /// for the rays (see the module docs).
     ///
-    /// The rays ran along the normals until 2026-11-30, each through the grid to its edge. An
-    /// axis ray stays in one row of cells and stops past the row's last face
-    /// ([`Frame::axis_winding`]), so most rays (from exposed faces, out into the open) end
-    /// within a cell or two. The two agreed on every face of 1.6 million rays (18,390 buried)
-    /// over the runtime's tests, and of the demos of the 1.90 m heavy body on `cmu/05_06` and
-    /// the 1.45 m heavy one on `cmu/02_01` (both read side by side in one build).
+    /// The rays ran along the normals until 2026-11-30, each through a grid of the faces to its
+    /// edge. Rays along the axes ([`Frame::axis_winding`]) agreed with them on every face of 1.6
+    /// million rays (18,390 buried) over the runtime's tests, and of the demos of the 1.90 m
+    /// heavy body on `cmu/05_06` and the 1.45 m heavy one on `cmu/02_01` (both read side by
+    /// side in one build).
     fn mark_buried(&mut self) {
         self.n_buried = 0;
-        let mut seen = std::mem::take(&mut self.ray_seen);
-        seen.fill(0);
         let mut buried = std::mem::take(&mut self.buried);
-        self.n_buried = buried_faces(self, &mut seen, &mut buried);
+        self.n_buried = buried_faces(self, &mut buried);
         self.buried = buried;
-        self.ray_seen = seen;
         self.crease.fill(false);
         if self.n_buried == 0 {
             return;
@@ -768,7 +609,7 @@ impl Frame {
     /// Whether the ray from just in front of face `f`'s centroid, along the axis nearest its
     /// normal, starts inside another part (a winding number above zero).
     #[inline(always)]
-    fn ray_starts_inside(&self, f: usize, seen: &mut [u32]) -> bool {
+    fn ray_starts_inside(&self, f: usize) -> bool {
         let [nx, ny, nz, o] = self.data.plane[f];
         let d = if o.is_finite() {
             // The unit normal of the face's plane (the exact query's edges, rounded once).
@@ -788,34 +629,39 @@ impl Frame {
         // Along the axis nearest the normal, on its side (at most 55° from the normal): the
         // winding number of a closed surface is the same along every ray.
         let k = (0..3).fold(0, |m, k| if d[k].abs() > d[m].abs() { k } else { m });
-        // `seen[g] == f + 1`: face g was tested for this ray.
-        self.axis_winding(o, k, d[k] > 0.0, f as u32, seen, f as u32 + 1) > 0
+        self.axis_winding(o, k, d[k] > 0.0, f as u32) > 0
     }
 
     /// The region's winding number at `o` (relative) counted along the ray from `o` along axis
     /// `k` (towards `+∞` when `positive`): the faces it leaves through minus those it enters
-    /// through (`skip` not counted), as the tests' general walk `Frame::ray_winding` counts
-    /// it. The ray stays in one row of cells, which it walks from its start to the row's last
-    /// cell with an entry ([`Grid::last`]): past it there is no face to cross, so a ray from
-    /// an exposed face out into the open stops within a cell or two, where one along the
-    /// normal walks to the grid's edge. A face the ray crosses at `x` has a box
-    /// holding `x`, so it is in `x`'s cell, in this row (the cells are indexed as the entries
-    /// are, a product with the inverse cell size, monotone).
+    /// through (`skip` not counted), as the tests' reference `Frame::ray_winding` counts it. The
+    /// faces tested are those whose box holds the ray's line and reaches its side of `o`,
+    /// found by the search's tree (`search::Tree::axis_ray`: groups, clusters and faces, 16 boxes
+    /// at a time), buried faces included; a face the ray crosses at `x` has a box holding `x`.
+    ///
+    /// Until 2026-12-08 the rays walked a uniform grid of the faces (3 cm cells, each face in
+    /// every cell its box overlaps), one row of cells from the start to the row's last face.
+    /// The grid was rebuilt every frame for the rays and the ways out alone (some 0.45 ms of a
+    /// 3 ms post-process beyond the training shapes); the tree is rebuilt anyway, for the
+    /// search, and now keeps its faces' boxes too. Its rays test more boxes (2 blocks of group
+    /// boxes, then 3.2 of cluster boxes and 2.3 of face boxes a ray, against 3.1 blocks of entry
+    /// boxes in 2.7 cells) and cost some 0.15 ms a frame more than the grid's, but the grid's
+    /// build is gone: over the 1.90 m and 1.45 m heavy, the 1.60 m light and the nominal bodies
+    /// on CMU 05_06, 02_02 and 05_10 (120 frames each, with the page's options and with the
+    /// buried faces sought always), the post-process took 0.931 of the time, the old and new
+    /// code in one process in turn, with the same garments bit for bit (2-core AMD EPYC Zen 3
+    /// VM). The rays in the clusters' order instead of the faces' measured the same (1.008).
     #[inline(always)]
-    fn axis_winding(
-        &self,
-        o: [f32; 3],
-        k: usize,
-        positive: bool,
-        skip: u32,
-        seen: &mut [u32],
-        mark: u32,
-    ) -> i32 {
+    fn axis_winding(&self, o: [f32; 3], k: usize, positive: bool, skip: u32) -> i32 {
         let mut d = [0.0f32; 3];
         d[k] = if positive { 1.0 } else { -1.0 };
         let mut winding = 0;
         let mut cross = |leaves: bool| winding += if leaves { 1 } else { -1 };
-        let (a, b) = Grid::across(k);
+        let (a, b) = match k {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
         let meets = |(lo, hi): &([f32; 3], [f32; 3])| {
             let ahead = if positive {
                 hi[k] >= o[k]
@@ -825,88 +671,19 @@ impl Frame {
             (lo[a] <= o[a]) & (o[a] <= hi[a]) & (lo[b] <= o[b]) & (o[b] <= hi[b]) & ahead
         };
         self.cross_caps(o, d, meets, &mut cross);
-        let grid = &self.grid;
-        let cell_of = |k: usize| grid.span(o[k], o[k], k).0;
-        let (i, j) = (cell_of(a), cell_of(b));
-        let row = j * grid.dims[a] + i;
-        let (first, last) = (grid.first[k][row], grid.last[k][row]);
-        if first > last {
-            return winding;
-        }
-        let (first, last) = (usize::from(first), usize::from(last));
-        let start = cell_of(k);
-        let cells = if positive {
-            start.max(first)..last + 1
-        } else {
-            first..start.min(last) + 1
-        };
-        let (a_lo, a_hi, b_lo, b_hi) = (&grid.lo[a], &grid.hi[a], &grid.lo[b], &grid.hi[b]);
-        for at in cells {
-            let c = grid.cell(k, (i, j), at);
-            let (c0, c1) = (grid.start[c] as usize, grid.start[c + 1] as usize);
-            let mut e = c0;
-            while e < c1 {
-                // A block of entries' boxes at once: across the ray they hold it, along it
-                // they reach its side of the start. Each condition `x ≤ y` is `x − y ≤ 0`
-                // (the sign of an IEEE difference is exact), so a box is hit where the largest
-                // of the five differences is at most 0: one compare into a mask.
-                let (al, ah, bl, bh) = (
-                    lanes(a_lo, e),
-                    lanes(a_hi, e),
-                    lanes(b_lo, e),
-                    lanes(b_hi, e),
-                );
-                let along = lanes(if positive { &grid.hi[k] } else { &grid.lo[k] }, e);
-                let mut worst = [0.0f32; LANES];
-                for l in 0..LANES {
-                    let ahead = if positive {
-                        o[k] - along[l]
-                    } else {
-                        along[l] - o[k]
-                    };
-                    let across = fmax(
-                        fmax(al[l] - o[a], o[a] - ah[l]),
-                        fmax(bl[l] - o[b], o[b] - bh[l]),
-                    );
-                    worst[l] = fmax(across, ahead);
-                }
-                let mut hit = grid.mask.at_most(&worst, 0.0);
-                hit &= (1u32 << (c1 - e).min(LANES)) - 1;
-                self.cross_hits(o, d, (hit, e), (skip, mark), seen, &mut cross);
-                e += LANES;
+        self.tree.axis_ray(&o, k, positive, |slot| {
+            let g = self.cluster_faces[slot];
+            if g == skip {
+                return;
             }
-        }
-        winding
-    }
-
-    /// Tell `cross` of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) crossing the face of entry
-    /// `e + l`, for each bit `l` of `hit` (each face once per ray: `seen[g] == mark` once
-    /// tested; never `skip`), and whether it leaves through it.
-    #[inline(always)]
-    fn cross_hits(
-        &self,
-        o: [f32; 3],
-        d: [f32; 3],
-        (mut hit, e): (u32, usize),
-        (skip, mark): (u32, u32),
-        seen: &mut [u32],
-        cross: &mut impl FnMut(bool),
-    ) {
-        while hit != 0 {
-            let l = hit.trailing_zeros() as usize;
-            hit &= hit - 1;
-            let g = self.grid.entries[e + l];
-            if g == skip || seen[g as usize] == mark {
-                continue;
-            }
-            seen[g as usize] = mark;
             let [p, q, r] = self.faces[g as usize].map(|v| self.rel[v as usize]);
             if let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
                 && t < BURIED_RAY_M
             {
                 cross(leaves);
             }
-        }
+        });
+        winding
     }
 
     /// Tell `cross` of each crossing of the ray `o + t d` (`t` up to [`BURIED_RAY_M`]) through
@@ -943,104 +720,30 @@ impl Frame {
 
     /// The region's winding number at `o` (relative) counted along the ray `o + t d` (`d`
     /// unit, `t` up to [`BURIED_RAY_M`]): the faces it leaves through minus those it enters
-    /// through (`skip` not counted). Exact for a closed surface whatever the number of layers
-    /// it crosses. The queries' rays run along the axes since 2026-11-30
-    /// ([`Frame::axis_winding`]); this general walk is the tests' reference.
+    /// through (`skip` not counted), every face and cap tested. Exact for a closed surface
+    /// whatever the number of layers it crosses. The queries' rays run along the axes since
+    /// 2026-11-30 ([`Frame::axis_winding`]); this general ray is the tests' reference.
     #[cfg(test)]
-    fn ray_winding(&self, o: [f32; 3], d: [f32; 3], skip: u32, seen: &mut [u32], mark: u32) -> i32 {
+    fn ray_winding(&self, o: [f32; 3], d: [f32; 3], skip: u32) -> i32 {
         let mut winding = 0;
-        self.walk_ray(o, d, skip, seen, mark, |leaves| {
-            winding += if leaves { 1 } else { -1 };
-        });
+        let mut cross = |leaves: bool| winding += if leaves { 1 } else { -1 };
+        let inv = d.map(|x| 1.0 / x);
+        self.cross_caps(o, d, |(lo, hi)| ray_meets_box(&o, &inv, lo, hi), &mut cross);
+        for (g, t) in self.faces.iter().enumerate() {
+            let [p, q, r] = t.map(|v| self.rel[v as usize]);
+            if g as u32 != skip
+                && let Some((t, leaves)) = ray_triangle(o, d, p, q, r)
+                && t < BURIED_RAY_M
+            {
+                cross(leaves);
+            }
+        }
         winding
     }
 
-    /// Walk the ray `o + t d` (relative, `d` unit, `t` up to [`BURIED_RAY_M`]) through the grid
-    /// cell by cell (Amanatides and Woo), telling `cross` whether it leaves or enters the part
-    /// behind each face it crosses (but `skip`). A face in several cells is tested once
-    /// (`seen[g] == mark` once tested).
-    #[cfg(test)]
-    fn walk_ray(
-        &self,
-        o: [f32; 3],
-        d: [f32; 3],
-        skip: u32,
-        seen: &mut [u32],
-        mark: u32,
-        mut cross: impl FnMut(bool),
-    ) {
-        let grid = &self.grid;
-        let cell = grid.cell_m;
-        let mut idx = [0i64; 3];
-        let mut step = [0i64; 3];
-        let mut t_next = [f32::INFINITY; 3];
-        let mut t_delta = [f32::INFINITY; 3];
-        for k in 0..3 {
-            idx[k] = (o[k] / cell).floor() as i64;
-            if d[k] > 0.0 {
-                step[k] = 1;
-                t_next[k] = ((idx[k] + 1) as f32 * cell - o[k]) / d[k];
-                t_delta[k] = cell / d[k];
-            } else if d[k] < 0.0 {
-                step[k] = -1;
-                t_next[k] = (idx[k] as f32 * cell - o[k]) / d[k];
-                t_delta[k] = -cell / d[k];
-            }
-        }
-        let inv = d.map(|x| 1.0 / x);
-        self.cross_caps(o, d, |(lo, hi)| ray_meets_box(&o, &inv, lo, hi), &mut cross);
-        let [nx, ny, nz] = grid.dims.map(|n| n as i64);
-        let mut t_enter = 0.0f32;
-        while t_enter < BURIED_RAY_M
-            && (0..nx).contains(&idx[0])
-            && (0..ny).contains(&idx[1])
-            && (0..nz).contains(&idx[2])
-        {
-            let c = ((idx[2] * ny + idx[1]) * nx + idx[0]) as usize;
-            let (c0, c1) = (grid.start[c] as usize, grid.start[c + 1] as usize);
-            let mut e = c0;
-            while e < c1 {
-                // The boxes of eight entries at once (the padding and the next cell's entries
-                // are masked off); then each face met, once per ray.
-                let mut hit = 0u32;
-                let (lx, ly, lz) = (
-                    lanes(&grid.lo[0], e),
-                    lanes(&grid.lo[1], e),
-                    lanes(&grid.lo[2], e),
-                );
-                let (hx, hy, hz) = (
-                    lanes(&grid.hi[0], e),
-                    lanes(&grid.hi[1], e),
-                    lanes(&grid.hi[2], e),
-                );
-                for l in 0..LANES {
-                    let (ax, bx) = slab(o[0], inv[0], lx[l], hx[l]);
-                    let (ay, by) = slab(o[1], inv[1], ly[l], hy[l]);
-                    let (az, bz) = slab(o[2], inv[2], lz[l], hz[l]);
-                    let t0 = fmax(fmax(ax, ay), fmax(az, 0.0));
-                    let t1 = bx.min(by).min(bz).min(BURIED_RAY_M);
-                    hit |= u32::from(t0 <= t1) << l;
-                }
-                hit &= (1u32 << (c1 - e).min(LANES)) - 1;
-                self.cross_hits(o, d, (hit, e), (skip, mark), seen, &mut cross);
-                e += LANES;
-            }
-            let k = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-                0
-            } else if t_next[1] <= t_next[2] {
-                1
-            } else {
-                2
-            };
-            t_enter = t_next[k];
-            idx[k] += step[k];
-            t_next[k] += t_delta[k];
-        }
-    }
-
-    /// `p` relative to the grid corner, in f32.
+    /// `p` relative to the region's corner, in f32.
     fn relative(&self, p: &Vector3<f32>) -> [f32; 3] {
-        let d = p.cast::<f64>() - self.grid.origin;
+        let d = p.cast::<f64>() - self.origin;
         [d.x as f32, d.y as f32, d.z as f32]
     }
 
@@ -1088,16 +791,12 @@ impl Frame {
     }
 
     /// Whether `x` (relative) lies inside the region by a vote of three rays (along the
-    /// horizontal axis nearest `d` on its side, up and down; axis rays, which stop past their
-    /// row's last face: [`Frame::axis_winding`]): one ray grazing an edge can miss a crossing.
-    /// Until 2026-11-30 the first ray ran along `d` itself, to the grid's edge. The third ray
-    /// is cast only when the first two disagree (the vote is the same).
-    fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3], s: &mut Scratch) -> bool {
+    /// horizontal axis nearest `d` on its side, up and down: [`Frame::axis_winding`]): one ray
+    /// grazing an edge can miss a crossing. Until 2026-11-30 the first ray ran along `d`
+    /// itself. The third ray is cast only when the first two disagree (the vote is the same).
+    fn inside_by_rays(&self, x: [f32; 3], d: [f32; 3]) -> bool {
         let k = if d[0].abs() >= d[1].abs() { 0 } else { 1 };
-        let mut inside = |(k, positive): (usize, bool)| {
-            let mark = s.next();
-            self.axis_winding(x, k, positive, u32::MAX, &mut s.face_stamp, mark) > 0
-        };
+        let inside = |(k, positive): (usize, bool)| self.axis_winding(x, k, positive, u32::MAX) > 0;
         let first = inside((k, d[k] > 0.0));
         if first == inside((2, true)) {
             return first;
@@ -1126,10 +825,10 @@ impl Frame {
         if !self.crease[c.face as usize] {
             return c;
         }
-        let d = q - self.grid.origin;
+        let d = q - self.origin;
         let x = [d.x as f32, d.y as f32, d.z as f32];
         let n = [c.normal.x as f32, c.normal.y as f32, c.normal.z as f32];
-        if !self.inside_by_rays(x, n, s) {
+        if !self.inside_by_rays(x, n) {
             return c;
         }
         // Growing balls: most such vertices are within a few centimetres of the way out. The
@@ -1184,10 +883,10 @@ impl Frame {
                 if (out.x as f32) * nx + (out.y as f32) * ny + (out.z as f32) * nz <= 0.0 {
                     continue;
                 }
-                let land = near.point + out * EXIT_CHECK_M - self.grid.origin;
+                let land = near.point + out * EXIT_CHECK_M - self.origin;
                 let l = [land.x as f32, land.y as f32, land.z as f32];
                 let o = [out.x as f32, out.y as f32, out.z as f32];
-                if !self.inside_by_rays(l, o, s) {
+                if !self.inside_by_rays(l, o) {
                     return ClosestPoint {
                         face: f,
                         point: near.point,
@@ -1617,76 +1316,25 @@ fn groups(rest: &[Vector3<f32>], size: usize) -> Vec<u32> {
 }
 
 impl Frame {
-    /// Visit `(face, lower bound²)` for every grid entry within `reach` of `x` (a face may
-    /// come several times; every face whose box and plane bound are within `reach` comes).
+    /// Visit `(face, lower bound²)` for every face whose box and plane bound (the larger) lie
+    /// within `reach` of `x` (buried faces never: they are out of the tree's search). Until
+    /// 2026-12-08 a scan of the grid's cells (see [`Frame::axis_winding`]), which visited the
+    /// same faces (and the buried ones, which the caller skips).
     #[inline(always)]
     fn scan(&self, x: &[f32; 3], reach: f32, mut visit: impl FnMut(u32, f32)) {
         let r = reach + GUARD_M;
-        let r2 = r * r;
-        let (a, b) = self.grid.range(
-            &[x[0] - r, x[1] - r, x[2] - r],
-            &[x[0] + r, x[1] + r, x[2] + r],
-        );
-        let [nx, ny, _] = self.grid.dims;
-        let cell = self.grid.cell_m;
-        let gap = |i: usize, k: usize| {
-            let lo = i as f32 * cell;
-            fmax(fmax(lo - x[k], x[k] - (lo + cell)), 0.0)
-        };
-        let g = &self.grid;
-        for z in a[2]..=b[2] {
-            let gz = gap(z, 2);
-            for y in a[1]..=b[1] {
-                let gy = gap(y, 1);
-                let rest = r2 - gz * gz - gy * gy;
-                if rest < 0.0 {
-                    continue;
-                }
-                let half = rest.sqrt();
-                let (x0, x1) = g.span(x[0] - half, x[0] + half, 0);
-                let row = (z * ny + y) * nx;
-                let (c0, c1) = (g.start[row + x0] as usize, g.start[row + x1 + 1] as usize);
-                let mut e = c0;
-                while e < c1 {
-                    let (lx, ly, lz) = (lanes(&g.lo[0], e), lanes(&g.lo[1], e), lanes(&g.lo[2], e));
-                    let (hx, hy, hz) = (lanes(&g.hi[0], e), lanes(&g.hi[1], e), lanes(&g.hi[2], e));
-                    // The planes from the face data (only the rare ways out read them; the
-                    // grid keeps the boxes, which every ray reads).
-                    let mut plane = [[0.0f32; LANES]; 4];
-                    for l in 0..LANES {
-                        let p = self.data.plane[g.entries[e + l] as usize];
-                        for (k, lane) in plane.iter_mut().enumerate() {
-                            lane[l] = p[k];
-                        }
-                    }
-                    let [px, py, pz, po] = &plane;
-                    let mut lb2 = [0.0f32; LANES];
-                    for l in 0..LANES {
-                        let dx = fmax(fmax(lx[l] - x[0], x[0] - hx[l]), 0.0);
-                        let dy = fmax(fmax(ly[l] - x[1], x[1] - hy[l]), 0.0);
-                        let dz = fmax(fmax(lz[l] - x[2], x[2] - hz[l]), 0.0);
-                        let h = fmax(px[l] * x[0] + py[l] * x[1] + pz[l] * x[2] - po[l], 0.0);
-                        lb2[l] = fmax(dx * dx + dy * dy + dz * dz, h * h);
-                    }
-                    for (l, &b) in lb2.iter().enumerate() {
-                        if b <= r2 {
-                            visit(g.entries[e + l], b);
-                        }
-                    }
-                    e += LANES;
-                }
-            }
-        }
+        self.tree
+            .within_ball(x, r * r, |slot, b| visit(self.cluster_faces[slot], b));
     }
 }
 
 crate::kernels::widest_where_present! {
     /// [`Frame::ray_starts_inside`] of every face into `buried`, and how many are: built for
     /// the widest vectors present (the rays' lane box tests).
-    fn buried_faces(frame: &Frame, seen: &mut [u32], buried: &mut [bool]) -> usize {
+    fn buried_faces(frame: &Frame, buried: &mut [bool]) -> usize {
         let mut n = 0;
         for (f, b) in buried.iter_mut().enumerate() {
-            *b = frame.ray_starts_inside(f, seen);
+            *b = frame.ray_starts_inside(f);
             n += usize::from(*b);
         }
         n
@@ -1709,14 +1357,6 @@ fn caps(n_vertices: usize, faces: &[[u32; 3]]) -> (Vec<[u32; 3]>, Vec<u32>, Vec<
         offsets.push(vertices.len() as u32);
     }
     (caps, offsets, vertices)
-}
-
-/// The `LANES` values of `v` from `e` (the grid arrays are padded by `LANES`).
-#[inline(always)]
-fn lanes(v: &[f32], e: usize) -> &[f32; LANES] {
-    v[e..e + LANES]
-        .try_into()
-        .expect("a slice of LANES values is an array of LANES")
 }
 
 #[inline(always)]
@@ -1813,9 +1453,15 @@ fn fmin(a: f32, b: f32) -> f32 {
 
 #[cfg(test)]
 crate::kernels::widest_where_present! {
-    /// Each face's box, centroid and plane (see [`Faces`]) from its corners `rel` (relative,
-    /// f32) and `posed` (f64), face by face: the reference for `search::build`.
-    fn face_data(faces: &[[u32; 3]], rel: &[[f32; 3]], posed: &[Vector3<f64>], data: &mut Faces) {
+    /// Each face's centroid and plane (see [`Faces`]) from its corners `rel` (relative, f32)
+    /// and `posed` (f64), and its box, face by face: the reference for `search::build`.
+    fn face_data(
+        faces: &[[u32; 3]],
+        rel: &[[f32; 3]],
+        posed: &[Vector3<f64>],
+        data: &mut Faces,
+        boxes: &mut [([f32; 3], [f32; 3])],
+    ) {
         for (f, &[u, v, w]) in faces.iter().enumerate() {
             let (u, v, w) = (u as usize, v as usize, w as usize);
             let (a, b, c) = (rel[u], rel[v], rel[w]);
@@ -1828,8 +1474,7 @@ crate::kernels::widest_where_present! {
                 l[k] = fmin(fmin(a[k], b[k]), c[k]);
                 h[k] = fmax(fmax(a[k], b[k]), c[k]);
             }
-            data.lo[f] = l;
-            data.hi[f] = h;
+            boxes[f] = (l, h);
             data.centroid[f] = [
                 (a[0] + b[0] + c[0]) / 3.0,
                 (a[1] + b[1] + c[1]) / 3.0,
@@ -1852,91 +1497,6 @@ crate::kernels::widest_where_present! {
                 [0.0, 0.0, 0.0, f32::INFINITY]
             };
         }
-    }
-}
-
-impl Grid {
-    /// The two axes other than `k`, in order.
-    fn across(k: usize) -> (usize, usize) {
-        match k {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
-        }
-    }
-
-    /// Cell `(i, j)` of the row along axis `k` at index `at` along it.
-    #[inline(always)]
-    fn cell(&self, k: usize, (i, j): (usize, usize), at: usize) -> usize {
-        let [nx, ny, _] = self.dims;
-        let mut c = [0usize; 3];
-        let (a, b) = Self::across(k);
-        (c[a], c[b], c[k]) = (i, j, at);
-        (c[2] * ny + c[1]) * nx + c[0]
-    }
-
-    /// [`Grid::first`] and [`Grid::last`] from the cells' entry counts, in one pass over the
-    /// cells, x fastest: branch-free, so that the rows across x vectorise.
-    fn fill_occupied(&mut self) {
-        let [nx, ny, nz] = self.dims;
-        for (k, rows) in [ny * nz, nx * nz, nx * ny].into_iter().enumerate() {
-            self.first[k].clear();
-            self.first[k].resize(rows, u16::MAX);
-            self.last[k].clear();
-            self.last[k].resize(rows, 0);
-        }
-        let [first_x, first_y, first_z] = &mut self.first;
-        let [last_x, last_y, last_z] = &mut self.last;
-        for z in 0..nz {
-            for y in 0..ny {
-                let row = (z * ny + y) * nx;
-                let counts = self.start[row..row + nx + 1].windows(2);
-                let (fy, ly) = (&mut first_y[z * nx..][..nx], &mut last_y[z * nx..][..nx]);
-                let (fz, lz) = (&mut first_z[y * nx..][..nx], &mut last_z[y * nx..][..nx]);
-                let (mut fx, mut lx) = (u16::MAX, 0u16);
-                for (x, c) in counts.enumerate() {
-                    let full = c[1] > c[0];
-                    // An empty cell moves nothing: `MAX` for a first, 0 for a last.
-                    let (on, off) = (u16::from(full), u16::from(!full));
-                    let at = |v: usize| v as u16 * on + u16::MAX * off;
-                    fx = fx.min(at(x));
-                    lx = lx.max(x as u16 * on);
-                    fy[x] = fy[x].min(at(y));
-                    ly[x] = ly[x].max(y as u16 * on);
-                    fz[x] = fz[x].min(at(z));
-                    lz[x] = lz[x].max(z as u16 * on);
-                }
-                first_x[z * ny + y] = fx;
-                last_x[z * ny + y] = lx;
-            }
-        }
-    }
-
-    /// The cells `[a, b]` along axis `k` overlapped by `[lo, hi]`, clamped.
-    #[inline]
-    fn span(&self, lo: f32, hi: f32, k: usize) -> (usize, usize) {
-        (self.index(lo, k), self.index(hi, k))
-    }
-
-    /// The cells overlapped by the box `[lo, hi]` (relative coordinates), clamped to the grid.
-    #[inline]
-    fn range(&self, lo: &[f32; 3], hi: &[f32; 3]) -> ([usize; 3], [usize; 3]) {
-        (
-            [0, 1, 2].map(|k| self.index(lo[k], k)),
-            [0, 1, 2].map(|k| self.index(hi[k], k)),
-        )
-    }
-
-    /// The cell along axis `k` of the relative coordinate `x`, clamped to the grid: clamped in
-    /// f32 (NaN and negatives to 0, past the last cell to it), then one truncation, the floor
-    /// of a non-negative value (the clamp in `usize` after it cost a conversion's fix-ups: the
-    /// grid's cell counting took about 1.5 % of the post-process beyond the training shapes
-    /// more, the same cells).
-    #[inline(always)]
-    fn index(&self, x: f32, k: usize) -> usize {
-        (x * (1.0 / self.cell_m))
-            .max(0.0)
-            .min((self.dims[k] - 1) as f32) as usize
     }
 }
 
@@ -2259,14 +1819,12 @@ mod tests {
         // A's +x side (2 faces), B's −x side (2), on each of B's four long sides the triangle
         // whose centroid is in A (4), the whole of C (12).
         assert_eq!((n_buried, frame.n_buried), (20, 20));
-        // The boxes the grid was built from are those the search reads off the corners.
+        // The boxes the rays read in the tree are those the search reads off the corners.
         for k in 0..f.len() {
             let (lo, hi) = frame.face_box(k);
             let bits = |b: [f32; 3]| b.map(f32::to_bits);
-            assert_eq!(
-                (bits(lo), bits(hi)),
-                (bits(frame.data.lo[k]), bits(frame.data.hi[k]))
-            );
+            let (tree_lo, tree_hi) = frame.tree.face_box(frame.face_slot[k] as usize);
+            assert_eq!((bits(lo), bits(hi)), (bits(tree_lo), bits(tree_hi)));
         }
         // The query answers from the exposed surface: a point inside B, just in front of A's
         // buried +x side, is inside (the closest exposed face is B's), not 1 mm outside A.
@@ -2329,7 +1887,7 @@ mod tests {
         // point lies inside as many boxes as the ray's winding number counts (each box is
         // closed and convex, and the start point is in front of its own box), so a face is
         // buried exactly when its start point lies in another box: read off the box itself.
-        // The rays along the faces' normals (walked through the grid to its edge) agree.
+        // The rays along the faces' normals (every face tested) agree.
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let mut next = move || rng.random::<f64>();
@@ -2357,7 +1915,6 @@ mod tests {
         let mut certifier = Certifier::new(&v, &f, &[Vector3::zeros()], true);
         certifier.update(&v);
         let frame = certifier.frame();
-        let mut seen = vec![0u32; f.len()];
         let (mut n_buried, mut unclear) = (0, 0);
         for (i, t) in f.iter().enumerate() {
             let own = i / 12;
@@ -2389,7 +1946,7 @@ mod tests {
             let rn = cross(sub(rb, ra), sub(rc, ra));
             let rn = rn.map(|x| x / dot(rn, rn).sqrt());
             let ro = [0, 1, 2].map(|k| frame.data.centroid[i][k] + rn[k] * BURIED_START_M);
-            let along_normal = frame.ray_winding(ro, rn, i as u32, &mut seen, i as u32 + 1) > 0;
+            let along_normal = frame.ray_winding(ro, rn, i as u32) > 0;
             assert_eq!(along_normal, expected, "face {i} along its normal");
             n_buried += usize::from(expected);
         }
